@@ -1,0 +1,153 @@
+// Typed configuration of aggscan: one struct per module, defaults in the
+// struct, one comment per field. Loaded from TOML (see config/sim.toml for a
+// complete example); every problem found is reported with its file and line.
+//
+// Units: millimetres, degrees, and durations written with a unit in TOML
+// ("500ms", "2s", "1.5min"); durations are held here as nanoseconds (TimeNs).
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "common/clock.h"
+#include "common/error.h"
+
+namespace aggscan {
+
+struct DaemonConfig {
+  std::string state_dir = "/var/lib/aggscan";  // samples/, queue.db, calibration live here
+  std::string listen_address = "127.0.0.1";    // HTTP API bind address
+  int listen_port = 8470;                      // HTTP API port (0 = pick a free one, tests)
+  std::string log_level = "info";              // error|warning|notice|info|debug
+  double time_scale = 1.0;  // sim rig only: clock runs this many times faster than real time (>= 1)
+};
+
+struct CaptureConfig {
+  std::string profile = "paper";  // paper | full-turn | custom
+  int sides = 2;                  // poses of the rock (operator flips between sides)
+  int views_per_side = 30;        // photos per side
+  double step_deg = 30.0;         // turntable step between views (full-turn: 360/views_per_side)
+  TimeNs interval = 2 * kNsPerSec;         // view i of a side is due at t0 + i*interval
+  TimeNs settle = 300 * kNsPerMs;          // wait after in-position before the shot (platter oscillation)
+  TimeNs home_timeout = 30 * kNsPerSec;    // homing must finish within this
+  TimeNs move_timeout = 5 * kNsPerSec;     // one step must reach in-position within this
+  TimeNs frame_timeout = 5 * kNsPerSec;    // a still must arrive within this after the trigger
+  TimeNs poll_interval = 20 * kNsPerMs;    // turntable status polling period while moving
+  TimeNs stall_timeout = 1 * kNsPerSec;    // moving but position unchanged this long = stalled
+  int comm_retries = 2;                    // turntable communication retries before a fault
+};
+
+struct ExposureConfig {
+  bool manual = true;            // lock exposure so all views of a rock share it
+  double exposure_us = 8000.0;   // shutter time, microseconds
+  double gain = 1.0;             // analogue gain (1.0 = base ISO)
+  double wb_red = 1.0;           // white balance gains, locked like exposure
+  double wb_blue = 1.0;
+};
+
+struct CameraConfig {
+  std::string backend = "sim";   // sim (v4l2, libcamera in a later issue)
+  std::string id = "sim-cam0";   // camera id recorded in every sidecar
+  std::string device;            // device path or udev name for real backends
+  int width = 2016;              // still resolution, pixels
+  int height = 1512;
+  int jpeg_quality = 92;         // 1..100, when the driver encodes JPEG itself
+  ExposureConfig exposure;
+};
+
+struct SimTurntableFaults {
+  std::optional<double> stall_at_deg;        // motion stops at this absolute angle (stall)
+  int timeout_every_n_moves = 0;             // every n-th move the controller stops answering (0 = never)
+  std::optional<TimeNs> disconnect_after;    // device disappears this long after open
+};
+
+struct TurntableConfig {
+  std::string backend = "sim";        // sim (modbus-rtu, modbus-tcp, usb in a later issue)
+  double max_speed_deg_s = 60.0;      // trapezoidal profile speed limit
+  double accel_deg_s2 = 180.0;        // and acceleration limit
+  // Sim model of a real platter:
+  double repeatability_deg = 0.05;    // 1-sigma random angle error per move
+  double backlash_deg = 0.1;          // lost motion on direction reversal
+  double settle_amplitude_deg = 0.3;  // oscillation amplitude when the move ends
+  TimeNs settle_time_constant = 120 * kNsPerMs;  // exponential decay of that oscillation
+  double settle_frequency_hz = 6.0;   // its frequency
+  TimeNs home_duration = 1500 * kNsPerMs;  // sim homing time
+  SimTurntableFaults faults;
+};
+
+struct ButtonConfig {
+  std::string backend = "sim";   // sim (gpio, evdev, modbus in a later issue)
+  TimeNs debounce = 50 * kNsPerMs;  // presses closer than this are one press
+};
+
+struct SimConfig {
+  uint64_t seed = 1;                  // procedural rock, noise and turntable errors
+  std::string rock_mesh;              // PLY/OBJ/STL file; empty = procedural rock from seed
+  std::string rock_unit = "mm";       // unit of rock_mesh coordinates: mm | cm | m
+  double rock_size_mm = 0.0;          // procedural rock longest dimension; 0 = random 70..200 mm
+  double camera_elevation_deg = 35.0; // camera above the turntable plane, 30..45
+  double camera_distance_mm = 650.0;  // from the turntable centre
+  double hfov_deg = 40.0;             // horizontal field of view
+  double k1 = -0.08;                  // radial distortion (Brown) coefficients
+  double k2 = 0.02;
+  double noise_sigma = 2.0;           // sensor noise, 8-bit levels
+  bool write_truth = false;           // write ground-truth masks/poses next to the sample (tests)
+};
+
+struct RigMarker {
+  std::string color;   // red | green | blue | yellow
+  double x_mm = 0.0;   // centre in the turntable frame (z up, origin at the axis)
+  double y_mm = 0.0;
+};
+
+struct RigConfig {
+  double turntable_diameter_mm = 305.0;   // 30.5 cm disc, as in the source study
+  double marker_size_mm = 20.0;           // side of each square colour label
+  std::vector<RigMarker> markers = {      // the study's four background labels
+      {"red", 120.0, 0.0}, {"green", 0.0, 120.0}, {"blue", -120.0, 0.0}, {"yellow", 0.0, -120.0}};
+};
+
+struct WorkerConfig {
+  TimeNs poll_interval = 500 * kNsPerMs;  // queue polling period when idle
+  int nice = 10;                          // CPU priority below the capture daemon
+};
+
+struct Config {
+  DaemonConfig daemon;
+  CaptureConfig capture;
+  CameraConfig camera;
+  TurntableConfig turntable;
+  ButtonConfig button;
+  SimConfig sim;
+  RigConfig rig;
+  WorkerConfig worker;
+};
+
+/// One problem found in a config file.
+struct ConfigProblem {
+  std::string file;
+  int line = 0;      // 1-based, 0 when not tied to a line
+  std::string key;   // dotted key, e.g. "capture.interval"
+  std::string message;
+  std::string ToString() const;  // "file:line: key: message"
+};
+
+/// Loads and validates a TOML file on top of the defaults. Returns every
+/// problem (unknown keys, wrong types, out-of-range values), not just the first.
+Result<Config> LoadConfigFile(const std::string& path, std::vector<ConfigProblem>* problems);
+/// Same, from a string (file is used in messages).
+Result<Config> LoadConfigString(const std::string& toml, const std::string& file,
+                                std::vector<ConfigProblem>* problems);
+/// Checks cross-field rules (profile vs steps, ranges); appends problems.
+void ValidateConfig(const Config& c, const std::string& file, std::vector<ConfigProblem>* problems);
+/// Applies the capture profile: paper = 2x30x30deg@2s, full-turn = 360/N steps.
+void ApplyProfile(Config* c);
+/// Effective config as TOML (every field, durations with units).
+std::string ConfigToToml(const Config& c);
+/// "500ms", "2s", "1.5min" -> ns; false if malformed.
+bool ParseDuration(const std::string& s, TimeNs* out);
+std::string FormatDuration(TimeNs ns);
+
+}  // namespace aggscan

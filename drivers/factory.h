@@ -1,0 +1,30 @@
+// Explicit factory: picks each device backend from the config.
+#pragma once
+
+#include <memory>
+
+#include "common/clock.h"
+#include "common/error.h"
+#include "config/config.h"
+#include "drivers/button.h"
+#include "drivers/camera.h"
+#include "drivers/turntable.h"
+
+namespace aggscan {
+
+namespace sim {
+class SimWorld;
+}
+
+struct RigDevices {
+  std::shared_ptr<sim::SimWorld> world;  // set when any backend is "sim"
+  std::unique_ptr<Camera> camera;
+  std::unique_ptr<Turntable> turntable;
+  std::unique_ptr<Button> button;
+};
+
+/// Creates (does not open) the devices named by the config. Unknown backend
+/// names are a kInvalidConfig error listing the known ones.
+Result<RigDevices> CreateRig(const Config& config, Clock& clock);
+
+}  // namespace aggscan

@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# Installs every build and test dependency of aggscan from Debian 12 packages.
+# Idempotent: apt-get skips what is already installed. Run as root (or via sudo).
+set -euo pipefail
+
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
+export DEBIAN_FRONTEND=noninteractive
+
+PACKAGES=(
+  # toolchain and test tools
+  build-essential cmake pkg-config git
+  googletest libgtest-dev libgmock-dev libbenchmark-dev
+  # common / config / daemon
+  nlohmann-json3-dev libtomlplusplus-dev libcpp-httplib-dev
+  libsystemd-dev libsqlite3-dev libturbojpeg0-dev
+  # pipeline (worker only)
+  libopencv-core-dev libopencv-imgproc-dev libopencv-imgcodecs-dev
+  # systemd-analyze for the unit verification test, curl for the README demo
+  systemd curl
+)
+
+missing=()
+for p in "${PACKAGES[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+
+if [ "${#missing[@]}" -eq 0 ]; then
+  echo "install-deps: all ${#PACKAGES[@]} packages already installed"
+  exit 0
+fi
+echo "install-deps: installing ${missing[*]}"
+$SUDO apt-get update -q
+$SUDO apt-get install -y -q --no-install-recommends "${missing[@]}"

@@ -1,0 +1,41 @@
+// The on-disk layout of a sample, shared by the daemon, the worker and the CLI.
+//
+//   <state_dir>/samples/<id>/
+//     sample.json              sample record (state, plan, sides); rewritten atomically
+//     config.toml              effective config at arm time
+//     side<N>/                 N = 1..sides
+//       view_NNN.jpg           the still, exactly as the camera delivered it
+//       view_NNN.json          sidecar: angles, timestamps, exposure, schedule error
+//       manifest.json          written last: the side is complete iff it exists
+//     side<N>.interrupted-<k>/ an interrupted attempt, moved aside before a re-shoot
+//     results/                 worker output (masks/, side<N>_morph2d.json, morph2d.json)
+//     truth/                   sim ground truth (only when sim.write_truth)
+//   <state_dir>/queue.db       SQLite queue of side and sample jobs
+//
+// Files appear only under their final names when complete (see fsutil.h).
+#pragma once
+
+#include <string>
+
+namespace aggscan::layout {
+
+inline std::string SamplesDir(const std::string& state_dir) { return state_dir + "/samples"; }
+inline std::string SampleDir(const std::string& state_dir, const std::string& id) {
+  return SamplesDir(state_dir) + "/" + id;
+}
+inline std::string SideDirName(int side) { return "side" + std::to_string(side); }
+std::string ViewStem(int view);  // "view_007"
+inline std::string ViewImageName(int view) { return ViewStem(view) + ".jpg"; }
+inline std::string ViewSidecarName(int view) { return ViewStem(view) + ".json"; }
+inline constexpr const char* kManifest = "manifest.json";
+inline constexpr const char* kSampleRecord = "sample.json";
+inline constexpr const char* kConfigCopy = "config.toml";
+inline constexpr const char* kResultsDir = "results";
+inline constexpr const char* kTruthDir = "truth";
+inline std::string QueuePath(const std::string& state_dir) { return state_dir + "/queue.db"; }
+
+/// Sample ids: 1..64 chars of [A-Za-z0-9._-], not starting with '.' or '-'.
+/// Anything else could name a path outside the state directory.
+bool IsValidSampleId(const std::string& id);
+
+}  // namespace aggscan::layout
