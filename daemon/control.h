@@ -1,0 +1,36 @@
+// What the HTTP API (and through it the CLI) can ask of the running daemon.
+// Implemented by the capture service, which posts each call to its event loop
+// and waits for the answer: every method is safe to call from any thread.
+// Errors carry an ErrorClass that the API maps to an HTTP status
+// (kInvalidArgument 400, kNotFound 404, kConflict/kInvalidState 409, others 500/503).
+#pragma once
+
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "common/error.h"
+
+namespace aggscan {
+
+class DaemonControl {
+ public:
+  virtual ~DaemonControl() = default;
+  /// {"state": "idle|armed|homing|...", "sample_id", "side", "view", "views_per_side",
+  ///  "sides", "fault": {"class","message"} | null, "status_line", "devices": {...},
+  ///  "queue_depth", "uptime_s"}
+  virtual nlohmann::json GetStatus() = 0;
+  /// Arms a new sample (or resumes an unfinished one with that id).
+  virtual Result<nlohmann::json> Arm(const std::string& sample_id) = 0;
+  /// Same as pressing the physical start button. `source` e.g. "api".
+  virtual Result<nlohmann::json> Press(const std::string& source) = 0;
+  virtual Result<nlohmann::json> Abort() = 0;
+  virtual Result<nlohmann::json> Reset() = 0;
+  /// [{"id","state","created_utc","sides_done","views"}...]
+  virtual Result<nlohmann::json> ListSamples() = 0;
+  /// The sample record plus per-side view lists and job states.
+  virtual Result<nlohmann::json> GetSample(const std::string& sample_id) = 0;
+  /// Prometheus text exposition format.
+  virtual std::string Metrics() = 0;
+};
+
+}  // namespace aggscan
