@@ -1,0 +1,206 @@
+#include "store/queue.h"
+
+#include <sqlite3.h>
+
+#include "common/clock.h"
+
+namespace aggscan {
+namespace {
+
+// Finalizes a prepared statement on scope exit.
+class Stmt {
+ public:
+  Stmt(sqlite3* db, const char* sql) : db_(db) { rc_ = sqlite3_prepare_v2(db, sql, -1, &st_, nullptr); }
+  ~Stmt() { sqlite3_finalize(st_); }
+  Stmt(const Stmt&) = delete;
+  Stmt& operator=(const Stmt&) = delete;
+  bool ok() const { return rc_ == SQLITE_OK; }
+  sqlite3_stmt* get() { return st_; }
+  void Bind(int i, const std::string& s) { sqlite3_bind_text(st_, i, s.c_str(), -1, SQLITE_TRANSIENT); }
+  void Bind(int i, int64_t v) { sqlite3_bind_int64(st_, i, v); }
+  int Step() { return sqlite3_step(st_); }
+  std::string Text(int col) {
+    const unsigned char* t = sqlite3_column_text(st_, col);
+    return t ? reinterpret_cast<const char*>(t) : "";
+  }
+  int64_t Int(int col) { return sqlite3_column_int64(st_, col); }
+
+ private:
+  sqlite3* db_;
+  sqlite3_stmt* st_ = nullptr;
+  int rc_;
+};
+
+Error DbError(sqlite3* db, const std::string& what) {
+  const int code = sqlite3_errcode(db);
+  ErrorClass cls = (code == SQLITE_FULL) ? ErrorClass::kDiskFull
+                   : (code == SQLITE_CORRUPT || code == SQLITE_NOTADB) ? ErrorClass::kCorrupt
+                                                                       : ErrorClass::kIo;
+  return MakeError(cls, "job queue: " + what, sqlite3_errmsg(db));
+}
+
+std::string NowUtc() {
+  RealClock c;
+  return FormatUtc(c.UtcNs());
+}
+
+constexpr const char* kJobColumns =
+    "id, sample_id, side, state, attempts, COALESCE(error,''), created_utc, updated_utc";
+
+Job ReadJob(Stmt& st) {
+  Job j;
+  j.id = st.Int(0);
+  j.sample_id = st.Text(1);
+  j.side = static_cast<int>(st.Int(2));
+  j.state = st.Text(3);
+  j.attempts = static_cast<int>(st.Int(4));
+  j.error = st.Text(5);
+  j.created_utc = st.Text(6);
+  j.updated_utc = st.Text(7);
+  return j;
+}
+
+}  // namespace
+
+Result<std::unique_ptr<JobQueue>> JobQueue::Open(const std::string& path) {
+  sqlite3* db = nullptr;
+  const int rc = sqlite3_open_v2(path.c_str(), &db, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE | SQLITE_OPEN_FULLMUTEX,
+                                 nullptr);
+  if (rc != SQLITE_OK) {
+    Error e = MakeError(ErrorClass::kIo, "cannot open job queue " + path, db ? sqlite3_errmsg(db) : "out of memory");
+    sqlite3_close(db);
+    return e;
+  }
+  std::unique_ptr<JobQueue> q(new JobQueue(db));
+  // Another process (daemon or worker) may hold the write lock briefly.
+  sqlite3_busy_timeout(db, 5000);
+  // WAL + FULL: a committed enqueue survives power loss; readers never block the writer.
+  for (const char* sql : {"PRAGMA journal_mode=WAL", "PRAGMA synchronous=FULL",
+                          "CREATE TABLE IF NOT EXISTS jobs ("
+                          " id INTEGER PRIMARY KEY AUTOINCREMENT,"
+                          " sample_id TEXT NOT NULL,"
+                          " side INTEGER NOT NULL,"
+                          " state TEXT NOT NULL CHECK (state IN ('queued','running','done','failed')),"
+                          " attempts INTEGER NOT NULL DEFAULT 0,"
+                          " error TEXT,"
+                          " created_utc TEXT NOT NULL,"
+                          " updated_utc TEXT NOT NULL)",
+                          "CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state, id)",
+                          "CREATE INDEX IF NOT EXISTS jobs_sample ON jobs(sample_id, side)"}) {
+    Status s = q->Exec(sql);
+    if (!s) return s.error();
+  }
+  return q;
+}
+
+JobQueue::~JobQueue() { sqlite3_close(db_); }
+
+Status JobQueue::Exec(const char* sql) {
+  char* msg = nullptr;
+  if (sqlite3_exec(db_, sql, nullptr, nullptr, &msg) != SQLITE_OK) {
+    Error e = DbError(db_, std::string("cannot run ") + sql);
+    sqlite3_free(msg);
+    return e;
+  }
+  return OkStatus();
+}
+
+Result<int64_t> JobQueue::Enqueue(const std::string& sample_id, int side) {
+  Status s = Exec("BEGIN IMMEDIATE");
+  if (!s) return s.error();
+  {
+    Stmt find(db_, "SELECT id FROM jobs WHERE sample_id=? AND side=? AND state IN ('queued','running')");
+    find.Bind(1, sample_id);
+    find.Bind(2, side);
+    if (find.Step() == SQLITE_ROW) {
+      const int64_t id = find.Int(0);
+      (void)Exec("COMMIT");
+      return id;
+    }
+  }
+  const std::string now = NowUtc();
+  Stmt ins(db_, "INSERT INTO jobs(sample_id, side, state, created_utc, updated_utc) VALUES(?,?,'queued',?,?)");
+  ins.Bind(1, sample_id);
+  ins.Bind(2, side);
+  ins.Bind(3, now);
+  ins.Bind(4, now);
+  if (ins.Step() != SQLITE_DONE) {
+    Error e = DbError(db_, "cannot queue job for sample " + sample_id);
+    (void)Exec("ROLLBACK");
+    return e;
+  }
+  const int64_t id = sqlite3_last_insert_rowid(db_);
+  s = Exec("COMMIT");
+  if (!s) return s.error();
+  return id;
+}
+
+Result<std::optional<Job>> JobQueue::ClaimNext() {
+  Status s = Exec("BEGIN IMMEDIATE");
+  if (!s) return s.error();
+  std::optional<Job> job;
+  {
+    Stmt sel(db_, (std::string("SELECT ") + kJobColumns + " FROM jobs WHERE state='queued' ORDER BY id LIMIT 1").c_str());
+    if (sel.Step() == SQLITE_ROW) job = ReadJob(sel);
+  }
+  if (job) {
+    Stmt upd(db_, "UPDATE jobs SET state='running', attempts=attempts+1, updated_utc=? WHERE id=?");
+    upd.Bind(1, NowUtc());
+    upd.Bind(2, job->id);
+    if (upd.Step() != SQLITE_DONE) {
+      Error e = DbError(db_, "cannot claim job");
+      (void)Exec("ROLLBACK");
+      return e;
+    }
+    job->state = "running";
+    job->attempts += 1;
+  }
+  s = Exec("COMMIT");
+  if (!s) return s.error();
+  return job;
+}
+
+Status JobQueue::Complete(int64_t job_id) {
+  Stmt upd(db_, "UPDATE jobs SET state='done', error=NULL, updated_utc=? WHERE id=?");
+  upd.Bind(1, NowUtc());
+  upd.Bind(2, job_id);
+  if (upd.Step() != SQLITE_DONE) return DbError(db_, "cannot complete job");
+  if (sqlite3_changes(db_) != 1) return MakeError(ErrorClass::kNotFound, "job " + std::to_string(job_id) + " not found");
+  return OkStatus();
+}
+
+Status JobQueue::Fail(int64_t job_id, const std::string& error, bool requeue) {
+  Stmt upd(db_, "UPDATE jobs SET state=?, error=?, updated_utc=? WHERE id=?");
+  upd.Bind(1, std::string(requeue ? "queued" : "failed"));
+  upd.Bind(2, error);
+  upd.Bind(3, NowUtc());
+  upd.Bind(4, job_id);
+  if (upd.Step() != SQLITE_DONE) return DbError(db_, "cannot mark job failed");
+  if (sqlite3_changes(db_) != 1) return MakeError(ErrorClass::kNotFound, "job " + std::to_string(job_id) + " not found");
+  return OkStatus();
+}
+
+Result<int> JobQueue::RequeueRunning() {
+  Stmt upd(db_, "UPDATE jobs SET state='queued', updated_utc=? WHERE state='running'");
+  upd.Bind(1, NowUtc());
+  if (upd.Step() != SQLITE_DONE) return DbError(db_, "cannot requeue running jobs");
+  return sqlite3_changes(db_);
+}
+
+Result<int> JobQueue::Depth() {
+  Stmt sel(db_, "SELECT COUNT(*) FROM jobs WHERE state IN ('queued','running')");
+  if (sel.Step() != SQLITE_ROW) return DbError(db_, "cannot count jobs");
+  return static_cast<int>(sel.Int(0));
+}
+
+Result<std::vector<Job>> JobQueue::JobsForSample(const std::string& sample_id) {
+  Stmt sel(db_, (std::string("SELECT ") + kJobColumns + " FROM jobs WHERE sample_id=? ORDER BY id").c_str());
+  sel.Bind(1, sample_id);
+  std::vector<Job> out;
+  int rc;
+  while ((rc = sel.Step()) == SQLITE_ROW) out.push_back(ReadJob(sel));
+  if (rc != SQLITE_DONE) return DbError(db_, "cannot list jobs of " + sample_id);
+  return out;
+}
+
+}  // namespace aggscan
