@@ -1,0 +1,331 @@
+#include "store/sample_store.h"
+
+#include <dirent.h>
+#include <sys/stat.h>
+
+#include <algorithm>
+#include <filesystem>
+
+#include "common/clock.h"
+#include "common/fsutil.h"
+#include "store/layout.h"
+
+namespace aggscan {
+namespace {
+
+using nlohmann::json;
+namespace fs = std::filesystem;
+
+std::string NowUtc() {
+  RealClock c;
+  return FormatUtc(c.UtcNs());
+}
+
+bool IsDir(const std::string& p) {
+  struct stat st {};
+  return ::stat(p.c_str(), &st) == 0 && S_ISDIR(st.st_mode);
+}
+
+std::vector<std::string> ListDir(const std::string& dir) {
+  std::vector<std::string> names;
+  DIR* d = ::opendir(dir.c_str());
+  if (!d) return names;
+  while (dirent* e = ::readdir(d)) {
+    std::string n = e->d_name;
+    if (n != "." && n != "..") names.push_back(n);
+  }
+  ::closedir(d);
+  std::sort(names.begin(), names.end());
+  return names;
+}
+
+// Complete views of a side directory: those whose sidecar exists.
+std::vector<int> CompleteViews(const std::string& side_dir) {
+  std::vector<int> views;
+  for (const auto& n : ListDir(side_dir)) {
+    int v = -1;
+    char tail[8] = {0};
+    if (std::sscanf(n.c_str(), "view_%d.%4s", &v, tail) == 2 && std::string(tail) == "json" && v >= 0) {
+      if (PathExists(side_dir + "/" + layout::ViewImageName(v))) views.push_back(v);
+    }
+  }
+  std::sort(views.begin(), views.end());
+  return views;
+}
+
+json PlanToJson(const SamplePlan& p) {
+  return {{"profile", p.profile},
+          {"sides", p.sides},
+          {"views_per_side", p.views_per_side},
+          {"step_deg", p.step_deg},
+          {"interval_ms", p.interval_ms}};
+}
+
+bool SamePlan(const json& a, const SamplePlan& p) {
+  return a.value("sides", -1) == p.sides && a.value("views_per_side", -1) == p.views_per_side &&
+         std::abs(a.value("step_deg", -1.0) - p.step_deg) < 1e-9;
+}
+
+Error BadId(const std::string& id) {
+  return MakeError(ErrorClass::kInvalidArgument,
+                   "invalid sample id \"" + id.substr(0, 80) +
+                       "\": use 1-64 characters of A-Z a-z 0-9 . _ - (not starting with . or -)");
+}
+
+}  // namespace
+
+std::string SampleStore::SampleDir(const std::string& id) const { return layout::SampleDir(state_dir_, id); }
+
+Status SampleStore::Init() { return MakeDirsDurable(layout::SamplesDir(state_dir_)); }
+
+Status SampleStore::SaveRecord(const std::string& id, const json& rec) {
+  json r = rec;
+  r["updated_utc"] = NowUtc();
+  return WriteFileAtomic(SampleDir(id) + "/" + layout::kSampleRecord, r.dump(2) + "\n");
+}
+
+Result<json> SampleStore::LoadRecord(const std::string& id) const {
+  if (!layout::IsValidSampleId(id)) return BadId(id);
+  const std::string path = SampleDir(id) + "/" + layout::kSampleRecord;
+  if (!PathExists(SampleDir(id))) return MakeError(ErrorClass::kNotFound, "no sample \"" + id + "\"");
+  Result<std::string> text = ReadFile(path);
+  if (!text) return text.error();
+  json rec = json::parse(*text, nullptr, false);
+  if (rec.is_discarded() || !rec.is_object()) {
+    return MakeError(ErrorClass::kCorrupt, "sample record " + path + " is not valid JSON");
+  }
+  return rec;
+}
+
+Result<RecoveryReport> SampleStore::Recover() {
+  RecoveryReport rep;
+  const std::string samples = layout::SamplesDir(state_dir_);
+  rep.temp_files_removed += RemoveTempFiles(samples);
+  for (const auto& id : ListDir(samples)) {
+    const std::string dir = samples + "/" + id;
+    if (!IsDir(dir) || !layout::IsValidSampleId(id)) continue;
+    ++rep.samples;
+    rep.temp_files_removed += RemoveTempFiles(dir);
+    for (const auto& sub : ListDir(dir)) {
+      if (IsDir(dir + "/" + sub)) rep.temp_files_removed += RemoveTempFiles(dir + "/" + sub);
+    }
+    Result<json> rec = LoadRecord(id);
+    if (!rec) continue;  // a sample whose record never landed has no views either
+    json r = *rec;
+    const std::string st = r.value("state", "");
+    bool changed = false;
+    for (auto& side : r["sides"]) {
+      const int n = side.value("side", 0);
+      const bool has_manifest = PathExists(dir + "/" + layout::SideDirName(n) + "/" + layout::kManifest);
+      if (side.value("state", "") == "capturing" && !has_manifest) {
+        side["state"] = "interrupted";
+        side["views_found"] = CompleteViews(dir + "/" + layout::SideDirName(n)).size();
+        ++rep.sides_interrupted;
+        changed = true;
+      } else if (side.value("state", "") == "capturing" && has_manifest) {
+        side["state"] = "done";  // crashed between manifest and record update
+        changed = true;
+      }
+    }
+    if (st == "armed" || st == "capturing" || st == "awaiting_pose") {
+      r["state"] = "interrupted";
+      changed = true;
+      rep.interrupted_samples.push_back(id);
+    }
+    if (changed) {
+      Status s = SaveRecord(id, r);
+      if (!s) return s.error();
+    }
+  }
+  return rep;
+}
+
+Result<int> SampleStore::PrepareArm(const std::string& id, const SamplePlan& plan) const {
+  if (!layout::IsValidSampleId(id)) return BadId(id);
+  if (!PathExists(SampleDir(id))) return 1;
+  Result<json> rec = LoadRecord(id);
+  if (!rec) return rec.error();
+  const std::string st = rec->value("state", "");
+  if (st == "captured") {
+    return MakeError(ErrorClass::kConflict, "sample \"" + id + "\" is already complete; choose a new id");
+  }
+  if (!SamePlan((*rec)["plan"], plan)) {
+    return MakeError(ErrorClass::kConflict, "sample \"" + id +
+                                                "\" was started with a different capture plan; resume it with the "
+                                                "same profile or choose a new id");
+  }
+  for (int side = 1; side <= plan.sides; ++side) {
+    if (!PathExists(SampleDir(id) + "/" + layout::SideDirName(side) + "/" + layout::kManifest)) return side;
+  }
+  return MakeError(ErrorClass::kConflict, "sample \"" + id + "\" has every side captured; choose a new id");
+}
+
+Status SampleStore::CreateOrResume(const std::string& id, const SamplePlan& plan, const std::string& config_toml) {
+  if (!layout::IsValidSampleId(id)) return BadId(id);
+  const std::string dir = SampleDir(id);
+  json rec;
+  if (PathExists(dir + "/" + layout::kSampleRecord)) {
+    Result<json> r = LoadRecord(id);
+    if (!r) return r.error();
+    rec = *r;
+    rec["resumed_utc"] = NowUtc();
+  } else {
+    Status s = MakeDirsDurable(dir);
+    if (!s) return s;
+    rec = {{"id", id}, {"created_utc", NowUtc()}, {"plan", PlanToJson(plan)}, {"sides", json::array()}};
+    for (int side = 1; side <= plan.sides; ++side) {
+      rec["sides"].push_back({{"side", side}, {"state", "pending"}, {"attempts", 0}});
+    }
+  }
+  // The config in effect for this capture; a resume keeps the first copy too.
+  const std::string cfg = dir + "/" + layout::kConfigCopy;
+  if (PathExists(cfg)) {
+    Status s = WriteFileAtomic(dir + "/config.resumed-" + std::to_string(rec.value("resumes", 0) + 1) + ".toml",
+                               config_toml, true);
+    if (!s) return s;
+    rec["resumes"] = rec.value("resumes", 0) + 1;
+  } else {
+    Status s = WriteFileAtomic(cfg, config_toml, true);
+    if (!s) return s;
+  }
+  rec["state"] = "armed";
+  return SaveRecord(id, rec);
+}
+
+Status SampleStore::BeginSide(const std::string& id, int side) {
+  const std::string dir = SampleDir(id);
+  const std::string side_dir = dir + "/" + layout::SideDirName(side);
+  if (PathExists(side_dir + "/" + layout::kManifest)) {
+    return MakeError(ErrorClass::kConflict, "side " + std::to_string(side) + " of \"" + id + "\" is already complete");
+  }
+  if (PathExists(side_dir)) {
+    int k = 1;
+    while (PathExists(side_dir + ".interrupted-" + std::to_string(k))) ++k;
+    Status s = RenameDurable(side_dir, side_dir + ".interrupted-" + std::to_string(k));
+    if (!s) return s;
+  }
+  Status s = MakeDirsDurable(side_dir);
+  if (!s) return s;
+  Result<json> rec = LoadRecord(id);
+  if (!rec) return rec.error();
+  json r = *rec;
+  for (auto& sd : r["sides"]) {
+    if (sd.value("side", 0) == side) {
+      sd["state"] = "capturing";
+      sd["attempts"] = sd.value("attempts", 0) + 1;
+      sd["started_utc"] = NowUtc();
+    }
+  }
+  r["state"] = "capturing";
+  return SaveRecord(id, r);
+}
+
+Status SampleStore::WriteView(const std::string& id, int side, int view, std::span<const unsigned char> image,
+                              const json& sidecar) {
+  const std::string side_dir = SampleDir(id) + "/" + layout::SideDirName(side);
+  Status s = WriteFileAtomic(side_dir + "/" + layout::ViewImageName(view), image, /*no_replace=*/true);
+  if (!s) return s;
+  return WriteFileAtomic(side_dir + "/" + layout::ViewSidecarName(view), sidecar.dump(2) + "\n", true);
+}
+
+Status SampleStore::FinishSide(const std::string& id, int side) {
+  const std::string side_dir = SampleDir(id) + "/" + layout::SideDirName(side);
+  json views = json::array();
+  for (int v : CompleteViews(side_dir)) {
+    struct stat st {};
+    ::stat((side_dir + "/" + layout::ViewImageName(v)).c_str(), &st);
+    views.push_back({{"view", v},
+                     {"image", layout::ViewImageName(v)},
+                     {"sidecar", layout::ViewSidecarName(v)},
+                     {"bytes", static_cast<int64_t>(st.st_size)}});
+  }
+  json manifest = {{"sample_id", id}, {"side", side}, {"views", views}, {"completed_utc", NowUtc()}};
+  Status s = WriteFileAtomic(side_dir + "/" + layout::kManifest, manifest.dump(2) + "\n", true);
+  if (!s) return s;
+  Result<json> rec = LoadRecord(id);
+  if (!rec) return rec.error();
+  json r = *rec;
+  for (auto& sd : r["sides"]) {
+    if (sd.value("side", 0) == side) {
+      sd["state"] = "done";
+      sd["views"] = views.size();
+      sd["completed_utc"] = manifest["completed_utc"];
+    }
+  }
+  return SaveRecord(id, r);
+}
+
+Status SampleStore::SetSampleState(const std::string& id, const std::string& state, int side_in_progress,
+                                   const std::string& side_state) {
+  Result<json> rec = LoadRecord(id);
+  if (!rec) return rec.error();
+  json r = *rec;
+  r["state"] = state;
+  if (side_in_progress > 0 && !side_state.empty()) {
+    for (auto& sd : r["sides"]) {
+      if (sd.value("side", 0) == side_in_progress && sd.value("state", "") != "done") sd["state"] = side_state;
+    }
+  }
+  return SaveRecord(id, r);
+}
+
+Result<json> SampleStore::List() const {
+  json out = json::array();
+  const std::string samples = layout::SamplesDir(state_dir_);
+  for (const auto& id : ListDir(samples)) {
+    if (!layout::IsValidSampleId(id) || !IsDir(samples + "/" + id)) continue;
+    Result<json> rec = LoadRecord(id);
+    if (!rec) {
+      out.push_back({{"id", id}, {"state", "unreadable"}, {"error", rec.error().ToString()}});
+      continue;
+    }
+    int sides_done = 0, views = 0;
+    for (const auto& sd : (*rec)["sides"]) {
+      if (sd.value("state", "") == "done") ++sides_done;
+      views += static_cast<int>(CompleteViews(samples + "/" + id + "/" + layout::SideDirName(sd.value("side", 0))).size());
+    }
+    out.push_back({{"id", id},
+                   {"state", rec->value("state", "")},
+                   {"created_utc", rec->value("created_utc", "")},
+                   {"sides", (*rec)["plan"].value("sides", 0)},
+                   {"sides_done", sides_done},
+                   {"views", views}});
+  }
+  std::sort(out.begin(), out.end(), [](const json& a, const json& b) {
+    return a.value("created_utc", "") < b.value("created_utc", "");
+  });
+  return out;
+}
+
+Result<json> SampleStore::Describe(const std::string& id) const {
+  Result<json> rec = LoadRecord(id);
+  if (!rec) return rec.error();
+  json out = *rec;
+  const std::string dir = SampleDir(id);
+  for (auto& sd : out["sides"]) {
+    const std::string side_dir = dir + "/" + layout::SideDirName(sd.value("side", 0));
+    json views = json::array();
+    for (int v : CompleteViews(side_dir)) {
+      Result<std::string> t = ReadFile(side_dir + "/" + layout::ViewSidecarName(v));
+      json car = t ? json::parse(*t, nullptr, false) : json();
+      if (car.is_discarded()) car = json();
+      views.push_back({{"view", v},
+                       {"image", layout::SideDirName(sd.value("side", 0)) + "/" + layout::ViewImageName(v)},
+                       {"commanded_angle_deg", car.value("commanded_angle_deg", 0.0)},
+                       {"measured_angle_deg", car.value("measured_angle_deg", 0.0)},
+                       {"capture_utc", car.value("capture_utc", "")},
+                       {"schedule_error_ms", car.value("schedule_error_ms", 0.0)}});
+    }
+    sd["captured_views"] = views;
+    json attempts = json::array();
+    for (const auto& n : ListDir(dir)) {
+      if (n.rfind(layout::SideDirName(sd.value("side", 0)) + ".interrupted-", 0) == 0) {
+        attempts.push_back({{"dir", n}, {"views", CompleteViews(dir + "/" + n).size()}});
+      }
+    }
+    sd["interrupted_attempts"] = attempts;
+  }
+  return out;
+}
+
+}  // namespace aggscan

@@ -1,0 +1,79 @@
+// The durable sample store: one directory per rock (layout in store/layout.h).
+//
+// Every file goes through WriteFileAtomic (temp name, fsync, rename, fsync dir).
+// A view is complete when its sidecar exists (written after the image); a side
+// is complete when its manifest exists (written after every view). Images are
+// never overwritten: an interrupted side is moved aside, whole, before a
+// re-shoot. At start-up Recover() deletes temporary leftovers and marks any
+// side that was being captured as interrupted.
+#pragma once
+
+#include <nlohmann/json.hpp>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "common/error.h"
+
+namespace aggscan {
+
+struct SamplePlan {
+  std::string profile = "paper";
+  int sides = 2;
+  int views_per_side = 30;
+  double step_deg = 30.0;
+  int64_t interval_ms = 2000;
+};
+
+/// What Recover() found and did.
+struct RecoveryReport {
+  int samples = 0;
+  int temp_files_removed = 0;
+  int sides_interrupted = 0;   // sides that were being captured and are now marked interrupted
+  std::vector<std::string> interrupted_samples;
+};
+
+class SampleStore {
+ public:
+  explicit SampleStore(std::string state_dir) : state_dir_(std::move(state_dir)) {}
+
+  /// Creates <state_dir>/samples if needed.
+  Status Init();
+  /// Start-up recovery (see above). Safe to run on a clean store.
+  Result<RecoveryReport> Recover();
+
+  /// For arming `id`: a new id starts at side 1; an unfinished sample with the
+  /// same plan resumes at its first side without a manifest. Errors:
+  /// kInvalidArgument (bad id), kConflict (complete, or a different plan).
+  Result<int> PrepareArm(const std::string& id, const SamplePlan& plan) const;
+  /// Creates the sample directory, record and config copy (or reopens an
+  /// unfinished one) and marks it armed.
+  Status CreateOrResume(const std::string& id, const SamplePlan& plan, const std::string& config_toml);
+  /// Starts (or restarts) a side: an existing incomplete side directory is
+  /// moved aside to side<N>.interrupted-<k>, then an empty one is created.
+  Status BeginSide(const std::string& id, int side);
+  /// Stores one view: image first, then its sidecar (the completion marker).
+  /// Refuses to overwrite an existing view (kConflict).
+  Status WriteView(const std::string& id, int side, int view, std::span<const unsigned char> image,
+                   const nlohmann::json& sidecar);
+  /// Writes the side manifest listing every view; the side is then complete.
+  Status FinishSide(const std::string& id, int side);
+  /// Sample-level state: armed | capturing | awaiting_pose | captured | interrupted | aborted.
+  Status SetSampleState(const std::string& id, const std::string& state, int side_in_progress = 0,
+                        const std::string& side_state = "");
+
+  Result<nlohmann::json> LoadRecord(const std::string& id) const;
+  /// Summaries of every sample, sorted by creation time.
+  Result<nlohmann::json> List() const;
+  /// Record + the complete views of every side (+ interrupted attempts).
+  Result<nlohmann::json> Describe(const std::string& id) const;
+
+  std::string SampleDir(const std::string& id) const;
+  const std::string& state_dir() const { return state_dir_; }
+
+ private:
+  Status SaveRecord(const std::string& id, const nlohmann::json& rec);
+  std::string state_dir_;
+};
+
+}  // namespace aggscan

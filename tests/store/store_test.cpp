@@ -1,0 +1,226 @@
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <thread>
+
+#include "common/fsutil.h"
+#include "store/layout.h"
+#include "store/queue.h"
+#include "store/sample_store.h"
+
+namespace aggscan {
+namespace {
+
+namespace fs = std::filesystem;
+
+class TempDir {
+ public:
+  TempDir() {
+    char tmpl[] = "/tmp/aggscan-store-XXXXXX";
+    path_ = ::mkdtemp(tmpl);
+  }
+  ~TempDir() { fs::remove_all(path_); }
+  const std::string& path() const { return path_; }
+
+ private:
+  std::string path_;
+};
+
+std::vector<unsigned char> Bytes(const std::string& s) { return {s.begin(), s.end()}; }
+
+SamplePlan SmallPlan() {
+  SamplePlan p;
+  p.sides = 2;
+  p.views_per_side = 3;
+  p.step_deg = 120;
+  return p;
+}
+
+TEST(Layout, SampleIdValidation) {
+  for (const char* ok : {"rock-1", "RR3_2026.11.22", "a", "0123456789"}) EXPECT_TRUE(layout::IsValidSampleId(ok)) << ok;
+  for (const char* bad : {"", "..", "../x", "a/b", ".hidden", "-x", "a b", "a\nb", "x%2f", "é"}) {
+    EXPECT_FALSE(layout::IsValidSampleId(bad)) << bad;
+  }
+  EXPECT_FALSE(layout::IsValidSampleId(std::string(65, 'a')));
+  EXPECT_EQ(layout::ViewImageName(7), "view_007.jpg");
+}
+
+TEST(FsUtil, AtomicWriteNoReplaceKeepsOriginal) {
+  TempDir t;
+  const std::string p = t.path() + "/f.txt";
+  ASSERT_TRUE(WriteFileAtomic(p, std::string_view("first")));
+  Status s = WriteFileAtomic(p, std::string_view("second"), /*no_replace=*/true);
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().cls, ErrorClass::kConflict);
+  EXPECT_EQ(*ReadFile(p), "first");
+  ASSERT_TRUE(WriteFileAtomic(p, std::string_view("third")));
+  EXPECT_EQ(*ReadFile(p), "third");
+  // No temporary files are left behind.
+  int n = 0;
+  for (auto& e : fs::directory_iterator(t.path())) n += e.path().filename().string().rfind(".tmp-", 0) == 0;
+  EXPECT_EQ(n, 0);
+}
+
+TEST(SampleStore, FullSampleLifecycle) {
+  TempDir t;
+  SampleStore store(t.path());
+  ASSERT_TRUE(store.Init());
+  ASSERT_EQ(*store.PrepareArm("rock-1", SmallPlan()), 1);
+  ASSERT_TRUE(store.CreateOrResume("rock-1", SmallPlan(), "# cfg\n"));
+  for (int side = 1; side <= 2; ++side) {
+    ASSERT_TRUE(store.BeginSide("rock-1", side));
+    for (int v = 0; v < 3; ++v) {
+      ASSERT_TRUE(store.WriteView("rock-1", side, v, Bytes("jpeg" + std::to_string(v)), {{"view", v}}));
+    }
+    ASSERT_TRUE(store.FinishSide("rock-1", side));
+  }
+  ASSERT_TRUE(store.SetSampleState("rock-1", "captured"));
+  auto rec = store.Describe("rock-1");
+  ASSERT_TRUE(rec.ok());
+  EXPECT_EQ((*rec)["state"], "captured");
+  EXPECT_EQ((*rec)["sides"][1]["captured_views"].size(), 3u);
+  EXPECT_EQ((*rec)["sides"][0]["state"], "done");
+  // A complete sample cannot be re-armed, and views cannot be overwritten.
+  auto again = store.PrepareArm("rock-1", SmallPlan());
+  ASSERT_FALSE(again.ok());
+  EXPECT_EQ(again.error().cls, ErrorClass::kConflict);
+  Status over = store.WriteView("rock-1", 1, 0, Bytes("other"), {});
+  EXPECT_EQ(over.error().cls, ErrorClass::kConflict);
+  EXPECT_EQ(*ReadFile(store.SampleDir("rock-1") + "/side1/view_000.jpg"), "jpeg0");
+  EXPECT_TRUE(PathExists(store.SampleDir("rock-1") + "/config.toml"));
+  auto list = store.List();
+  ASSERT_EQ(list->size(), 1u);
+  EXPECT_EQ((*list)[0]["views"], 6);
+}
+
+TEST(SampleStore, InterruptedSideIsMarkedAndReshotWithoutLoss) {
+  TempDir t;
+  SampleStore store(t.path());
+  ASSERT_TRUE(store.Init());
+  ASSERT_TRUE(store.CreateOrResume("r", SmallPlan(), "cfg"));
+  ASSERT_TRUE(store.BeginSide("r", 1));
+  ASSERT_TRUE(store.WriteView("r", 1, 0, Bytes("v0"), {{"view", 0}}));
+  // A crash mid-write leaves a temporary file and an image without sidecar.
+  ASSERT_TRUE(WriteFileAtomic(store.SampleDir("r") + "/side1/view_001.jpg", std::string_view("half")));
+  {
+    std::FILE* f = std::fopen((store.SampleDir("r") + "/side1/.tmp-view_002.jpg.1234").c_str(), "w");
+    std::fputs("partial", f);
+    std::fclose(f);
+  }
+  SampleStore restarted(t.path());
+  auto rep = restarted.Recover();
+  ASSERT_TRUE(rep.ok());
+  EXPECT_EQ(rep->sides_interrupted, 1);
+  EXPECT_EQ(rep->temp_files_removed, 1);
+  ASSERT_EQ(rep->interrupted_samples.size(), 1u);
+  auto rec = restarted.LoadRecord("r");
+  EXPECT_EQ((*rec)["state"], "interrupted");
+  EXPECT_EQ((*rec)["sides"][0]["state"], "interrupted");
+  EXPECT_EQ((*rec)["sides"][0]["views_found"], 1);  // view 1 had no sidecar: incomplete
+  // Re-arming resumes at side 1 and moves the old attempt aside intact.
+  ASSERT_EQ(*restarted.PrepareArm("r", SmallPlan()), 1);
+  ASSERT_TRUE(restarted.CreateOrResume("r", SmallPlan(), "cfg2"));
+  ASSERT_TRUE(restarted.BeginSide("r", 1));
+  EXPECT_EQ(*ReadFile(restarted.SampleDir("r") + "/side1.interrupted-1/view_000.jpg"), "v0");
+  EXPECT_FALSE(PathExists(restarted.SampleDir("r") + "/side1/view_000.jpg"));
+  auto desc = restarted.Describe("r");
+  EXPECT_EQ((*desc)["sides"][0]["interrupted_attempts"][0]["views"], 1);
+  // A different plan for the same id is refused.
+  SamplePlan other = SmallPlan();
+  other.views_per_side = 5;
+  EXPECT_EQ(restarted.PrepareArm("r", other).error().cls, ErrorClass::kConflict);
+}
+
+TEST(SampleStore, ResumeAfterFirstSideStartsAtSecond) {
+  TempDir t;
+  SampleStore store(t.path());
+  ASSERT_TRUE(store.Init());
+  ASSERT_TRUE(store.CreateOrResume("r", SmallPlan(), "cfg"));
+  ASSERT_TRUE(store.BeginSide("r", 1));
+  for (int v = 0; v < 3; ++v) ASSERT_TRUE(store.WriteView("r", 1, v, Bytes("x"), {}));
+  ASSERT_TRUE(store.FinishSide("r", 1));
+  ASSERT_TRUE(store.SetSampleState("r", "awaiting_pose"));
+  ASSERT_TRUE(SampleStore(t.path()).Recover());
+  EXPECT_EQ(*store.PrepareArm("r", SmallPlan()), 2);
+}
+
+TEST(SampleStore, BadIdsNeverTouchTheFilesystem) {
+  TempDir t;
+  SampleStore store(t.path());
+  ASSERT_TRUE(store.Init());
+  EXPECT_EQ(store.PrepareArm("../../etc", SmallPlan()).error().cls, ErrorClass::kInvalidArgument);
+  EXPECT_EQ(store.CreateOrResume("a/b", SmallPlan(), "").error().cls, ErrorClass::kInvalidArgument);
+  EXPECT_EQ(store.LoadRecord("..").error().cls, ErrorClass::kInvalidArgument);
+  EXPECT_EQ(store.LoadRecord("nope").error().cls, ErrorClass::kNotFound);
+}
+
+TEST(JobQueue, OrderClaimCompleteAndRequeue) {
+  TempDir t;
+  auto q = JobQueue::Open(t.path() + "/queue.db");
+  ASSERT_TRUE(q.ok()) << q.error().ToString();
+  auto& queue = **q;
+  auto a = queue.Enqueue("r1", 1);
+  auto b = queue.Enqueue("r1", 2);
+  auto dup = queue.Enqueue("r1", 1);
+  ASSERT_TRUE(a.ok() && b.ok() && dup.ok());
+  EXPECT_EQ(*dup, *a);  // not queued twice
+  queue.Enqueue("r1", 0).value();
+  EXPECT_EQ(*queue.Depth(), 3);
+  auto j1 = queue.ClaimNext();
+  ASSERT_TRUE(j1.ok() && j1->has_value());
+  EXPECT_EQ((*j1)->side, 1);
+  EXPECT_EQ((*j1)->state, "running");
+  EXPECT_EQ((*j1)->attempts, 1);
+  // The worker crashes: the running job goes back to the queue.
+  EXPECT_EQ(*queue.RequeueRunning(), 1);
+  auto j1b = queue.ClaimNext();
+  EXPECT_EQ((*j1b)->id, (*j1)->id);
+  EXPECT_EQ((*j1b)->attempts, 2);
+  ASSERT_TRUE(queue.Complete((*j1b)->id));
+  auto j2 = queue.ClaimNext();
+  EXPECT_EQ((*j2)->side, 2);
+  ASSERT_TRUE(queue.Fail((*j2)->id, "bad image", /*requeue=*/false));
+  auto j3 = queue.ClaimNext();
+  EXPECT_EQ((*j3)->side, 0);
+  ASSERT_TRUE(queue.Complete((*j3)->id));
+  EXPECT_FALSE(queue.ClaimNext()->has_value());
+  EXPECT_EQ(*queue.Depth(), 0);
+  auto jobs = queue.JobsForSample("r1");
+  ASSERT_EQ(jobs->size(), 3u);
+  EXPECT_EQ((*jobs)[1].state, "failed");
+  EXPECT_EQ((*jobs)[1].error, "bad image");
+  EXPECT_EQ(queue.Complete(999).error().cls, ErrorClass::kNotFound);
+}
+
+TEST(JobQueue, TwoProcessesShareTheQueue) {
+  TempDir t;
+  const std::string path = t.path() + "/queue.db";
+  auto producer = JobQueue::Open(path);
+  auto consumer = JobQueue::Open(path);
+  ASSERT_TRUE(producer.ok() && consumer.ok());
+  std::thread prod([&] {
+    for (int i = 0; i < 50; ++i) (*producer)->Enqueue("s" + std::to_string(i), 1).value();
+  });
+  int claimed = 0;
+  for (int spins = 0; claimed < 50 && spins < 100000; ++spins) {
+    auto j = (*consumer)->ClaimNext();
+    ASSERT_TRUE(j.ok()) << j.error().ToString();
+    if (j->has_value()) {
+      EXPECT_EQ((*j)->sample_id, "s" + std::to_string(claimed));
+      ASSERT_TRUE((*consumer)->Complete((*j)->id));
+      ++claimed;
+    }
+  }
+  prod.join();
+  EXPECT_EQ(claimed, 50);
+}
+
+TEST(JobQueue, UnwritableLocationIsAClearError) {
+  auto q = JobQueue::Open("/nonexistent-dir/queue.db");
+  ASSERT_FALSE(q.ok());
+  EXPECT_NE(q.error().message.find("/nonexistent-dir/queue.db"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace aggscan
