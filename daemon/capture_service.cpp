@@ -1,0 +1,666 @@
+#include "daemon/capture_service.h"
+
+#include <cmath>
+#include <future>
+#include <sstream>
+
+#include "common/log.h"
+#include "store/layout.h"
+
+namespace aggscan {
+
+using nlohmann::json;
+namespace cs = capture;
+
+namespace {
+// A shot later than its due time by more than this counts as a schedule overrun.
+constexpr TimeNs kOverrunTolerance = 50 * kNsPerMs;
+// Motion smaller than this between polls counts as "not advancing" (stall detection).
+constexpr double kStallEpsilonDeg = 0.01;
+// How long an API call waits for the loop before answering 503.
+constexpr auto kApiWait = std::chrono::seconds(10);
+
+SamplePlan PlanFromConfig(const Config& c) {
+  SamplePlan p;
+  p.profile = c.capture.profile;
+  p.sides = c.capture.sides;
+  p.views_per_side = c.capture.views_per_side;
+  p.step_deg = c.capture.step_deg;
+  p.interval_ms = c.capture.interval / kNsPerMs;
+  return p;
+}
+
+std::string Deg(double d) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%.2f", d);
+  return b;
+}
+}  // namespace
+
+CaptureService::CaptureService(EventLoop& loop, Config config, std::string effective_config_toml, RigDevices devices,
+                               SampleStore& store, JobQueue* queue)
+    : loop_(loop),
+      config_(std::move(config)),
+      config_toml_(std::move(effective_config_toml)),
+      dev_(std::move(devices)),
+      store_(store),
+      queue_(queue) {
+  started_real_ = MonotonicNs();
+  health_["camera"] = {false, "not opened yet", ErrorClass::kDeviceMissing};
+  health_["turntable"] = {false, "not opened yet", ErrorClass::kDeviceMissing};
+  health_["button"] = {false, "not opened yet", ErrorClass::kDeviceMissing};
+}
+
+CaptureService::~CaptureService() {
+  if (dev_.button) dev_.button->Stop();
+  if (dev_.camera) dev_.camera->Close();
+  if (dev_.turntable) dev_.turntable->Close();
+}
+
+template <typename F>
+auto CaptureService::OnLoop(F fn) -> decltype(fn()) {
+  using R = decltype(fn());
+  auto prom = std::make_shared<std::promise<R>>();
+  std::future<R> fut = prom->get_future();
+  loop_.Post([prom, fn]() mutable { prom->set_value(fn()); });
+  if (fut.wait_for(kApiWait) != std::future_status::ready) {
+    if constexpr (std::is_same_v<R, json> || std::is_same_v<R, std::string>) {
+      return R{};
+    } else {
+      return MakeError(ErrorClass::kInternal, "the capture loop did not answer within 10 s");
+    }
+  }
+  return fut.get();
+}
+
+// ---------------------------------------------------------------- devices --
+
+void CaptureService::Start() {
+  OpenDevices();
+  NotifyStatus();
+}
+
+void CaptureService::OpenDevices() {
+  static RateLimitedLog rl("devices");
+  bool all_ok = true;
+  if (dev_.camera && !health_["camera"].healthy) {
+    if (dev_.camera->state() != Camera::State::kClosed) dev_.camera->Close();
+    CameraSettings cs;
+    cs.width = config_.camera.width;
+    cs.height = config_.camera.height;
+    cs.jpeg_quality = config_.camera.jpeg_quality;
+    cs.manual_exposure = config_.camera.exposure.manual;
+    cs.exposure_us = config_.camera.exposure.exposure_us;
+    cs.gain = config_.camera.exposure.gain;
+    cs.wb_red = config_.camera.exposure.wb_red;
+    cs.wb_blue = config_.camera.exposure.wb_blue;
+    Status s = dev_.camera->Open();
+    if (s) s = dev_.camera->Configure(cs);
+    if (s) {
+      health_["camera"] = {true, "ok", ErrorClass::kInternal};
+      rl.Clear("camera", "camera: available again");
+    } else {
+      health_["camera"] = {false, "camera: " + s.error().ToString(), s.error().cls};
+      rl.Error("camera", "camera: " + s.error().ToString());
+      dev_.camera->Close();
+      all_ok = false;
+    }
+  }
+  if (dev_.turntable && !health_["turntable"].healthy) {
+    dev_.turntable->Close();
+    Status s = dev_.turntable->Open();
+    if (s) {
+      health_["turntable"] = {true, "ok", ErrorClass::kInternal};
+      rl.Clear("turntable", "turntable: available again");
+    } else {
+      health_["turntable"] = {false, "turntable: " + s.error().ToString(), s.error().cls};
+      rl.Error("turntable", "turntable: " + s.error().ToString());
+      all_ok = false;
+    }
+  }
+  if (dev_.button && !health_["button"].healthy) {
+    Status s = dev_.button->Start([this](const ButtonPress& p) {
+      const std::string src = p.source;
+      loop_.Post([this, src] {
+        LogLine(LogLevel::kInfo, "capture", state_.sample_id, "start button pressed (" + src + ")");
+        Dispatch(cs::ButtonPressed{});
+      });
+    });
+    if (s) {
+      health_["button"] = {true, "ok", ErrorClass::kInternal};
+    } else {
+      health_["button"] = {false, "button: " + s.error().ToString(), s.error().cls};
+      rl.Error("button", "button: " + s.error().ToString());
+      all_ok = false;
+    }
+  }
+  if (all_ok) {
+    reopen_attempt_ = 0;
+  } else {
+    ScheduleReopen();
+  }
+}
+
+void CaptureService::ScheduleReopen() {
+  if (reopen_scheduled_) return;
+  reopen_scheduled_ = true;
+  // Backoff in real time: 1, 2, 4 ... 30 s.
+  const TimeNs delay = std::min<TimeNs>(30 * kNsPerSec, kNsPerSec << std::min(reopen_attempt_, 5));
+  ++reopen_attempt_;
+  loop_.AddRealTimer(MonotonicNs() + delay, [this] {
+    reopen_scheduled_ = false;
+    if (!state_.Active()) OpenDevices();
+    else ScheduleReopen();
+    NotifyStatus();
+  });
+}
+
+Status CaptureService::CheckDevicesHealthy() const {
+  for (const auto& [name, h] : health_) {
+    if (!h.healthy) {
+      return MakeError(h.cls, "cannot start a capture: " + h.message);
+    }
+  }
+  return OkStatus();
+}
+
+// ------------------------------------------------------------ dispatching --
+
+void CaptureService::Dispatch(cs::Event e) {
+  pending_events_.push_back(std::move(e));
+  if (dispatching_) return;  // effects may raise events: handled in order below
+  dispatching_ = true;
+  while (!pending_events_.empty()) {
+    cs::Event ev = std::move(pending_events_.front());
+    pending_events_.pop_front();
+    const cs::StepResult r = cs::Step(state_, ev);
+    if (!r.accepted) {
+      ++rejected_events_[cs::EventName(ev)];
+      LogLine(LogLevel::kWarning, "capture", state_.sample_id,
+              std::string("dropped event ") + cs::EventName(ev) + " in state " + cs::PhaseName(state_.phase) + ": " +
+                  r.reason);
+      continue;
+    }
+    const cs::Phase before = state_.phase;
+    const std::string sample = state_.sample_id.empty() ? r.next.sample_id : state_.sample_id;
+    state_ = r.next;
+    if (before != state_.phase) {
+      LogLine(LogLevel::kDebug, "capture", sample,
+              std::string(cs::PhaseName(before)) + " -> " + cs::PhaseName(state_.phase) + " on " + cs::EventName(ev));
+    }
+    // Effects refer to the sample of the transition, even when it ends in idle.
+    const std::string keep_id = state_.sample_id;
+    state_.sample_id = sample;
+    for (const auto& eff : r.effects) Execute(eff);
+    if (state_.phase == cs::Phase::kIdle) state_.sample_id = keep_id;
+    if (on_transition_) on_transition_(state_);
+    NotifyStatus();
+  }
+  dispatching_ = false;
+}
+
+uint64_t CaptureService::AddEpochTimer(TimeNs at, std::function<void()> fn) {
+  const uint64_t ep = epoch_;
+  return loop_.AddTimer(at, [this, ep, fn = std::move(fn)] {
+    if (ep == epoch_) fn();
+  });
+}
+
+void CaptureService::Fault(ErrorClass cls, const std::string& message) {
+  Dispatch(cs::DeviceFault{cls, message});
+}
+
+void CaptureService::Execute(const cs::Effect& eff) {
+  const std::string& id = state_.sample_id;
+  Clock& clock = loop_.clock();
+  std::visit(
+      [&](const auto& e) {
+        using T = std::decay_t<decltype(e)>;
+        if constexpr (std::is_same_v<T, cs::CreateSample>) {
+          Status s = store_.CreateOrResume(e.sample_id, PlanFromConfig(config_), config_toml_);
+          if (!s) {
+            pending_events_.push_back(cs::StoreFailed{s.error().cls, "cannot create sample: " + s.error().ToString()});
+          } else {
+            LogLine(LogLevel::kInfo, "capture", e.sample_id, "armed: place the rock and press the start button");
+          }
+        } else if constexpr (std::is_same_v<T, cs::Home>) {
+          Status s = dev_.turntable->StartHome();
+          if (!s) {
+            pending_events_.push_back(cs::DeviceFault{s.error().cls, "turntable: cannot start homing: " + s.error().ToString()});
+            return;
+          }
+          motion_ = MotionWatch{true, true, 0.0, clock.Now() + config_.capture.home_timeout, 0.0, clock.Now(), 0};
+          AddEpochTimer(clock.Now() + config_.capture.poll_interval, [this, ep = epoch_] { PollMotion(ep); });
+        } else if constexpr (std::is_same_v<T, cs::MoveTo>) {
+          Status s = dev_.turntable->StartMoveTo(e.angle_deg);
+          if (!s) {
+            pending_events_.push_back(
+                cs::DeviceFault{s.error().cls, "turntable: cannot start move to " + Deg(e.angle_deg) + " deg: " +
+                                                   s.error().ToString()});
+            return;
+          }
+          motion_ = MotionWatch{true, false, e.angle_deg, clock.Now() + config_.capture.move_timeout,
+                                motion_.last_angle, clock.Now(), 0};
+          AddEpochTimer(clock.Now() + config_.capture.poll_interval, [this, ep = epoch_] { PollMotion(ep); });
+        } else if constexpr (std::is_same_v<T, cs::BeginSide>) {
+          Status s = store_.BeginSide(id, e.side);
+          if (!s) {
+            pending_events_.push_back(cs::StoreFailed{s.error().cls, "cannot start side: " + s.error().ToString()});
+            return;
+          }
+          side_t0_ = clock.Now() + config_.capture.settle;
+          LogLine(LogLevel::kInfo, "capture", id, "side " + std::to_string(e.side) + " started");
+        } else if constexpr (std::is_same_v<T, cs::StartSettle>) {
+          AddEpochTimer(clock.Now() + config_.capture.settle, [this] { Dispatch(cs::SettleDone{}); });
+        } else if constexpr (std::is_same_v<T, cs::WaitUntilDue>) {
+          const TimeNs due = side_t0_ + static_cast<TimeNs>(e.view) * config_.capture.interval;
+          pending_.due = due;
+          if (due <= clock.Now()) {
+            pending_events_.push_back(cs::ViewDue{});
+          } else {
+            AddEpochTimer(due, [this] { Dispatch(cs::ViewDue{}); });
+          }
+        } else if constexpr (std::is_same_v<T, cs::TriggerCapture>) {
+          Result<TurntableStatus> st = dev_.turntable->ReadStatus();
+          if (!st) {
+            pending_events_.push_back(cs::DeviceFault{st.error().cls, "turntable: " + st.error().ToString()});
+            return;
+          }
+          pending_.side = e.side;
+          pending_.view = e.view;
+          pending_.commanded_deg = e.commanded_deg;
+          pending_.measured_deg = st->angle_deg;
+          pending_.trigger = clock.Now();
+          pending_.frame.reset();
+          pending_.request_id = next_request_id_++;
+          StillRequest req{pending_.request_id, id, e.side, e.view};
+          const uint64_t ep = epoch_;
+          const uint64_t rid = pending_.request_id;
+          loop_.Hold();
+          holding_ = true;
+          Status s = dev_.camera->RequestStill(req, [this, ep, rid](Result<FramePtr> r) {
+            loop_.Post([this, ep, rid, r = std::move(r)]() mutable {
+              if (ep == epoch_ && rid == pending_.request_id && holding_) {
+                holding_ = false;
+                loop_.Release();
+              }
+              if (ep != epoch_ || rid != pending_.request_id) return;  // late answer of an aborted shot
+              if (!r.ok()) {
+                Fault(r.error().cls, "camera: " + r.error().ToString());
+                return;
+              }
+              pending_.frame = *r;
+              Dispatch(cs::FrameReady{});
+            });
+          });
+          if (!s) {
+            holding_ = false;
+            loop_.Release();
+            pending_events_.push_back(cs::DeviceFault{s.error().cls, "camera: " + s.error().ToString()});
+            return;
+          }
+          AddEpochTimer(clock.Now() + config_.capture.frame_timeout, [this, rid] {
+            if (state_.phase == cs::Phase::kCapturing && pending_.request_id == rid) {
+              if (holding_) {
+                holding_ = false;
+                loop_.Release();
+              }
+              Fault(ErrorClass::kTimeout, "camera: no still within " + FormatDuration(config_.capture.frame_timeout) +
+                                              " of the trigger; check the camera connection");
+            }
+          });
+        } else if constexpr (std::is_same_v<T, cs::StoreView>) {
+          const FramePtr& f = pending_.frame;
+          const double err_ms = static_cast<double>(f->exposure_start - pending_.due) / 1e6;
+          const bool overrun = f->exposure_start - pending_.due > kOverrunTolerance;
+          json car = {{"sample_id", id},
+                      {"side", e.side},
+                      {"view", e.view},
+                      {"image", layout::ViewImageName(e.view)},
+                      {"commanded_angle_deg", pending_.commanded_deg},
+                      {"measured_angle_deg", pending_.measured_deg},
+                      {"due_monotonic_ns", pending_.due},
+                      {"trigger_monotonic_ns", pending_.trigger},
+                      {"capture_monotonic_ns", f->exposure_start},
+                      {"capture_utc", FormatUtc(f->utc_ns)},
+                      {"schedule_error_ms", err_ms},
+                      {"schedule_overrun", overrun},
+                      {"exposure_us", f->exposure_us},
+                      {"gain", f->gain},
+                      {"wb_red", f->wb_red},
+                      {"wb_blue", f->wb_blue},
+                      {"camera_id", dev_.camera->Info().id},
+                      {"camera_backend", dev_.camera->Info().backend},
+                      {"width", f->width},
+                      {"height", f->height},
+                      {"frame_sequence", f->sequence},
+                      {"time_scale", clock.Scale()}};
+          Status s = store_.WriteView(id, e.side, e.view, f->data, car);
+          if (!s) {
+            pending_events_.push_back(cs::StoreFailed{s.error().cls, "cannot store view: " + s.error().ToString()});
+            return;
+          }
+          ++views_captured_;
+          if (overrun) {
+            ++overruns_;
+            LogLine(LogLevel::kWarning, "capture", id,
+                    "view " + std::to_string(e.view) + " taken " + Deg(err_ms) + " ms after its due time");
+          }
+          last_schedule_error_ms_ = err_ms;
+          max_schedule_error_ms_ = std::max(max_schedule_error_ms_, std::fabs(err_ms));
+          pending_.frame.reset();  // hand the buffer back
+          pending_events_.push_back(cs::ViewStored{});
+        } else if constexpr (std::is_same_v<T, cs::FinishSide>) {
+          Status s = store_.FinishSide(id, e.side);
+          if (!s) {
+            pending_events_.push_back(cs::StoreFailed{s.error().cls, "cannot finish side: " + s.error().ToString()});
+            return;
+          }
+          ++sides_completed_;
+          if (queue_) {
+            auto q = queue_->Enqueue(id, e.side);
+            if (!q) LogLine(LogLevel::kError, "capture", id, "cannot queue side job: " + q.error().ToString());
+          }
+          if (e.side < state_.plan.sides) {
+            (void)store_.SetSampleState(id, "awaiting_pose");
+            LogLine(LogLevel::kInfo, "capture", id,
+                    "side " + std::to_string(e.side) + " done and queued: flip the rock and press the start button");
+          } else {
+            LogLine(LogLevel::kInfo, "capture", id, "side " + std::to_string(e.side) + " done and queued");
+          }
+        } else if constexpr (std::is_same_v<T, cs::FinishSample>) {
+          Status s = store_.SetSampleState(id, "captured");
+          if (!s) LogLine(LogLevel::kError, "capture", id, "cannot mark sample captured: " + s.error().ToString());
+          if (queue_) {
+            auto q = queue_->Enqueue(id, 0);
+            if (!q) LogLine(LogLevel::kError, "capture", id, "cannot queue sample job: " + q.error().ToString());
+          }
+          ++samples_completed_;
+          LogLine(LogLevel::kInfo, "capture", id, "sample captured");
+        } else if constexpr (std::is_same_v<T, cs::StopMotion>) {
+          ++epoch_;  // cancels every pending timer and late callback of this capture
+          motion_.active = false;
+          if (holding_) {
+            holding_ = false;
+            loop_.Release();
+          }
+          if (dev_.turntable && dev_.turntable->is_open()) (void)dev_.turntable->Stop();
+        } else if constexpr (std::is_same_v<T, cs::MarkInterrupted>) {
+          if (!id.empty()) {
+            Status s = store_.SetSampleState(id, "interrupted", e.side, "interrupted");
+            if (!s) LogLine(LogLevel::kError, "capture", id, "cannot record interruption: " + s.error().ToString());
+          }
+        } else if constexpr (std::is_same_v<T, cs::MarkAborted>) {
+          if (!id.empty()) {
+            Status s = store_.SetSampleState(id, "aborted", e.side, "interrupted");
+            if (!s) LogLine(LogLevel::kError, "capture", id, "cannot record abort: " + s.error().ToString());
+          }
+          LogLine(LogLevel::kNotice, "capture", id, "capture aborted by the operator");
+        } else if constexpr (std::is_same_v<T, cs::RecordFault>) {
+          ++faults_by_class_[ErrorClassName(e.cls)];
+          LogLine(LogLevel::kError, "capture", id, std::string("FAULT (") + ErrorClassName(e.cls) + "): " + e.message);
+          if (e.cls == ErrorClass::kDisconnected || e.cls == ErrorClass::kDeviceMissing ||
+              e.cls == ErrorClass::kTimeout) {
+            // The device that failed is re-opened on reset.
+            if (e.message.rfind("turntable", 0) == 0) health_["turntable"] = {false, e.message, e.cls};
+            if (e.message.rfind("camera", 0) == 0) health_["camera"] = {false, e.message, e.cls};
+          }
+        } else if constexpr (std::is_same_v<T, cs::ClearFault>) {
+          LogLine(LogLevel::kNotice, "capture", id, "fault cleared");
+          OpenDevices();
+        }
+      },
+      eff);
+}
+
+void CaptureService::PollMotion(uint64_t epoch) {
+  if (epoch != epoch_ || !motion_.active) return;
+  Clock& clock = loop_.clock();
+  const TimeNs now = clock.Now();
+  Result<TurntableStatus> st = dev_.turntable->ReadStatus();
+  if (!st) {
+    // Bounded retries: a single lost answer on a serial line is routine.
+    if (++motion_.comm_errors > config_.capture.comm_retries || st.error().cls == ErrorClass::kDisconnected) {
+      motion_.active = false;
+      Fault(st.error().cls, "turntable: " + st.error().ToString());
+      return;
+    }
+  } else {
+    motion_.comm_errors = 0;
+    const TurntableStatus& s = *st;
+    if (s.alarm) {
+      motion_.active = false;
+      Fault(ErrorClass::kDeviceFault, "turntable: alarm " + std::to_string(s.alarm_code) + " " + s.alarm_text +
+                                          "; clear the cause, then reset");
+      return;
+    }
+    const bool done = motion_.homing ? (s.homed && s.in_position && !s.moving) : (s.in_position && !s.moving);
+    if (done) {
+      motion_.active = false;
+      motion_.last_angle = s.angle_deg;
+      Dispatch(motion_.homing ? cs::Event(cs::HomeDone{}) : cs::Event(cs::MoveDone{}));
+      return;
+    }
+    if (std::fabs(s.angle_deg - motion_.last_angle) > kStallEpsilonDeg) {
+      motion_.last_angle = s.angle_deg;
+      motion_.last_progress = now;
+    } else if (s.moving && now - motion_.last_progress > config_.capture.stall_timeout) {
+      motion_.active = false;
+      Fault(ErrorClass::kStalled, "turntable stalled at " + Deg(s.angle_deg) + " deg while moving to " +
+                                      Deg(motion_.target_deg) + " deg; check that nothing blocks the platter");
+      return;
+    }
+  }
+  if (now > motion_.deadline) {
+    motion_.active = false;
+    Fault(ErrorClass::kTimeout, std::string("turntable: ") + (motion_.homing ? "homing" : "move to " + Deg(motion_.target_deg) + " deg") +
+                                    " did not finish within " +
+                                    FormatDuration(motion_.homing ? config_.capture.home_timeout
+                                                                  : config_.capture.move_timeout));
+    return;
+  }
+  AddEpochTimer(now + config_.capture.poll_interval, [this, ep = epoch_] { PollMotion(ep); });
+}
+
+// ---------------------------------------------------------------- control --
+
+std::string CaptureService::StatusLine() const {
+  const auto& s = state_;
+  switch (s.phase) {
+    case cs::Phase::kIdle: return "idle: arm a sample to start";
+    case cs::Phase::kArmed: return "armed " + s.sample_id + ": place the rock and press start";
+    case cs::Phase::kAwaitingPose:
+      return "side " + std::to_string(s.side - 1) + " done: flip the rock and press start for side " +
+             std::to_string(s.side);
+    case cs::Phase::kFaulted: return std::string("FAULT: ") + s.fault_message;
+    case cs::Phase::kHoming: return "side " + std::to_string(s.side) + ": homing";
+    default:
+      return "side " + std::to_string(s.side) + " view " + std::to_string(s.view + 1) + "/" +
+             std::to_string(s.plan.views_per_side);
+  }
+}
+
+void CaptureService::NotifyStatus() {
+  const std::string line = StatusLine();
+  if (line != last_status_) {
+    last_status_ = line;
+    if (on_status_) on_status_(line);
+  }
+}
+
+json CaptureService::StatusOnLoop() const {
+  json devices = json::object();
+  for (const auto& [name, h] : health_) {
+    devices[name] = {{"healthy", h.healthy}, {"message", h.message}};
+  }
+  if (dev_.camera) devices["camera"]["backend"] = dev_.camera->Info().backend;
+  if (dev_.turntable) devices["turntable"]["backend"] = dev_.turntable->Info().backend;
+  if (dev_.button) devices["button"]["describe"] = dev_.button->Describe();
+  json fault = nullptr;
+  if (state_.phase == cs::Phase::kFaulted) {
+    fault = {{"class", ErrorClassName(state_.fault_class)}, {"message", state_.fault_message}};
+  }
+  int depth = -1;
+  if (queue_) {
+    auto d = queue_->Depth();
+    if (d) depth = *d;
+  }
+  return {{"state", cs::PhaseName(state_.phase)},
+          {"sample_id", state_.sample_id.empty() ? json(nullptr) : json(state_.sample_id)},
+          {"side", state_.side},
+          {"view", state_.view},
+          {"views_per_side", config_.capture.views_per_side},
+          {"sides", config_.capture.sides},
+          {"profile", config_.capture.profile},
+          {"fault", fault},
+          {"status_line", StatusLine()},
+          {"devices", devices},
+          {"queue_depth", depth},
+          {"views_captured", views_captured_},
+          {"time_scale", loop_.clock().Scale()},
+          {"uptime_s", static_cast<double>(MonotonicNs() - started_real_) / 1e9}};
+}
+
+Result<json> CaptureService::ArmOnLoop(const std::string& sample_id) {
+  if (state_.phase != cs::Phase::kIdle) {
+    return MakeError(ErrorClass::kInvalidState,
+                     std::string("cannot arm while ") + cs::PhaseName(state_.phase) +
+                         (state_.phase == cs::Phase::kFaulted ? ": reset the fault first" : ": abort the current sample first"));
+  }
+  Status healthy = CheckDevicesHealthy();
+  if (!healthy) return healthy.error();
+  const SamplePlan plan = PlanFromConfig(config_);
+  Result<int> first = store_.PrepareArm(sample_id, plan);
+  if (!first) return first.error();
+  Dispatch(cs::Arm{sample_id, cs::Plan{plan.sides, plan.views_per_side, plan.step_deg}, *first});
+  if (state_.phase == cs::Phase::kFaulted) {
+    return MakeError(state_.fault_class, state_.fault_message);
+  }
+  json out = StatusOnLoop();
+  out["first_side"] = *first;
+  return out;
+}
+
+Result<json> CaptureService::AbortOnLoop() {
+  cs::StepResult probe = cs::Step(state_, cs::Abort{});
+  if (!probe.accepted) return MakeError(ErrorClass::kInvalidState, probe.reason);
+  Dispatch(cs::Abort{});
+  return StatusOnLoop();
+}
+
+Result<json> CaptureService::ResetOnLoop() {
+  cs::StepResult probe = cs::Step(state_, cs::Reset{});
+  if (!probe.accepted) return MakeError(ErrorClass::kInvalidState, probe.reason);
+  Dispatch(cs::Reset{});
+  return StatusOnLoop();
+}
+
+json CaptureService::GetStatus() {
+  return OnLoop([this] { return StatusOnLoop(); });
+}
+
+Result<json> CaptureService::Arm(const std::string& sample_id) {
+  return OnLoop([this, sample_id] { return ArmOnLoop(sample_id); });
+}
+
+Result<json> CaptureService::Press(const std::string& source) {
+  // Same path as the hardware: through the button driver (debounced there).
+  return OnLoop([this, source]() -> Result<json> {
+    if (state_.phase != cs::Phase::kArmed && state_.phase != cs::Phase::kAwaitingPose) {
+      return MakeError(ErrorClass::kInvalidState,
+                       std::string("the start button does nothing while ") + cs::PhaseName(state_.phase) +
+                           (state_.phase == cs::Phase::kIdle ? ": arm a sample first" : ""));
+    }
+    if (!dev_.button || !health_["button"].healthy) {
+      return MakeError(ErrorClass::kDeviceMissing, "button input is not available");
+    }
+    dev_.button->InjectPress(source);
+    json out = StatusOnLoop();
+    out["pressed"] = true;
+    return out;
+  });
+}
+
+Result<json> CaptureService::Abort() {
+  return OnLoop([this] { return AbortOnLoop(); });
+}
+
+Result<json> CaptureService::Reset() {
+  return OnLoop([this] { return ResetOnLoop(); });
+}
+
+Result<json> CaptureService::ListSamples() { return store_.List(); }
+
+Result<json> CaptureService::GetSample(const std::string& sample_id) {
+  Result<json> d = store_.Describe(sample_id);
+  if (!d) return d;
+  json out = *d;
+  if (queue_) {
+    // Our own queue handle is used from the loop thread only.
+    auto jobs = OnLoop([this, sample_id]() -> Result<std::vector<Job>> { return queue_->JobsForSample(sample_id); });
+    if (jobs) {
+      json js = json::array();
+      for (const Job& j : *jobs) {
+        js.push_back({{"side", j.side}, {"state", j.state}, {"attempts", j.attempts}, {"error", j.error}});
+      }
+      out["jobs"] = js;
+    }
+  }
+  return out;
+}
+
+std::string CaptureService::Metrics() {
+  return OnLoop([this] {
+    std::ostringstream m;
+    m << "# HELP aggscan_views_captured_total Views captured and stored.\n"
+      << "# TYPE aggscan_views_captured_total counter\n"
+      << "aggscan_views_captured_total " << views_captured_ << "\n"
+      << "# HELP aggscan_sides_completed_total Sides captured completely and queued.\n"
+      << "# TYPE aggscan_sides_completed_total counter\n"
+      << "aggscan_sides_completed_total " << sides_completed_ << "\n"
+      << "# HELP aggscan_samples_completed_total Samples captured completely.\n"
+      << "# TYPE aggscan_samples_completed_total counter\n"
+      << "aggscan_samples_completed_total " << samples_completed_ << "\n"
+      << "# HELP aggscan_schedule_overruns_total Views shot more than 50 ms after their due time.\n"
+      << "# TYPE aggscan_schedule_overruns_total counter\n"
+      << "aggscan_schedule_overruns_total " << overruns_ << "\n"
+      << "# HELP aggscan_schedule_error_max_ms Largest absolute schedule error since start.\n"
+      << "# TYPE aggscan_schedule_error_max_ms gauge\n"
+      << "aggscan_schedule_error_max_ms " << max_schedule_error_ms_ << "\n"
+      << "# HELP aggscan_faults_total Capture faults by class.\n"
+      << "# TYPE aggscan_faults_total counter\n";
+    for (const char* cls : {"timeout", "stalled", "disconnected", "device_missing", "device_fault", "disk_full", "io"}) {
+      auto it = faults_by_class_.find(cls);
+      m << "aggscan_faults_total{class=\"" << cls << "\"} " << (it == faults_by_class_.end() ? 0 : it->second)
+        << "\n";
+    }
+    int depth = 0;
+    if (queue_) {
+      auto d = queue_->Depth();
+      if (d) depth = *d;
+    }
+    m << "# HELP aggscan_queue_depth Side and sample jobs waiting for or in the worker.\n"
+      << "# TYPE aggscan_queue_depth gauge\n"
+      << "aggscan_queue_depth " << depth << "\n"
+      << "# HELP aggscan_state Current capture state (1 for the active one).\n"
+      << "# TYPE aggscan_state gauge\n";
+    for (auto p : {cs::Phase::kIdle, cs::Phase::kArmed, cs::Phase::kHoming, cs::Phase::kRotating, cs::Phase::kSettling,
+                   cs::Phase::kWaitingDue, cs::Phase::kCapturing, cs::Phase::kStoring, cs::Phase::kAwaitingPose,
+                   cs::Phase::kFaulted}) {
+      m << "aggscan_state{state=\"" << cs::PhaseName(p) << "\"} " << (state_.phase == p ? 1 : 0) << "\n";
+    }
+    return m.str();
+  });
+}
+
+void CaptureService::Shutdown() {
+  if (state_.Active()) {
+    LogLine(LogLevel::kNotice, "capture", state_.sample_id, "shutting down during a capture: marked interrupted");
+    Dispatch(cs::DeviceFault{ErrorClass::kInternal, "daemon stopped during the capture"});
+  }
+  if (dev_.button) dev_.button->Stop();
+  if (dev_.camera) dev_.camera->Close();
+  if (dev_.turntable) dev_.turntable->Close();
+}
+
+}  // namespace aggscan

@@ -1,0 +1,133 @@
+// The capture service: owns the capture state (on the event loop's thread),
+// turns device answers, timers and requests into state-machine events, and
+// executes the machine's effects against the devices, the sample store and
+// the job queue. Implements DaemonControl for the HTTP API: those calls may
+// come from any thread and are run on the loop.
+#pragma once
+
+#include <deque>
+#include <functional>
+#include <map>
+#include <memory>
+#include <optional>
+#include <string>
+
+#include "config/config.h"
+#include "daemon/control.h"
+#include "daemon/event_loop.h"
+#include "daemon/state_machine.h"
+#include "drivers/factory.h"
+#include "store/queue.h"
+#include "store/sample_store.h"
+
+namespace aggscan {
+
+/// Health of one device, as shown by the status API.
+struct DeviceHealth {
+  bool healthy = false;
+  std::string message;  // actionable when unhealthy
+  ErrorClass cls = ErrorClass::kDeviceMissing;
+};
+
+class CaptureService final : public DaemonControl {
+ public:
+  CaptureService(EventLoop& loop, Config config, std::string effective_config_toml, RigDevices devices,
+                 SampleStore& store, JobQueue* queue);
+  ~CaptureService() override;
+
+  /// Loop thread: opens the devices (retrying in the background with backoff
+  /// when one is missing) and starts listening to the button.
+  void Start();
+  /// Loop thread: interrupts an active capture (recorded as interrupted) and
+  /// closes the devices.
+  void Shutdown();
+
+  /// Called on the loop thread whenever the status line changes ("side 1 view 7/30").
+  void SetStatusListener(std::function<void(const std::string&)> fn) { on_status_ = std::move(fn); }
+  /// Called on the loop thread after every accepted transition.
+  void SetTransitionListener(std::function<void(const capture::State&)> fn) { on_transition_ = std::move(fn); }
+
+  // DaemonControl (any thread).
+  nlohmann::json GetStatus() override;
+  Result<nlohmann::json> Arm(const std::string& sample_id) override;
+  Result<nlohmann::json> Press(const std::string& source) override;
+  Result<nlohmann::json> Abort() override;
+  Result<nlohmann::json> Reset() override;
+  Result<nlohmann::json> ListSamples() override;
+  Result<nlohmann::json> GetSample(const std::string& sample_id) override;
+  std::string Metrics() override;
+
+  // Loop-thread versions (used by the offline sim capture and by the above).
+  Result<nlohmann::json> ArmOnLoop(const std::string& sample_id);
+  Result<nlohmann::json> AbortOnLoop();
+  Result<nlohmann::json> ResetOnLoop();
+  nlohmann::json StatusOnLoop() const;
+  const capture::State& state() const { return state_; }
+  std::string StatusLine() const;
+
+ private:
+  struct MotionWatch {
+    bool active = false;
+    bool homing = false;
+    double target_deg = 0;
+    TimeNs deadline = 0;
+    double last_angle = 0;
+    TimeNs last_progress = 0;
+    int comm_errors = 0;
+  };
+  struct PendingView {
+    int side = 0, view = 0;
+    uint64_t request_id = 0;
+    double commanded_deg = 0, measured_deg = 0;
+    TimeNs due = 0, trigger = 0;
+    FramePtr frame;
+  };
+
+  template <typename F>
+  auto OnLoop(F fn) -> decltype(fn());
+  void Dispatch(capture::Event e);
+  void Execute(const capture::Effect& eff);
+  void PollMotion(uint64_t epoch);
+  void Fault(ErrorClass cls, const std::string& message);
+  void OpenDevices();
+  void ScheduleReopen();
+  Status CheckDevicesHealthy() const;
+  void NotifyStatus();
+  uint64_t AddEpochTimer(TimeNs at, std::function<void()> fn);
+
+  EventLoop& loop_;
+  Config config_;
+  std::string config_toml_;
+  RigDevices dev_;
+  SampleStore& store_;
+  JobQueue* queue_;
+
+  capture::State state_;
+  std::deque<capture::Event> pending_events_;
+  bool dispatching_ = false;
+  uint64_t epoch_ = 1;  // bumped on stop/fault/abort: stale timers and callbacks are ignored
+  MotionWatch motion_;
+  PendingView pending_;
+  uint64_t next_request_id_ = 1;
+  bool holding_ = false;
+  TimeNs side_t0_ = 0;
+  std::map<std::string, DeviceHealth> health_;
+  int reopen_attempt_ = 0;
+  bool reopen_scheduled_ = false;
+  TimeNs started_real_ = 0;
+  std::string last_status_;
+  std::function<void(const std::string&)> on_status_;
+  std::function<void(const capture::State&)> on_transition_;
+
+  // Metrics.
+  uint64_t views_captured_ = 0;
+  uint64_t overruns_ = 0;
+  uint64_t samples_completed_ = 0;
+  uint64_t sides_completed_ = 0;
+  double last_schedule_error_ms_ = 0;
+  double max_schedule_error_ms_ = 0;
+  std::map<std::string, uint64_t> faults_by_class_;
+  std::map<std::string, uint64_t> rejected_events_;
+};
+
+}  // namespace aggscan
