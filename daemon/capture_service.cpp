@@ -563,22 +563,24 @@ Result<json> CaptureService::Arm(const std::string& sample_id) {
   return OnLoop([this, sample_id] { return ArmOnLoop(sample_id); });
 }
 
-Result<json> CaptureService::Press(const std::string& source) {
+Result<json> CaptureService::PressOnLoop(const std::string& source) {
   // Same path as the hardware: through the button driver (debounced there).
-  return OnLoop([this, source]() -> Result<json> {
-    if (state_.phase != cs::Phase::kArmed && state_.phase != cs::Phase::kAwaitingPose) {
-      return MakeError(ErrorClass::kInvalidState,
-                       std::string("the start button does nothing while ") + cs::PhaseName(state_.phase) +
-                           (state_.phase == cs::Phase::kIdle ? ": arm a sample first" : ""));
-    }
-    if (!dev_.button || !health_["button"].healthy) {
-      return MakeError(ErrorClass::kDeviceMissing, "button input is not available");
-    }
-    dev_.button->InjectPress(source);
-    json out = StatusOnLoop();
-    out["pressed"] = true;
-    return out;
-  });
+  if (state_.phase != cs::Phase::kArmed && state_.phase != cs::Phase::kAwaitingPose) {
+    return MakeError(ErrorClass::kInvalidState,
+                     std::string("the start button does nothing while ") + cs::PhaseName(state_.phase) +
+                         (state_.phase == cs::Phase::kIdle ? ": arm a sample first" : ""));
+  }
+  if (!dev_.button || !health_["button"].healthy) {
+    return MakeError(ErrorClass::kDeviceMissing, "button input is not available");
+  }
+  dev_.button->InjectPress(source);
+  json out = StatusOnLoop();
+  out["pressed"] = true;
+  return out;
+}
+
+Result<json> CaptureService::Press(const std::string& source) {
+  return OnLoop([this, source] { return PressOnLoop(source); });
 }
 
 Result<json> CaptureService::Abort() {

@@ -59,6 +59,7 @@ class CaptureService final : public DaemonControl {
 
   // Loop-thread versions (used by the offline sim capture and by the above).
   Result<nlohmann::json> ArmOnLoop(const std::string& sample_id);
+  Result<nlohmann::json> PressOnLoop(const std::string& source);
   Result<nlohmann::json> AbortOnLoop();
   Result<nlohmann::json> ResetOnLoop();
   nlohmann::json StatusOnLoop() const;

@@ -1,0 +1,117 @@
+// aggscan: the command-line tool. Talks to a running aggscand (status, arm,
+// press, ...) and runs offline work (2D morphology of an image or mask,
+// simulated captures).
+#include <cstdlib>
+#include <iostream>
+#include <string>
+#include <vector>
+
+#include "cli/client.h"
+#include "cli/sim_capture.h"
+#include "pipeline/morph2d_cli.h"
+
+namespace {
+
+void Usage(std::ostream& o) {
+  o << "usage: aggscan COMMAND [ARGS]\n\n"
+       "Daemon commands (talk to aggscand over its HTTP API):\n";
+  aggscan::PrintClientUsage(o);
+  o << "\nOffline commands:\n"
+       "  aggscan morph2d IMAGE_OR_MASK [--text]\n"
+       "      2D morphology of the largest silhouette (JSON: l_max_px, l_min_px, fer_2d,\n"
+       "      area_px, perimeter_px, circularity); a photo is segmented first\n"
+       "  aggscan sim capture (--seed N | --mesh FILE --unit mm|cm|m) --out DIR\n"
+       "                      [--profile paper|full-turn] [--views N] [--width W --height H]\n"
+       "                      [--config FILE]\n"
+       "      capture a simulated rock into a new sample directory, as aggscand would,\n"
+       "      plus truth.json and truth/ (ground-truth masks and poses)\n";
+}
+
+int SimCommand(const std::vector<std::string>& a) {
+  if (a.size() < 2 || a[1] != "capture") {
+    std::cerr << "aggscan sim: expected 'aggscan sim capture ...'\n";
+    return 2;
+  }
+  aggscan::SimCaptureOptions o;
+  for (size_t i = 2; i < a.size(); ++i) {
+    auto val = [&](const char* name) -> std::string {
+      if (i + 1 >= a.size()) {
+        std::cerr << "aggscan sim capture: " << name << " needs a value\n";
+        std::exit(2);
+      }
+      return a[++i];
+    };
+    auto num = [&](const char* name) -> long long {
+      const std::string v = val(name);
+      char* end = nullptr;
+      const long long n = std::strtoll(v.c_str(), &end, 10);
+      if (end == v.c_str() || *end != '\0' || n < 0) {
+        std::cerr << "aggscan sim capture: " << name << " expects a non-negative integer, got '" << v << "'\n";
+        std::exit(2);
+      }
+      return n;
+    };
+    if (a[i] == "--seed") o.seed = static_cast<uint64_t>(num("--seed"));
+    else if (a[i] == "--mesh") o.mesh = val("--mesh");
+    else if (a[i] == "--unit") o.unit = val("--unit");
+    else if (a[i] == "--out") o.out = val("--out");
+    else if (a[i] == "--profile") o.profile = val("--profile");
+    else if (a[i] == "--config") o.config_path = val("--config");
+    else if (a[i] == "--width") o.width = static_cast<int>(num("--width"));
+    else if (a[i] == "--height") o.height = static_cast<int>(num("--height"));
+    else if (a[i] == "--views") o.views_per_side = static_cast<int>(num("--views"));
+    else {
+      std::cerr << "aggscan sim capture: unknown option '" << a[i] << "'\n";
+      return 2;
+    }
+  }
+  if (o.unit != "mm" && o.unit != "cm" && o.unit != "m") {
+    std::cerr << "aggscan sim capture: --unit must be mm, cm or m\n";
+    return 2;
+  }
+  return aggscan::RunSimCapture(o, std::cout, std::cerr);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::vector<std::string> args(argv + 1, argv + argc);
+  // Global client options may precede the command word.
+  std::string cmd;
+  for (size_t i = 0; i < args.size(); ++i) {
+    if (args[i] == "--url") {
+      ++i;
+      continue;
+    }
+    if (args[i].rfind("--", 0) == 0) continue;
+    cmd = args[i];
+    break;
+  }
+  if (cmd.empty() || cmd == "help" || args[0] == "-h" || args[0] == "--help") {
+    Usage(cmd.empty() && args.empty() ? std::cerr : std::cout);
+    return args.empty() ? 2 : 0;
+  }
+  if (aggscan::IsClientCommand(cmd)) return aggscan::RunClientCommand(args, std::cout, std::cerr);
+  if (cmd == "morph2d") {
+    std::string path;
+    bool json = true;
+    for (size_t i = 1; i < args.size(); ++i) {
+      if (args[i] == "--text") json = false;
+      else if (args[i] == "--json") json = true;
+      else if (path.empty()) path = args[i];
+      else {
+        std::cerr << "aggscan morph2d: unexpected argument '" << args[i] << "'\n";
+        return 2;
+      }
+    }
+    if (path.empty()) {
+      std::cerr << "aggscan morph2d: give an image or mask file\n";
+      return 2;
+    }
+    return aggscan::RunMorph2dCommand(path, json, std::cout, std::cerr);
+  }
+  if (cmd == "sim") return SimCommand(args);
+  std::cerr << "aggscan: unknown command '" << cmd << "'\n\n";
+  Usage(std::cerr);
+  return 2;
+}

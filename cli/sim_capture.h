@@ -1,0 +1,28 @@
+// `aggscan sim capture`: runs the real capture service on the simulated rig
+// with a virtual clock (no waiting: the schedule is followed in simulated
+// time) and writes one complete sample directory, exactly as aggscand would,
+// plus truth.json and truth/ with the sim's ground truth.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <ostream>
+#include <string>
+
+namespace aggscan {
+
+struct SimCaptureOptions {
+  std::optional<uint64_t> seed;  // procedural rock from this seed
+  std::string mesh;              // or a mesh file ...
+  std::string unit = "mm";       // ... in this unit
+  std::string out;               // sample directory to create (must not exist)
+  std::string profile;           // paper | full-turn (empty: the config's)
+  std::string config_path;       // optional TOML config (sim backends are forced)
+  int width = 0, height = 0;     // resolution override (0 = config)
+  int views_per_side = 0;        // override (profile full-turn/custom)
+};
+
+/// Returns a process exit code (0 ok, 2 usage, 78 bad config, 1 other failure).
+int RunSimCapture(const SimCaptureOptions& opt, std::ostream& out, std::ostream& err);
+
+}  // namespace aggscan

@@ -1,0 +1,180 @@
+// aggscand: the capture daemon. Drives the camera, turntable and start button
+// (the simulated rig out of the box), stores every view durably, queues each
+// captured side for aggscan-worker, and serves the HTTP API.
+#include <signal.h>
+
+#include <cstdio>
+#include <cstring>
+#include <iostream>
+#include <memory>
+#include <string>
+
+#include "common/fsutil.h"
+#include "common/log.h"
+#include "config/config.h"
+#include "daemon/capture_service.h"
+#include "daemon/event_loop.h"
+#include "daemon/http_api.h"
+#include "daemon/systemd_notify.h"
+#include "drivers/factory.h"
+#include "store/layout.h"
+#include "store/queue.h"
+#include "store/sample_store.h"
+
+namespace {
+
+constexpr int kExitConfig = 78;  // EX_CONFIG: systemd shows it; Restart= won't loop on it
+
+void Usage(std::FILE* f) {
+  std::fprintf(f,
+               "usage: aggscand [--config FILE] [--check-config] [--print-config]\n"
+               "                [--state-dir DIR] [--port N] [--port-file FILE] [--log-level LEVEL]\n"
+               "  --config FILE     TOML config (default: built-in defaults, sim rig)\n"
+               "  --check-config    validate the config, list every problem, exit (78 if invalid)\n"
+               "  --print-config    print the effective config as TOML and exit\n"
+               "  --state-dir DIR   override daemon.state_dir\n"
+               "  --port N          override daemon.listen_port (0 = any free port)\n"
+               "  --port-file FILE  write the bound HTTP port to FILE once listening\n"
+               "  --log-level L     error|warning|notice|info|debug\n");
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  using namespace aggscan;
+  std::string config_path, state_dir_override, port_file, log_level;
+  int port_override = -1;
+  bool check_only = false, print_only = false;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto need = [&](const char* what) -> std::string {
+      if (i + 1 >= argc) {
+        std::fprintf(stderr, "aggscand: %s needs a value\n", what);
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    if (a == "--config") config_path = need("--config");
+    else if (a == "--check-config") check_only = true;
+    else if (a == "--print-config") print_only = true;
+    else if (a == "--state-dir") state_dir_override = need("--state-dir");
+    else if (a == "--port") port_override = std::atoi(need("--port").c_str());
+    else if (a == "--port-file") port_file = need("--port-file");
+    else if (a == "--log-level") log_level = need("--log-level");
+    else if (a == "-h" || a == "--help") {
+      Usage(stdout);
+      return 0;
+    } else {
+      std::fprintf(stderr, "aggscand: unknown argument '%s'\n", a.c_str());
+      Usage(stderr);
+      return 2;
+    }
+  }
+
+  // ---- configuration: every problem listed, exit 78 when invalid ----
+  Config config;
+  std::vector<ConfigProblem> problems;
+  if (!config_path.empty()) {
+    Result<Config> c = LoadConfigFile(config_path, &problems);
+    if (c) config = *c;
+  } else {
+    ApplyProfile(&config);
+    ValidateConfig(config, "<defaults>", &problems);
+  }
+  if (!state_dir_override.empty()) config.daemon.state_dir = state_dir_override;
+  if (port_override >= 0) config.daemon.listen_port = port_override;
+  if (!log_level.empty()) config.daemon.log_level = log_level;
+  if (!problems.empty()) {
+    std::fprintf(stderr, "aggscand: invalid configuration (%zu problem%s):\n", problems.size(),
+                 problems.size() == 1 ? "" : "s");
+    for (const auto& p : problems) std::fprintf(stderr, "  %s\n", p.ToString().c_str());
+    return kExitConfig;
+  }
+  LogLevel lvl;
+  if (!ParseLogLevel(config.daemon.log_level, &lvl)) {
+    std::fprintf(stderr, "aggscand: unknown log level '%s' (error|warning|notice|info|debug)\n",
+                 config.daemon.log_level.c_str());
+    return kExitConfig;
+  }
+  SetLogLevel(lvl);
+  const std::string effective = ConfigToToml(config);
+  if (print_only) {
+    std::fputs(effective.c_str(), stdout);
+    return 0;
+  }
+  if (check_only) {
+    std::printf("%s: configuration is valid\n", config_path.empty() ? "<defaults>" : config_path.c_str());
+    return 0;
+  }
+
+  // ---- clock: the sim rig may run faster than real time ----
+  std::unique_ptr<Clock> clock;
+  if (config.daemon.time_scale > 1.0) {
+    clock = std::make_unique<ScaledClock>(config.daemon.time_scale);
+    AGG_LOGI("main", "sim clock runs %.1fx faster than real time", config.daemon.time_scale);
+  } else {
+    clock = std::make_unique<RealClock>();
+  }
+
+  // ---- durable store: recover from whatever the last run left ----
+  SampleStore store(config.daemon.state_dir);
+  if (Status s = store.Init(); !s) {
+    AGG_LOGE("main", "cannot use state directory %s: %s", config.daemon.state_dir.c_str(), s.error().ToString().c_str());
+    return 1;
+  }
+  Result<RecoveryReport> rec = store.Recover();
+  if (!rec) {
+    AGG_LOGE("main", "start-up recovery failed: %s", rec.error().ToString().c_str());
+    return 1;
+  }
+  AGG_LOGI("main", "state dir %s: %d samples, %d temporary files removed, %d interrupted sides",
+           config.daemon.state_dir.c_str(), rec->samples, rec->temp_files_removed, rec->sides_interrupted);
+  for (const auto& id : rec->interrupted_samples) {
+    LogLine(LogLevel::kNotice, "main", id, "was interrupted by a crash or power loss: arm it again to re-shoot");
+  }
+  auto queue = JobQueue::Open(layout::QueuePath(config.daemon.state_dir));
+  if (!queue) {
+    AGG_LOGE("main", "%s", queue.error().ToString().c_str());
+    return 1;
+  }
+
+  // Signals go to the loop: block them before any other thread starts.
+  EventLoop loop(*clock);
+  loop.HandleSignals({SIGTERM, SIGINT, SIGHUP}, [&loop](int sig) {
+    AGG_LOGI("main", "signal %s: stopping", strsignal(sig));
+    loop.Quit(0);
+  });
+  signal(SIGPIPE, SIG_IGN);
+
+  Result<RigDevices> rig = CreateRig(config, *clock);
+  if (!rig) {
+    AGG_LOGE("main", "%s", rig.error().ToString().c_str());
+    return kExitConfig;
+  }
+  CaptureService service(loop, config, effective, std::move(*rig), store, queue->get());
+  SystemdNotifier notifier(loop);
+  service.SetStatusListener([&notifier](const std::string& line) { notifier.Status(line); });
+  service.Start();
+
+  HttpApi api(service, config.daemon.listen_address, config.daemon.listen_port);
+  if (Status s = api.Start(); !s) {
+    AGG_LOGE("main", "%s", s.error().ToString().c_str());
+    service.Shutdown();
+    return 1;
+  }
+  AGG_LOGI("main", "API listening on http://%s:%d", config.daemon.listen_address.c_str(), api.port());
+  if (!port_file.empty()) {
+    if (Status s = WriteFileAtomic(port_file, std::to_string(api.port()) + "\n"); !s) {
+      AGG_LOGE("main", "%s", s.error().ToString().c_str());
+    }
+  }
+  notifier.Ready(service.StatusLine());
+  notifier.StartWatchdog();
+
+  const int rc = loop.Run();
+  notifier.Stopping();
+  api.Stop();
+  service.Shutdown();
+  AGG_LOGI("main", "stopped");
+  return rc;
+}

@@ -1,0 +1,261 @@
+// Scenario tests: the real aggscand and aggscan-worker binaries on the sim rig.
+#include <gtest/gtest.h>
+
+#include <map>
+#include <opencv2/imgcodecs.hpp>
+#include <random>
+#include <set>
+
+#include "process.h"
+
+namespace aggscan::test {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+std::string StateOf(const json& s) { return s.is_object() ? s.value("state", "") : ""; }
+
+bool Decodes(const std::string& path) {
+  cv::Mat m = cv::imread(path, cv::IMREAD_COLOR);
+  return !m.empty();
+}
+
+// Every view with a sidecar has a complete, decodable image; every manifest
+// lists only such views. Returns the number of complete views.
+int CheckSampleConsistent(const std::string& sample_dir) {
+  int complete = 0;
+  for (const auto& e : fs::directory_iterator(sample_dir)) {
+    if (!e.is_directory() || e.path().filename().string().rfind("side", 0) != 0) continue;
+    for (const auto& f : fs::directory_iterator(e.path())) {
+      const std::string name = f.path().filename().string();
+      if (name.rfind("view_", 0) == 0 && f.path().extension() == ".json") {
+        fs::path img = f.path();
+        img.replace_extension(".jpg");
+        EXPECT_TRUE(fs::exists(img)) << "sidecar without image: " << f.path();
+        EXPECT_TRUE(Decodes(img.string())) << "undecodable image with a sidecar: " << img;
+        json car = json::parse(ReadAll(f.path().string()), nullptr, false);
+        EXPECT_FALSE(car.is_discarded()) << "corrupt sidecar " << f.path();
+        ++complete;
+      }
+    }
+    if (fs::exists(e.path() / "manifest.json")) {
+      json m = json::parse(ReadAll((e.path() / "manifest.json").string()), nullptr, false);
+      EXPECT_FALSE(m.is_discarded());
+      for (const auto& v : m["views"]) {
+        EXPECT_TRUE(fs::exists(e.path() / v["image"].get<std::string>()));
+        EXPECT_EQ(static_cast<int64_t>(fs::file_size(e.path() / v["image"].get<std::string>())), v["bytes"].get<int64_t>());
+      }
+    }
+  }
+  return complete;
+}
+
+TEST(CaptureScenario, TwoSidesSixtyViewsThenWorker) {
+  TempDir t;
+  const std::string cfg = WriteConfig(t.path());
+  Daemon d(cfg, t.path());
+  ASSERT_TRUE(d.ok()) << ReadAll(d.log());
+  json s = d.Get("/api/v1/status");
+  ASSERT_EQ(StateOf(s), "idle") << s.dump();
+  for (const char* dev : {"camera", "turntable", "button"}) EXPECT_TRUE(s["devices"][dev]["healthy"]) << dev;
+
+  int code = 0;
+  json armed = d.Post("/api/v1/samples", R"({"id": "rock-1"})", &code);
+  ASSERT_EQ(code, 200) << armed.dump();
+  EXPECT_EQ(StateOf(armed), "armed");
+  d.Post("/api/v1/button", "{}", &code);
+  ASSERT_EQ(code, 200);
+  json last;
+  ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "awaiting_pose"; }, 60, &last))
+      << last.dump() << ReadAll(d.log());
+  // Side 1 is queued for the worker as soon as it is captured.
+  EXPECT_GE(last["queue_depth"].get<int>(), 1);
+  d.Post("/api/v1/button", "{}", &code);
+  ASSERT_EQ(code, 200);
+  ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "idle"; }, 60, &last)) << last.dump();
+
+  const std::string sample = t.path() + "/state/samples/rock-1";
+  json rec = json::parse(ReadAll(sample + "/sample.json"));
+  EXPECT_EQ(rec["state"], "captured");
+  EXPECT_TRUE(fs::exists(sample + "/config.toml"));
+  EXPECT_EQ(CheckSampleConsistent(sample), 60);
+
+  // Sidecars: angles and times follow the plan (30 x 30 deg, one shot every 2 s).
+  const double scale = 20.0;
+  for (int side = 1; side <= 2; ++side) {
+    json first = json::parse(ReadAll(sample + "/side" + std::to_string(side) + "/view_000.json"));
+    const int64_t t0 = first["due_monotonic_ns"];
+    for (int v = 0; v < 30; ++v) {
+      char name[64];
+      std::snprintf(name, sizeof name, "/side%d/view_%03d.json", side, v);
+      json car = json::parse(ReadAll(sample + name));
+      EXPECT_DOUBLE_EQ(car["commanded_angle_deg"].get<double>(), 30.0 * v);
+      EXPECT_NEAR(car["measured_angle_deg"].get<double>(), 30.0 * v, 0.6) << name;
+      // Due times never drift: exactly t0 + i * 2 s.
+      EXPECT_EQ(car["due_monotonic_ns"].get<int64_t>() - t0, int64_t{2'000'000'000} * v) << name;
+      // The shot is taken at its due time: within 10 ms of real-time timer
+      // jitter, i.e. 10 ms * time_scale on the sim clock.
+      EXPECT_LT(std::abs(car["schedule_error_ms"].get<double>()), 10.0 * scale) << name;
+      EXPECT_FALSE(car["schedule_overrun"].get<bool>()) << name;
+      EXPECT_EQ(car["width"], 640);
+      EXPECT_GT(car["exposure_us"].get<double>(), 0);
+      EXPECT_EQ(car["camera_id"], "sim-cam0");
+      EXPECT_FALSE(car["capture_utc"].get<std::string>().empty());
+    }
+  }
+  json m = d.Get("/api/v1/samples/rock-1");
+  ASSERT_EQ(m["jobs"].size(), 3u) << m.dump();
+
+  // The worker takes the queued side and sample jobs.
+  const int wrc = WaitExit(Spawn({Bin("pipeline/aggscan-worker"), "--state-dir", t.path() + "/state", "--once"},
+                                 t.path() + "/worker.log"));
+  ASSERT_EQ(wrc, 0) << ReadAll(t.path() + "/worker.log");
+  for (int side = 1; side <= 2; ++side) {
+    json r = json::parse(ReadAll(sample + "/results/side" + std::to_string(side) + "_morph2d.json"), nullptr, false);
+    ASSERT_FALSE(r.is_discarded()) << "side " << side << " results missing";
+    EXPECT_EQ(r["views"].size(), 30u);
+  }
+  EXPECT_TRUE(fs::exists(sample + "/results/morph2d.json"));
+  m = d.Get("/api/v1/samples/rock-1");
+  for (const auto& j : m["jobs"]) EXPECT_EQ(j["state"], "done") << m.dump();
+  const std::string metrics = d.Get("/metrics").get<std::string>();
+  EXPECT_NE(metrics.find("aggscan_views_captured_total 60"), std::string::npos) << metrics;
+  EXPECT_NE(metrics.find("aggscan_queue_depth 0"), std::string::npos) << metrics;
+  EXPECT_EQ(d.Stop(), 0);
+}
+
+TEST(CaptureScenario, SigkillDuringCaptureLosesNothing) {
+  TempDir t;
+  const std::string cfg = WriteConfig(t.path());
+  const std::string sample = t.path() + "/state/samples/crash-1";
+  std::mt19937 rng(20261122);
+  std::uniform_int_distribution<int> kill_after_ms(100, 2500);
+  std::map<std::string, uintmax_t> seen;  // complete view images seen so far -> size
+  int kills = 0;
+  bool finished = false;
+  for (int run = 0; run < 40 && !finished; ++run) {
+    Daemon d(cfg, t.path());
+    ASSERT_TRUE(d.ok()) << ReadAll(d.log());
+    if (fs::exists(sample)) {
+      json rec = json::parse(ReadAll(sample + "/sample.json"));
+      if (rec["state"] == "captured") {
+        finished = true;
+        break;
+      }
+      // After a kill the restarted daemon reports the capture as interrupted.
+      EXPECT_EQ(rec["state"], "interrupted") << rec.dump();
+    }
+    int code = 0;
+    json a = d.Post("/api/v1/samples", R"({"id": "crash-1"})", &code);
+    ASSERT_EQ(code, 200) << a.dump();
+    d.Post("/api/v1/button", "{}", &code);
+    ASSERT_EQ(code, 200);
+    if (kills >= 10) {
+      // Enough kills: let it finish, pressing for each further side.
+      json last;
+      for (;;) {
+        ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "awaiting_pose" || StateOf(s) == "idle"; }, 60,
+                              &last))
+            << last.dump();
+        if (StateOf(last) == "idle") break;
+        d.Post("/api/v1/button", "{}", &code);
+      }
+      finished = true;
+      continue;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(kill_after_ms(rng)));
+    d.Kill(SIGKILL);
+    ++kills;
+    // On disk right after the kill: no complete-looking file is partial.
+    CheckSampleConsistent(sample);
+    for (const auto& e : fs::recursive_directory_iterator(sample)) {
+      const std::string n = e.path().filename().string();
+      if (n.rfind("view_", 0) == 0 && e.path().extension() == ".json") {
+        fs::path img = e.path();
+        img.replace_extension(".jpg");
+        seen[img.filename().string() + "@" + std::to_string(fs::file_size(img))] = fs::file_size(img);
+      }
+    }
+  }
+  ASSERT_TRUE(finished);
+  EXPECT_GE(kills, 10);
+  json rec = json::parse(ReadAll(sample + "/sample.json"));
+  EXPECT_EQ(rec["state"], "captured");
+  CheckSampleConsistent(sample);
+  for (int side = 1; side <= 2; ++side) {
+    json man = json::parse(ReadAll(sample + "/side" + std::to_string(side) + "/manifest.json"));
+    EXPECT_EQ(man["views"].size(), 30u);
+  }
+  // Every view that was complete at some kill is still there (moved aside with its attempt).
+  std::set<std::string> now;
+  for (const auto& e : fs::recursive_directory_iterator(sample)) {
+    if (e.path().extension() == ".jpg") now.insert(e.path().filename().string() + "@" + std::to_string(fs::file_size(e.path())));
+    EXPECT_NE(e.path().filename().string().rfind(".tmp-", 0), 0u) << "leftover temp file " << e.path();
+  }
+  for (const auto& [key, size] : seen) EXPECT_TRUE(now.count(key)) << "lost view " << key;
+}
+
+struct FaultCase {
+  const char* name;
+  const char* toml;
+  const char* expected_class;
+};
+
+class FaultScenario : public ::testing::TestWithParam<FaultCase> {};
+
+TEST_P(FaultScenario, EndsInNamedFaultWhileApiAnswers) {
+  const FaultCase& fc = GetParam();
+  TempDir t;
+  const std::string cfg = WriteConfig(t.path(), std::string("[turntable.faults]\n") + fc.toml + "\n");
+  Daemon d(cfg, t.path());
+  ASSERT_TRUE(d.ok()) << ReadAll(d.log());
+  int code = 0;
+  d.Post("/api/v1/samples", R"({"id": "fault-1"})", &code);
+  ASSERT_EQ(code, 200);
+  d.Post("/api/v1/button", "{}", &code);
+  json last;
+  ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "faulted"; }, 60, &last)) << last.dump();
+  EXPECT_EQ(last["fault"]["class"], fc.expected_class) << last.dump();
+  EXPECT_FALSE(last["fault"]["message"].get<std::string>().empty());
+  // The API keeps answering while faulted.
+  for (int i = 0; i < 5; ++i) {
+    d.Get("/api/v1/status", &code);
+    EXPECT_EQ(code, 200);
+  }
+  const std::string metrics = d.Get("/metrics").get<std::string>();
+  EXPECT_NE(metrics.find(std::string("aggscan_faults_total{class=\"") + fc.expected_class + "\"} 1"), std::string::npos)
+      << metrics;
+  // A new sample cannot be armed until the fault is reset.
+  d.Post("/api/v1/samples", R"({"id": "fault-2"})", &code);
+  EXPECT_EQ(code, 409);
+  json rec = json::parse(ReadAll(t.path() + "/state/samples/fault-1/sample.json"));
+  EXPECT_EQ(rec["state"], "interrupted");
+  EXPECT_EQ(rec["sides"][0]["state"], "interrupted");
+  d.Post("/api/v1/reset", "{}", &code);
+  EXPECT_EQ(code, 200);
+  EXPECT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "idle"; }, 10));
+  EXPECT_EQ(d.Stop(), 0);
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    Faults, FaultScenario,
+    ::testing::Values(FaultCase{"stall", "stall_at_deg = 95.0", "stalled"},
+                      FaultCase{"timeout", "timeout_every_n_moves = 3", "timeout"},
+                      FaultCase{"disconnect", "disconnect_after = \"5s\"", "disconnected"}),
+    [](const ::testing::TestParamInfo<FaultCase>& i) { return std::string(i.param.name); });
+
+TEST(CaptureScenario, InvalidConfigExits78WithEveryProblem) {
+  TempDir t;
+  const std::string path = t.path() + "/bad.toml";
+  std::ofstream(path) << "[capture]\nviews_per_side = 0\ninterval = \"fast\"\n[camera]\nwidht = 5\n";
+  const int rc = WaitExit(Spawn({Bin("daemon/aggscand"), "--config", path, "--check-config"}, t.path() + "/out.log"));
+  EXPECT_EQ(rc, 78);
+  const std::string out = ReadAll(t.path() + "/out.log");
+  EXPECT_NE(out.find("bad.toml:2"), std::string::npos) << out;
+  EXPECT_NE(out.find("bad.toml:3"), std::string::npos) << out;
+  EXPECT_NE(out.find("bad.toml:5"), std::string::npos) << out;
+}
+
+}  // namespace
+}  // namespace aggscan::test
