@@ -1,0 +1,1018 @@
+// Config loading, validation and printing, driven by declarative field tables.
+//
+// Every config field is one line in Fields() (or MarkerFields()): its dotted
+// key (the member path itself, so the TOML key and the struct cannot drift),
+// its type (taken from the member), the values it accepts and its comment.
+// Parsing, range validation and ConfigToToml all walk those tables, so adding
+// a field to config.h and one line here is all it takes.
+#include "config/config.h"
+
+#include <toml++/toml.h>
+
+#include <algorithm>
+#include <charconv>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <map>
+#include <set>
+#include <sstream>
+#include <type_traits>
+#include <variant>
+
+#include "common/fsutil.h"
+
+namespace aggscan {
+namespace {
+
+// ---------------------------------------------------------------------------
+// Field tables
+
+struct DurRef {
+  TimeNs* p;
+};
+struct OptDurRef {
+  std::optional<TimeNs>* p;
+};
+// A typed pointer to one field. int64_t members are always durations (TimeNs)
+// and go through DurRef, so a plain integer field must be int or uint64_t.
+using Ref = std::variant<bool*, int*, uint64_t*, double*, std::string*, DurRef,
+                         std::optional<double>*, OptDurRef>;
+
+inline Ref DurationRef(TimeNs* p) { return DurRef{p}; }
+inline Ref DurationRef(std::optional<TimeNs>* p) { return OptDurRef{p}; }
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+// Which values a field accepts.
+struct Check {
+  enum Kind { kAny, kRange, kOneOf, kBackend, kNonEmpty };
+  Kind kind = kAny;
+  double lo = -kInf;
+  double hi = kInf;
+  bool lo_open = false;                // lo itself is not allowed ("> 0")
+  std::vector<std::string> choices;    // kOneOf
+  const char* backend_kind = nullptr;  // kBackend: KnownBackends(backend_kind)
+};
+
+Check Any() { return {}; }
+Check Range(double lo, double hi) { return {Check::kRange, lo, hi, false, {}, nullptr}; }
+Check Above(double lo, double hi = kInf) { return {Check::kRange, lo, hi, true, {}, nullptr}; }
+Check OneOf(std::vector<std::string> v) {
+  return {Check::kOneOf, -kInf, kInf, false, std::move(v), nullptr};
+}
+Check Backend(const char* kind) { return {Check::kBackend, -kInf, kInf, false, {}, kind}; }
+Check NonEmpty() { return {Check::kNonEmpty, -kInf, kInf, false, {}, nullptr}; }
+
+constexpr double kSec = static_cast<double>(kNsPerSec);
+constexpr double kMs = static_cast<double>(kNsPerMs);
+
+template <class S>
+struct Field {
+  const char* key;      // dotted TOML key, relative to S
+  Ref (*ref)(S&);       // the member
+  Check check;          // accepted values
+  const char* comment;  // written above the key by ConfigToToml
+};
+
+// One line per field. The key is the member path, stringified.
+// clang-format off
+// NOLINTBEGIN(bugprone-macro-parentheses): S is a type, path a member path.
+#define AGG_FIELD(S, path, check, comment) \
+  Field<S>{#path, [](S& s) -> Ref { return &s.path; }, check, comment}
+#define AGG_DURATION(S, path, check, comment) \
+  Field<S>{#path, [](S& s) -> Ref { return DurationRef(&s.path); }, check, comment}
+// NOLINTEND(bugprone-macro-parentheses)
+// clang-format on
+#define F(path, check, comment) AGG_FIELD(Config, path, check, comment)
+#define D(path, check, comment) AGG_DURATION(Config, path, check, comment)
+
+const std::vector<std::string>& LogLevels() {
+  static const std::vector<std::string> k = {"error", "warning", "notice", "info", "debug"};
+  return k;
+}
+const std::vector<std::string>& MarkerColors() {
+  static const std::vector<std::string> k = {"red", "green", "blue", "yellow"};
+  return k;
+}
+const std::vector<std::string>& Profiles() {
+  static const std::vector<std::string> k = {"paper", "full-turn", "custom"};
+  return k;
+}
+
+const std::vector<Field<Config>>& Fields() {
+  static const std::vector<Field<Config>> k = {
+      F(daemon.state_dir, NonEmpty(),
+        "samples/, queue.db and calibration live here (absolute path for a service)"),
+      F(daemon.listen_address, NonEmpty(), "HTTP API bind address"),
+      F(daemon.listen_port, Range(0, 65535), "HTTP API port (0 = pick a free one, tests)"),
+      F(daemon.log_level, OneOf(LogLevels()), "error | warning | notice | info | debug"),
+      F(daemon.time_scale, Range(1, 1000),
+        "sim rig only: clock runs this many times faster than real time (1..1000)"),
+
+      F(capture.profile, OneOf(Profiles()),
+        "paper (fixes sides 2, views_per_side 30, step_deg 30, interval 2s) | "
+        "full-turn (step_deg = 360/views_per_side) | custom (every value as given)"),
+      F(capture.sides, Range(1, 4), "poses of the rock (operator flips between sides)"),
+      F(capture.views_per_side, Range(1, 360), "photos per side"),
+      F(capture.step_deg, Above(0, 360),
+        "turntable step between views, degrees (full-turn: 360/views_per_side)"),
+      D(capture.interval, Above(0, 3600 * kSec), "view i of a side is due at t0 + i*interval"),
+      D(capture.settle, Range(0, 10 * kSec),
+        "wait after in-position before the shot (platter oscillation)"),
+      D(capture.home_timeout, Above(0, 3600 * kSec), "homing must finish within this"),
+      D(capture.move_timeout, Above(0, 3600 * kSec), "one step must reach in-position within this"),
+      D(capture.frame_timeout, Above(0, 3600 * kSec),
+        "a still must arrive within this after the trigger"),
+      D(capture.poll_interval, Above(0, 10 * kSec), "turntable status polling period while moving"),
+      D(capture.stall_timeout, Above(0, 600 * kSec),
+        "moving but position unchanged this long = stalled"),
+      F(capture.comm_retries, Range(0, 10), "turntable communication retries before a fault"),
+
+      F(camera.backend, Backend("camera"),
+        "camera backend: sim (v4l2, libcamera in a later issue)"),
+      F(camera.id, NonEmpty(), "camera id recorded in every sidecar"),
+      F(camera.device, Any(),
+        "device path or udev name for real backends, e.g. /dev/aggscan/camera"),
+      F(camera.width, Range(16, 16384), "still width, pixels"),
+      F(camera.height, Range(16, 16384), "still height, pixels"),
+      F(camera.jpeg_quality, Range(1, 100), "1..100, when the driver encodes JPEG itself"),
+      F(camera.exposure.manual, Any(), "lock exposure so all views of a rock share it"),
+      F(camera.exposure.exposure_us, Above(0, 10'000'000), "shutter time, microseconds"),
+      F(camera.exposure.gain, Range(1, 64), "analogue gain (1.0 = base ISO)"),
+      F(camera.exposure.wb_red, Above(0, 16), "white balance red gain, locked like exposure"),
+      F(camera.exposure.wb_blue, Above(0, 16), "white balance blue gain, locked like exposure"),
+
+      F(turntable.backend, Backend("turntable"),
+        "turntable backend: sim (modbus-rtu, modbus-tcp, usb in a later issue)"),
+      F(turntable.max_speed_deg_s, Above(0, 3600), "trapezoidal profile speed limit, degrees/s"),
+      F(turntable.accel_deg_s2, Above(0, 36000),
+        "trapezoidal profile acceleration limit, degrees/s^2"),
+      F(turntable.repeatability_deg, Range(0, 5),
+        "sim: 1-sigma random angle error per move, degrees"),
+      F(turntable.backlash_deg, Range(0, 5), "sim: lost motion on direction reversal, degrees"),
+      F(turntable.settle_amplitude_deg, Range(0, 10),
+        "sim: oscillation amplitude when the move ends, degrees"),
+      D(turntable.settle_time_constant, Above(0, 10 * kSec),
+        "sim: exponential decay of that oscillation"),
+      F(turntable.settle_frequency_hz, Above(0, 100), "sim: its frequency, Hz"),
+      D(turntable.home_duration, Range(0, 600 * kSec), "sim: homing time"),
+      F(turntable.faults.stall_at_deg, Range(-3600, 3600),
+        "motion stops at this absolute angle, degrees (stall)"),
+      F(turntable.faults.timeout_every_n_moves, Range(0, 1'000'000),
+        "every n-th move the controller stops answering (0 = never)"),
+      D(turntable.faults.disconnect_after, Above(0), "device disappears this long after open"),
+
+      F(button.backend, Backend("button"),
+        "button backend: sim (gpio, evdev, modbus in a later issue)"),
+      D(button.debounce, Range(0, 1 * kSec), "presses closer than this are one press"),
+
+      F(sim.seed, Any(), "procedural rock, noise and turntable errors"),
+      F(sim.rock_mesh, Any(), "PLY/OBJ/STL file; empty = procedural rock from seed"),
+      F(sim.rock_unit, OneOf({"mm", "cm", "m"}), "unit of rock_mesh coordinates: mm | cm | m"),
+      F(sim.rock_size_mm, Range(0, 1000),
+        "procedural rock longest dimension, mm; 0 = random 70..200 mm"),
+      F(sim.camera_elevation_deg, Range(10, 80),
+        "camera above the turntable plane, degrees (the paper: 30..45)"),
+      F(sim.camera_distance_mm, Range(50, 10000), "camera distance from the turntable centre, mm"),
+      F(sim.hfov_deg, Range(5, 150), "horizontal field of view, degrees"),
+      F(sim.k1, Range(-1, 1), "radial distortion (Brown) coefficient k1"),
+      F(sim.k2, Range(-1, 1), "radial distortion (Brown) coefficient k2"),
+      F(sim.noise_sigma, Range(0, 64), "sensor noise, 8-bit levels"),
+      F(sim.write_truth, Any(), "write ground-truth masks/poses next to the sample (tests)"),
+
+      F(rig.turntable_diameter_mm, Above(0, 5000), "turntable disc diameter, mm (the paper: 305)"),
+      F(rig.marker_size_mm, Above(0, 1000), "side of each square colour label, mm"),
+
+      D(worker.poll_interval, Above(0, 60 * kSec), "queue polling period when idle"),
+      F(worker.nice, Range(0, 19), "CPU priority below the capture daemon (0..19)"),
+  };
+  return k;
+}
+
+#undef F
+#undef D
+
+// [[rig.markers]] entries.
+constexpr const char* kMarkersKey = "rig.markers";
+const std::vector<Field<RigMarker>>& MarkerFields() {
+  static const std::vector<Field<RigMarker>> k = {
+      AGG_FIELD(RigMarker, color, OneOf(MarkerColors()),
+                "red | green | blue | yellow, each at most once"),
+      AGG_FIELD(RigMarker, x_mm, Range(-5000, 5000),
+                "centre in the turntable frame (z up, origin at the axis), mm"),
+      AGG_FIELD(RigMarker, y_mm, Range(-5000, 5000), "centre in the turntable frame, mm"),
+  };
+  return k;
+}
+
+#undef AGG_FIELD
+#undef AGG_DURATION
+
+struct Section {
+  const char* name;
+  const char* comment;
+};
+// Output order; a parent table comes before its sub-tables.
+const std::vector<Section>& Sections() {
+  static const std::vector<Section> k = {
+      {"daemon", "Capture daemon: state directory, HTTP API, logging."},
+      {"capture", "Capture schedule and device deadlines."},
+      {"camera", "Camera backend and still format."},
+      {"camera.exposure", "Locked exposure: every view of a rock shares it."},
+      {"turntable", "Turntable backend, motion limits and the sim platter model."},
+      {"turntable.faults", "Sim turntable fault injection (tests); unset = no fault."},
+      {"button", "Operator start button."},
+      {"sim", "Simulated rig: rock, camera geometry and sensor."},
+      {"rig", "Rig geometry: turntable and the background scale markers."},
+      {"worker", "Reconstruction worker."},
+  };
+  return k;
+}
+
+template <class S>
+const Field<S>* FindField(const std::vector<Field<S>>& fields, const std::string& key) {
+  for (const auto& f : fields) {
+    if (key == f.key) return &f;
+  }
+  return nullptr;
+}
+
+bool IsSection(const std::string& key) {
+  for (const auto& s : Sections()) {
+    if (key == s.name) return true;
+  }
+  return false;
+}
+
+// ---------------------------------------------------------------------------
+// Formatting helpers
+
+template <class... Ts>
+struct Overloaded : Ts... {
+  using Ts::operator()...;
+};
+template <class... Ts>
+Overloaded(Ts...) -> Overloaded<Ts...>;
+
+// Shortest text that reads back to the same double, always a TOML float.
+std::string FormatDouble(double v) {
+  char buf[64];
+  auto res = std::to_chars(buf, buf + sizeof(buf), v);
+  std::string s(buf, res.ptr);
+  if (s.find_first_of(".eni") == std::string::npos) s += ".0";
+  return s;
+}
+
+// TOML basic string.
+std::string Quote(const std::string& s) {
+  std::string out = "\"";
+  for (unsigned char ch : s) {
+    switch (ch) {
+      case '"':
+        out += "\\\"";
+        break;
+      case '\\':
+        out += "\\\\";
+        break;
+      case '\b':
+        out += "\\b";
+        break;
+      case '\t':
+        out += "\\t";
+        break;
+      case '\n':
+        out += "\\n";
+        break;
+      case '\f':
+        out += "\\f";
+        break;
+      case '\r':
+        out += "\\r";
+        break;
+      default:
+        if (ch < 0x20 || ch == 0x7f) {
+          char buf[8];
+          std::snprintf(buf, sizeof(buf), "\\u%04X", ch);
+          out += buf;
+        } else {
+          out += static_cast<char>(ch);
+        }
+    }
+  }
+  return out + "\"";
+}
+
+std::string Join(const std::vector<std::string>& v, const char* sep) {
+  std::string out;
+  for (size_t i = 0; i < v.size(); ++i) {
+    if (i) out += sep;
+    out += v[i];
+  }
+  return out;
+}
+
+// Value as TOML text; nullopt for an unset optional.
+std::optional<std::string> ToTomlValue(const Ref& ref) {
+  return std::visit(
+      Overloaded{
+          [](bool* p) -> std::optional<std::string> { return *p ? "true" : "false"; },
+          [](int* p) -> std::optional<std::string> { return std::to_string(*p); },
+          [](uint64_t* p) -> std::optional<std::string> { return std::to_string(*p); },
+          [](double* p) -> std::optional<std::string> { return FormatDouble(*p); },
+          [](std::string* p) -> std::optional<std::string> { return Quote(*p); },
+          [](DurRef r) -> std::optional<std::string> { return Quote(FormatDuration(*r.p)); },
+          [](std::optional<double>* p) -> std::optional<std::string> {
+            if (!*p) return std::nullopt;
+            return FormatDouble(**p);
+          },
+          [](OptDurRef r) -> std::optional<std::string> {
+            if (!*r.p) return std::nullopt;
+            return Quote(FormatDuration(**r.p));
+          },
+      },
+      ref);
+}
+
+const char* TypeName(const toml::node& n) {
+  switch (n.type()) {
+    case toml::node_type::table:
+      return "a table";
+    case toml::node_type::array:
+      return "an array";
+    case toml::node_type::string:
+      return "a string";
+    case toml::node_type::integer:
+      return "an integer";
+    case toml::node_type::floating_point:
+      return "a float";
+    case toml::node_type::boolean:
+      return "a boolean";
+    case toml::node_type::date:
+      return "a date";
+    case toml::node_type::time:
+      return "a time";
+    case toml::node_type::date_time:
+      return "a date-time";
+    default:
+      return "nothing";
+  }
+}
+
+// Stores a TOML value into the field; returns a message on a type mismatch.
+std::string Assign(const toml::node& n, const Ref& ref) {
+  auto got = [&](const char* expected) {
+    return std::string("expected ") + expected + ", got " + TypeName(n);
+  };
+  auto number = [&](double* out) -> std::string {
+    if (auto i = n.as_integer()) {
+      *out = static_cast<double>(i->get());
+    } else if (auto d = n.as_floating_point()) {
+      *out = d->get();
+    } else {
+      return got("a number");
+    }
+    return {};
+  };
+  auto duration = [&](TimeNs* out) -> std::string {
+    const auto* s = n.as_string();
+    if (!s) return got("a duration string with a unit, e.g. \"2s\" or \"500ms\"");
+    if (!ParseDuration(s->get(), out)) {
+      return "\"" + s->get() +
+             "\" is not a duration; write a number and a unit (ns, us, ms, s, min, h), e.g. \"2s\"";
+    }
+    return {};
+  };
+  return std::visit(
+      Overloaded{
+          [&](bool* p) -> std::string {
+            const auto* b = n.as_boolean();
+            if (!b) return got("a boolean (true or false)");
+            *p = b->get();
+            return {};
+          },
+          [&](int* p) -> std::string {
+            const auto* i = n.as_integer();
+            if (!i) return got("an integer");
+            int64_t v = i->get();
+            if (v < std::numeric_limits<int>::min() || v > std::numeric_limits<int>::max()) {
+              return "integer " + std::to_string(v) + " is out of range";
+            }
+            *p = static_cast<int>(v);
+            return {};
+          },
+          [&](uint64_t* p) -> std::string {
+            const auto* i = n.as_integer();
+            if (!i) return got("an integer");
+            if (i->get() < 0) return "must be >= 0, got " + std::to_string(i->get());
+            *p = static_cast<uint64_t>(i->get());
+            return {};
+          },
+          [&](double* p) -> std::string { return number(p); },
+          [&](std::string* p) -> std::string {
+            const auto* s = n.as_string();
+            if (!s) return got("a string");
+            *p = s->get();
+            return {};
+          },
+          [&](DurRef r) -> std::string { return duration(r.p); },
+          [&](std::optional<double>* p) -> std::string {
+            double v = 0;
+            std::string err = number(&v);
+            if (err.empty()) *p = v;
+            return err;
+          },
+          [&](OptDurRef r) -> std::string {
+            TimeNs v = 0;
+            std::string err = duration(&v);
+            if (err.empty()) *r.p = v;
+            return err;
+          },
+      },
+      ref);
+}
+
+// ---------------------------------------------------------------------------
+// Field validation
+
+struct Numeric {
+  double value;
+  bool is_duration;
+  bool is_integer;
+};
+
+// The field's value as a number; nullopt for strings, bools and unset optionals.
+std::optional<Numeric> NumericValue(const Ref& ref) {
+  return std::visit(Overloaded{
+                        [](bool*) -> std::optional<Numeric> { return std::nullopt; },
+                        [](int* p) -> std::optional<Numeric> {
+                          return Numeric{static_cast<double>(*p), false, true};
+                        },
+                        [](uint64_t* p) -> std::optional<Numeric> {
+                          return Numeric{static_cast<double>(*p), false, true};
+                        },
+                        [](double* p) -> std::optional<Numeric> {
+                          return Numeric{*p, false, false};
+                        },
+                        [](std::string*) -> std::optional<Numeric> { return std::nullopt; },
+                        [](DurRef r) -> std::optional<Numeric> {
+                          return Numeric{static_cast<double>(*r.p), true, true};
+                        },
+                        [](std::optional<double>* p) -> std::optional<Numeric> {
+                          if (!*p) return std::nullopt;
+                          return Numeric{**p, false, false};
+                        },
+                        [](OptDurRef r) -> std::optional<Numeric> {
+                          if (!*r.p) return std::nullopt;
+                          return Numeric{static_cast<double>(**r.p), true, true};
+                        },
+                    },
+                    ref);
+}
+
+std::string FormatNumber(double v, const Numeric& n) {
+  if (n.is_duration) return FormatDuration(static_cast<TimeNs>(v));
+  if (n.is_integer && std::abs(v) < 1e18) return std::to_string(static_cast<int64_t>(v));
+  std::string s = FormatDouble(v);
+  if (s.size() > 2 && s.compare(s.size() - 2, 2, ".0") == 0) s.resize(s.size() - 2);
+  return s;
+}
+
+// Message if the value breaks the check, empty if it passes.
+std::string CheckValue(const Ref& ref, const Check& check) {
+  switch (check.kind) {
+    case Check::kAny:
+      return {};
+    case Check::kRange: {
+      auto n = NumericValue(ref);
+      if (!n) return {};
+      double v = n->value;
+      bool ok = (check.lo_open ? v > check.lo : v >= check.lo) && v <= check.hi;  // false for NaN
+      if (ok) return {};
+      std::string want;
+      if (check.lo_open) {
+        want = "must be > " + FormatNumber(check.lo, *n);
+        if (check.hi != kInf) want += " and <= " + FormatNumber(check.hi, *n);
+      } else {
+        want = "must be in " + FormatNumber(check.lo, *n) + ".." + FormatNumber(check.hi, *n);
+      }
+      return want + ", got " + FormatNumber(v, *n);
+    }
+    case Check::kOneOf:
+    case Check::kBackend: {
+      const auto* s = std::get_if<std::string*>(&ref);
+      if (!s) return {};
+      const auto& choices =
+          check.kind == Check::kOneOf ? check.choices : KnownBackends(check.backend_kind);
+      if (std::find(choices.begin(), choices.end(), **s) != choices.end()) return {};
+      if (check.kind == Check::kBackend) {
+        return std::string("unknown ") + check.backend_kind + " backend \"" + **s +
+               "\"; known: " + Join(choices, ", ");
+      }
+      return "must be one of " + Join(choices, " | ") + ", got \"" + **s + "\"";
+    }
+    case Check::kNonEmpty: {
+      const auto* s = std::get_if<std::string*>(&ref);
+      if (s && (*s)->empty()) return "must not be empty";
+      return {};
+    }
+  }
+  return {};
+}
+
+// ---------------------------------------------------------------------------
+// Edit distance for "did you mean"
+
+// Optimal string alignment distance: Levenshtein plus adjacent transpositions
+// ("widht" -> "width" is one edit), the commonest typo in a key.
+size_t EditDistance(const std::string& a, const std::string& b) {
+  std::vector<std::vector<size_t>> d(a.size() + 1, std::vector<size_t>(b.size() + 1));
+  for (size_t i = 0; i <= a.size(); ++i) d[i][0] = i;
+  for (size_t j = 0; j <= b.size(); ++j) d[0][j] = j;
+  for (size_t i = 1; i <= a.size(); ++i) {
+    for (size_t j = 1; j <= b.size(); ++j) {
+      size_t cost = a[i - 1] == b[j - 1] ? 0 : 1;
+      d[i][j] = std::min({d[i - 1][j] + 1, d[i][j - 1] + 1, d[i - 1][j - 1] + cost});
+      if (i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1]) {
+        d[i][j] = std::min(d[i][j], d[i - 2][j - 2] + 1);
+      }
+    }
+  }
+  return d[a.size()][b.size()];
+}
+
+std::string Parent(const std::string& key) {
+  auto dot = key.rfind('.');
+  return dot == std::string::npos ? std::string() : key.substr(0, dot);
+}
+std::string Leaf(const std::string& key) {
+  auto dot = key.rfind('.');
+  return dot == std::string::npos ? key : key.substr(dot + 1);
+}
+
+// ---------------------------------------------------------------------------
+// Validation shared by the loader (with lines) and ValidateConfig (without).
+
+using LineMap = std::map<std::string, int>;
+
+class Validator {
+ public:
+  Validator(const std::string& file, const LineMap* lines, std::vector<ConfigProblem>* problems)
+      : file_(file), lines_(lines), problems_(problems) {}
+
+  void Add(const std::string& key, const std::string& message) {
+    int line = 0;
+    if (lines_) {
+      auto it = lines_->find(key);
+      if (it != lines_->end()) line = it->second;
+    }
+    problems_->push_back(ConfigProblem{file_, line, key, message});
+  }
+
+  void Run(const Config& config) {
+    Config& c = const_cast<Config&>(config);  // refs are only read here
+    for (const auto& f : Fields()) {
+      std::string msg = CheckValue(f.ref(c), f.check);
+      if (!msg.empty()) Add(f.key, msg);
+    }
+    std::set<std::string> colors;
+    for (size_t i = 0; i < c.rig.markers.size(); ++i) {
+      RigMarker& m = c.rig.markers[i];
+      std::string prefix = std::string(kMarkersKey) + "[" + std::to_string(i) + "].";
+      for (const auto& f : MarkerFields()) {
+        std::string msg = CheckValue(f.ref(m), f.check);
+        if (std::string(f.key) == "color" && m.color.empty()) {
+          msg = "missing; every marker needs a colour (red | green | blue | yellow)";
+        }
+        if (!msg.empty()) Add(prefix + f.key, msg);
+      }
+      if (!m.color.empty() && !colors.insert(m.color).second) {
+        Add(prefix + "color",
+            "colour \"" + m.color + "\" is used by another marker; each colour at most once");
+      }
+    }
+    CrossField(c);
+  }
+
+ private:
+  void CrossField(const Config& c) {
+    const CaptureConfig& cap = c.capture;
+    if (cap.profile == "paper") {
+      // Only reachable for a struct that skipped ApplyProfile; files are fixed up.
+      if (cap.sides != 2 || cap.views_per_side != 30 || cap.step_deg != 30.0 ||
+          cap.interval != 2 * kNsPerSec) {
+        Add("capture.profile",
+            "profile \"paper\" means sides 2, views_per_side 30, step_deg 30, interval 2s; call "
+            "ApplyProfile or "
+            "set capture.profile = \"custom\"");
+      }
+    } else if (cap.profile == "full-turn" && cap.views_per_side >= 1) {
+      if (std::abs(cap.step_deg - 360.0 / cap.views_per_side) > 1e-9) {
+        Add("capture.step_deg", "profile \"full-turn\" means step_deg = 360/views_per_side = " +
+                                    FormatDouble(360.0 / cap.views_per_side) + ", got " +
+                                    FormatDouble(cap.step_deg));
+      }
+    }
+
+    // One step (trapezoidal profile) plus the settle wait must fit in the
+    // interval, and the move deadline must allow the move itself.
+    const TurntableConfig& tt = c.turntable;
+    if (tt.max_speed_deg_s > 0 && tt.accel_deg_s2 > 0 && cap.step_deg > 0 &&
+        std::isfinite(cap.step_deg)) {
+      double v = tt.max_speed_deg_s, a = tt.accel_deg_s2, d = cap.step_deg;
+      double move_s = d >= v * v / a ? d / v + v / a : 2.0 * std::sqrt(d / a);
+      auto move_ns = static_cast<TimeNs>(std::ceil(move_s * kSec));
+      if (cap.views_per_side > 1 && cap.interval > 0 && move_ns + cap.settle > cap.interval) {
+        Add("capture.interval", FormatDuration(cap.interval) + " is shorter than one step (" +
+                                    FormatDouble(d) + " deg at " + FormatDouble(v) + " deg/s, " +
+                                    FormatDouble(a) + " deg/s^2: " + FormatDuration(move_ns) +
+                                    ") plus capture.settle " + FormatDuration(cap.settle) +
+                                    "; raise the interval or the turntable speed");
+      }
+      if (cap.move_timeout > 0 && move_ns > cap.move_timeout) {
+        Add("capture.move_timeout", FormatDuration(cap.move_timeout) +
+                                        " is shorter than one step's motion (" +
+                                        FormatDuration(move_ns) + ")");
+      }
+    }
+    if (cap.stall_timeout > 0 && cap.poll_interval > 0 && cap.stall_timeout <= cap.poll_interval) {
+      Add("capture.stall_timeout", "must be longer than capture.poll_interval (" +
+                                       FormatDuration(cap.poll_interval) +
+                                       ") or no stall can be seen");
+    }
+    if (c.sim.seed > static_cast<uint64_t>(std::numeric_limits<int64_t>::max())) {
+      Add("sim.seed", "must be <= " + std::to_string(std::numeric_limits<int64_t>::max()) +
+                          " (TOML integers are signed 64-bit)");
+    }
+    if (c.sim.rock_size_mm > 0 && c.sim.rock_size_mm < 10) {
+      Add("sim.rock_size_mm",
+          "must be 0 (random) or at least 10 mm, got " + FormatDouble(c.sim.rock_size_mm));
+    }
+    if (c.sim.camera_distance_mm <= c.rig.turntable_diameter_mm / 2) {
+      Add("sim.camera_distance_mm", "camera must stand outside the turntable (radius " +
+                                        FormatDouble(c.rig.turntable_diameter_mm / 2) + " mm)");
+    }
+  }
+
+  const std::string& file_;
+  const LineMap* lines_;
+  std::vector<ConfigProblem>* problems_;
+};
+
+// ---------------------------------------------------------------------------
+// Loader: TOML tree -> Config, with every problem and the line of every key.
+
+class Loader {
+ public:
+  Loader(const std::string& file, std::vector<ConfigProblem>* problems)
+      : file_(file), problems_(problems) {}
+
+  void Add(int line, const std::string& key, const std::string& message) {
+    problems_->push_back(ConfigProblem{file_, line, key, message});
+  }
+
+  void Walk(const toml::table& t, const std::string& prefix, Config* c) {
+    for (auto&& [k, v] : t) {
+      std::string key = prefix.empty() ? std::string(k.str()) : prefix + "." + std::string(k.str());
+      int line = LineOf(v, k);
+      if (const auto* f = FindField(Fields(), key)) {
+        lines_[key] = line;
+        std::string err = Assign(v, f->ref(*c));
+        if (!err.empty()) Add(line, key, err);
+      } else if (key == kMarkersKey) {
+        lines_[key] = line;
+        LoadMarkers(v, c);
+      } else if (IsSection(key)) {
+        if (const auto* sub = v.as_table()) {
+          Walk(*sub, key, c);
+        } else {
+          Add(line, key, std::string("expected a table, got ") + TypeName(v));
+        }
+      } else {
+        Add(line, key, "unknown key" + Suggest(key));
+      }
+    }
+  }
+
+  // Profile rule (config.h): a fixed value given with another value is a problem.
+  void CheckProfileOverrides(const Config& c) {
+    const CaptureConfig& cap = c.capture;
+    auto fixed = [&](const char* key, bool differs, const std::string& value) {
+      auto it = lines_.find(key);
+      if (it == lines_.end() || !differs) return;
+      Add(it->second, key,
+          "capture.profile \"" + cap.profile + "\" fixes this to " + value +
+              "; set capture.profile = \"custom\" " + "to change it");
+    };
+    if (cap.profile == "paper") {
+      fixed("capture.sides", cap.sides != 2, "2");
+      fixed("capture.views_per_side", cap.views_per_side != 30, "30");
+      fixed("capture.step_deg", cap.step_deg != 30.0, "30");
+      fixed("capture.interval", cap.interval != 2 * kNsPerSec, "\"2s\"");
+    } else if (cap.profile == "full-turn" && cap.views_per_side >= 1 && cap.views_per_side <= 360) {
+      double step = 360.0 / cap.views_per_side;
+      fixed("capture.step_deg", std::abs(cap.step_deg - step) > 1e-9,
+            "360/views_per_side = " + FormatDouble(step));
+    }
+  }
+
+  const LineMap& lines() const { return lines_; }
+
+ private:
+  static int LineOf(const toml::node& v, const toml::key& k) {
+    int line = static_cast<int>(v.source().begin.line);
+    return line > 0 ? line : static_cast<int>(k.source().begin.line);
+  }
+
+  void LoadMarkers(const toml::node& v, Config* c) {
+    const auto* arr = v.as_array();
+    if (!arr) {
+      Add(static_cast<int>(v.source().begin.line), kMarkersKey,
+          std::string("expected an array of tables ([[rig.markers]]), got ") + TypeName(v));
+      return;
+    }
+    std::vector<RigMarker> markers;
+    for (size_t i = 0; i < arr->size(); ++i) {
+      const toml::node& el = *arr->get(i);
+      int el_line = static_cast<int>(el.source().begin.line);
+      const auto* t = el.as_table();
+      if (!t) {
+        Add(el_line, std::string(kMarkersKey) + "[" + std::to_string(i) + "]",
+            std::string("expected a table {color, x_mm, y_mm}, got ") + TypeName(el));
+        continue;
+      }
+      // Keys use the index in the loaded list, as ValidateConfig sees it.
+      std::string prefix = std::string(kMarkersKey) + "[" + std::to_string(markers.size()) + "]";
+      RigMarker m;
+      m.color.clear();
+      for (auto&& [k, mv] : *t) {
+        std::string key = prefix + "." + std::string(k.str());
+        int line = LineOf(mv, k);
+        if (const auto* f = FindField(MarkerFields(), std::string(k.str()))) {
+          lines_[key] = line;
+          std::string err = Assign(mv, f->ref(m));
+          if (!err.empty()) Add(line, key, err);
+        } else {
+          std::string hint;
+          size_t best = 3;
+          for (const auto& f : MarkerFields()) {
+            size_t d = EditDistance(std::string(k.str()), f.key);
+            if (d < best) {
+              best = d;
+              hint = std::string("; did you mean ") + f.key + "?";
+            }
+          }
+          Add(line, key, "unknown key" + hint);
+        }
+      }
+      if (!t->contains("color"))
+        lines_[prefix + ".color"] = el_line;  // reported as missing by the validator
+      markers.push_back(std::move(m));
+    }
+    c->rig.markers = std::move(markers);
+  }
+
+  // "; did you mean X?" for a close key in the same table, or the same name in
+  // another table ("camera.interval" -> "capture.interval").
+  static std::string Suggest(const std::string& key) {
+    std::vector<std::string> known;
+    for (const auto& f : Fields()) known.emplace_back(f.key);
+    for (const auto& s : Sections()) known.emplace_back(s.name);
+    known.emplace_back(kMarkersKey);
+
+    const std::string parent = Parent(key), leaf = Leaf(key);
+    size_t limit = leaf.size() <= 3 ? 1 : std::clamp<size_t>(leaf.size() / 3, 2, 3);
+    std::string best;
+    size_t best_d = limit + 1;
+    for (const auto& k : known) {
+      if (Parent(k) != parent) continue;
+      size_t d = EditDistance(leaf, Leaf(k));
+      if (d < best_d) {
+        best_d = d;
+        best = k;
+      }
+    }
+    if (best.empty()) {
+      for (const auto& k : known) {
+        if (Leaf(k) == leaf) {
+          best = k;
+          break;
+        }
+      }
+    }
+    return best.empty() ? std::string() : "; did you mean " + best + "?";
+  }
+
+  const std::string& file_;
+  std::vector<ConfigProblem>* problems_;
+  LineMap lines_;
+};
+
+Error ProblemsError(const std::string& file, const std::vector<ConfigProblem>& problems,
+                    size_t first) {
+  size_t n = problems.size() - first;
+  std::string detail;
+  for (size_t i = first; i < problems.size(); ++i) {
+    if (i > first) detail += "\n";
+    detail += problems[i].ToString();
+  }
+  std::string msg = file + ": " + std::to_string(n) +
+                    (n == 1 ? " config problem" : " config problems") +
+                    ", first: " + problems[first].ToString();
+  return MakeError(ErrorClass::kInvalidConfig, std::move(msg), std::move(detail));
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------
+// Public API
+
+const std::vector<std::string>& KnownBackends(const std::string& kind) {
+  // Add a real backend's name here when its driver lands in the factory.
+  static const std::map<std::string, std::vector<std::string>> kBackends = {
+      {"camera", {"sim"}},
+      {"turntable", {"sim"}},
+      {"button", {"sim"}},
+  };
+  static const std::vector<std::string> kNone;
+  auto it = kBackends.find(kind);
+  return it == kBackends.end() ? kNone : it->second;
+}
+
+std::string ConfigProblem::ToString() const {
+  std::string s = file;
+  if (line > 0) s += ":" + std::to_string(line);
+  s += ": ";
+  if (!key.empty()) s += key + ": ";
+  return s + message;
+}
+
+Result<Config> LoadConfigString(const std::string& text, const std::string& file,
+                                std::vector<ConfigProblem>* problems) {
+  std::vector<ConfigProblem> local;
+  if (!problems) problems = &local;
+  const size_t first = problems->size();
+
+  Config c;
+  toml::table root;
+  try {
+    root = toml::parse(text, file);
+  } catch (const toml::parse_error& e) {
+    problems->push_back(ConfigProblem{file, static_cast<int>(e.source().begin.line), "",
+                                      "TOML syntax error: " + std::string(e.description())});
+    return ProblemsError(file, *problems, first);
+  }
+
+  Loader loader(file, problems);
+  loader.Walk(root, "", &c);
+  loader.CheckProfileOverrides(c);
+  ApplyProfile(&c);
+  Validator(file, &loader.lines(), problems).Run(c);
+
+  // toml++ iterates tables in key order; report in file order (lineless last).
+  std::stable_sort(problems->begin() + static_cast<std::ptrdiff_t>(first), problems->end(),
+                   [](const ConfigProblem& a, const ConfigProblem& b) {
+                     auto key = [](const ConfigProblem& p) {
+                       return p.line > 0 ? p.line : std::numeric_limits<int>::max();
+                     };
+                     return key(a) < key(b);
+                   });
+  if (problems->size() > first) return ProblemsError(file, *problems, first);
+  return c;
+}
+
+Result<Config> LoadConfigFile(const std::string& path, std::vector<ConfigProblem>* problems) {
+  auto text = ReadFile(path);
+  if (!text.ok()) {
+    if (problems)
+      problems->push_back(ConfigProblem{path, 0, "", "cannot read: " + text.error().ToString()});
+    return MakeError(ErrorClass::kInvalidConfig, "cannot read config file " + path,
+                     text.error().ToString());
+  }
+  return LoadConfigString(*text, path, problems);
+}
+
+void ValidateConfig(const Config& c, const std::string& file,
+                    std::vector<ConfigProblem>* problems) {
+  if (!problems) return;
+  Validator(file, nullptr, problems).Run(c);
+}
+
+void ApplyProfile(Config* c) {
+  CaptureConfig& cap = c->capture;
+  if (cap.profile == "paper") {
+    // The source paper: 30 views a side, ~30 deg apart, one every 2 s, two sides.
+    cap.sides = 2;
+    cap.views_per_side = 30;
+    cap.step_deg = 30.0;
+    cap.interval = 2 * kNsPerSec;
+  } else if (cap.profile == "full-turn") {
+    if (cap.views_per_side >= 1) cap.step_deg = 360.0 / cap.views_per_side;
+  }
+}
+
+std::string ConfigToToml(const Config& config) {
+  Config& c = const_cast<Config&>(config);  // refs are only read here
+  std::ostringstream out;
+  out << "# aggscan configuration: every field with its effective value.\n"
+         "# Durations are strings with a unit: ns us ms s min h (\"500ms\", \"2s\", \"1.5min\").\n";
+  for (const auto& section : Sections()) {
+    out << "\n[" << section.name << "]\n# " << section.comment << "\n";
+    for (const auto& f : Fields()) {
+      if (Parent(f.key) != section.name) continue;
+      out << "# " << f.comment << "\n";
+      if (auto v = ToTomlValue(f.ref(c))) {
+        out << Leaf(f.key) << " = " << *v << "\n";
+      } else {
+        out << "# " << Leaf(f.key) << " =   (not set)\n";
+      }
+    }
+    if (std::string(section.name) == "rig") {
+      if (c.rig.markers.empty()) out << "markers = []\n";
+      for (auto& m : c.rig.markers) {
+        out << "\n[[" << kMarkersKey << "]]\n";
+        for (const auto& f : MarkerFields()) {
+          out << "# " << f.comment << "\n" << f.key << " = " << *ToTomlValue(f.ref(m)) << "\n";
+        }
+      }
+    }
+  }
+  return out.str();
+}
+
+namespace {
+
+struct Unit {
+  const char* name;
+  TimeNs ns;
+};
+constexpr Unit kUnits[] = {
+    {"ns", 1},        {"us", 1000},     {"\xC2\xB5s", 1000},  // µs
+    {"ms", kNsPerMs}, {"s", kNsPerSec}, {"min", 60 * kNsPerSec}, {"h", 3600 * kNsPerSec}};
+
+}  // namespace
+
+bool ParseDuration(const std::string& s, TimeNs* out) {
+  size_t i = 0;
+  bool neg = false;
+  if (i < s.size() && (s[i] == '-' || s[i] == '+')) neg = s[i++] == '-';
+  __int128 whole = 0;
+  size_t digits = 0;
+  for (; i < s.size() && s[i] >= '0' && s[i] <= '9'; ++i, ++digits) {
+    whole = whole * 10 + (s[i] - '0');
+    if (whole > std::numeric_limits<int64_t>::max()) return false;
+  }
+  __int128 frac = 0, frac_scale = 1;
+  size_t frac_digits = 0;
+  if (i < s.size() && s[i] == '.') {
+    ++i;
+    for (; i < s.size() && s[i] >= '0' && s[i] <= '9'; ++i, ++frac_digits) {
+      if (frac_digits < 18) {  // beyond that the digits are below 1 ns for any unit
+        frac = frac * 10 + (s[i] - '0');
+        frac_scale *= 10;
+      }
+    }
+    if (frac_digits == 0) return false;
+  }
+  if (digits == 0) return false;
+  while (i < s.size() && s[i] == ' ') ++i;
+  std::string unit = s.substr(i);
+  const Unit* u = nullptr;
+  for (const auto& cand : kUnits) {
+    if (unit == cand.name) u = &cand;
+  }
+  if (!u) return false;
+  __int128 ns = whole * u->ns + (frac * u->ns + frac_scale / 2) / frac_scale;
+  if (ns > std::numeric_limits<int64_t>::max()) return false;
+  *out = static_cast<TimeNs>(neg ? -ns : ns);
+  return true;
+}
+
+std::string FormatDuration(TimeNs ns) {
+  if (ns == 0) return "0s";
+  if (ns == std::numeric_limits<TimeNs>::min()) return std::to_string(ns) + "ns";
+  std::string sign = ns < 0 ? "-" : "";
+  TimeNs a = ns < 0 ? -ns : ns;
+  // Whole hours or minutes only; seconds, ms and us with up to three decimals.
+  for (const Unit& u : {Unit{"h", 3600 * kNsPerSec}, Unit{"min", 60 * kNsPerSec}}) {
+    if (a % u.ns == 0) return sign + std::to_string(a / u.ns) + u.name;
+  }
+  for (const Unit& u : {Unit{"s", kNsPerSec}, Unit{"ms", kNsPerMs}, Unit{"us", 1000}}) {
+    TimeNs milli = u.ns / 1000;
+    if (a >= u.ns && a % milli == 0) {
+      std::string s = sign + std::to_string(a / u.ns);
+      TimeNs rest = (a % u.ns) / milli;  // 0..999
+      if (rest) {
+        char buf[24];
+        std::snprintf(buf, sizeof(buf), ".%03lld", static_cast<long long>(rest));
+        std::string f = buf;
+        while (f.back() == '0') f.pop_back();
+        s += f;
+      }
+      return s + u.name;
+    }
+  }
+  return sign + std::to_string(a) + "ns";
+}
+
+}  // namespace aggscan

@@ -22,8 +22,19 @@ struct DaemonConfig {
   int listen_port = 8470;                      // HTTP API port (0 = pick a free one, tests)
   std::string log_level = "info";              // error|warning|notice|info|debug
   double time_scale = 1.0;  // sim rig only: clock runs this many times faster than real time (>= 1)
+
+  bool operator==(const DaemonConfig&) const = default;
 };
 
+// Capture profiles (ApplyProfile):
+//   paper     the source paper's protocol: sides 2, views_per_side 30, step_deg 30,
+//             interval 2s. These four are fixed by the profile: a file that gives
+//             one of them with another value is a problem ("set capture.profile =
+//             \"custom\" to change ..."); giving the same value is allowed.
+//   full-turn views_per_side (default 30) evenly over one turn: step_deg =
+//             360/views_per_side; sides and interval are free; an explicit step_deg
+//             other than 360/views_per_side is a problem.
+//   custom    every value as given.
 struct CaptureConfig {
   std::string profile = "paper";  // paper | full-turn | custom
   int sides = 2;                  // poses of the rock (operator flips between sides)
@@ -37,6 +48,8 @@ struct CaptureConfig {
   TimeNs poll_interval = 20 * kNsPerMs;    // turntable status polling period while moving
   TimeNs stall_timeout = 1 * kNsPerSec;    // moving but position unchanged this long = stalled
   int comm_retries = 2;                    // turntable communication retries before a fault
+
+  bool operator==(const CaptureConfig&) const = default;
 };
 
 struct ExposureConfig {
@@ -45,6 +58,8 @@ struct ExposureConfig {
   double gain = 1.0;             // analogue gain (1.0 = base ISO)
   double wb_red = 1.0;           // white balance gains, locked like exposure
   double wb_blue = 1.0;
+
+  bool operator==(const ExposureConfig&) const = default;
 };
 
 struct CameraConfig {
@@ -55,12 +70,16 @@ struct CameraConfig {
   int height = 1512;
   int jpeg_quality = 92;         // 1..100, when the driver encodes JPEG itself
   ExposureConfig exposure;
+
+  bool operator==(const CameraConfig&) const = default;
 };
 
 struct SimTurntableFaults {
   std::optional<double> stall_at_deg;        // motion stops at this absolute angle (stall)
   int timeout_every_n_moves = 0;             // every n-th move the controller stops answering (0 = never)
   std::optional<TimeNs> disconnect_after;    // device disappears this long after open
+
+  bool operator==(const SimTurntableFaults&) const = default;
 };
 
 struct TurntableConfig {
@@ -75,11 +94,15 @@ struct TurntableConfig {
   double settle_frequency_hz = 6.0;   // its frequency
   TimeNs home_duration = 1500 * kNsPerMs;  // sim homing time
   SimTurntableFaults faults;
+
+  bool operator==(const TurntableConfig&) const = default;
 };
 
 struct ButtonConfig {
   std::string backend = "sim";   // sim (gpio, evdev, modbus in a later issue)
   TimeNs debounce = 50 * kNsPerMs;  // presses closer than this are one press
+
+  bool operator==(const ButtonConfig&) const = default;
 };
 
 struct SimConfig {
@@ -94,12 +117,16 @@ struct SimConfig {
   double k2 = 0.02;
   double noise_sigma = 2.0;           // sensor noise, 8-bit levels
   bool write_truth = false;           // write ground-truth masks/poses next to the sample (tests)
+
+  bool operator==(const SimConfig&) const = default;
 };
 
 struct RigMarker {
   std::string color;   // red | green | blue | yellow
   double x_mm = 0.0;   // centre in the turntable frame (z up, origin at the axis)
   double y_mm = 0.0;
+
+  bool operator==(const RigMarker&) const = default;
 };
 
 struct RigConfig {
@@ -107,11 +134,15 @@ struct RigConfig {
   double marker_size_mm = 20.0;           // side of each square colour label
   std::vector<RigMarker> markers = {      // the study's four background labels
       {"red", 120.0, 0.0}, {"green", 0.0, 120.0}, {"blue", -120.0, 0.0}, {"yellow", 0.0, -120.0}};
+
+  bool operator==(const RigConfig&) const = default;
 };
 
 struct WorkerConfig {
   TimeNs poll_interval = 500 * kNsPerMs;  // queue polling period when idle
   int nice = 10;                          // CPU priority below the capture daemon
+
+  bool operator==(const WorkerConfig&) const = default;
 };
 
 struct Config {
@@ -123,6 +154,8 @@ struct Config {
   SimConfig sim;
   RigConfig rig;
   WorkerConfig worker;
+
+  bool operator==(const Config&) const = default;
 };
 
 /// One problem found in a config file.
@@ -134,20 +167,33 @@ struct ConfigProblem {
   std::string ToString() const;  // "file:line: key: message"
 };
 
-/// Loads and validates a TOML file on top of the defaults. Returns every
-/// problem (unknown keys, wrong types, out-of-range values), not just the first.
+/// Backend names known for a device kind ("camera", "turntable", "button");
+/// empty for an unknown kind. The one list the validator and the factory share.
+const std::vector<std::string>& KnownBackends(const std::string& kind);
+
+/// Loads and validates a TOML file on top of the defaults, applies the capture
+/// profile and runs ValidateConfig. Appends every problem found (syntax error,
+/// unknown key with a "did you mean", wrong type, out-of-range value, cross-field
+/// rule), not just the first; the result is a kInvalidConfig error iff this call
+/// appended any. `problems` may be null.
 Result<Config> LoadConfigFile(const std::string& path, std::vector<ConfigProblem>* problems);
 /// Same, from a string (file is used in messages).
 Result<Config> LoadConfigString(const std::string& toml, const std::string& file,
                                 std::vector<ConfigProblem>* problems);
-/// Checks cross-field rules (profile vs steps, ranges); appends problems.
+/// Checks every field's range/choices and the cross-field rules (profile vs
+/// steps, a step must fit in the interval, unique marker colours, ...); appends
+/// problems (line 0: a struct has no lines).
 void ValidateConfig(const Config& c, const std::string& file, std::vector<ConfigProblem>* problems);
-/// Applies the capture profile: paper = 2x30x30deg@2s, full-turn = 360/N steps.
+/// Applies the capture profile: paper = 2x30x30deg@2s, full-turn = 360/N steps,
+/// custom = unchanged (see the rule above CaptureConfig).
 void ApplyProfile(Config* c);
-/// Effective config as TOML (every field, durations with units).
+/// Effective config as TOML (every field with its comment, durations with
+/// units, unset optionals as commented lines). LoadConfigString of it gives c back.
 std::string ConfigToToml(const Config& c);
-/// "500ms", "2s", "1.5min" -> ns; false if malformed.
+/// "500ms", "2s", "1.5min" -> ns; false if malformed. Units: ns us ms s min h;
+/// an optional leading '-'; a decimal fraction is rounded to the nearest ns.
 bool ParseDuration(const std::string& s, TimeNs* out);
+/// Shortest exact form: "0s", "300ms", "1.5s", "90s", "2min", "1234ns".
 std::string FormatDuration(TimeNs ns);
 
 }  // namespace aggscan

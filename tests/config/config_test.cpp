@@ -1,0 +1,561 @@
+// Config loading, validation, profiles, durations and the TOML round trip.
+#include "config/config.h"
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace aggscan {
+namespace {
+
+using ::testing::HasSubstr;
+
+struct Loaded {
+  Result<Config> result;
+  std::vector<ConfigProblem> problems;
+};
+
+Loaded Load(const std::string& text) {
+  std::vector<ConfigProblem> problems;
+  Result<Config> r = LoadConfigString(text, "t.toml", &problems);
+  return Loaded{std::move(r), std::move(problems)};
+}
+
+std::string Dump(const std::vector<ConfigProblem>& problems) {
+  std::string s;
+  for (const auto& p : problems) s += p.ToString() + "\n";
+  return s;
+}
+
+// Exactly one problem, on `key` at `line`, whose message contains `text`.
+void ExpectOneProblem(const std::string& toml, int line, const std::string& key,
+                      const std::string& text) {
+  SCOPED_TRACE(toml);
+  Loaded l = Load(toml);
+  EXPECT_FALSE(l.result.ok());
+  ASSERT_EQ(l.problems.size(), 1u) << Dump(l.problems);
+  EXPECT_EQ(l.problems[0].file, "t.toml");
+  EXPECT_EQ(l.problems[0].line, line);
+  EXPECT_EQ(l.problems[0].key, key);
+  EXPECT_THAT(l.problems[0].message, HasSubstr(text));
+  if (!l.result.ok()) {
+    EXPECT_EQ(l.result.error().cls, ErrorClass::kInvalidConfig);
+  }
+}
+
+TEST(Config, DefaultsAreValid) {
+  std::vector<ConfigProblem> problems;
+  ValidateConfig(Config{}, "defaults", &problems);
+  EXPECT_TRUE(problems.empty()) << Dump(problems);
+  Config c;
+  ApplyProfile(&c);
+  EXPECT_EQ(c, Config{});  // the defaults are the paper profile
+}
+
+TEST(Config, EmptyFileGivesDefaults) {
+  Loaded l = Load("");
+  ASSERT_TRUE(l.result.ok()) << Dump(l.problems);
+  EXPECT_TRUE(l.problems.empty());
+  EXPECT_EQ(*l.result, Config{});
+}
+
+TEST(Config, ShippedConfigsLoadWithoutProblems) {
+  int count = 0;
+  for (const auto& entry :
+       std::filesystem::directory_iterator(std::string(AGGSCAN_SOURCE_DIR) + "/config")) {
+    if (entry.path().extension() != ".toml") continue;
+    SCOPED_TRACE(entry.path().string());
+    std::vector<ConfigProblem> problems;
+    Result<Config> r = LoadConfigFile(entry.path().string(), &problems);
+    EXPECT_TRUE(r.ok()) << Dump(problems);
+    EXPECT_TRUE(problems.empty()) << Dump(problems);
+    ++count;
+  }
+  EXPECT_GE(count, 2);  // sim.toml and aggscand.toml at least
+}
+
+TEST(Config, ShippedConfigsHaveServiceFriendlyValues) {
+  std::string dir = std::string(AGGSCAN_SOURCE_DIR) + "/config/";
+  Result<Config> sim = LoadConfigFile(dir + "sim.toml", nullptr);
+  ASSERT_TRUE(sim.ok());
+  EXPECT_EQ(sim->daemon.state_dir, "/tmp/aggscan-sim");
+  EXPECT_EQ(sim->daemon.listen_port, 8470);
+  EXPECT_EQ(sim->camera.backend, "sim");
+  EXPECT_EQ(sim->turntable.backend, "sim");
+  EXPECT_EQ(sim->button.backend, "sim");
+  EXPECT_GT(sim->daemon.time_scale, 1.0);
+  Result<Config> svc = LoadConfigFile(dir + "aggscand.toml", nullptr);
+  ASSERT_TRUE(svc.ok());
+  EXPECT_EQ(svc->daemon.state_dir, "/var/lib/aggscan");
+  EXPECT_EQ(svc->daemon.time_scale, 1.0);
+}
+
+TEST(Config, SimTomlListsEveryField) {
+  // The shipped sim config is the complete example: loading it must give
+  // back what it says, and every key of the effective config appears in it.
+  std::string path = std::string(AGGSCAN_SOURCE_DIR) + "/config/sim.toml";
+  Result<Config> sim = LoadConfigFile(path, nullptr);
+  ASSERT_TRUE(sim.ok());
+  std::string text;
+  {
+    FILE* f = std::fopen(path.c_str(), "r");
+    ASSERT_NE(f, nullptr);
+    char buf[4096];
+    size_t n;
+    while ((n = std::fread(buf, 1, sizeof(buf), f)) > 0) text.append(buf, n);
+    std::fclose(f);
+  }
+  std::string dump = ConfigToToml(*sim);
+  size_t pos = 0;
+  while ((pos = dump.find('\n', pos)) != std::string::npos) {
+    size_t end = dump.find('\n', pos + 1);
+    std::string line =
+        dump.substr(pos + 1, end == std::string::npos ? std::string::npos : end - pos - 1);
+    pos = pos + 1;
+    if (line.empty()) continue;
+    std::string key;
+    if (line.rfind("# ", 0) == 0 && line.find(" =   (not set)") != std::string::npos) {
+      key = line.substr(2, line.find(' ', 2) - 2);  // optional, shown commented out
+    } else if (line[0] != '#' && line[0] != '[') {
+      key = line.substr(0, line.find(' '));
+    }
+    if (!key.empty()) {
+      EXPECT_THAT(text, HasSubstr(key + " =")) << "sim.toml does not mention " << key;
+    }
+  }
+}
+
+TEST(Config, SyntaxErrorHasLine) {
+  Loaded l = Load("[daemon]\nlisten_port = 8470\nlog_level = \"info\n");
+  ASSERT_EQ(l.problems.size(), 1u) << Dump(l.problems);
+  EXPECT_EQ(l.problems[0].line, 3);
+  EXPECT_THAT(l.problems[0].message, HasSubstr("TOML syntax error"));
+  EXPECT_FALSE(l.result.ok());
+
+  Loaded dup = Load("[capture]\nsides = 2\nsides = 2\n");
+  ASSERT_EQ(dup.problems.size(), 1u) << Dump(dup.problems);
+  EXPECT_EQ(dup.problems[0].line, 3);
+}
+
+TEST(Config, UnknownKeyHasLineAndSuggestion) {
+  ExpectOneProblem("[capture]\nsides = 2\nviews_per_sid = 30\n", 3, "capture.views_per_sid",
+                   "did you mean capture.views_per_side?");
+  ExpectOneProblem("\n[capure]\nsides = 2\n", 2, "capure", "did you mean capture?");
+  // A transposition is one edit.
+  ExpectOneProblem("[camera]\nwidht = 640\n", 2, "camera.widht", "did you mean camera.width?");
+  // Right name, wrong table.
+  ExpectOneProblem("[camera]\ninterval = \"2s\"\n", 2, "camera.interval",
+                   "did you mean capture.interval?");
+  // Nothing close: no suggestion.
+  Loaded l = Load("[daemon]\ncompletely_unrelated = 1\n");
+  ASSERT_EQ(l.problems.size(), 1u);
+  EXPECT_EQ(l.problems[0].line, 2);
+  EXPECT_THAT(l.problems[0].message, ::testing::Not(HasSubstr("did you mean")));
+  // Unknown key inside a marker.
+  ExpectOneProblem("[[rig.markers]]\ncolor = \"red\"\ncolour = \"red\"\n", 3,
+                   "rig.markers[0].colour", "did you mean color?");
+}
+
+TEST(Config, WrongTypeHasLine) {
+  ExpectOneProblem("[capture]\nviews_per_side = \"30\"\n", 2, "capture.views_per_side",
+                   "expected an integer");
+  ExpectOneProblem("[capture]\n\ninterval = 2\n", 3, "capture.interval",
+                   "duration string with a unit");
+  ExpectOneProblem("[capture]\ninterval = \"2 fortnights\"\n", 2, "capture.interval",
+                   "is not a duration");
+  ExpectOneProblem("[camera.exposure]\nmanual = 1\n", 2, "camera.exposure.manual",
+                   "expected a boolean");
+  ExpectOneProblem("[camera]\nwidth = 2016.5\n", 2, "camera.width",
+                   "expected an integer, got a float");
+  ExpectOneProblem("[daemon]\nstate_dir = 5\n", 2, "daemon.state_dir", "expected a string");
+  ExpectOneProblem("camera = 5\n", 1, "camera", "expected a table");
+  ExpectOneProblem("[rig]\nmarkers = 5\n", 2, "rig.markers", "expected an array of tables");
+  ExpectOneProblem("[sim]\nseed = -1\n", 2, "sim.seed", ">= 0");
+  // An integer is a fine float.
+  Loaded l = Load("[capture]\nprofile = \"custom\"\nstep_deg = 12\n");
+  ASSERT_TRUE(l.result.ok()) << Dump(l.problems);
+  EXPECT_EQ(l.result->capture.step_deg, 12.0);
+}
+
+struct RangeCase {
+  std::string toml;  // the offending key on line 2
+  std::string key;
+  std::string text;
+};
+
+TEST(Config, OutOfRangeHasLine) {
+  const RangeCase cases[] = {
+      {"[capture]\nviews_per_side = 0\nprofile = \"custom\"\n", "capture.views_per_side",
+       "must be in 1..360, got 0"},
+      {"[capture]\nviews_per_side = 361\nprofile = \"custom\"\n", "capture.views_per_side",
+       "1..360"},
+      {"[capture]\ninterval = \"0s\"\nprofile = \"custom\"\n", "capture.interval", "must be > 0s"},
+      {"[capture]\ninterval = \"-2s\"\nprofile = \"custom\"\n", "capture.interval", "got -2s"},
+      {"[capture]\nprofile = \"fast\"\n", "capture.profile", "paper | full-turn | custom"},
+      {"[camera]\nwidth = 15\n", "camera.width", "16..16384"},
+      {"[camera]\nheight = 16385\n", "camera.height", "16..16384"},
+      {"[camera]\njpeg_quality = 0\n", "camera.jpeg_quality", "1..100"},
+      {"[camera]\njpeg_quality = 101\n", "camera.jpeg_quality", "1..100"},
+      {"[daemon]\ntime_scale = 0.5\n", "daemon.time_scale", "1..1000"},
+      {"[daemon]\ntime_scale = 1001\n", "daemon.time_scale", "1..1000"},
+      {"[daemon]\nlisten_port = 65536\n", "daemon.listen_port", "0..65535"},
+      {"[daemon]\nlisten_port = -1\n", "daemon.listen_port", "0..65535"},
+      {"[daemon]\nlog_level = \"verbose\"\n", "daemon.log_level",
+       "error | warning | notice | info | debug"},
+      {"[daemon]\nstate_dir = \"\"\n", "daemon.state_dir", "must not be empty"},
+      {"[sim]\ncamera_elevation_deg = 9\n", "sim.camera_elevation_deg", "10..80"},
+      {"[sim]\ncamera_elevation_deg = 80.5\n", "sim.camera_elevation_deg", "10..80"},
+      {"[sim]\nrock_unit = \"inch\"\n", "sim.rock_unit", "mm | cm | m"},
+      {"[sim]\nk1 = nan\n", "sim.k1", "got nan"},
+      {"[camera]\nbackend = \"v4l9\"\n", "camera.backend",
+       "unknown camera backend \"v4l9\"; known: sim"},
+      {"[turntable]\nbackend = \"modbus\"\n", "turntable.backend", "unknown turntable backend"},
+      {"[button]\nbackend = \"gpio9\"\n", "button.backend", "unknown button backend"},
+      {"[turntable.faults]\ndisconnect_after = \"0s\"\n", "turntable.faults.disconnect_after",
+       "must be > 0s"},
+      {"[worker]\nnice = 20\n", "worker.nice", "0..19"},
+  };
+  for (const auto& c : cases) ExpectOneProblem(c.toml, 2, c.key, c.text);
+}
+
+TEST(Config, MarkerRules) {
+  ExpectOneProblem("[[rig.markers]]\ncolor = \"purple\"\n", 2, "rig.markers[0].color",
+                   "red | green | blue | yellow");
+  ExpectOneProblem(
+      "[[rig.markers]]\ncolor = \"red\"\n[[rig.markers]]\ncolor = \"red\"\nx_mm = 5.0\n", 4,
+      "rig.markers[1].color", "at most once");
+  ExpectOneProblem("[[rig.markers]]\nx_mm = 1.0\n", 1, "rig.markers[0].color", "missing");
+  Loaded l = Load("[rig]\nmarkers = [{color = \"blue\", x_mm = 1.5, y_mm = -2}]\n");
+  ASSERT_TRUE(l.result.ok()) << Dump(l.problems);
+  ASSERT_EQ(l.result->rig.markers.size(), 1u);  // a file's list replaces the default one
+  EXPECT_EQ(l.result->rig.markers[0], (RigMarker{"blue", 1.5, -2.0}));
+}
+
+TEST(Config, SeveralProblemsAllReported) {
+  const std::string text =
+      "[daemon]\n"                   // 1
+      "listen_port = 99999\n"        // 2  out of range
+      "log_levl = \"info\"\n"        // 3  unknown, did you mean
+      "[capture]\n"                  // 4
+      "profile = \"custom\"\n"       // 5
+      "views_per_side = \"many\"\n"  // 6  wrong type
+      "interval = \"soon\"\n"        // 7  malformed duration
+      "[camera]\n"                   // 8
+      "jpeg_quality = 0\n"           // 9  out of range
+      "backend = \"usb\"\n"          // 10 unknown backend
+      "[[rig.markers]]\n"            // 11
+      "color = \"pink\"\n";          // 12 bad colour
+  Loaded l = Load(text);
+  ASSERT_FALSE(l.result.ok());
+  std::map<std::string, int> got;
+  for (const auto& p : l.problems) got[p.key] = p.line;
+  std::map<std::string, int> want = {{"daemon.listen_port", 2},     {"daemon.log_levl", 3},
+                                     {"capture.views_per_side", 6}, {"capture.interval", 7},
+                                     {"camera.jpeg_quality", 9},    {"camera.backend", 10},
+                                     {"rig.markers[0].color", 12}};
+  EXPECT_EQ(got, want) << Dump(l.problems);
+  EXPECT_EQ(l.problems.size(), want.size());
+  for (size_t i = 1; i < l.problems.size(); ++i) {  // in file order
+    EXPECT_LT(l.problems[i - 1].line, l.problems[i].line) << Dump(l.problems);
+  }
+  EXPECT_THAT(l.result.error().message, HasSubstr("7 config problems"));
+  EXPECT_THAT(l.result.error().detail,
+              HasSubstr("t.toml:10: camera.backend: unknown camera backend"));
+}
+
+TEST(Config, ProblemsAppendToCallersListAndNullIsAllowed) {
+  std::vector<ConfigProblem> problems = {ConfigProblem{"earlier", 1, "x", "y"}};
+  Result<Config> ok = LoadConfigString("", "t.toml", &problems);
+  EXPECT_TRUE(ok.ok());  // only this call's problems count
+  EXPECT_EQ(problems.size(), 1u);
+  Result<Config> bad = LoadConfigString("[camera]\nwidth = 1\n", "t.toml", nullptr);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_THAT(bad.error().message, HasSubstr("1 config problem,"));
+}
+
+TEST(Config, MissingFile) {
+  std::vector<ConfigProblem> problems;
+  Result<Config> r = LoadConfigFile("/nonexistent/aggscan.toml", &problems);
+  ASSERT_FALSE(r.ok());
+  ASSERT_EQ(problems.size(), 1u);
+  EXPECT_EQ(problems[0].file, "/nonexistent/aggscan.toml");
+  EXPECT_THAT(problems[0].message, HasSubstr("cannot read"));
+}
+
+TEST(Config, ProblemToString) {
+  EXPECT_EQ((ConfigProblem{"a.toml", 12, "capture.interval", "must be > 0s"}).ToString(),
+            "a.toml:12: capture.interval: must be > 0s");
+  EXPECT_EQ((ConfigProblem{"a.toml", 0, "capture.interval", "m"}).ToString(),
+            "a.toml: capture.interval: m");
+  EXPECT_EQ((ConfigProblem{"a.toml", 3, "", "TOML syntax error: x"}).ToString(),
+            "a.toml:3: TOML syntax error: x");
+}
+
+TEST(Config, CrossFieldRules) {
+  // A 30 deg step at 60 deg/s and 180 deg/s^2 takes 833 ms, plus 300 ms settle.
+  ExpectOneProblem("[capture]\nprofile = \"custom\"\ninterval = \"1s\"\n", 3, "capture.interval",
+                   "shorter than one step");
+  ExpectOneProblem("[capture]\nmove_timeout = \"500ms\"\n", 2, "capture.move_timeout",
+                   "shorter than one step");
+  ExpectOneProblem("[capture]\nstall_timeout = \"20ms\"\n", 2, "capture.stall_timeout",
+                   "poll_interval");
+  ExpectOneProblem("[sim]\ncamera_distance_mm = 100\n", 2, "sim.camera_distance_mm",
+                   "outside the turntable");
+  ExpectOneProblem("[sim]\nrock_size_mm = 5\n", 2, "sim.rock_size_mm", "at least 10");
+  // A faster table makes the short interval fine.
+  Loaded l = Load(
+      "[capture]\nprofile = \"custom\"\ninterval = \"1s\"\n[turntable]\nmax_speed_deg_s = 120\n"
+      "accel_deg_s2 = 720\n");
+  EXPECT_TRUE(l.result.ok()) << Dump(l.problems);
+
+  // ValidateConfig on a struct (no lines).
+  Config c;
+  c.capture.views_per_side = 20;  // paper profile, not applied
+  c.camera.width = 8;
+  std::vector<ConfigProblem> problems;
+  ValidateConfig(c, "struct", &problems);
+  ASSERT_EQ(problems.size(), 2u) << Dump(problems);
+  EXPECT_EQ(problems[0].key, "camera.width");
+  EXPECT_EQ(problems[0].line, 0);
+  EXPECT_EQ(problems[1].key, "capture.profile");
+}
+
+TEST(Config, PaperProfileFixesItsValues) {
+  Loaded l = Load(
+      "[capture]\nprofile = \"paper\"\nsides = 2\nviews_per_side = 30\nstep_deg = 30.0\n"
+      "interval = \"2000ms\"\n");
+  ASSERT_TRUE(l.result.ok()) << Dump(l.problems);  // the same values may be written
+  EXPECT_EQ(l.result->capture, CaptureConfig{});
+
+  ExpectOneProblem(
+      "[capture]\nviews_per_side = 20\n", 2, "capture.views_per_side",
+      "capture.profile \"paper\" fixes this to 30; set capture.profile = \"custom\" to change it");
+  ExpectOneProblem("[capture]\nprofile = \"paper\"\nstep_deg = 12\n", 3, "capture.step_deg",
+                   "set capture.profile");
+  ExpectOneProblem("[capture]\n\ninterval = \"3s\"\n", 3, "capture.interval",
+                   "fixes this to \"2s\"");
+  ExpectOneProblem("[capture]\nsides = 1\n", 2, "capture.sides", "fixes this to 2");
+  // Values the profile does not fix stay free.
+  Loaded s = Load("[capture]\nsettle = \"500ms\"\n");
+  ASSERT_TRUE(s.result.ok()) << Dump(s.problems);
+  EXPECT_EQ(s.result->capture.settle, 500 * kNsPerMs);
+}
+
+TEST(Config, FullTurnProfileDerivesTheStep) {
+  Loaded d = Load("[capture]\nprofile = \"full-turn\"\n");
+  ASSERT_TRUE(d.result.ok()) << Dump(d.problems);
+  EXPECT_EQ(d.result->capture.views_per_side, 30);
+  EXPECT_DOUBLE_EQ(d.result->capture.step_deg, 12.0);
+
+  Loaded l = Load(
+      "[capture]\nprofile = \"full-turn\"\nviews_per_side = 36\nsides = 1\ninterval = \"3s\"\n");
+  ASSERT_TRUE(l.result.ok()) << Dump(l.problems);
+  EXPECT_DOUBLE_EQ(l.result->capture.step_deg, 10.0);
+  EXPECT_EQ(l.result->capture.sides, 1);
+  EXPECT_EQ(l.result->capture.interval, 3 * kNsPerSec);
+
+  Loaded same = Load("[capture]\nprofile = \"full-turn\"\nviews_per_side = 36\nstep_deg = 10\n");
+  EXPECT_TRUE(same.result.ok()) << Dump(same.problems);
+  ExpectOneProblem("[capture]\nprofile = \"full-turn\"\nviews_per_side = 36\nstep_deg = 12\n", 4,
+                   "capture.step_deg", "360/views_per_side = 10.0");
+}
+
+TEST(Config, CustomProfileKeepsValues) {
+  Loaded l = Load(
+      "[capture]\nprofile = \"custom\"\nsides = 1\nviews_per_side = 8\nstep_deg = 45\n"
+      "interval = \"3s\"\n");
+  ASSERT_TRUE(l.result.ok()) << Dump(l.problems);
+  EXPECT_EQ(l.result->capture.sides, 1);
+  EXPECT_EQ(l.result->capture.views_per_side, 8);
+  EXPECT_EQ(l.result->capture.step_deg, 45.0);
+  EXPECT_EQ(l.result->capture.interval, 3 * kNsPerSec);
+}
+
+TEST(Config, ApplyProfile) {
+  Config c;
+  c.capture.profile = "paper";
+  c.capture.views_per_side = 5;
+  c.capture.interval = kNsPerSec;
+  ApplyProfile(&c);
+  EXPECT_EQ(c.capture, CaptureConfig{});
+  c.capture.profile = "full-turn";
+  c.capture.views_per_side = 24;
+  ApplyProfile(&c);
+  EXPECT_DOUBLE_EQ(c.capture.step_deg, 15.0);
+  c.capture.profile = "custom";
+  c.capture.step_deg = 7.0;
+  ApplyProfile(&c);
+  EXPECT_EQ(c.capture.step_deg, 7.0);
+}
+
+TEST(Duration, Parse) {
+  struct Case {
+    const char* text;
+    TimeNs ns;
+  };
+  const Case cases[] = {
+      {"500ms", 500 * kNsPerMs},
+      {"2s", 2 * kNsPerSec},
+      {"1.5min", 90 * kNsPerSec},
+      {"250us", 250'000},
+      {"250\xC2\xB5s", 250'000},
+      {"7ns", 7},
+      {"1h", 3600 * kNsPerSec},
+      {"0s", 0},
+      {"0.3s", 300 * kNsPerMs},
+      {"-2s", -2 * kNsPerSec},
+      {"2 s", 2 * kNsPerSec},
+      {"1.0000000001s", 1'000'000'000},
+      {"0.5ns", 1},
+      {"1.234us", 1234},
+      {"9223372036ns", 9'223'372'036},
+  };
+  for (const auto& c : cases) {
+    TimeNs got = -42;
+    EXPECT_TRUE(ParseDuration(c.text, &got)) << c.text;
+    EXPECT_EQ(got, c.ns) << c.text;
+  }
+  for (const char* bad : {"", "2", "s", "2x", "1.s", ".5s", "2ss", "2 ", "-", "1e3s", "2sec",
+                          "3 days", "99999999999999999999s", "9999999999h"}) {
+    TimeNs got = -42;
+    EXPECT_FALSE(ParseDuration(bad, &got)) << bad;
+    EXPECT_EQ(got, -42) << bad;
+  }
+}
+
+TEST(Duration, FormatIsShortAndExact) {
+  EXPECT_EQ(FormatDuration(0), "0s");
+  EXPECT_EQ(FormatDuration(2 * kNsPerSec), "2s");
+  EXPECT_EQ(FormatDuration(300 * kNsPerMs), "300ms");
+  EXPECT_EQ(FormatDuration(1500 * kNsPerMs), "1.5s");
+  EXPECT_EQ(FormatDuration(90 * kNsPerSec), "90s");
+  EXPECT_EQ(FormatDuration(120 * kNsPerSec), "2min");
+  EXPECT_EQ(FormatDuration(7200 * kNsPerSec), "2h");
+  EXPECT_EQ(FormatDuration(250'000), "250us");
+  EXPECT_EQ(FormatDuration(1234), "1.234us");
+  EXPECT_EQ(FormatDuration(12), "12ns");
+  EXPECT_EQ(FormatDuration(-20 * kNsPerMs), "-20ms");
+  for (TimeNs ns :
+       {TimeNs{1}, TimeNs{999}, TimeNs{1001}, TimeNs{123'456'789}, TimeNs{1'000'000'001},
+        TimeNs{59 * kNsPerSec + 1}, 3 * kNsPerSec / 7, -kNsPerSec / 3,
+        std::numeric_limits<TimeNs>::max(), std::numeric_limits<TimeNs>::min() + 1}) {
+    TimeNs back = 0;
+    ASSERT_TRUE(ParseDuration(FormatDuration(ns), &back)) << FormatDuration(ns);
+    EXPECT_EQ(back, ns) << FormatDuration(ns);
+  }
+}
+
+void ExpectRoundTrip(const Config& c) {
+  std::string text = ConfigToToml(c);
+  std::vector<ConfigProblem> problems;
+  Result<Config> back = LoadConfigString(text, "dump.toml", &problems);
+  ASSERT_TRUE(back.ok()) << Dump(problems) << text;
+  EXPECT_EQ(*back, c) << text;
+  EXPECT_EQ(ConfigToToml(*back), text);
+}
+
+TEST(ConfigToToml, RoundTripDefaults) { ExpectRoundTrip(Config{}); }
+
+TEST(ConfigToToml, RoundTripShippedConfigs) {
+  for (const char* name : {"sim.toml", "aggscand.toml"}) {
+    Result<Config> c = LoadConfigFile(std::string(AGGSCAN_SOURCE_DIR) + "/config/" + name, nullptr);
+    ASSERT_TRUE(c.ok()) << name;
+    ExpectRoundTrip(*c);
+  }
+}
+
+TEST(ConfigToToml, RoundTripEveryFieldChanged) {
+  Config c;
+  c.daemon.state_dir = "/srv/agg \"scan\"\\ dir\twith\ncontrol \x01 and ünïcode";
+  c.daemon.listen_address = "0.0.0.0";
+  c.daemon.listen_port = 0;
+  c.daemon.log_level = "debug";
+  c.daemon.time_scale = 1000.0;
+  c.capture.profile = "full-turn";
+  c.capture.sides = 1;
+  c.capture.views_per_side = 7;
+  c.capture.step_deg = 360.0 / 7;  // not exact in decimal
+  c.capture.interval = 60 * kNsPerSec + 1;
+  c.capture.settle = 0;
+  c.capture.home_timeout = 90 * kNsPerSec;
+  c.capture.move_timeout = 3 * kNsPerSec / 7;
+  c.capture.frame_timeout = 1;
+  c.capture.poll_interval = 1234;
+  c.capture.stall_timeout = 600 * kNsPerSec;
+  c.capture.comm_retries = 10;
+  c.camera.id = "cam\"1\"";
+  c.camera.device = "/dev/aggscan/camera";
+  c.camera.width = 16384;
+  c.camera.height = 16;
+  c.camera.jpeg_quality = 1;
+  c.camera.exposure = {false, 0.1, 63.999999999, 1e-7, 15.5};
+  c.turntable.max_speed_deg_s = 720.0;
+  c.turntable.accel_deg_s2 = 35999.5;
+  c.turntable.repeatability_deg = 0.0;
+  c.turntable.backlash_deg = 1.0 / 3;
+  c.turntable.settle_amplitude_deg = 9.75;
+  c.turntable.settle_time_constant = 1;
+  c.turntable.settle_frequency_hz = 0.001;
+  c.turntable.home_duration = 0;
+  c.turntable.faults.stall_at_deg = -95.25;
+  c.turntable.faults.timeout_every_n_moves = 3;
+  c.turntable.faults.disconnect_after = 20 * kNsPerSec;
+  c.button.debounce = kNsPerSec;
+  c.sim.seed = 9'223'372'036'854'775'807ULL;
+  c.sim.rock_mesh = "rocks/r1.ply";
+  c.sim.rock_unit = "cm";
+  c.sim.rock_size_mm = 123.456;
+  c.sim.camera_elevation_deg = 10.0;
+  c.sim.camera_distance_mm = 10000.0;
+  c.sim.hfov_deg = 150.0;
+  c.sim.k1 = -1.0;
+  c.sim.k2 = 1e-300;
+  c.sim.noise_sigma = 0.0;
+  c.sim.write_truth = true;
+  c.rig.turntable_diameter_mm = 400.0;
+  c.rig.marker_size_mm = 25.4;
+  c.rig.markers = {{"yellow", -0.0, 4999.999}, {"green", 1e-3, -5000.0}};
+  c.worker.poll_interval = 60 * kNsPerSec;
+  c.worker.nice = 0;
+  std::vector<ConfigProblem> problems;
+  ValidateConfig(c, "struct", &problems);
+  ASSERT_TRUE(problems.empty()) << Dump(problems);
+  ExpectRoundTrip(c);
+
+  c.rig.markers.clear();  // an empty list must survive too
+  ExpectRoundTrip(c);
+}
+
+TEST(ConfigToToml, CommentsEveryFieldAndShowsUnsetOptionals) {
+  std::string text = ConfigToToml(Config{});
+  EXPECT_THAT(text, HasSubstr("# stall_at_deg =   (not set)"));
+  EXPECT_THAT(text, HasSubstr("# disconnect_after =   (not set)"));
+  EXPECT_THAT(text, HasSubstr("interval = \"2s\""));
+  EXPECT_THAT(text, HasSubstr("[camera.exposure]"));
+  EXPECT_THAT(text, HasSubstr("[[rig.markers]]"));
+  // Every assignment line follows a comment line.
+  std::vector<std::string> lines;
+  size_t start = 0, end;
+  while ((end = text.find('\n', start)) != std::string::npos) {
+    lines.push_back(text.substr(start, end - start));
+    start = end + 1;
+  }
+  for (size_t i = 1; i < lines.size(); ++i) {
+    if (lines[i].find(" = ") != std::string::npos && lines[i][0] != '#') {
+      EXPECT_EQ(lines[i - 1].rfind("# ", 0), 0u) << "no comment above: " << lines[i];
+    }
+  }
+}
+
+TEST(Config, KnownBackends) {
+  EXPECT_EQ(KnownBackends("camera"), std::vector<std::string>{"sim"});
+  EXPECT_EQ(KnownBackends("turntable"), std::vector<std::string>{"sim"});
+  EXPECT_EQ(KnownBackends("button"), std::vector<std::string>{"sim"});
+  EXPECT_TRUE(KnownBackends("toaster").empty());
+}
+
+}  // namespace
+}  // namespace aggscan
