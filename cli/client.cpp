@@ -1,0 +1,514 @@
+#include "cli/client.h"
+
+#include <fcntl.h>
+#include <httplib.h>
+#include <netdb.h>
+#include <poll.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cerrno>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <sstream>
+#include <string_view>
+
+#include "store/layout.h"
+
+namespace aggscan {
+
+namespace {
+
+using json = nlohmann::json;
+
+constexpr time_t kConnectTimeoutSec = 3;
+// Arm/press wait for the daemon's event loop, which may be busy homing.
+constexpr time_t kReadTimeoutSec = 30;
+constexpr int kProbeTimeoutMs = 2000;
+// `show`: arrays of records longer than this are summarised (--json has all).
+constexpr size_t kMaxListedRecords = 6;
+constexpr size_t kMaxInlineValues = 12;
+constexpr const char* kServiceHint = " — is the service running? (systemctl status aggscand)";
+
+struct Target {
+  std::string url;     // as given, for messages
+  std::string origin;  // scheme://host[:port] for httplib
+  std::string host;    // without brackets, for the connect probe
+  int port = 0;
+  std::string prefix;  // path prefix (reverse proxy), no trailing '/'
+};
+
+std::optional<Target> ParseUrl(const std::string& url, std::string* why) {
+  Target t;
+  t.url = url;
+  const size_t sep = url.find("://");
+  if (sep == std::string::npos) {
+    *why = "URL must start with http:// or https://";
+    return std::nullopt;
+  }
+  const std::string scheme = url.substr(0, sep);
+  if (scheme != "http" && scheme != "https") {
+    *why = "unsupported scheme \"" + scheme + "\": use http:// or https://";
+    return std::nullopt;
+  }
+  std::string rest = url.substr(sep + 3);
+  const size_t slash = rest.find('/');
+  std::string authority = rest.substr(0, slash);
+  if (slash != std::string::npos) t.prefix = rest.substr(slash);
+  while (!t.prefix.empty() && t.prefix.back() == '/') t.prefix.pop_back();
+  if (t.prefix.find_first_of("?# ") != std::string::npos) {
+    *why = "URL must not contain a query, fragment or spaces";
+    return std::nullopt;
+  }
+  t.port = scheme == "https" ? 443 : 80;
+  std::string port_text;
+  if (!authority.empty() && authority[0] == '[') {
+    const size_t close = authority.find(']');
+    if (close == std::string::npos) {
+      *why = "unterminated [ in the host";
+      return std::nullopt;
+    }
+    t.host = authority.substr(1, close - 1);
+    if (close + 1 < authority.size()) {
+      if (authority[close + 1] != ':') {
+        *why = "unexpected text after ]";
+        return std::nullopt;
+      }
+      port_text = authority.substr(close + 2);
+    }
+  } else {
+    const size_t colon = authority.find(':');
+    t.host = authority.substr(0, colon);
+    if (colon != std::string::npos) port_text = authority.substr(colon + 1);
+  }
+  if (t.host.empty() || t.host.find_first_of("@ ") != std::string::npos) {
+    *why = "missing or invalid host";
+    return std::nullopt;
+  }
+  if (!port_text.empty()) {
+    const bool digits =
+        port_text.size() <= 5 && std::all_of(port_text.begin(), port_text.end(), [](char c) {
+          return std::isdigit(static_cast<unsigned char>(c));
+        });
+    const int port = digits ? std::atoi(port_text.c_str()) : -1;
+    if (port < 1 || port > 65535) {
+      *why = "invalid port \"" + port_text + "\"";
+      return std::nullopt;
+    }
+    t.port = port;
+  }
+  const bool v6 = t.host.find(':') != std::string::npos;
+  t.origin = scheme + "://" + (v6 ? "[" + t.host + "]" : t.host) + ":" + std::to_string(t.port);
+  return t;
+}
+
+std::string LowerFirst(std::string s) {
+  if (!s.empty()) s[0] = static_cast<char>(std::tolower(static_cast<unsigned char>(s[0])));
+  return s;
+}
+
+// cpp-httplib says only "Connection" when connecting fails; connect once more
+// by hand to tell "refused" from "timed out" or "no route to host".
+std::string ProbeConnect(const std::string& host, int port) {
+  addrinfo hints{};
+  hints.ai_family = AF_UNSPEC;
+  hints.ai_socktype = SOCK_STREAM;
+  addrinfo* list = nullptr;
+  const int rc = getaddrinfo(host.c_str(), std::to_string(port).c_str(), &hints, &list);
+  if (rc != 0) return std::string("cannot resolve host: ") + gai_strerror(rc);
+  int err = 0;
+  for (addrinfo* ai = list; ai != nullptr; ai = ai->ai_next) {
+    const int fd =
+        ::socket(ai->ai_family, ai->ai_socktype | SOCK_NONBLOCK | SOCK_CLOEXEC, ai->ai_protocol);
+    if (fd < 0) {
+      err = errno;
+      continue;
+    }
+    err = 0;
+    if (::connect(fd, ai->ai_addr, ai->ai_addrlen) != 0) {
+      err = errno;
+      if (err == EINPROGRESS) {
+        pollfd p{fd, POLLOUT, 0};
+        const int n = ::poll(&p, 1, kProbeTimeoutMs);
+        if (n == 0) {
+          err = ETIMEDOUT;
+        } else {
+          socklen_t len = sizeof err;
+          if (n < 0 || ::getsockopt(fd, SOL_SOCKET, SO_ERROR, &err, &len) != 0) err = errno;
+        }
+      }
+    }
+    ::close(fd);
+    if (err == 0) break;
+  }
+  freeaddrinfo(list);
+  if (err == 0) return "connection failed";
+  return LowerFirst(std::strerror(err));
+}
+
+std::string TransportError(const Target& t, httplib::Error e) {
+  std::string why;
+  switch (e) {
+    case httplib::Error::Connection:
+      why = ProbeConnect(t.host, t.port);
+      break;
+    case httplib::Error::ConnectionTimeout:
+      why = "connection timed out";
+      break;
+    case httplib::Error::Read:
+      why = "connection lost or no answer within " + std::to_string(kReadTimeoutSec) + " s";
+      break;
+    case httplib::Error::Write:
+      why = "could not send the request";
+      break;
+    default:
+      why = LowerFirst(httplib::to_string(e));
+      break;
+  }
+  return "cannot reach aggscand at " + t.url + ": " + why + kServiceHint;
+}
+
+// Text from the daemon, made safe for a terminal.
+std::string Clean(std::string_view s) {
+  std::string out;
+  for (unsigned char c : s) {
+    if (c < 0x20 || c == 0x7f) {
+      out += c == '\t' ? ' ' : '?';
+    } else {
+      out += static_cast<char>(c);
+    }
+  }
+  return out;
+}
+
+std::string Scalar(const json& v) {
+  if (v.is_null()) return "-";
+  if (v.is_string()) return Clean(v.get<std::string>());
+  return v.dump(-1, ' ', false, json::error_handler_t::replace);
+}
+
+std::string FieldText(const json& obj, const char* key) {
+  if (!obj.is_object()) return "-";
+  const auto it = obj.find(key);
+  if (it == obj.end()) return "-";
+  if (it->is_array()) {
+    std::string s;
+    for (const auto& e : *it) s += (s.empty() ? "" : ",") + Scalar(e);
+    return s.empty() ? "-" : s;
+  }
+  if (it->is_object()) return std::to_string(it->size());
+  return Scalar(*it);
+}
+
+bool HasNumber(const json& obj, const char* key) {
+  return obj.is_object() && obj.contains(key) && obj[key].is_number();
+}
+
+bool HasText(const json& obj, const char* key) {
+  return obj.is_object() && obj.contains(key) && obj[key].is_string() &&
+         !obj[key].get<std::string>().empty();
+}
+
+std::string Duration(double seconds) {
+  long s = seconds > 0 ? static_cast<long>(seconds) : 0;
+  char buf[64];
+  if (s >= 3600) {
+    std::snprintf(buf, sizeof buf, "%ldh %02ldm %02lds", s / 3600, s / 60 % 60, s % 60);
+  } else if (s >= 60) {
+    std::snprintf(buf, sizeof buf, "%ldm %02lds", s / 60, s % 60);
+  } else {
+    std::snprintf(buf, sizeof buf, "%lds", s);
+  }
+  return buf;
+}
+
+// "state: capturing  sample: rock-12  side 1 view 7/30"
+std::string StatusHeadline(const json& st) {
+  std::string line = "state: " + FieldText(st, "state");
+  if (HasText(st, "sample_id")) line += "  sample: " + Clean(st["sample_id"].get<std::string>());
+  if (HasNumber(st, "side") && st["side"].get<double>() > 0) {
+    line += "  side " + Scalar(st["side"]);
+    if (HasNumber(st, "view")) {
+      line += " view " + Scalar(st["view"]);
+      if (HasNumber(st, "views_per_side")) line += "/" + Scalar(st["views_per_side"]);
+    }
+  }
+  return line;
+}
+
+void PrintStatus(const json& st, std::ostream& out) {
+  out << StatusHeadline(st) << "\n";
+  if (!st.is_object()) return;
+  if (st.contains("fault") && st["fault"].is_object()) {
+    out << "fault: " << FieldText(st["fault"], "class") << ": " << FieldText(st["fault"], "message")
+        << "\n";
+  }
+  if (HasText(st, "status_line"))
+    out << "status: " << Clean(st["status_line"].get<std::string>()) << "\n";
+  if (st.contains("devices") && st["devices"].is_object() && !st["devices"].empty()) {
+    out << "devices:\n";
+    for (const auto& [name, dev] : st["devices"].items()) {
+      std::string text;
+      if (dev.is_object()) {
+        text = dev.contains("state") ? FieldText(dev, "state") : FieldText(dev, "status");
+        if (HasText(dev, "message")) text += " (" + Clean(dev["message"].get<std::string>()) + ")";
+      } else {
+        text = Scalar(dev);
+      }
+      out << "  " << Clean(name) << ": " << text << "\n";
+    }
+  }
+  if (HasNumber(st, "queue_depth"))
+    out << "queue: " << Scalar(st["queue_depth"]) << " job(s) waiting\n";
+  if (HasNumber(st, "uptime_s"))
+    out << "uptime: " << Duration(st["uptime_s"].get<double>()) << "\n";
+}
+
+void PrintSamples(const json& answer, std::ostream& out) {
+  const json* list = &answer;
+  if (answer.is_object() && answer.contains("samples")) list = &answer["samples"];
+  if (!list->is_array() || list->empty()) {
+    out << "no samples\n";
+    return;
+  }
+  const std::vector<std::pair<const char*, const char*>> cols = {{"ID", "id"},
+                                                                 {"STATE", "state"},
+                                                                 {"CREATED (UTC)", "created_utc"},
+                                                                 {"SIDES DONE", "sides_done"},
+                                                                 {"VIEWS", "views"}};
+  std::vector<std::vector<std::string>> rows;
+  std::vector<size_t> width;
+  width.reserve(cols.size());
+  for (const auto& c : cols) width.push_back(std::strlen(c.first));
+  for (const auto& s : *list) {
+    std::vector<std::string> row;
+    for (size_t i = 0; i < cols.size(); ++i) {
+      row.push_back(FieldText(s, cols[i].second));
+      width[i] = std::max(width[i], row.back().size());
+    }
+    rows.push_back(std::move(row));
+  }
+  auto print_row = [&](const std::vector<std::string>& cells) {
+    std::string line;
+    for (size_t i = 0; i < cells.size(); ++i) {
+      line += cells[i];
+      if (i + 1 < cells.size()) line += std::string(width[i] - cells[i].size() + 2, ' ');
+    }
+    out << line << "\n";
+  };
+  std::vector<std::string> header;
+  header.reserve(cols.size());
+  for (const auto& c : cols) header.emplace_back(c.first);
+  print_row(header);
+  for (const auto& r : rows) print_row(r);
+}
+
+// Indented "key: value" listing of a JSON document, for `show`.
+void PrintTree(const json& j, int indent, std::ostream& out) {
+  const std::string pad(static_cast<size_t>(indent), ' ');
+  if (!j.is_object()) {
+    out << pad << Scalar(j) << "\n";
+    return;
+  }
+  for (const auto& [key, v] : j.items()) {
+    const std::string k = pad + Clean(key) + ":";
+    if (v.is_object()) {
+      if (v.empty()) {
+        out << k << " -\n";
+      } else {
+        out << k << "\n";
+        PrintTree(v, indent + 2, out);
+      }
+    } else if (v.is_array()) {
+      const bool scalars =
+          std::none_of(v.begin(), v.end(), [](const json& e) { return e.is_structured(); });
+      if (v.empty()) {
+        out << k << " -\n";
+      } else if (scalars && v.size() <= kMaxInlineValues) {
+        std::string s;
+        for (const auto& e : v) s += (s.empty() ? "" : ", ") + Scalar(e);
+        out << k << " " << s << "\n";
+      } else if (v.size() > kMaxListedRecords || scalars) {
+        out << k << " " << v.size() << " entries (--json shows them)\n";
+      } else {
+        out << k << "\n";
+        for (size_t i = 0; i < v.size(); ++i) {
+          out << pad << "  [" << i + 1 << "]\n";
+          PrintTree(v[i], indent + 4, out);
+        }
+      }
+    } else {
+      out << k << " " << Scalar(v) << "\n";
+    }
+  }
+}
+
+void PrintSample(const json& s, std::ostream& out) {
+  out << "sample: " << FieldText(s, "id") << "  state: " << FieldText(s, "state") << "\n";
+  if (!s.is_object()) return;
+  json rest = s;
+  rest.erase("id");
+  rest.erase("state");
+  PrintTree(rest, 0, out);
+}
+
+int Usage(std::ostream& err, const std::string& problem) {
+  err << "aggscan: " << problem << "\n";
+  PrintClientUsage(err);
+  return kClientExitUsage;
+}
+
+struct Command {
+  std::string name;
+  std::string method;  // "GET" or "POST"
+  std::string path;    // under /api/v1
+  std::string body;    // POST body
+};
+
+}  // namespace
+
+bool IsClientCommand(const std::string& word) {
+  static const char* const kCommands[] = {"status", "arm",     "press", "abort",
+                                          "reset",  "samples", "show"};
+  return std::any_of(std::begin(kCommands), std::end(kCommands),
+                     [&](const char* c) { return word == c; });
+}
+
+void PrintClientUsage(std::ostream& out) {
+  out << "daemon commands (talk to a running aggscand):\n"
+         "  aggscan [--url URL] [--json] status     state, current sample, fault, devices\n"
+         "  aggscan [--url URL] [--json] arm ID     arm a new sample (or resume one) named ID\n"
+         "  aggscan [--url URL] [--json] press      same as pressing the start button\n"
+         "  aggscan [--url URL] [--json] abort      abort the running capture\n"
+         "  aggscan [--url URL] [--json] reset      clear a fault and return to idle\n"
+         "  aggscan [--url URL] [--json] samples    list the samples\n"
+         "  aggscan [--url URL] [--json] show ID    one sample: sides, views, jobs\n"
+         "options:\n"
+         "  --url URL   daemon address (default $AGGSCAN_URL, else "
+      << kDefaultDaemonUrl
+      << ")\n"
+         "  --json      print the daemon's JSON answer unchanged\n"
+         "exit codes: 0 ok, 1 the daemon reported an error, 2 usage error, 3 daemon unreachable\n";
+}
+
+int RunClientCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {
+  std::optional<std::string> url_flag;
+  bool json_out = false;
+  std::vector<std::string> words;
+  for (size_t i = 0; i < args.size(); ++i) {
+    const std::string& a = args[i];
+    if (a == "--json") {
+      json_out = true;
+    } else if (a == "--url") {
+      if (i + 1 >= args.size())
+        return Usage(err, "--url needs a value, e.g. --url http://127.0.0.1:8470");
+      url_flag = args[++i];
+    } else if (a.rfind("--url=", 0) == 0) {
+      url_flag = a.substr(6);
+    } else if (a == "-h" || a == "--help") {
+      PrintClientUsage(out);
+      return kClientExitOk;
+    } else if (a.size() > 1 && a[0] == '-') {
+      return Usage(err, "unknown option " + a);
+    } else {
+      words.push_back(a);
+    }
+  }
+  if (words.empty()) return Usage(err, "missing command");
+  const std::string& name = words[0];
+  if (!IsClientCommand(name)) return Usage(err, "unknown command \"" + name + "\"");
+  const bool needs_id = name == "arm" || name == "show";
+  const size_t want = needs_id ? 2 : 1;
+  if (words.size() < want) return Usage(err, name + " needs a sample id");
+  if (words.size() > want)
+    return Usage(err, "unexpected argument \"" + words[want] + "\" after " + name);
+  std::string id;
+  if (needs_id) {
+    id = words[1];
+    // Checked here too: the id becomes part of the request path.
+    if (!layout::IsValidSampleId(id)) {
+      return Usage(
+          err, "invalid sample id \"" + Clean(id) +
+                   "\": use 1-64 characters from A-Z a-z 0-9 . _ -, not starting with '.' or '-'");
+    }
+  }
+
+  std::string url = kDefaultDaemonUrl;
+  if (url_flag) {
+    url = *url_flag;
+  } else if (const char* env = std::getenv("AGGSCAN_URL"); env != nullptr && *env != '\0') {
+    url = env;
+  }
+  std::string why;
+  const std::optional<Target> target = ParseUrl(url, &why);
+  if (!target) return Usage(err, "invalid daemon URL \"" + Clean(url) + "\": " + why);
+
+  Command cmd{name, "GET", "/status", {}};
+  if (name == "arm") cmd = {name, "POST", "/samples", json{{"id", id}}.dump()};
+  if (name == "press") cmd = {name, "POST", "/button", "{}"};
+  if (name == "abort") cmd = {name, "POST", "/abort", "{}"};
+  if (name == "reset") cmd = {name, "POST", "/reset", "{}"};
+  if (name == "samples") cmd = {name, "GET", "/samples", {}};
+  if (name == "show") cmd = {name, "GET", "/samples/" + id, {}};
+
+  httplib::Client client(target->origin);
+  client.set_connection_timeout(kConnectTimeoutSec, 0);
+  client.set_read_timeout(kReadTimeoutSec, 0);
+  client.set_write_timeout(kConnectTimeoutSec, 0);
+  client.set_tcp_nodelay(true);  // a POST's headers and body are separate writes
+  const std::string path = target->prefix + "/api/v1" + cmd.path;
+  httplib::Result res =
+      cmd.method == "GET" ? client.Get(path) : client.Post(path, cmd.body, "application/json");
+  if (!res) {
+    err << "aggscan: " << TransportError(*target, res.error()) << "\n";
+    return kClientExitUnreachable;
+  }
+
+  const json answer = json::parse(res->body, nullptr, /*allow_exceptions=*/false);
+  const bool ok = res->status >= 200 && res->status < 300;
+  if (answer.is_discarded()) {
+    err << "aggscan: unexpected answer from " << target->url << " (HTTP " << res->status
+        << ", not JSON) — is that address really aggscand?\n";
+    return kClientExitDaemonError;
+  }
+  if (json_out) {
+    out << res->body;
+    if (res->body.empty() || res->body.back() != '\n') out << "\n";
+  }
+  if (!ok) {
+    std::string message = "HTTP " + std::to_string(res->status);
+    std::string cls;
+    if (answer.is_object() && answer.contains("error") && answer["error"].is_object()) {
+      const json& e = answer["error"];
+      if (HasText(e, "message")) message = Clean(e["message"].get<std::string>());
+      if (HasText(e, "class")) cls = Clean(e["class"].get<std::string>());
+    }
+    err << "aggscan: " << name << " failed: " << message << (cls.empty() ? "" : " [" + cls + "]")
+        << "\n";
+    return kClientExitDaemonError;
+  }
+  if (json_out) return kClientExitOk;
+
+  if (name == "status") {
+    PrintStatus(answer, out);
+  } else if (name == "samples") {
+    PrintSamples(answer, out);
+  } else if (name == "show") {
+    PrintSample(answer, out);
+  } else {
+    if (name == "arm") out << "armed sample " << id << "\n";
+    if (name == "press") out << "button pressed\n";
+    if (name == "abort") out << "capture aborted\n";
+    if (name == "reset") out << "reset done\n";
+    // Actions answer with the resulting status where the daemon provides it.
+    if (answer.is_object() && answer.contains("state")) out << StatusHeadline(answer) << "\n";
+  }
+  return kClientExitOk;
+}
+
+}  // namespace aggscan

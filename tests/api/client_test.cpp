@@ -1,0 +1,207 @@
+#include "cli/client.h"
+
+#include <gtest/gtest.h>
+#include <stdlib.h>
+
+#include <memory>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "daemon/http_api.h"
+#include "tests/api/fake_control.h"
+
+namespace aggscan {
+namespace {
+
+using nlohmann::json;
+using testing::FakeControl;
+using testing::UnusedPort;
+
+class ClientTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    ::unsetenv("AGGSCAN_URL");
+    api_ = std::make_unique<HttpApi>(fake_, "127.0.0.1", 0);
+    const Status st = api_->Start();
+    ASSERT_TRUE(st.ok()) << st.error().ToString();
+    url_ = "http://127.0.0.1:" + std::to_string(api_->port());
+  }
+  void TearDown() override {
+    ::unsetenv("AGGSCAN_URL");
+    api_->Stop();
+  }
+
+  // Runs the command with --url pointing at the test server.
+  int Run(std::vector<std::string> args) {
+    args.insert(args.begin(), {"--url", url_});
+    return RunBare(args);
+  }
+  int RunBare(const std::vector<std::string>& args) {
+    out_.str("");
+    err_.str("");
+    return RunClientCommand(args, out_, err_);
+  }
+
+  FakeControl fake_;
+  std::unique_ptr<HttpApi> api_;
+  std::string url_;
+  std::ostringstream out_, err_;
+};
+
+TEST_F(ClientTest, StatusHumanReadable) {
+  ASSERT_EQ(Run({"status"}), kClientExitOk) << err_.str();
+  const std::string out = out_.str();
+  EXPECT_NE(out.find("state: capturing  sample: rock-12  side 1 view 7/30\n"), std::string::npos)
+      << out;
+  EXPECT_NE(out.find("camera: ok"), std::string::npos) << out;
+  EXPECT_NE(out.find("queue: 2"), std::string::npos) << out;
+  EXPECT_NE(out.find("uptime: 1h 02m 03s"), std::string::npos) << out;
+  EXPECT_TRUE(err_.str().empty());
+}
+
+TEST_F(ClientTest, StatusShowsFault) {
+  fake_.status = {{"state", "fault"},
+                  {"sample_id", nullptr},
+                  {"fault", {{"class", "stalled"}, {"message", "turntable stalled at 96 deg"}}}};
+  ASSERT_EQ(Run({"status"}), kClientExitOk);
+  EXPECT_NE(out_.str().find("state: fault\n"), std::string::npos) << out_.str();
+  EXPECT_NE(out_.str().find("fault: stalled: turntable stalled at 96 deg"), std::string::npos)
+      << out_.str();
+}
+
+TEST_F(ClientTest, JsonOptionPrintsDaemonJson) {
+  ASSERT_EQ(Run({"status", "--json"}), kClientExitOk);
+  const json j = json::parse(out_.str(), nullptr, false);
+  ASSERT_FALSE(j.is_discarded()) << out_.str();
+  EXPECT_EQ(j, fake_.status);
+
+  ASSERT_EQ(Run({"--json", "samples"}), kClientExitOk);
+  EXPECT_EQ(json::parse(out_.str(), nullptr, false), fake_.samples);
+}
+
+TEST_F(ClientTest, ActionsCallTheDaemon) {
+  EXPECT_EQ(Run({"arm", "rock-12"}), kClientExitOk) << err_.str();
+  EXPECT_NE(out_.str().find("armed sample rock-12"), std::string::npos) << out_.str();
+  EXPECT_EQ(Run({"press"}), kClientExitOk);
+  EXPECT_NE(out_.str().find("state: homing"), std::string::npos) << out_.str();
+  EXPECT_EQ(Run({"abort"}), kClientExitOk);
+  EXPECT_EQ(Run({"reset"}), kClientExitOk);
+  EXPECT_EQ(fake_.Calls(),
+            (std::vector<std::string>{"arm:rock-12", "press:api", "abort", "reset"}));
+}
+
+TEST_F(ClientTest, SamplesTable) {
+  ASSERT_EQ(Run({"samples"}), kClientExitOk);
+  std::istringstream lines(out_.str());
+  std::string header, row1, row2;
+  std::getline(lines, header);
+  std::getline(lines, row1);
+  std::getline(lines, row2);
+  EXPECT_EQ(header.rfind("ID", 0), 0u) << out_.str();
+  EXPECT_NE(header.find("STATE"), std::string::npos);
+  EXPECT_EQ(row1.rfind("rock-11", 0), 0u) << out_.str();
+  EXPECT_NE(row1.find("done"), std::string::npos);
+  EXPECT_NE(row2.find("capturing"), std::string::npos);
+  // Columns line up: the state column starts at the same offset in every line.
+  EXPECT_EQ(header.find("STATE"), row1.find("done"));
+
+  fake_.samples = json::array();
+  ASSERT_EQ(Run({"samples"}), kClientExitOk);
+  EXPECT_EQ(out_.str(), "no samples\n");
+}
+
+TEST_F(ClientTest, ShowSample) {
+  ASSERT_EQ(Run({"show", "rock-11"}), kClientExitOk) << err_.str();
+  const std::string out = out_.str();
+  EXPECT_EQ(out.rfind("sample: rock-11  state: done\n", 0), 0u) << out;
+  EXPECT_NE(out.find("views: 30 entries"), std::string::npos) << out;
+  EXPECT_EQ(fake_.Calls(), std::vector<std::string>{"get:rock-11"});
+}
+
+TEST_F(ClientTest, DaemonErrorExits1WithItsMessage) {
+  fake_.fail =
+      MakeError(ErrorClass::kInvalidState, "cannot arm while capturing rock-12; abort first");
+  EXPECT_EQ(Run({"arm", "rock-13"}), kClientExitDaemonError);
+  EXPECT_NE(err_.str().find("cannot arm while capturing rock-12; abort first"), std::string::npos)
+      << err_.str();
+  EXPECT_TRUE(out_.str().empty());
+
+  // --json: the error document goes to stdout for scripts, still exit 1.
+  EXPECT_EQ(Run({"--json", "show", "rock-13"}), kClientExitDaemonError);
+  const json j = json::parse(out_.str(), nullptr, false);
+  ASSERT_TRUE(j.is_object()) << out_.str();
+  EXPECT_EQ(j["error"]["class"], "invalid_state");
+}
+
+TEST_F(ClientTest, UsageErrorsExit2) {
+  const std::vector<std::vector<std::string>> cases = {
+      {},
+      {"frobnicate"},
+      {"arm"},
+      {"show"},
+      {"arm", "a", "b"},
+      {"status", "extra"},
+      {"arm", "../etc"},
+      {"show", "a/b"},
+      {"arm", std::string(65, 'x')},
+      {"--bogus", "status"},
+      {"status", "--url"},
+      {"--url", "ftp://127.0.0.1:8470", "status"},
+      {"--url", "127.0.0.1:8470", "status"},
+      {"--url", "http://127.0.0.1:99999", "status"},
+  };
+  for (const auto& args : cases) {
+    std::string joined;
+    for (const auto& a : args) joined += a + " ";
+    EXPECT_EQ(RunBare(args), kClientExitUsage) << joined;
+    EXPECT_FALSE(err_.str().empty()) << joined;
+  }
+  EXPECT_EQ(fake_.CallCount(), 0u);
+}
+
+TEST_F(ClientTest, HelpExits0) {
+  EXPECT_EQ(RunBare({"--help"}), kClientExitOk);
+  EXPECT_NE(out_.str().find("aggscan [--url URL] [--json] status"), std::string::npos);
+}
+
+TEST_F(ClientTest, UnreachableDaemonExits3) {
+  const std::string dead = "http://127.0.0.1:" + std::to_string(UnusedPort());
+  EXPECT_EQ(RunBare({"--url", dead, "status"}), kClientExitUnreachable);
+  EXPECT_EQ(err_.str(),
+            "aggscan: cannot reach aggscand at " + dead +
+                ": connection refused — is the service running? (systemctl status aggscand)\n");
+  EXPECT_EQ(RunBare({"--url=" + dead, "--json", "press"}), kClientExitUnreachable);
+  EXPECT_TRUE(out_.str().empty());
+}
+
+TEST_F(ClientTest, EnvironmentUrlHonouredAndFlagWins) {
+  ::setenv("AGGSCAN_URL", url_.c_str(), 1);
+  EXPECT_EQ(RunBare({"status"}), kClientExitOk) << err_.str();
+  const std::string dead = "http://127.0.0.1:" + std::to_string(UnusedPort());
+  ::setenv("AGGSCAN_URL", dead.c_str(), 1);
+  EXPECT_EQ(RunBare({"status"}), kClientExitUnreachable);
+  EXPECT_NE(err_.str().find(dead), std::string::npos);
+  EXPECT_EQ(RunBare({"--url", url_, "status"}), kClientExitOk);
+}
+
+TEST_F(ClientTest, UrlWithTrailingSlashWorks) {
+  EXPECT_EQ(RunBare({"--url", url_ + "/", "status"}), kClientExitOk) << err_.str();
+}
+
+TEST(ClientCommands, IsClientCommandAndUsage) {
+  for (const char* w : {"status", "arm", "press", "abort", "reset", "samples", "show"}) {
+    EXPECT_TRUE(IsClientCommand(w)) << w;
+  }
+  for (const char* w : {"", "run", "--json", "statuses", "Status"})
+    EXPECT_FALSE(IsClientCommand(w)) << w;
+  std::ostringstream usage;
+  PrintClientUsage(usage);
+  for (const char* w :
+       {"status", "arm ID", "press", "abort", "reset", "samples", "show ID", "--url", "--json"}) {
+    EXPECT_NE(usage.str().find(w), std::string::npos) << w;
+  }
+}
+
+}  // namespace
+}  // namespace aggscan

@@ -1,0 +1,126 @@
+// A DaemonControl for the API tests: records every call, answers with canned
+// JSON, or with a configured error, or throws.
+#pragma once
+
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <mutex>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "daemon/control.h"
+
+namespace aggscan::testing {
+
+class FakeControl : public DaemonControl {
+ public:
+  nlohmann::json status = {{"state", "capturing"},
+                           {"sample_id", "rock-12"},
+                           {"side", 1},
+                           {"view", 7},
+                           {"views_per_side", 30},
+                           {"sides", 2},
+                           {"fault", nullptr},
+                           {"status_line", "capturing rock-12 side 1 view 7/30"},
+                           {"devices", {{"camera", {{"state", "ok"}}}, {"turntable", "ok"}}},
+                           {"queue_depth", 2},
+                           {"uptime_s", 3723}};
+  nlohmann::json samples = nlohmann::json::array({{{"id", "rock-11"},
+                                                   {"state", "done"},
+                                                   {"created_utc", "2026-01-01T10:00:00.000Z"},
+                                                   {"sides_done", 2},
+                                                   {"views", 60}},
+                                                  {{"id", "rock-12"},
+                                                   {"state", "capturing"},
+                                                   {"created_utc", "2026-01-01T10:05:00.000Z"},
+                                                   {"sides_done", 0},
+                                                   {"views", 7}}});
+
+  std::optional<Error> fail;           // returned by every Result-returning method when set
+  std::atomic<bool> throw_all{false};  // every method throws std::runtime_error
+
+  std::vector<std::string> Calls() {
+    std::lock_guard<std::mutex> lock(mu_);
+    return calls_;
+  }
+  size_t CallCount() {
+    std::lock_guard<std::mutex> lock(mu_);
+    return calls_.size();
+  }
+
+  nlohmann::json GetStatus() override {
+    Record("status");
+    return status;
+  }
+  Result<nlohmann::json> Arm(const std::string& id) override {
+    Record("arm:" + id);
+    if (fail) return *fail;
+    return nlohmann::json{{"state", "armed"}, {"sample_id", id}};
+  }
+  Result<nlohmann::json> Press(const std::string& source) override {
+    Record("press:" + source);
+    if (fail) return *fail;
+    return nlohmann::json{{"state", "homing"}, {"sample_id", "rock-12"}};
+  }
+  Result<nlohmann::json> Abort() override {
+    Record("abort");
+    if (fail) return *fail;
+    return nlohmann::json{{"state", "idle"}};
+  }
+  Result<nlohmann::json> Reset() override {
+    Record("reset");
+    if (fail) return *fail;
+    return nlohmann::json{{"state", "idle"}};
+  }
+  Result<nlohmann::json> ListSamples() override {
+    Record("list");
+    if (fail) return *fail;
+    return samples;
+  }
+  Result<nlohmann::json> GetSample(const std::string& id) override {
+    Record("get:" + id);
+    if (fail) return *fail;
+    nlohmann::json views = nlohmann::json::array();
+    for (int v = 1; v <= 30; ++v) views.push_back({{"view", v}, {"angle_deg", 12.0 * (v - 1)}});
+    return nlohmann::json{{"id", id},
+                          {"state", "done"},
+                          {"created_utc", "2026-01-01T10:00:00.000Z"},
+                          {"sides", {{{"side", 1}, {"job", "done"}, {"views", views}}}}};
+  }
+  std::string Metrics() override {
+    Record("metrics");
+    return "# HELP aggscan_up 1 when the daemon runs\n# TYPE aggscan_up gauge\naggscan_up 1\n";
+  }
+
+ private:
+  void Record(std::string call) {
+    if (throw_all) throw std::runtime_error("fake failure in " + call);
+    std::lock_guard<std::mutex> lock(mu_);
+    calls_.push_back(std::move(call));
+  }
+
+  std::mutex mu_;
+  std::vector<std::string> calls_;
+};
+
+/// A loopback port with nothing listening on it (bound, then released).
+inline int UnusedPort() {
+  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  addr.sin_port = 0;
+  ::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr);
+  socklen_t len = sizeof addr;
+  ::getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len);
+  ::close(fd);
+  return ntohs(addr.sin_port);
+}
+
+}  // namespace aggscan::testing

@@ -1,0 +1,507 @@
+#include "daemon/http_api.h"
+
+#include <gtest/gtest.h>
+#include <httplib.h>
+#include <poll.h>
+
+#include <atomic>
+#include <memory>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "tests/api/fake_control.h"
+
+namespace aggscan {
+namespace {
+
+using nlohmann::json;
+using testing::FakeControl;
+
+class HttpApiTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    api_ = std::make_unique<HttpApi>(fake_, "127.0.0.1", 0);
+    const Status st = api_->Start();
+    ASSERT_TRUE(st.ok()) << st.error().ToString();
+    ASSERT_GT(api_->port(), 0);
+    client_ = std::make_unique<httplib::Client>("127.0.0.1", api_->port());
+    client_->set_read_timeout(5, 0);
+  }
+  void TearDown() override {
+    client_.reset();
+    api_->Stop();
+  }
+
+  static json Body(const httplib::Result& r) { return json::parse(r->body, nullptr, false); }
+  static std::string ErrorClassOf(const httplib::Result& r) {
+    const json b = Body(r);
+    if (!b.is_object() || !b.contains("error")) return "<no error object: " + r->body + ">";
+    EXPECT_TRUE(b["error"]["message"].is_string());
+    return b["error"]["class"].get<std::string>();
+  }
+
+  // True once `answer` holds a whole response with a Content-Length body.
+  static bool ResponseComplete(const std::string& answer) {
+    const size_t end = answer.find("\r\n\r\n");
+    if (end == std::string::npos) return false;
+    const size_t cl = answer.find("Content-Length: ");
+    if (cl == std::string::npos || cl > end) return false;
+    return answer.size() >= end + 4 + std::stoul(answer.substr(cl + 16));
+  }
+
+  // Sends raw bytes and returns everything the server answers until it closes
+  // the connection or goes quiet.
+  std::string Raw(const std::string& request) {
+    const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+    sockaddr_in addr{};
+    addr.sin_family = AF_INET;
+    addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    addr.sin_port = htons(static_cast<uint16_t>(api_->port()));
+    EXPECT_EQ(::connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr), 0);
+    size_t sent = 0;
+    while (sent < request.size()) {
+      const ssize_t n = ::send(fd, request.data() + sent, request.size() - sent, MSG_NOSIGNAL);
+      if (n <= 0) break;  // the server may close early on a refused body
+      sent += static_cast<size_t>(n);
+    }
+    std::string answer;
+    char buf[4096];
+    while (!ResponseComplete(answer)) {
+      pollfd p{fd, POLLIN, 0};
+      if (::poll(&p, 1, 3000) <= 0) break;
+      const ssize_t n = ::recv(fd, buf, sizeof buf, 0);
+      if (n <= 0) break;
+      answer.append(buf, static_cast<size_t>(n));
+    }
+    ::close(fd);
+    return answer;
+  }
+
+  FakeControl fake_;
+  std::unique_ptr<HttpApi> api_;
+  std::unique_ptr<httplib::Client> client_;
+};
+
+TEST_F(HttpApiTest, StatusReturnsControlJson) {
+  auto r = client_->Get("/api/v1/status");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 200);
+  EXPECT_EQ(r->get_header_value("Content-Type"), "application/json");
+  EXPECT_EQ(Body(r), fake_.status);
+}
+
+TEST_F(HttpApiTest, ArmPassesIdToControl) {
+  auto r = client_->Post("/api/v1/samples", R"({"id": "rock-12"})", "application/json");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 200);
+  EXPECT_EQ(Body(r)["sample_id"], "rock-12");
+  EXPECT_EQ(fake_.Calls(), std::vector<std::string>{"arm:rock-12"});
+}
+
+TEST_F(HttpApiTest, ArmIgnoresExtraFieldsAndContentType) {
+  auto r = client_->Post("/api/v1/samples", R"({"id": "RR3_rock.40", "note": 1})", "text/plain");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 200);
+  EXPECT_EQ(fake_.Calls(), std::vector<std::string>{"arm:RR3_rock.40"});
+}
+
+TEST_F(HttpApiTest, ListAndShowSamples) {
+  auto list = client_->Get("/api/v1/samples");
+  ASSERT_TRUE(list);
+  EXPECT_EQ(list->status, 200);
+  EXPECT_EQ(Body(list), fake_.samples);
+  auto one = client_->Get("/api/v1/samples/rock-11");
+  ASSERT_TRUE(one);
+  EXPECT_EQ(one->status, 200);
+  EXPECT_EQ(Body(one)["id"], "rock-11");
+  EXPECT_EQ(fake_.Calls(), (std::vector<std::string>{"list", "get:rock-11"}));
+}
+
+TEST_F(HttpApiTest, ButtonAbortReset) {
+  for (const char* path : {"/api/v1/button", "/api/v1/abort", "/api/v1/reset"}) {
+    auto r = client_->Post(path);
+    ASSERT_TRUE(r) << path;
+    EXPECT_EQ(r->status, 200) << path;
+    EXPECT_TRUE(Body(r).is_object()) << path;
+  }
+  EXPECT_EQ(fake_.Calls(), (std::vector<std::string>{"press:api", "abort", "reset"}));
+}
+
+TEST_F(HttpApiTest, MetricsIsPrometheusText) {
+  auto r = client_->Get("/metrics");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 200);
+  EXPECT_EQ(r->get_header_value("Content-Type").rfind("text/plain; version=0.0.4", 0), 0u);
+  EXPECT_NE(r->body.find("aggscan_up 1"), std::string::npos);
+}
+
+TEST_F(HttpApiTest, HeadAndOptions) {
+  auto head = client_->Head("/api/v1/status");
+  ASSERT_TRUE(head);
+  EXPECT_EQ(head->status, 200);
+  EXPECT_TRUE(head->body.empty());
+  auto opt = client_->Options("/api/v1/samples");
+  ASSERT_TRUE(opt);
+  EXPECT_EQ(opt->status, 204);
+  EXPECT_EQ(opt->get_header_value("Allow"), "GET, HEAD, POST, OPTIONS");
+}
+
+TEST_F(HttpApiTest, ErrorClassesMapToHttpStatus) {
+  const std::vector<std::pair<ErrorClass, int>> cases = {
+      {ErrorClass::kInvalidArgument, 400},
+      {ErrorClass::kNotFound, 404},
+      {ErrorClass::kConflict, 409},
+      {ErrorClass::kInvalidState, 409},
+      {ErrorClass::kDeviceMissing, 503},
+      {ErrorClass::kDisconnected, 503},
+      {ErrorClass::kTimeout, 503},
+      {ErrorClass::kStalled, 503},
+      {ErrorClass::kDeviceFault, 503},
+      {ErrorClass::kDiskFull, 507},
+      {ErrorClass::kIo, 500},
+      {ErrorClass::kCorrupt, 500},
+      {ErrorClass::kInvalidConfig, 500},
+      {ErrorClass::kInternal, 500},
+  };
+  for (const auto& [cls, status] : cases) {
+    EXPECT_EQ(HttpStatusFor(cls), status) << ErrorClassName(cls);
+    fake_.fail =
+        MakeError(cls, std::string("failure of class ") + ErrorClassName(cls), "errno text");
+    auto r = client_->Post("/api/v1/abort");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, status) << ErrorClassName(cls);
+    EXPECT_EQ(ErrorClassOf(r), ErrorClassName(cls));
+    const json b = Body(r);
+    EXPECT_EQ(b["error"]["message"], std::string("failure of class ") + ErrorClassName(cls));
+    EXPECT_EQ(b["error"]["detail"], "errno text");
+  }
+  fake_.fail = MakeError(ErrorClass::kNotFound, "no sample rock-99");
+  auto r = client_->Get("/api/v1/samples/rock-99");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 404);
+  EXPECT_EQ(ErrorClassOf(r), "not_found");
+}
+
+TEST_F(HttpApiTest, NonUtf8ErrorMessageStillValidJson) {
+  fake_.fail = MakeError(ErrorClass::kIo, "bad bytes \xff\xfe here");
+  auto r = client_->Post("/api/v1/reset");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 500);
+  EXPECT_EQ(ErrorClassOf(r), "io");
+}
+
+TEST_F(HttpApiTest, BadArmBodiesAre400) {
+  const std::vector<std::string> bodies = {
+      "",
+      "{",
+      "not json",
+      "[1,2]",
+      "\"rock-1\"",
+      "42",
+      "null",
+      "{}",
+      R"({"id": 7})",
+      R"({"id": null})",
+      R"({"id": ["a"]})",
+      R"({"ID": "rock-1"})",
+      std::string(20000, '['),
+      "{\"id\": \"rock\xff\"}",
+  };
+  for (const auto& body : bodies) {
+    auto r = client_->Post("/api/v1/samples", body, "application/json");
+    ASSERT_TRUE(r) << body.substr(0, 40);
+    EXPECT_EQ(r->status, 400) << body.substr(0, 40);
+    EXPECT_EQ(ErrorClassOf(r), "invalid_argument") << body.substr(0, 40);
+  }
+  EXPECT_EQ(fake_.CallCount(), 0u);
+}
+
+TEST_F(HttpApiTest, InvalidIdsInBodyNeverReachControl) {
+  const std::vector<std::string> ids = {"",
+                                        "..",
+                                        "../etc",
+                                        "../../etc/passwd",
+                                        "a/b",
+                                        "/abs",
+                                        "a b",
+                                        "a\nb",
+                                        "a\tb",
+                                        ".hidden",
+                                        "-rf",
+                                        "%2e%2e%2f",
+                                        std::string(65, 'x'),
+                                        std::string("a\0b", 3),
+                                        "rock\x7f",
+                                        "r\xc3\xa9"};
+  for (const auto& id : ids) {
+    auto r = client_->Post("/api/v1/samples",
+                           json{{"id", id}}.dump(-1, ' ', false, json::error_handler_t::replace),
+                           "application/json");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 400) << id;
+    EXPECT_EQ(ErrorClassOf(r), "invalid_argument") << id;
+  }
+  // The longest valid id is accepted.
+  auto ok = client_->Post("/api/v1/samples", json{{"id", std::string(64, 'x')}}.dump(),
+                          "application/json");
+  ASSERT_TRUE(ok);
+  EXPECT_EQ(ok->status, 200);
+  EXPECT_EQ(fake_.Calls(), std::vector<std::string>{"arm:" + std::string(64, 'x')});
+}
+
+TEST_F(HttpApiTest, TraversalInPathRefusedRawAndPercentEncoded) {
+  const std::vector<std::string> paths = {
+      "/api/v1/samples/../../etc/passwd",
+      "/api/v1/samples/..",
+      "/api/v1/samples/%2e%2e",
+      "/api/v1/samples/%2e%2e%2f%2e%2e%2fetc%2fpasswd",
+      "/api/v1/samples/%2E%2E%2F",
+      "/api/v1/samples/..%2f..%2fetc",
+      "/api/v1/samples/rock%2f..%2f..",
+      "/api/v1/samples/%252e%252e%252f",
+      "/api/v1/samples/a%20b",
+      "/api/v1/samples/a%00b",
+      "/api/v1/samples/a%0ab",
+      "/api/v1/samples/.hidden",
+      "/api/v1/samples/",
+      "/api/v1/samples/" + std::string(65, 'x'),
+  };
+  for (const auto& path : paths) {
+    auto r = client_->Get(path);
+    ASSERT_TRUE(r) << path;
+    EXPECT_EQ(r->status, 400) << path;
+    EXPECT_EQ(ErrorClassOf(r), "invalid_argument") << path;
+  }
+  // Same through a raw socket, where no client library can normalise anything.
+  const std::string raw = Raw(
+      "GET /api/v1/samples/%2e%2e%2f%2e%2e%2fetc HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n");
+  EXPECT_EQ(raw.rfind("HTTP/1.1 400", 0), 0u) << raw;
+  EXPECT_EQ(fake_.CallCount(), 0u);
+}
+
+TEST_F(HttpApiTest, BodyLimit) {
+  // Exactly the limit is fine (the id is parsed, the padding ignored).
+  std::string exact = R"({"id": "rock-1", "pad": ")";
+  exact += std::string(HttpApi::kMaxBodyBytes - exact.size() - 2, 'x') + "\"}";
+  ASSERT_EQ(exact.size(), HttpApi::kMaxBodyBytes);
+  auto r1 = client_->Post("/api/v1/samples", exact, "application/json");
+  ASSERT_TRUE(r1);
+  EXPECT_EQ(r1->status, 200);
+
+  const std::string big(HttpApi::kMaxBodyBytes + 1, ' ');
+  for (const char* path : {"/api/v1/samples", "/api/v1/button", "/no/such/route"}) {
+    httplib::Client c("127.0.0.1", api_->port());
+    auto r = c.Post(path, big, "application/json");
+    ASSERT_TRUE(r) << path;
+    EXPECT_EQ(r->status, 413) << path;
+    EXPECT_EQ(ErrorClassOf(r), "invalid_argument") << path;
+  }
+  // 1 MiB, far over the limit.
+  httplib::Client c("127.0.0.1", api_->port());
+  auto huge = c.Post("/api/v1/samples", std::string(1 << 20, 'x'), "application/json");
+  ASSERT_TRUE(huge);
+  EXPECT_EQ(huge->status, 413);
+  EXPECT_EQ(fake_.Calls(), std::vector<std::string>{"arm:rock-1"});
+
+  // The server is still healthy.
+  auto after = client_->Get("/api/v1/status");
+  ASSERT_TRUE(after);
+  EXPECT_EQ(after->status, 200);
+}
+
+TEST_F(HttpApiTest, ChunkedBodyOverLimitIs413) {
+  std::string req =
+      "POST /api/v1/samples HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\nConnection: "
+      "close\r\n\r\n";
+  const std::string chunk(16 * 1024, 'x');
+  char size_line[32];
+  std::snprintf(size_line, sizeof size_line, "%zx\r\n", chunk.size());
+  for (int i = 0; i < 8; ++i) req += size_line + chunk + "\r\n";
+  req += "0\r\n\r\n";
+  const std::string answer = Raw(req);
+  EXPECT_EQ(answer.rfind("HTTP/1.1 413", 0), 0u) << answer.substr(0, 200);
+  EXPECT_NE(answer.find("\"invalid_argument\""), std::string::npos);
+  EXPECT_EQ(fake_.CallCount(), 0u);
+}
+
+TEST_F(HttpApiTest, ChunkedSmallBodyAccepted) {
+  const std::string body = R"({"id":"rock-7"})";
+  char size_line[32];
+  std::snprintf(size_line, sizeof size_line, "%zx\r\n", body.size());
+  const std::string answer =
+      Raw("POST /api/v1/samples HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n"
+          "Connection: close\r\n\r\n" +
+          std::string(size_line) + body + "\r\n0\r\n\r\n");
+  EXPECT_EQ(answer.rfind("HTTP/1.1 200", 0), 0u) << answer.substr(0, 200);
+  EXPECT_EQ(fake_.Calls(), std::vector<std::string>{"arm:rock-7"});
+}
+
+TEST_F(HttpApiTest, PostWithoutContentLengthDoesNotHang) {
+  const auto t0 = std::chrono::steady_clock::now();
+  const std::string answer =
+      Raw("POST /api/v1/button HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n");
+  EXPECT_EQ(answer.rfind("HTTP/1.1 200", 0), 0u) << answer.substr(0, 200);
+  EXPECT_LT(std::chrono::steady_clock::now() - t0, std::chrono::seconds(2));
+}
+
+TEST_F(HttpApiTest, UnknownRouteIs404Json) {
+  for (const char* path :
+       {"/", "/api", "/api/v1", "/api/v1/statu", "/api/v2/status", "/api/v1/status/x"}) {
+    auto r = client_->Get(path);
+    ASSERT_TRUE(r) << path;
+    EXPECT_EQ(r->status, 404) << path;
+    EXPECT_EQ(ErrorClassOf(r), "not_found") << path;
+  }
+  auto post = client_->Post("/api/v1/nope", "{}", "application/json");
+  ASSERT_TRUE(post);
+  EXPECT_EQ(post->status, 404);
+  EXPECT_EQ(ErrorClassOf(post), "not_found");
+  // A very long path neither crashes the router nor reaches the control.
+  auto lng = client_->Get("/" + std::string(8000, 'a'));
+  ASSERT_TRUE(lng);
+  EXPECT_GE(lng->status, 400);
+  EXPECT_EQ(fake_.CallCount(), 0u);
+}
+
+TEST_F(HttpApiTest, WrongMethodIs405WithAllow) {
+  struct Case {
+    std::string method, path, allow;
+  };
+  const std::vector<Case> cases = {
+      {"DELETE", "/api/v1/status", "GET, HEAD"}, {"POST", "/api/v1/status", "GET, HEAD"},
+      {"GET", "/api/v1/button", "POST"},         {"PUT", "/api/v1/samples", "GET, HEAD, POST"},
+      {"GET", "/api/v1/abort", "POST"},          {"PATCH", "/api/v1/reset", "POST"},
+      {"POST", "/metrics", "GET, HEAD"},         {"DELETE", "/api/v1/samples/rock-1", "GET, HEAD"},
+  };
+  for (const auto& c : cases) {
+    httplib::Result r = c.method == "GET"     ? client_->Get(c.path)
+                        : c.method == "POST"  ? client_->Post(c.path, "{}", "application/json")
+                        : c.method == "PUT"   ? client_->Put(c.path, "{}", "application/json")
+                        : c.method == "PATCH" ? client_->Patch(c.path, "{}", "application/json")
+                                              : client_->Delete(c.path);
+    ASSERT_TRUE(r) << c.method << " " << c.path;
+    EXPECT_EQ(r->status, 405) << c.method << " " << c.path;
+    EXPECT_EQ(r->get_header_value("Allow"), c.allow) << c.method << " " << c.path;
+    EXPECT_EQ(ErrorClassOf(r), "invalid_argument");
+  }
+  EXPECT_EQ(fake_.CallCount(), 0u);
+}
+
+TEST_F(HttpApiTest, GarbageRequestsGetJsonErrors) {
+  const std::string bad_line = Raw("GARBAGE\r\n\r\n");
+  EXPECT_EQ(bad_line.rfind("HTTP/1.1 400", 0), 0u) << bad_line;
+  EXPECT_NE(bad_line.find("\"error\""), std::string::npos) << bad_line;
+  const std::string bad_method = Raw("BREW /api/v1/status HTTP/1.1\r\nHost: x\r\n\r\n");
+  EXPECT_EQ(bad_method.rfind("HTTP/1.1 400", 0), 0u) << bad_method;
+  const std::string bad_len =
+      Raw("POST /api/v1/samples HTTP/1.1\r\nHost: x\r\nContent-Length: "
+          "99999999999999999999\r\nConnection: close\r\n\r\n");
+  EXPECT_EQ(bad_len.rfind("HTTP/1.1 400", 0), 0u) << bad_len;
+  const std::string neg_len =
+      Raw("POST /api/v1/samples HTTP/1.1\r\nHost: x\r\nContent-Length: -5\r\nConnection: "
+          "close\r\n\r\n");
+  EXPECT_EQ(neg_len.rfind("HTTP/1.1 400", 0), 0u) << neg_len;
+  auto r = client_->Get("/api/v1/status");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 200);
+}
+
+TEST_F(HttpApiTest, ThrowingControlIs500Json) {
+  fake_.throw_all = true;
+  for (const char* path :
+       {"/api/v1/status", "/api/v1/samples", "/metrics", "/api/v1/samples/rock-1"}) {
+    auto r = client_->Get(path);
+    ASSERT_TRUE(r) << path;
+    EXPECT_EQ(r->status, 500) << path;
+    EXPECT_EQ(ErrorClassOf(r), "internal") << path;
+  }
+  auto arm = client_->Post("/api/v1/samples", R"({"id":"rock-1"})", "application/json");
+  ASSERT_TRUE(arm);
+  EXPECT_EQ(arm->status, 500);
+  fake_.throw_all = false;
+  auto r = client_->Get("/api/v1/status");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 200);
+}
+
+TEST_F(HttpApiTest, ConcurrentRequestsAllAnswered) {
+  constexpr int kThreads = 8;
+  constexpr int kRequests = 50;
+  std::atomic<int> answered{0};
+  std::vector<std::thread> threads;
+  for (int t = 0; t < kThreads; ++t) {
+    threads.emplace_back([&, t] {
+      httplib::Client c("127.0.0.1", api_->port());
+      c.set_keep_alive(t % 2 == 0);  // half reuse a connection, half reconnect every time
+      for (int i = 0; i < kRequests; ++i) {
+        httplib::Result r = (i % 3 == 0)   ? c.Post("/api/v1/button")
+                            : (i % 3 == 1) ? c.Get("/api/v1/status")
+                                           : c.Get("/api/v1/samples/rock-" + std::to_string(t));
+        if (r && r->status == 200 && json::parse(r->body, nullptr, false).is_object()) ++answered;
+      }
+    });
+  }
+  for (auto& th : threads) th.join();
+  EXPECT_EQ(answered.load(), kThreads * kRequests);
+  EXPECT_EQ(fake_.CallCount(), static_cast<size_t>(kThreads * kRequests));
+}
+
+TEST_F(HttpApiTest, SecondServerOnSamePortFailsClearly) {
+  HttpApi second(fake_, "127.0.0.1", api_->port());
+  const Status st = second.Start();
+  ASSERT_FALSE(st.ok());
+  EXPECT_EQ(st.error().cls, ErrorClass::kConflict);
+  const std::string expected =
+      "cannot listen on 127.0.0.1:" + std::to_string(api_->port()) +
+      ": address already in use — is another aggscand running? set daemon.listen_port";
+  EXPECT_EQ(st.error().message, expected);
+  EXPECT_EQ(second.port(), 0);
+  second.Stop();  // harmless when never started
+  // The first server is unaffected.
+  auto r = client_->Get("/api/v1/status");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 200);
+}
+
+TEST(HttpApiLifecycle, BadAddressAndPort) {
+  FakeControl fake;
+  HttpApi bad_addr(fake, "203.0.113.7", 0);  // TEST-NET-3: not an address of this host
+  const Status st = bad_addr.Start();
+  ASSERT_FALSE(st.ok());
+  EXPECT_EQ(st.error().message.rfind("cannot listen on 203.0.113.7:0: ", 0), 0u)
+      << st.error().message;
+  HttpApi bad_port(fake, "127.0.0.1", 70000);
+  const Status st2 = bad_port.Start();
+  ASSERT_FALSE(st2.ok());
+  EXPECT_EQ(st2.error().cls, ErrorClass::kInvalidConfig);
+}
+
+TEST(HttpApiLifecycle, StartStopRepeatedly) {
+  FakeControl fake;
+  for (int i = 0; i < 20; ++i) {
+    HttpApi api(fake, "127.0.0.1", 0);
+    ASSERT_TRUE(api.Start().ok());
+    if (i % 2 == 0) {
+      httplib::Client c("127.0.0.1", api.port());
+      auto r = c.Get("/api/v1/status");
+      ASSERT_TRUE(r);
+      EXPECT_EQ(r->status, 200);
+    }
+    api.Stop();
+    api.Stop();  // idempotent
+  }
+  // Restart on the same object.
+  HttpApi api(fake, "127.0.0.1", 0);
+  ASSERT_TRUE(api.Start().ok());
+  EXPECT_FALSE(api.Start().ok());  // already started
+  api.Stop();
+  ASSERT_TRUE(api.Start().ok());
+  httplib::Client c("127.0.0.1", api.port());
+  auto r = c.Get("/api/v1/status");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 200);
+}
+
+}  // namespace
+}  // namespace aggscan
