@@ -1,0 +1,619 @@
+// Mesh file readers (PLY, OBJ, STL) and the binary PLY writer.
+//
+// Files are read whole into memory (scanned rocks are a few MB); every read
+// from the byte buffer is bounds-checked so a truncated file is an error that
+// names the file and where it ended, never a crash.
+#include "common/mesh.h"
+
+#include <algorithm>
+#include <bit>
+#include <cctype>
+#include <charconv>
+#include <cmath>
+#include <cstddef>
+#include <cstdint>
+#include <cstring>
+#include <map>
+#include <optional>
+#include <string_view>
+#include <unordered_map>
+
+#include "common/fsutil.h"
+
+namespace aggscan {
+namespace {
+
+// std::byteswap is C++23.
+template <typename U>
+U ByteSwap(U v) {
+  unsigned char b[sizeof(U)];
+  std::memcpy(b, &v, sizeof(U));
+  std::reverse(b, b + sizeof(U));
+  std::memcpy(&v, b, sizeof(U));
+  return v;
+}
+
+Error Corrupt(const std::string& path, const std::string& what) {
+  return MakeError(ErrorClass::kCorrupt, "mesh file " + path + ": " + what);
+}
+
+std::string Lower(std::string s) {
+  std::transform(s.begin(), s.end(), s.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  return s;
+}
+
+// Splits on ASCII whitespace.
+std::vector<std::string_view> Tokens(std::string_view line) {
+  std::vector<std::string_view> out;
+  size_t i = 0;
+  while (i < line.size()) {
+    while (i < line.size() && std::isspace(static_cast<unsigned char>(line[i]))) ++i;
+    size_t j = i;
+    while (j < line.size() && !std::isspace(static_cast<unsigned char>(line[j]))) ++j;
+    if (j > i) out.push_back(line.substr(i, j - i));
+    i = j;
+  }
+  return out;
+}
+
+bool ParseDouble(std::string_view s, double* out) {
+  if (!s.empty() && s.front() == '+') s.remove_prefix(1);
+  auto [p, ec] = std::from_chars(s.data(), s.data() + s.size(), *out);
+  return ec == std::errc() && p == s.data() + s.size();
+}
+
+bool ParseInt64(std::string_view s, int64_t* out) {
+  if (!s.empty() && s.front() == '+') s.remove_prefix(1);
+  auto [p, ec] = std::from_chars(s.data(), s.data() + s.size(), *out);
+  return ec == std::errc() && p == s.data() + s.size();
+}
+
+// Appends the fan triangulation of polygon `poly` (already 0-based, checked).
+void AddPolygon(const std::vector<int>& poly, Mesh* m) {
+  for (size_t k = 1; k + 1 < poly.size(); ++k) m->faces.push_back({poly[0], poly[k], poly[k + 1]});
+}
+
+// ---------------------------------------------------------------- PLY
+
+enum class PlyType { kI8, kU8, kI16, kU16, kI32, kU32, kF32, kF64 };
+
+std::optional<PlyType> ParsePlyType(std::string_view s) {
+  static const std::map<std::string_view, PlyType> kTypes = {
+      {"char", PlyType::kI8},    {"int8", PlyType::kI8},     {"uchar", PlyType::kU8},
+      {"uint8", PlyType::kU8},   {"short", PlyType::kI16},   {"int16", PlyType::kI16},
+      {"ushort", PlyType::kU16}, {"uint16", PlyType::kU16},  {"int", PlyType::kI32},
+      {"int32", PlyType::kI32},  {"uint", PlyType::kU32},    {"uint32", PlyType::kU32},
+      {"float", PlyType::kF32},  {"float32", PlyType::kF32}, {"double", PlyType::kF64},
+      {"float64", PlyType::kF64}};
+  auto it = kTypes.find(s);
+  if (it == kTypes.end()) return std::nullopt;
+  return it->second;
+}
+
+size_t PlyTypeSize(PlyType t) {
+  switch (t) {
+    case PlyType::kI8:
+    case PlyType::kU8:
+      return 1;
+    case PlyType::kI16:
+    case PlyType::kU16:
+      return 2;
+    case PlyType::kI32:
+    case PlyType::kU32:
+    case PlyType::kF32:
+      return 4;
+    case PlyType::kF64:
+      return 8;
+  }
+  return 1;
+}
+
+struct PlyProperty {
+  std::string name;
+  bool is_list = false;
+  PlyType count_type = PlyType::kU8;  // lists only
+  PlyType type = PlyType::kF32;       // value (or list item) type
+};
+
+struct PlyElement {
+  std::string name;
+  int64_t count = 0;
+  std::vector<PlyProperty> props;
+};
+
+enum class PlyFormat { kAscii, kBinaryLe, kBinaryBe };
+
+// Reads PLY body values one at a time, ASCII tokens or binary scalars.
+class PlyReader {
+ public:
+  PlyReader(std::string_view body, PlyFormat fmt) : body_(body), fmt_(fmt) {}
+
+  // False at end of data (truncated) or on a malformed ASCII token.
+  bool Read(PlyType t, double* out) {
+    if (fmt_ == PlyFormat::kAscii) return ReadAscii(out);
+    const size_t n = PlyTypeSize(t);
+    if (pos_ + n > body_.size()) return false;
+    unsigned char b[8];
+    std::memcpy(b, body_.data() + pos_, n);
+    pos_ += n;
+    const bool swap = (fmt_ == PlyFormat::kBinaryBe) != (std::endian::native == std::endian::big);
+    if (swap) std::reverse(b, b + n);
+    switch (t) {
+      case PlyType::kI8: {
+        int8_t v;
+        std::memcpy(&v, b, 1);
+        *out = v;
+        break;
+      }
+      case PlyType::kU8: {
+        *out = b[0];
+        break;
+      }
+      case PlyType::kI16: {
+        int16_t v;
+        std::memcpy(&v, b, 2);
+        *out = v;
+        break;
+      }
+      case PlyType::kU16: {
+        uint16_t v;
+        std::memcpy(&v, b, 2);
+        *out = v;
+        break;
+      }
+      case PlyType::kI32: {
+        int32_t v;
+        std::memcpy(&v, b, 4);
+        *out = v;
+        break;
+      }
+      case PlyType::kU32: {
+        uint32_t v;
+        std::memcpy(&v, b, 4);
+        *out = v;
+        break;
+      }
+      case PlyType::kF32: {
+        float v;
+        std::memcpy(&v, b, 4);
+        *out = v;
+        break;
+      }
+      case PlyType::kF64: {
+        double v;
+        std::memcpy(&v, b, 8);
+        *out = v;
+        break;
+      }
+    }
+    return true;
+  }
+
+  // Binary: skips n scalars of type t without decoding.
+  bool Skip(PlyType t, int64_t n) {
+    if (fmt_ == PlyFormat::kAscii) {
+      double d;
+      for (int64_t i = 0; i < n; ++i)
+        if (!Read(t, &d)) return false;
+      return true;
+    }
+    const size_t bytes = PlyTypeSize(t) * static_cast<size_t>(n);
+    if (pos_ + bytes > body_.size()) return false;
+    pos_ += bytes;
+    return true;
+  }
+
+  bool bad_token() const { return bad_token_; }
+
+ private:
+  bool ReadAscii(double* out) {
+    while (pos_ < body_.size() && std::isspace(static_cast<unsigned char>(body_[pos_]))) ++pos_;
+    if (pos_ >= body_.size()) return false;
+    size_t e = pos_;
+    while (e < body_.size() && !std::isspace(static_cast<unsigned char>(body_[e]))) ++e;
+    std::string_view tok = body_.substr(pos_, e - pos_);
+    pos_ = e;
+    if (!ParseDouble(tok, out)) {
+      bad_token_ = true;
+      return false;
+    }
+    return true;
+  }
+
+  std::string_view body_;
+  PlyFormat fmt_;
+  size_t pos_ = 0;
+  bool bad_token_ = false;
+};
+
+Result<Mesh> LoadPly(const std::string& path, const std::string& data) {
+  // Header: lines up to "end_header". Line ends are LF, CRLF or (Rhino
+  // exports) a bare CR; the first line's ending is used throughout so that
+  // the binary body after end_header is not eaten.
+  std::string eol = "\n";
+  if (data.compare(0, 5, "ply\r\n") == 0)
+    eol = "\r\n";
+  else if (data.compare(0, 4, "ply\r") == 0)
+    eol = "\r";
+  size_t pos = 0;
+  auto next_line = [&](std::string_view* line) {
+    if (pos >= data.size()) return false;
+    size_t e = data.find(eol, pos);
+    if (e == std::string::npos) e = data.size();
+    *line = std::string_view(data).substr(pos, e - pos);
+    pos = std::min(data.size(), e + eol.size());
+    return true;
+  };
+  std::string_view line;
+  if (!next_line(&line) || line != "ply")
+    return Corrupt(path, "not a PLY file (first line is not \"ply\")");
+  std::optional<PlyFormat> fmt;
+  std::vector<PlyElement> elements;
+  bool ended = false;
+  int line_no = 1;
+  while (next_line(&line)) {
+    ++line_no;
+    auto tok = Tokens(line);
+    if (tok.empty() || tok[0] == "comment" || tok[0] == "obj_info") continue;
+    const std::string where = "header line " + std::to_string(line_no);
+    if (tok[0] == "end_header") {
+      ended = true;
+      break;
+    } else if (tok[0] == "format") {
+      if (tok.size() < 2) return Corrupt(path, where + ": format without a value");
+      if (tok[1] == "ascii")
+        fmt = PlyFormat::kAscii;
+      else if (tok[1] == "binary_little_endian")
+        fmt = PlyFormat::kBinaryLe;
+      else if (tok[1] == "binary_big_endian")
+        fmt = PlyFormat::kBinaryBe;
+      else
+        return Corrupt(path, where + ": unknown format \"" + std::string(tok[1]) + "\"");
+    } else if (tok[0] == "element") {
+      int64_t n = 0;
+      if (tok.size() != 3 || !ParseInt64(tok[2], &n) || n < 0)
+        return Corrupt(path, where + ": malformed element line");
+      elements.push_back({std::string(tok[1]), n, {}});
+    } else if (tok[0] == "property") {
+      if (elements.empty()) return Corrupt(path, where + ": property before any element");
+      PlyProperty p;
+      if (tok.size() == 5 && tok[1] == "list") {
+        auto ct = ParsePlyType(tok[2]);
+        auto it = ParsePlyType(tok[3]);
+        if (!ct || !it) return Corrupt(path, where + ": unknown property type");
+        if (*ct == PlyType::kF32 || *ct == PlyType::kF64)
+          return Corrupt(path, where + ": list count must be an integer type");
+        p.is_list = true;
+        p.count_type = *ct;
+        p.type = *it;
+        p.name = std::string(tok[4]);
+      } else if (tok.size() == 3) {
+        auto t = ParsePlyType(tok[1]);
+        if (!t)
+          return Corrupt(path, where + ": unknown property type \"" + std::string(tok[1]) + "\"");
+        p.type = *t;
+        p.name = std::string(tok[2]);
+      } else {
+        return Corrupt(path, where + ": malformed property line");
+      }
+      elements.back().props.push_back(std::move(p));
+    } else {
+      return Corrupt(path, where + ": unknown header keyword \"" + std::string(tok[0]) + "\"");
+    }
+  }
+  if (!ended) return Corrupt(path, "truncated header (no end_header)");
+  if (!fmt) return Corrupt(path, "header has no format line");
+
+  PlyReader rd(std::string_view(data).substr(pos), *fmt);
+  Mesh m;
+  bool have_vertices = false, have_faces = false;
+  for (const PlyElement& el : elements) {
+    const bool is_vertex = el.name == "vertex";
+    const bool is_face = el.name == "face";
+    int ix = -1, iy = -1, iz = -1, ilist = -1;
+    for (size_t k = 0; k < el.props.size(); ++k) {
+      const auto& p = el.props[k];
+      if (is_vertex && !p.is_list) {
+        if (p.name == "x") ix = static_cast<int>(k);
+        if (p.name == "y") iy = static_cast<int>(k);
+        if (p.name == "z") iz = static_cast<int>(k);
+      }
+      if (is_face && p.is_list &&
+          (p.name == "vertex_indices" || p.name == "vertex_index" || ilist < 0))
+        ilist = static_cast<int>(k);
+    }
+    if (is_vertex) {
+      if (ix < 0 || iy < 0 || iz < 0) return Corrupt(path, "vertex element lacks x, y or z");
+      have_vertices = true;
+      m.vertices.reserve(static_cast<size_t>(el.count));
+    }
+    if (is_face) {
+      if (ilist < 0) return Corrupt(path, "face element has no vertex_indices list");
+      have_faces = true;
+      m.faces.reserve(static_cast<size_t>(el.count));
+    }
+    std::vector<int> poly;
+    for (int64_t r = 0; r < el.count; ++r) {
+      std::array<double, 3> v{};
+      for (size_t k = 0; k < el.props.size(); ++k) {
+        const auto& p = el.props[k];
+        auto truncated = [&]() {
+          return Corrupt(path, std::string(rd.bad_token() ? "malformed number" : "truncated") +
+                                   " in " + el.name + " " + std::to_string(r) + " (property " +
+                                   p.name + ")");
+        };
+        if (p.is_list) {
+          double cnt_d;
+          if (!rd.Read(p.count_type, &cnt_d)) return truncated();
+          const int64_t cnt = static_cast<int64_t>(cnt_d);
+          if (cnt < 0 || cnt_d != static_cast<double>(cnt))
+            return Corrupt(path, "bad list count in " + el.name + " " + std::to_string(r));
+          if (is_face && static_cast<int>(k) == ilist) {
+            poly.clear();
+            for (int64_t q = 0; q < cnt; ++q) {
+              double idx;
+              if (!rd.Read(p.type, &idx)) return truncated();
+              poly.push_back(static_cast<int>(std::clamp(idx, -1.0, 2147483647.0)));
+            }
+          } else if (!rd.Skip(p.type, cnt)) {
+            return truncated();
+          }
+        } else if (is_vertex && (static_cast<int>(k) == ix || static_cast<int>(k) == iy ||
+                                 static_cast<int>(k) == iz)) {
+          double d;
+          if (!rd.Read(p.type, &d)) return truncated();
+          v[static_cast<int>(k) == ix ? 0 : static_cast<int>(k) == iy ? 1 : 2] = d;
+        } else if (!rd.Skip(p.type, 1)) {
+          return truncated();
+        }
+      }
+      if (is_vertex) m.vertices.push_back(v);
+      if (is_face) {
+        for (int idx : poly) {
+          if (idx < 0 || idx >= static_cast<int>(m.vertices.size()))
+            return Corrupt(path, "face " + std::to_string(r) + " has vertex index " +
+                                     std::to_string(idx) + " out of range (" +
+                                     std::to_string(m.vertices.size()) + " vertices)");
+        }
+        AddPolygon(poly, &m);
+      }
+    }
+  }
+  if (!have_vertices) return Corrupt(path, "no vertex element");
+  if (!have_faces) return Corrupt(path, "no face element (point clouds are not meshes)");
+  return m;
+}
+
+// ---------------------------------------------------------------- OBJ
+
+Result<Mesh> LoadObj(const std::string& path, const std::string& data) {
+  Mesh m;
+  std::vector<int> poly;
+  size_t pos = 0;
+  int line_no = 0;
+  while (pos < data.size()) {
+    size_t e = data.find('\n', pos);
+    if (e == std::string::npos) e = data.size();
+    std::string_view line = std::string_view(data).substr(pos, e - pos);
+    pos = e + 1;
+    ++line_no;
+    if (line.size() < 2) continue;
+    const std::string where = "line " + std::to_string(line_no);
+    if (line[0] == 'v' && (line[1] == ' ' || line[1] == '\t')) {
+      auto tok = Tokens(line);
+      std::array<double, 3> v{};
+      if (tok.size() < 4 || !ParseDouble(tok[1], &v[0]) || !ParseDouble(tok[2], &v[1]) ||
+          !ParseDouble(tok[3], &v[2]))
+        return Corrupt(path, where + ": malformed vertex");
+      m.vertices.push_back(v);
+    } else if (line[0] == 'f' && (line[1] == ' ' || line[1] == '\t')) {
+      auto tok = Tokens(line);
+      poly.clear();
+      for (size_t k = 1; k < tok.size(); ++k) {
+        std::string_view t = tok[k];
+        const size_t slash = t.find('/');
+        if (slash != std::string_view::npos) t = t.substr(0, slash);  // v/vt/vn: keep v
+        int64_t idx = 0;
+        if (!ParseInt64(t, &idx) || idx == 0)
+          return Corrupt(path, where + ": malformed face index \"" + std::string(tok[k]) + "\"");
+        // OBJ indices are 1-based; negative ones count back from the last vertex read.
+        const int64_t zero_based =
+            idx > 0 ? idx - 1 : static_cast<int64_t>(m.vertices.size()) + idx;
+        if (zero_based < 0 || zero_based >= static_cast<int64_t>(m.vertices.size()))
+          return Corrupt(path, where + ": face index " + std::to_string(idx) + " out of range (" +
+                                   std::to_string(m.vertices.size()) + " vertices so far)");
+        poly.push_back(static_cast<int>(zero_based));
+      }
+      if (poly.size() < 3) return Corrupt(path, where + ": face with fewer than 3 vertices");
+      AddPolygon(poly, &m);
+    }
+    // vt, vn, g, o, s, usemtl, mtllib, l, comments: not needed for geometry.
+  }
+  return m;
+}
+
+// ---------------------------------------------------------------- STL
+
+// Indexes STL's triangle soup: bit-identical coordinates become one vertex.
+class VertexMerger {
+ public:
+  explicit VertexMerger(Mesh* m) : m_(m) {}
+  int Add(double x, double y, double z) {
+    // -0.0 and 0.0 are the same point.
+    std::array<double, 3> v{x + 0.0, y + 0.0, z + 0.0};
+    auto [it, inserted] = index_.try_emplace(v, static_cast<int>(m_->vertices.size()));
+    if (inserted) m_->vertices.push_back(v);
+    return it->second;
+  }
+
+ private:
+  struct Hash {
+    size_t operator()(const std::array<double, 3>& v) const {
+      uint64_t h = 1469598103934665603ULL;
+      for (double d : v) {
+        h ^= std::bit_cast<uint64_t>(d);
+        h *= 1099511628211ULL;
+        h ^= h >> 29;
+      }
+      return static_cast<size_t>(h);
+    }
+  };
+  Mesh* m_;
+  std::unordered_map<std::array<double, 3>, int, Hash> index_;
+};
+
+Result<Mesh> LoadStlBinary(const std::string& path, const std::string& data) {
+  if (data.size() < 84)
+    return Corrupt(path, "truncated binary STL (shorter than its 84-byte header)");
+  uint32_t n = 0;
+  std::memcpy(&n, data.data() + 80, 4);
+  if constexpr (std::endian::native == std::endian::big) n = ByteSwap(n);
+  if (data.size() < 84 + 50ULL * n)
+    return Corrupt(path, "truncated binary STL: header says " + std::to_string(n) +
+                             " triangles, file holds " + std::to_string((data.size() - 84) / 50));
+  Mesh m;
+  m.faces.reserve(n);
+  VertexMerger merge(&m);
+  for (uint32_t i = 0; i < n; ++i) {
+    const char* rec = data.data() + 84 + 50ULL * i + 12;  // skip the facet normal
+    std::array<int, 3> f{};
+    for (int k = 0; k < 3; ++k) {
+      float c[3];
+      std::memcpy(c, rec + static_cast<ptrdiff_t>(12 * k), 12);
+      if constexpr (std::endian::native == std::endian::big) {
+        for (float& x : c) x = ByteSwap(x);
+      }
+      f[k] = merge.Add(c[0], c[1], c[2]);
+    }
+    m.faces.push_back(f);
+  }
+  return m;
+}
+
+Result<Mesh> LoadStlAscii(const std::string& path, const std::string& data) {
+  Mesh m;
+  VertexMerger merge(&m);
+  std::vector<int> loop;
+  bool in_loop = false;
+  size_t pos = 0;
+  int line_no = 0;
+  while (pos < data.size()) {
+    size_t e = data.find('\n', pos);
+    if (e == std::string::npos) e = data.size();
+    auto tok = Tokens(std::string_view(data).substr(pos, e - pos));
+    pos = e + 1;
+    ++line_no;
+    if (tok.empty()) continue;
+    const std::string where = "line " + std::to_string(line_no);
+    if (tok[0] == "outer") {
+      in_loop = true;
+      loop.clear();
+    } else if (tok[0] == "vertex") {
+      double x, y, z;
+      if (!in_loop || tok.size() != 4 || !ParseDouble(tok[1], &x) || !ParseDouble(tok[2], &y) ||
+          !ParseDouble(tok[3], &z))
+        return Corrupt(path, where + ": malformed vertex");
+      loop.push_back(merge.Add(x, y, z));
+    } else if (tok[0] == "endloop") {
+      if (loop.size() < 3) return Corrupt(path, where + ": facet with fewer than 3 vertices");
+      AddPolygon(loop, &m);
+      in_loop = false;
+    }
+  }
+  if (in_loop) return Corrupt(path, "truncated ASCII STL (facet not closed)");
+  return m;
+}
+
+Result<Mesh> LoadStl(const std::string& path, const std::string& data) {
+  // Binary files may also begin with "solid"; the size check decides.
+  if (data.size() >= 84) {
+    uint32_t n = 0;
+    std::memcpy(&n, data.data() + 80, 4);
+    if constexpr (std::endian::native == std::endian::big) n = ByteSwap(n);
+    if (data.size() == 84 + 50ULL * n) return LoadStlBinary(path, data);
+  }
+  if (data.compare(0, 5, "solid") == 0 && data.find("facet") != std::string::npos)
+    return LoadStlAscii(path, data);
+  return LoadStlBinary(path, data);
+}
+
+}  // namespace
+
+bool UnitToMm(const std::string& unit, double* factor) {
+  if (unit == "mm")
+    *factor = 1.0;
+  else if (unit == "cm")
+    *factor = 10.0;
+  else if (unit == "m")
+    *factor = 1000.0;
+  else
+    return false;
+  return true;
+}
+
+Result<Mesh> LoadMesh(const std::string& path, const std::string& unit) {
+  double scale = 1.0;
+  if (!UnitToMm(unit, &scale))
+    return MakeError(ErrorClass::kInvalidArgument,
+                     "mesh unit \"" + unit + "\" is not known; use mm, cm or m");
+  const size_t dot = path.find_last_of('.');
+  const size_t slash = path.find_last_of('/');
+  const std::string ext = (dot == std::string::npos || (slash != std::string::npos && dot < slash))
+                              ? ""
+                              : Lower(path.substr(dot + 1));
+  if (ext != "ply" && ext != "obj" && ext != "stl")
+    return MakeError(
+        ErrorClass::kInvalidArgument,
+        "mesh file " + path + " has unknown extension \"" + ext + "\"; use .ply, .obj or .stl");
+  Result<std::string> data = ReadFile(path);
+  if (!data) {
+    Error e = data.error();
+    e.message = "cannot read mesh file " + path + ": " + e.message;
+    return e;
+  }
+  Result<Mesh> r = ext == "ply"   ? LoadPly(path, *data)
+                   : ext == "obj" ? LoadObj(path, *data)
+                                  : LoadStl(path, *data);
+  if (!r) return r;
+  Mesh& m = *r;
+  if (m.faces.empty()) return Corrupt(path, "has no faces");
+  for (size_t i = 0; i < m.vertices.size(); ++i) {
+    for (double& c : m.vertices[i]) {
+      if (!std::isfinite(c))
+        return Corrupt(path, "vertex " + std::to_string(i) + " has a non-finite coordinate");
+      c *= scale;
+    }
+  }
+  return r;
+}
+
+Status SaveMeshPly(const Mesh& mesh, const std::string& path) {
+  std::string out =
+      "ply\nformat binary_little_endian 1.0\ncomment aggscan, units: mm\nelement vertex " +
+      std::to_string(mesh.vertices.size()) +
+      "\nproperty double x\nproperty double y\nproperty double z\nelement face " +
+      std::to_string(mesh.faces.size()) + "\nproperty list uchar int vertex_indices\nend_header\n";
+  const size_t header = out.size();
+  out.resize(header + mesh.vertices.size() * 24 + mesh.faces.size() * 13);
+  char* p = out.data() + header;
+  auto put = [&p](auto v) {
+    if constexpr (std::endian::native == std::endian::big) v = ByteSwap(v);
+    std::memcpy(p, &v, sizeof(v));
+    p += sizeof(v);
+  };
+  for (const auto& v : mesh.vertices)
+    for (double c : v) put(c);
+  for (const auto& f : mesh.faces) {
+    *p++ = 3;
+    for (int i : f) {
+      if (i < 0 || i >= static_cast<int>(mesh.vertices.size()))
+        return MakeError(ErrorClass::kInvalidArgument,
+                         "cannot save mesh " + path + ": face index out of range");
+      put(static_cast<int32_t>(i));
+    }
+  }
+  return WriteFileAtomic(path, std::string_view(out));
+}
+
+}  // namespace aggscan

@@ -1,0 +1,119 @@
+// Explicit device factory: one table per device kind maps the config's
+// backend name to a constructor, so adding a backend is one line here.
+#include "drivers/factory.h"
+
+#include <string>
+#include <vector>
+
+#include "drivers/sim/sim_button.h"
+#include "drivers/sim/sim_camera.h"
+#include "drivers/sim/sim_turntable.h"
+#include "drivers/sim/world.h"
+
+namespace aggscan {
+namespace {
+
+// What the constructors share while one rig is being built.
+struct Context {
+  const Config& config;
+  Clock& clock;
+  RigDevices* rig;
+  // Physical platter angle for the sim camera; empty when the turntable is
+  // real (the sim camera then sees the platter at 0).
+  std::function<double(TimeNs)> platter_angle_at;
+};
+
+// The sim world is created once and shared by every sim device of the rig.
+Status EnsureWorld(Context& ctx) {
+  if (ctx.rig->world) return OkStatus();
+  Result<std::shared_ptr<sim::SimWorld>> w = sim::SimWorld::Create(ctx.config);
+  if (!w) return w.error();
+  ctx.rig->world = *w;
+  return OkStatus();
+}
+
+template <typename Device>
+using Maker = Result<std::unique_ptr<Device>> (*)(Context&);
+
+template <typename Device>
+struct Backend {
+  const char* name;
+  Maker<Device> make;
+};
+
+Result<std::unique_ptr<Turntable>> MakeSimTurntable(Context& ctx) {
+  Status s = EnsureWorld(ctx);
+  if (!s) return s.error();
+  auto t =
+      std::make_unique<sim::SimTurntable>(ctx.clock, ctx.config.turntable, ctx.config.sim.seed);
+  ctx.platter_angle_at = t->PhysicalAngleFunction();
+  return std::unique_ptr<Turntable>(std::move(t));
+}
+
+Result<std::unique_ptr<Camera>> MakeSimCamera(Context& ctx) {
+  Status s = EnsureWorld(ctx);
+  if (!s) return s.error();
+  return std::unique_ptr<Camera>(std::make_unique<sim::SimCamera>(
+      ctx.rig->world, ctx.clock, ctx.config.camera, ctx.platter_angle_at));
+}
+
+Result<std::unique_ptr<Button>> MakeSimButton(Context& ctx) {
+  Status s = EnsureWorld(ctx);  // RigDevices promises a world whenever any backend is sim
+  if (!s) return s.error();
+  return std::unique_ptr<Button>(std::make_unique<sim::SimButton>(ctx.clock, ctx.config.button));
+}
+
+// Real backends (modbus-rtu, usb, v4l2, gpio, ...) join these tables.
+const Backend<Turntable> kTurntables[] = {{"sim", MakeSimTurntable}};
+const Backend<Camera> kCameras[] = {{"sim", MakeSimCamera}};
+const Backend<Button> kButtons[] = {{"sim", MakeSimButton}};
+
+template <typename Device, size_t N>
+const Backend<Device>* Find(const Backend<Device> (&table)[N], const std::string& name) {
+  for (const auto& b : table)
+    if (name == b.name) return &b;
+  return nullptr;
+}
+
+template <typename Device, size_t N>
+std::string UnknownMessage(const char* key, const std::string& name,
+                           const Backend<Device> (&table)[N]) {
+  std::string known;
+  for (const auto& b : table) known += (known.empty() ? "" : ", ") + std::string(b.name);
+  return std::string(key) + " \"" + name + "\" is not known; available: " + known;
+}
+
+}  // namespace
+
+Result<RigDevices> CreateRig(const Config& config, Clock& clock) {
+  // Check every name first so one error lists every unknown backend.
+  const auto* turntable = Find(kTurntables, config.turntable.backend);
+  const auto* camera = Find(kCameras, config.camera.backend);
+  const auto* button = Find(kButtons, config.button.backend);
+  std::vector<std::string> unknown;
+  if (!camera) unknown.push_back(UnknownMessage("camera.backend", config.camera.backend, kCameras));
+  if (!turntable)
+    unknown.push_back(UnknownMessage("turntable.backend", config.turntable.backend, kTurntables));
+  if (!button) unknown.push_back(UnknownMessage("button.backend", config.button.backend, kButtons));
+  if (!unknown.empty()) {
+    std::string msg;
+    for (const auto& u : unknown) msg += (msg.empty() ? "" : "; ") + u;
+    return MakeError(ErrorClass::kInvalidConfig, msg);
+  }
+
+  RigDevices rig;
+  Context ctx{config, clock, &rig, {}};
+  // The turntable first: the sim camera needs its platter angle.
+  auto t = turntable->make(ctx);
+  if (!t) return t.error();
+  rig.turntable = std::move(*t);
+  auto c = camera->make(ctx);
+  if (!c) return c.error();
+  rig.camera = std::move(*c);
+  auto b = button->make(ctx);
+  if (!b) return b.error();
+  rig.button = std::move(*b);
+  return rig;
+}
+
+}  // namespace aggscan

@@ -1,0 +1,721 @@
+// Volume, area, convex hull and minimum-volume bounding box of a mesh.
+#include "common/mesh_props.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <numbers>
+#include <unordered_map>
+
+namespace aggscan {
+namespace {
+
+Vec3d Sub(const Vec3d& a, const Vec3d& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
+Vec3d Add(const Vec3d& a, const Vec3d& b) { return {a[0] + b[0], a[1] + b[1], a[2] + b[2]}; }
+Vec3d Mul(const Vec3d& a, double s) { return {a[0] * s, a[1] * s, a[2] * s}; }
+double Dot(const Vec3d& a, const Vec3d& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+Vec3d Cross(const Vec3d& a, const Vec3d& b) {
+  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+}
+double Norm(const Vec3d& a) { return std::sqrt(Dot(a, a)); }
+Vec3d Normalized(const Vec3d& a) {
+  const double n = Norm(a);
+  return n > 0 ? Mul(a, 1.0 / n) : Vec3d{0, 0, 0};
+}
+
+// Two unit vectors completing n (unit) to a right-handed orthonormal basis.
+void Basis(const Vec3d& n, Vec3d* u, Vec3d* v) {
+  const Vec3d helper = std::fabs(n[0]) < 0.6 ? Vec3d{1, 0, 0} : Vec3d{0, 1, 0};
+  *u = Normalized(Cross(helper, n));
+  *v = Cross(n, *u);
+}
+
+// ------------------------------------------------------------ quickhull
+
+struct HullFace {
+  std::array<int, 3> v{};
+  std::array<int, 3> adj{};  // neighbour across edge v[i] -> v[(i+1)%3]
+  Vec3d n{};
+  double d = 0.0;            // plane: dot(n, x) = d
+  std::vector<int> outside;  // points strictly outside, not yet on the hull
+  bool alive = true;
+  int visit = 0;
+};
+
+class QuickHull {
+ public:
+  explicit QuickHull(const std::vector<Vec3d>& p) : p_(p) {}
+
+  bool Run(Mesh* out) {
+    out->vertices.clear();
+    out->faces.clear();
+    if (p_.size() < 4) return false;
+    // Tolerance from the coordinate magnitude: points within eps of a face
+    // plane count as on it (coplanar points of a cube face are dropped).
+    double mag = 0.0;
+    for (const auto& q : p_)
+      for (double c : q) mag = std::max(mag, std::fabs(c));
+    eps_ = std::max(mag, 1e-300) * 1e-11;
+    std::array<int, 4> s{};
+    if (!InitialSimplex(&s)) return false;
+    BuildSimplex(s);
+    std::vector<int> stack;
+    for (size_t f = 0; f < faces_.size(); ++f)
+      if (!faces_[f].outside.empty()) stack.push_back(static_cast<int>(f));
+    while (!stack.empty()) {
+      const int f = stack.back();
+      stack.pop_back();
+      if (!faces_[f].alive || faces_[f].outside.empty()) continue;
+      AddPoint(f, &stack);
+    }
+    std::unordered_map<int, int> remap;
+    for (const HullFace& f : faces_) {
+      if (!f.alive) continue;
+      std::array<int, 3> tri{};
+      for (int k = 0; k < 3; ++k) {
+        auto [it, inserted] = remap.try_emplace(f.v[k], static_cast<int>(out->vertices.size()));
+        if (inserted) out->vertices.push_back(p_[f.v[k]]);
+        tri[k] = it->second;
+      }
+      out->faces.push_back(tri);
+    }
+    return true;
+  }
+
+ private:
+  double Dist(const HullFace& f, int i) const { return Dot(f.n, p_[i]) - f.d; }
+
+  bool InitialSimplex(std::array<int, 4>* s) {
+    // Extreme points along the axes; the farthest pair of them spans the base.
+    std::array<int, 6> ext{};
+    for (int a = 0; a < 3; ++a) {
+      int lo = 0, hi = 0;
+      for (size_t i = 0; i < p_.size(); ++i) {
+        if (p_[i][a] < p_[lo][a]) lo = static_cast<int>(i);
+        if (p_[i][a] > p_[hi][a]) hi = static_cast<int>(i);
+      }
+      ext[static_cast<size_t>(2 * a)] = lo;
+      ext[static_cast<size_t>(2 * a + 1)] = hi;
+    }
+    double best = -1;
+    for (int i = 0; i < 6; ++i)
+      for (int j = i + 1; j < 6; ++j) {
+        const double d = Norm(Sub(p_[ext[i]], p_[ext[j]]));
+        if (d > best) {
+          best = d;
+          (*s)[0] = ext[i];
+          (*s)[1] = ext[j];
+        }
+      }
+    if (best <= eps_) return false;
+    const Vec3d a = p_[(*s)[0]], ab = Normalized(Sub(p_[(*s)[1]], a));
+    best = -1;
+    for (size_t i = 0; i < p_.size(); ++i) {
+      const double d = Norm(Cross(ab, Sub(p_[i], a)));
+      if (d > best) {
+        best = d;
+        (*s)[2] = static_cast<int>(i);
+      }
+    }
+    if (best <= eps_) return false;
+    const Vec3d n = Normalized(Cross(Sub(p_[(*s)[1]], a), Sub(p_[(*s)[2]], a)));
+    best = -1;
+    for (size_t i = 0; i < p_.size(); ++i) {
+      const double d = std::fabs(Dot(n, Sub(p_[i], a)));
+      if (d > best) {
+        best = d;
+        (*s)[3] = static_cast<int>(i);
+      }
+    }
+    return best > eps_;
+  }
+
+  int MakeFace(int a, int b, int c) {
+    HullFace f;
+    f.v = {a, b, c};
+    f.n = Normalized(Cross(Sub(p_[b], p_[a]), Sub(p_[c], p_[a])));
+    f.d = Dot(f.n, p_[a]);
+    faces_.push_back(std::move(f));
+    return static_cast<int>(faces_.size()) - 1;
+  }
+
+  void BuildSimplex(const std::array<int, 4>& s) {
+    int a = s[0], b = s[1], c = s[2];
+    const int d = s[3];
+    // Orient the base so that d is behind it.
+    const Vec3d n = Cross(Sub(p_[b], p_[a]), Sub(p_[c], p_[a]));
+    if (Dot(n, Sub(p_[d], p_[a])) > 0) std::swap(b, c);
+    const int f0 = MakeFace(a, b, c);
+    const int f1 = MakeFace(a, d, b);
+    const int f2 = MakeFace(b, d, c);
+    const int f3 = MakeFace(c, d, a);
+    LinkAll({f0, f1, f2, f3});
+    std::vector<int> all;
+    all.reserve(p_.size());
+    for (size_t i = 0; i < p_.size(); ++i) {
+      const int ii = static_cast<int>(i);
+      if (ii == a || ii == b || ii == c || ii == d) continue;
+      all.push_back(ii);
+    }
+    Assign(all, {f0, f1, f2, f3});
+  }
+
+  // Sets adjacency among `fs` by matching opposite directed edges.
+  void LinkAll(const std::vector<int>& fs) {
+    std::unordered_map<uint64_t, std::pair<int, int>> edges;
+    auto key = [](int u, int v) {
+      return (static_cast<uint64_t>(static_cast<uint32_t>(u)) << 32) | static_cast<uint32_t>(v);
+    };
+    for (int f : fs)
+      for (int k = 0; k < 3; ++k) edges[key(faces_[f].v[k], faces_[f].v[(k + 1) % 3])] = {f, k};
+    for (int f : fs)
+      for (int k = 0; k < 3; ++k) {
+        auto it = edges.find(key(faces_[f].v[(k + 1) % 3], faces_[f].v[k]));
+        if (it != edges.end()) faces_[f].adj[k] = it->second.first;
+      }
+  }
+
+  // Gives each point to the first face it lies outside of; others are inside.
+  void Assign(const std::vector<int>& pts, const std::vector<int>& fs) {
+    for (int i : pts) {
+      for (int f : fs) {
+        if (Dist(faces_[f], i) > eps_) {
+          faces_[f].outside.push_back(i);
+          break;
+        }
+      }
+    }
+  }
+
+  void AddPoint(int f0, std::vector<int>* stack) {
+    // Eye: the farthest outside point of f0.
+    int eye = -1;
+    double best = -1;
+    for (int i : faces_[f0].outside) {
+      const double d = Dist(faces_[f0], i);
+      if (d > best) {
+        best = d;
+        eye = i;
+      }
+    }
+    // Visible faces: flood fill from f0 over faces that see the eye.
+    ++visit_;
+    std::vector<int> visible, todo = {f0};
+    faces_[f0].visit = visit_;
+    std::vector<std::pair<int, int>> horizon;  // (visible face, edge index)
+    while (!todo.empty()) {
+      const int f = todo.back();
+      todo.pop_back();
+      visible.push_back(f);
+      for (int k = 0; k < 3; ++k) {
+        const int g = faces_[f].adj[k];
+        if (faces_[g].visit == visit_) continue;
+        if (Dist(faces_[g], eye) > eps_) {
+          faces_[g].visit = visit_;
+          todo.push_back(g);
+        }
+      }
+    }
+    for (int f : visible) {
+      for (int k = 0; k < 3; ++k) {
+        const int g = faces_[f].adj[k];
+        if (faces_[g].visit != visit_) horizon.emplace_back(f, k);
+      }
+    }
+    // New faces fan from the eye to every horizon edge, keeping its direction.
+    std::vector<int> created;
+    for (auto [f, k] : horizon) {
+      const int u = faces_[f].v[k], w = faces_[f].v[(k + 1) % 3];
+      const int g = faces_[f].adj[k];
+      const int nf = MakeFace(u, w, eye);
+      faces_[nf].adj[0] = g;
+      HullFace& gf = faces_[g];
+      for (int q = 0; q < 3; ++q)
+        if (gf.v[q] == w && gf.v[(q + 1) % 3] == u) gf.adj[q] = nf;
+      created.push_back(nf);
+    }
+    // Link the new faces to each other (edges w->eye and eye->u).
+    std::unordered_map<int, int> by_start;  // u of face (u, w, eye) -> face
+    for (int nf : created) by_start[faces_[nf].v[0]] = nf;
+    for (int nf : created) {
+      HullFace& f = faces_[nf];
+      auto it = by_start.find(f.v[1]);  // face starting at w shares edge w-eye
+      if (it != by_start.end()) {
+        f.adj[1] = it->second;
+        faces_[it->second].adj[2] = nf;
+      }
+    }
+    std::vector<int> orphans;
+    for (int f : visible) {
+      faces_[f].alive = false;
+      for (int i : faces_[f].outside)
+        if (i != eye) orphans.push_back(i);
+      faces_[f].outside.clear();
+      faces_[f].outside.shrink_to_fit();
+    }
+    Assign(orphans, created);
+    for (int nf : created)
+      if (!faces_[nf].outside.empty()) stack->push_back(nf);
+  }
+
+  const std::vector<Vec3d>& p_;
+  std::vector<HullFace> faces_;
+  double eps_ = 0.0;
+  int visit_ = 0;
+};
+
+// ------------------------------------------------------------ 2D helpers
+
+using Vec2d = std::array<double, 2>;
+
+double Cross2(const Vec2d& o, const Vec2d& a, const Vec2d& b) {
+  return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]);
+}
+
+// Andrew's monotone chain; counter-clockwise. Turns smaller than a relative
+// tolerance are dropped, so near-duplicate points (a box seen exactly along an
+// edge) leave no tiny edges with meaningless directions for the calipers.
+std::vector<Vec2d> Hull2D(std::vector<Vec2d> pts) {
+  std::sort(pts.begin(), pts.end());
+  pts.erase(std::unique(pts.begin(), pts.end()), pts.end());
+  if (pts.size() < 3) return pts;
+  double lo0 = pts.front()[0], hi0 = pts.back()[0], lo1 = pts[0][1], hi1 = pts[0][1];
+  for (const auto& p : pts) {
+    lo1 = std::min(lo1, p[1]);
+    hi1 = std::max(hi1, p[1]);
+  }
+  const double span = std::max(hi0 - lo0, hi1 - lo1);
+  const double tol = 1e-12 * span * span;
+  std::vector<Vec2d> h(2 * pts.size());
+  size_t k = 0;
+  for (size_t i = 0; i < pts.size(); ++i) {
+    while (k >= 2 && Cross2(h[k - 2], h[k - 1], pts[i]) <= tol) --k;
+    h[k++] = pts[i];
+  }
+  for (size_t i = pts.size() - 1, t = k + 1; i > 0; --i) {
+    while (k >= t && Cross2(h[k - 2], h[k - 1], pts[i - 1]) <= tol) --k;
+    h[k++] = pts[i - 1];
+  }
+  h.resize(k - 1);
+  return h;
+}
+
+double MinAreaRectOfHull(const std::vector<Vec2d>& h, Vec2d* dir, double* w, double* ht,
+                         Vec2d* lo) {
+  const size_t n = h.size();
+  if (n == 0) {
+    *dir = {1, 0};
+    *w = *ht = 0;
+    *lo = {0, 0};
+    return 0;
+  }
+  if (n < 3) {
+    const Vec2d d = n == 2 ? Vec2d{h[1][0] - h[0][0], h[1][1] - h[0][1]} : Vec2d{1, 0};
+    const double len = std::hypot(d[0], d[1]);
+    *dir = len > 0 ? Vec2d{d[0] / len, d[1] / len} : Vec2d{1, 0};
+    *w = n == 2 ? len : 0;
+    *ht = 0;
+    *lo = {(*dir)[0] * h[0][0] + (*dir)[1] * h[0][1], -(*dir)[1] * h[0][0] + (*dir)[0] * h[0][1]};
+    return 0;
+  }
+  auto dot = [](const Vec2d& a, const Vec2d& b) { return a[0] * b[0] + a[1] * b[1]; };
+  size_t right = 0, top = 0, left = 0;  // max along e, max along normal, min along e
+  double best = std::numeric_limits<double>::infinity();
+  for (size_t i = 0; i < n; ++i) {
+    const Vec2d& a = h[i];
+    const Vec2d& b = h[(i + 1) % n];
+    const double len = std::hypot(b[0] - a[0], b[1] - a[1]);
+    if (len <= 0) continue;
+    const Vec2d e{(b[0] - a[0]) / len, (b[1] - a[1]) / len};
+    const Vec2d nr{-e[1], e[0]};  // inward for a counter-clockwise polygon
+    if (i == 0) right = (i + 1) % n;
+    // Each caliper only moves forward around the polygon; its projection is
+    // unimodal, so stop when the next vertex does not improve it.
+    for (size_t s = 0; s < n && dot(e, h[(right + 1) % n]) > dot(e, h[right]); ++s)
+      right = (right + 1) % n;
+    if (i == 0) top = right;
+    for (size_t s = 0; s < n && dot(nr, h[(top + 1) % n]) > dot(nr, h[top]); ++s)
+      top = (top + 1) % n;
+    if (i == 0) left = top;
+    for (size_t s = 0; s < n && dot(e, h[(left + 1) % n]) < dot(e, h[left]); ++s)
+      left = (left + 1) % n;
+    const double width = dot(e, h[right]) - dot(e, h[left]);
+    const double height = dot(nr, h[top]) - dot(nr, a);
+    const double area = width * height;
+    if (area < best) {
+      best = area;
+      *dir = e;
+      *w = width;
+      *ht = height;
+      *lo = {dot(e, h[left]), dot(nr, a)};
+    }
+  }
+  return best;
+}
+
+// Box with first axis n (unit): extent [hmin, hmax] along n, and the
+// minimum-area rectangle of `silhouette` (points whose projection along n has
+// the same convex hull as the whole set's).
+OrientedBox BoxFromParts(const Vec3d& n, double hmin, double hmax,
+                         const std::vector<Vec3d>& silhouette) {
+  Vec3d u, v;
+  Basis(n, &u, &v);
+  std::vector<Vec2d> proj(silhouette.size());
+  for (size_t i = 0; i < silhouette.size(); ++i)
+    proj[i] = {Dot(u, silhouette[i]), Dot(v, silhouette[i])};
+  Vec2d dir, lo;
+  double w = 0, h = 0;
+  MinAreaRectOfHull(Hull2D(std::move(proj)), &dir, &w, &h, &lo);
+  OrientedBox box;
+  const Vec3d ax1 = Add(Mul(u, dir[0]), Mul(v, dir[1]));
+  const Vec3d ax2 = Add(Mul(u, -dir[1]), Mul(v, dir[0]));
+  box.axes = {ax1, ax2, n};
+  box.size = {w, h, hmax - hmin};
+  box.center =
+      Add(Add(Mul(ax1, lo[0] + w / 2), Mul(ax2, lo[1] + h / 2)), Mul(n, (hmin + hmax) / 2));
+  return box;
+}
+
+// Best box with first axis n around arbitrary points (degenerate inputs).
+OrientedBox BoxForAxis(const Vec3d& n, const std::vector<Vec3d>& q) {
+  double hmin = std::numeric_limits<double>::infinity(), hmax = -hmin;
+  for (const auto& p : q) {
+    hmin = std::min(hmin, Dot(n, p));
+    hmax = std::max(hmax, Dot(n, p));
+  }
+  return BoxFromParts(n, hmin, hmax, q);
+}
+
+// Box evaluation on a convex hull. Only silhouette vertices (on edges between
+// a face turned towards n and one turned away) can be corners of the
+// projected outline, so the 2D hull is built from a few hundred points even
+// for hulls of ten thousand vertices.
+class HullEval {
+ public:
+  explicit HullEval(const Mesh& hull) : hull_(hull), stamp_(hull.vertices.size(), 0) {
+    normals_.reserve(hull.faces.size());
+    for (const auto& f : hull.faces) {
+      const Vec3d& a = hull.vertices[f[0]];
+      normals_.push_back(Cross(Sub(hull.vertices[f[1]], a), Sub(hull.vertices[f[2]], a)));
+    }
+    std::unordered_map<uint64_t, int> first;  // undirected edge -> first face
+    for (size_t fi = 0; fi < hull.faces.size(); ++fi) {
+      const auto& f = hull.faces[fi];
+      for (int k = 0; k < 3; ++k) {
+        const int a = std::min(f[k], f[(k + 1) % 3]), b = std::max(f[k], f[(k + 1) % 3]);
+        const uint64_t key = (static_cast<uint64_t>(a) << 32) | static_cast<uint32_t>(b);
+        auto [it, inserted] = first.try_emplace(key, static_cast<int>(fi));
+        if (!inserted) edges_.push_back({a, b, it->second, static_cast<int>(fi)});
+      }
+    }
+  }
+
+  const std::vector<Vec3d>& vertices() const { return hull_.vertices; }
+  const std::vector<Vec3d>& normals() const { return normals_; }
+  std::vector<Vec3d> EdgeDirections() const {
+    std::vector<Vec3d> d;
+    for (const Edge& e : edges_)
+      d.push_back(Normalized(Sub(hull_.vertices[e.b], hull_.vertices[e.a])));
+    return d;
+  }
+
+  OrientedBox Box(const Vec3d& n) {
+    double hmin = std::numeric_limits<double>::infinity(), hmax = -hmin;
+    for (const auto& p : hull_.vertices) {
+      const double h = Dot(n, p);
+      hmin = std::min(hmin, h);
+      hmax = std::max(hmax, h);
+    }
+    front_.resize(normals_.size());
+    for (size_t f = 0; f < normals_.size(); ++f) front_[f] = Dot(normals_[f], n) > 0 ? 1 : 0;
+    ++round_;
+    sil_.clear();
+    for (const Edge& e : edges_) {
+      if (front_[e.f1] == front_[e.f2]) continue;
+      for (int v : {e.a, e.b}) {
+        if (stamp_[v] != round_) {
+          stamp_[v] = round_;
+          sil_.push_back(hull_.vertices[v]);
+        }
+      }
+    }
+    if (sil_.size() < 3) sil_ = hull_.vertices;  // n along a face: fall back to every vertex
+    return BoxFromParts(n, hmin, hmax, sil_);
+  }
+
+ private:
+  struct Edge {
+    int a, b, f1, f2;
+  };
+  const Mesh& hull_;
+  std::vector<Vec3d> normals_;
+  std::vector<Edge> edges_;
+  std::vector<char> front_;
+  std::vector<int> stamp_;
+  int round_ = 0;
+  std::vector<Vec3d> sil_;
+};
+
+// Eigenvectors of a symmetric 3x3 matrix (cyclic Jacobi); columns of *vecs.
+void SymmetricEigen(std::array<std::array<double, 3>, 3> a, std::array<Vec3d, 3>* vecs) {
+  std::array<std::array<double, 3>, 3> v{};
+  for (int i = 0; i < 3; ++i) v[i][i] = 1;
+  for (int sweep = 0; sweep < 50; ++sweep) {
+    const double off = a[0][1] * a[0][1] + a[0][2] * a[0][2] + a[1][2] * a[1][2];
+    if (off < 1e-30) break;
+    for (int p = 0; p < 2; ++p)
+      for (int q = p + 1; q < 3; ++q) {
+        if (std::fabs(a[p][q]) < 1e-300) continue;
+        const double theta = (a[q][q] - a[p][p]) / (2 * a[p][q]);
+        const double t = (theta >= 0 ? 1 : -1) / (std::fabs(theta) + std::sqrt(theta * theta + 1));
+        const double c = 1 / std::sqrt(t * t + 1), s = t * c;
+        for (int k = 0; k < 3; ++k) {  // A = J^T A J
+          const double akp = a[k][p], akq = a[k][q];
+          a[k][p] = c * akp - s * akq;
+          a[k][q] = s * akp + c * akq;
+        }
+        for (int k = 0; k < 3; ++k) {
+          const double apk = a[p][k], aqk = a[q][k];
+          a[p][k] = c * apk - s * aqk;
+          a[q][k] = s * apk + c * aqk;
+        }
+        for (int k = 0; k < 3; ++k) {
+          const double vkp = v[k][p], vkq = v[k][q];
+          v[k][p] = c * vkp - s * vkq;
+          v[k][q] = s * vkp + c * vkq;
+        }
+      }
+  }
+  for (int j = 0; j < 3; ++j) (*vecs)[j] = Normalized({v[0][j], v[1][j], v[2][j]});
+}
+
+std::array<Vec3d, 3> PrincipalAxes(const std::vector<Vec3d>& q) {
+  Vec3d mean{0, 0, 0};
+  for (const auto& p : q) mean = Add(mean, p);
+  mean = Mul(mean, 1.0 / static_cast<double>(std::max<size_t>(1, q.size())));
+  std::array<std::array<double, 3>, 3> cov{};
+  for (const auto& p : q) {
+    const Vec3d d = Sub(p, mean);
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) cov[i][j] += d[i] * d[j];
+  }
+  std::array<Vec3d, 3> axes;
+  SymmetricEigen(cov, &axes);
+  return axes;
+}
+
+// Points of `q` extreme along many directions (a Fibonacci sphere): a small
+// subset whose hull approximates the hull of q for the coarse search.
+std::vector<Vec3d> ExtremeSubset(const std::vector<Vec3d>& q, int directions) {
+  std::vector<char> used(q.size(), 0);
+  std::vector<Vec3d> out;
+  const double golden = std::numbers::pi * (3.0 - std::sqrt(5.0));
+  for (int k = 0; k < directions; ++k) {
+    const double z = 1.0 - (2.0 * k + 1.0) / directions;
+    const double r = std::sqrt(std::max(0.0, 1 - z * z));
+    const Vec3d d{r * std::cos(golden * k), r * std::sin(golden * k), z};
+    size_t best = 0;
+    double bd = -std::numeric_limits<double>::infinity();
+    for (size_t i = 0; i < q.size(); ++i) {
+      const double s = Dot(d, q[i]);
+      if (s > bd) {
+        bd = s;
+        best = i;
+      }
+    }
+    if (!used[best]) {
+      used[best] = 1;
+      out.push_back(q[best]);
+    }
+  }
+  return out;
+}
+
+// Local search over the box's first axis: pattern search on the sphere of
+// directions, the step shrinking from `step_deg` to 0.005 degrees. The
+// rotation about the axis needs no search: the calipers solve it exactly.
+OrientedBox Refine(const Vec3d& n0, HullEval& eval, double step_deg) {
+  Vec3d n = n0;
+  OrientedBox best = eval.Box(n);
+  constexpr double kDeg = std::numbers::pi / 180.0;
+  for (double step = step_deg * kDeg; step >= 0.005 * kDeg; step /= 2) {
+    for (int moves = 0; moves < 40; ++moves) {
+      Vec3d t1, t2;
+      Basis(n, &t1, &t2);
+      bool improved = false;
+      const double ts = std::tan(step);
+      const Vec3d d1 = Normalized(Add(t1, t2)), d2 = Normalized(Sub(t1, t2));
+      const std::array<Vec3d, 8> dirs = {t1, Mul(t1, -1), t2, Mul(t2, -1),
+                                         d1, Mul(d1, -1), d2, Mul(d2, -1)};
+      for (const Vec3d& d : dirs) {
+        const Vec3d cand = Normalized(Add(n, Mul(d, ts)));
+        OrientedBox b = eval.Box(cand);
+        if (b.Volume() < best.Volume() * (1 - 1e-12)) {
+          best = b;
+          n = cand;
+          improved = true;
+          break;
+        }
+      }
+      if (!improved) break;
+    }
+  }
+  return best;
+}
+
+// The best of the candidate axes on `eval`, then refined: the `starts` best
+// distinct boxes, each from all three of its axes.
+OrientedBox SearchBox(HullEval& eval, const std::vector<Vec3d>& cand, int starts, double step_deg) {
+  struct Scored {
+    double volume;
+    Vec3d axis;
+  };
+  std::vector<Scored> scored;
+  scored.reserve(cand.size());
+  for (const Vec3d& n : cand) scored.push_back({eval.Box(n).Volume(), n});
+  std::sort(scored.begin(), scored.end(),
+            [](const Scored& a, const Scored& b) { return a.volume < b.volume; });
+  std::vector<OrientedBox> chosen;
+  OrientedBox best;
+  double best_volume = std::numeric_limits<double>::infinity();
+  const double same_cos = std::cos(1.0 * std::numbers::pi / 180);
+  for (const Scored& s : scored) {
+    if (static_cast<int>(chosen.size()) >= starts) break;
+    const OrientedBox b = eval.Box(s.axis);
+    // A box is the same whichever of its axes was the candidate.
+    bool dup = false;
+    for (const OrientedBox& o : chosen) {
+      int same = 0;
+      for (const Vec3d& ax : b.axes)
+        for (const Vec3d& ox : o.axes)
+          if (std::fabs(Dot(ax, ox)) > same_cos) ++same;
+      if (same >= 3) dup = true;
+    }
+    if (dup) continue;
+    chosen.push_back(b);
+    for (const Vec3d& ax : b.axes) {
+      OrientedBox r = Refine(ax, eval, step_deg);
+      if (r.Volume() < best_volume) {
+        best_volume = r.Volume();
+        best = r;
+      }
+    }
+  }
+  return best;
+}
+
+}  // namespace
+
+double SignedVolume(const Mesh& mesh) {
+  // Divergence theorem: sum of signed tetrahedra (origin, a, b, c). The
+  // centroid as origin keeps the terms small for meshes far from 0.
+  Vec3d o{0, 0, 0};
+  for (const auto& v : mesh.vertices) o = Add(o, v);
+  if (!mesh.vertices.empty()) o = Mul(o, 1.0 / static_cast<double>(mesh.vertices.size()));
+  double v6 = 0;
+  for (const auto& f : mesh.faces) {
+    const Vec3d a = Sub(mesh.vertices[f[0]], o), b = Sub(mesh.vertices[f[1]], o),
+                c = Sub(mesh.vertices[f[2]], o);
+    v6 += Dot(a, Cross(b, c));
+  }
+  return v6 / 6.0;
+}
+
+double SurfaceArea(const Mesh& mesh) {
+  double a2 = 0;
+  for (const auto& f : mesh.faces) {
+    const Vec3d& a = mesh.vertices[f[0]];
+    a2 += Norm(Cross(Sub(mesh.vertices[f[1]], a), Sub(mesh.vertices[f[2]], a)));
+  }
+  return a2 / 2.0;
+}
+
+bool ConvexHull(const std::vector<Vec3d>& points, Mesh* hull) {
+  QuickHull qh(points);
+  return qh.Run(hull);
+}
+
+double MinAreaRect(const std::vector<std::array<double, 2>>& points, std::array<double, 2>* dir,
+                   double* w, double* h, std::array<double, 2>* lo) {
+  return MinAreaRectOfHull(Hull2D(points), dir, w, h, lo);
+}
+
+OrientedBox MinVolumeBox(const std::vector<Vec3d>& points) {
+  Mesh hull;
+  std::vector<Vec3d> hv;
+  if (ConvexHull(points, &hull)) {
+    hv = hull.vertices;
+  } else {
+    // Flat or degenerate: the principal axes of the points themselves; the
+    // thinnest one is the normal of the plane the points lie in.
+    OrientedBox best;
+    bool first = true;
+    for (const Vec3d& ax : PrincipalAxes(points)) {
+      OrientedBox b = BoxForAxis(ax, points);
+      if (first || b.size[2] < best.size[2]) best = b;
+      first = false;
+    }
+    return best;
+  }
+
+  HullEval full(hull);
+  // Large hulls: search on the hull of a few hundred extreme points first,
+  // then refine the winner on the whole hull.
+  constexpr size_t kSmallHull = 500;
+  Mesh coarse_hull;
+  const bool two_stage = hv.size() > kSmallHull && ConvexHull(ExtremeSubset(hv, 600), &coarse_hull);
+  HullEval coarse(two_stage ? coarse_hull : hull);
+
+  std::vector<Vec3d> cand;
+  for (const Vec3d& n : coarse.normals())
+    if (Norm(n) > 0) cand.push_back(Normalized(n));
+  // Pairs of edge directions: a box face parallel to two hull edges.
+  const std::vector<Vec3d> edges = coarse.EdgeDirections();
+  if (edges.size() <= 200) {
+    for (size_t i = 0; i < edges.size(); ++i)
+      for (size_t j = i + 1; j < edges.size(); ++j) {
+        const Vec3d c = Cross(edges[i], edges[j]);
+        if (Norm(c) > 1e-6) cand.push_back(Normalized(c));
+      }
+  }
+  for (const Vec3d& ax : PrincipalAxes(hv)) cand.push_back(ax);
+  cand.push_back({1, 0, 0});
+  cand.push_back({0, 1, 0});
+  cand.push_back({0, 0, 1});
+
+  OrientedBox best = SearchBox(coarse, cand, 4, 2.0);
+  if (two_stage) {
+    std::vector<Vec3d> axes(best.axes.begin(), best.axes.end());
+    best = SearchBox(full, axes, 1, 0.5);
+  }
+  return best;
+}
+
+MeshProps ComputeMeshProps(const Mesh& mesh) {
+  MeshProps p;
+  if (mesh.faces.empty() || mesh.vertices.empty()) return p;
+  p.volume_mm3 = std::fabs(SignedVolume(mesh));
+  p.surface_area_mm2 = SurfaceArea(mesh);
+  // Only vertices used by a face belong to the surface.
+  std::vector<char> used(mesh.vertices.size(), 0);
+  for (const auto& f : mesh.faces)
+    for (int i : f) used[i] = 1;
+  std::vector<Vec3d> pts;
+  for (size_t i = 0; i < mesh.vertices.size(); ++i)
+    if (used[i]) pts.push_back(mesh.vertices[i]);
+  const OrientedBox box = MinVolumeBox(pts);
+  std::array<double, 3> d = box.size;
+  std::sort(d.begin(), d.end());
+  p.a_mm = d[0];
+  p.b_mm = d[1];
+  p.c_mm = d[2];
+  if (p.surface_area_mm2 > 0)
+    p.sphericity =
+        std::cbrt(36.0 * std::numbers::pi * p.volume_mm3 * p.volume_mm3) / p.surface_area_mm2;
+  if (p.a_mm > 0) p.fer_3d = p.c_mm / p.a_mm;
+  if (p.b_mm > 0) p.c_over_b = p.c_mm / p.b_mm;
+  if (p.a_mm > 0) p.b_over_a = p.b_mm / p.a_mm;
+  return p;
+}
+
+}  // namespace aggscan

@@ -1,0 +1,67 @@
+// Ground-truth 3D morphology of a closed triangle mesh, as defined by the
+// source study (Huang et al.): volume, surface area, principal dimensions
+// a <= b <= c from the minimum-volume bounding box, 3D flat-and-elongated
+// ratio c/a and Wadell sphericity cbrt(36*pi*V^2)/A. Used for the sim's
+// truth.json and for checking the reconstruction's morphology.
+#pragma once
+
+#include <array>
+#include <vector>
+
+#include "common/mesh.h"
+
+namespace aggscan {
+
+using Vec3d = std::array<double, 3>;
+
+struct MeshProps {
+  double volume_mm3 = 0.0;        // divergence theorem; |signed volume| (orientation-independent)
+  double surface_area_mm2 = 0.0;  // sum of triangle areas
+  double a_mm = 0.0;              // shortest side of the minimum-volume oriented bounding box
+  double b_mm = 0.0;              // middle side
+  double c_mm = 0.0;              // longest side
+  double sphericity = 0.0;        // Wadell: cbrt(36*pi*V^2)/A (sphere 1, cube 0.806); 0 if A == 0
+  double fer_3d = 0.0;            // flat-and-elongated ratio c/a; 0 if a == 0
+  double c_over_b = 0.0;          // elongation; 0 if b == 0
+  double b_over_a = 0.0;          // flatness; 0 if a == 0
+};
+
+/// An oriented box: centre, three orthonormal axes and the full side length
+/// along each axis (not sorted).
+struct OrientedBox {
+  Vec3d center{};
+  std::array<Vec3d, 3> axes{};
+  Vec3d size{};
+  double Volume() const { return size[0] * size[1] * size[2]; }
+};
+
+/// Volume, area and the minimum-volume box of `mesh` (mm). A mesh with
+/// misoriented faces gets a meaningless volume; open meshes likewise.
+MeshProps ComputeMeshProps(const Mesh& mesh);
+
+/// Signed volume (positive for outward-facing counter-clockwise faces).
+double SignedVolume(const Mesh& mesh);
+double SurfaceArea(const Mesh& mesh);
+
+/// Convex hull of points (quickhull), faces outward. Returns false when the
+/// points are degenerate (fewer than 4 not coplanar); `hull` is then empty.
+bool ConvexHull(const std::vector<Vec3d>& points, Mesh* hull);
+
+/// Approximately minimum-volume box enclosing `points`. Candidate box axes:
+/// every hull face normal (a box face flush with a hull face), the normal to
+/// every pair of hull edge directions on small hulls (catches e.g. the cube
+/// around a regular tetrahedron), the principal axes; for each axis the
+/// other two come from the exact minimum-area rectangle of the projected hull
+/// (rotating calipers); the best few are then refined by a local search over
+/// the axis direction. Large hulls are searched on a subset of extreme
+/// points first and refined on the whole hull.
+OrientedBox MinVolumeBox(const std::vector<Vec3d>& points);
+
+/// Minimum-area rectangle enclosing 2D points (exact, rotating calipers on
+/// the convex hull). Returns the area; `dir` is the unit direction of one
+/// side, `w` and `h` the side lengths along dir and its left normal, `lo`
+/// the minimum coordinates along (dir, normal).
+double MinAreaRect(const std::vector<std::array<double, 2>>& points, std::array<double, 2>* dir,
+                   double* w, double* h, std::array<double, 2>* lo);
+
+}  // namespace aggscan

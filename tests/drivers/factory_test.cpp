@@ -1,0 +1,76 @@
+// Explicit device factory: backend names from the config.
+#include "drivers/factory.h"
+
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+
+#include "common/clock.h"
+#include "config/config.h"
+#include "drivers/sim/sim_button.h"
+#include "drivers/sim/sim_camera.h"
+#include "drivers/sim/sim_turntable.h"
+
+namespace aggscan {
+namespace {
+
+TEST(Factory, UnknownBackendNamesTheKeyAndTheKnownOnes) {
+  VirtualClock clock;
+  Config c;
+  c.camera.backend = "foo";
+  auto r = CreateRig(c, clock);
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().cls, ErrorClass::kInvalidConfig);
+  EXPECT_EQ(r.error().message, "camera.backend \"foo\" is not known; available: sim");
+
+  c = Config{};
+  c.turntable.backend = "modbus-rtu";
+  c.button.backend = "gpio";
+  r = CreateRig(c, clock);
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().message,
+            "turntable.backend \"modbus-rtu\" is not known; available: sim; "
+            "button.backend \"gpio\" is not known; available: sim");
+}
+
+TEST(Factory, AllSimSharesOneWorld) {
+  VirtualClock clock;
+  Config c;
+  // A small rock from a file keeps world construction quick (the procedural
+  // rock is tested with the world itself): an elongated octahedron, 8 faces.
+  const std::string rock = ::testing::TempDir() + "/factory_rock.obj";
+  std::ofstream(rock) << "v 60 0 0\nv -60 0 0\nv 0 35 0\nv 0 -35 0\nv 0 0 25\nv 0 0 -25\n"
+                         "f 1 3 5\nf 3 2 5\nf 2 4 5\nf 4 1 5\nf 3 1 6\nf 2 3 6\nf 4 2 6\nf 1 4 6\n";
+  c.sim.rock_mesh = rock;
+  auto r = CreateRig(c, clock);
+  ASSERT_TRUE(r.ok()) << r.error().ToString();
+  EXPECT_NE(r->world, nullptr);
+  ASSERT_NE(r->camera, nullptr);
+  ASSERT_NE(r->turntable, nullptr);
+  ASSERT_NE(r->button, nullptr);
+  EXPECT_NE(dynamic_cast<sim::SimTurntable*>(r->turntable.get()), nullptr);
+  EXPECT_NE(dynamic_cast<sim::SimCamera*>(r->camera.get()), nullptr);
+  EXPECT_NE(dynamic_cast<sim::SimButton*>(r->button.get()), nullptr);
+  EXPECT_EQ(r->turntable->Info().backend, "sim");
+  EXPECT_EQ(r->camera->Info().backend, "sim");
+  EXPECT_EQ(r->camera->state(), Camera::State::kClosed);  // created, not opened
+  EXPECT_FALSE(r->turntable->is_open());
+  std::filesystem::remove(rock);
+}
+
+}  // namespace
+}  // namespace aggscan
+
+namespace aggscan {
+namespace {
+
+TEST(Factory, DefaultConfigBuildsTheProceduralRig) {
+  VirtualClock clock;
+  auto r = CreateRig(Config{}, clock);
+  ASSERT_TRUE(r.ok()) << r.error().ToString();
+  EXPECT_NE(r->world, nullptr);
+}
+
+}  // namespace
+}  // namespace aggscan
