@@ -1,0 +1,292 @@
+#include "pipeline/side_job.h"
+
+#include <algorithm>
+#include <filesystem>
+#include <map>
+#include <set>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "common/clock.h"
+#include "common/fsutil.h"
+#include "common/log.h"
+#include "pipeline/morph2d.h"
+#include "store/layout.h"
+
+namespace aggscan {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+constexpr const char* kCat = "worker";
+
+// The figures summarised per side and per sample.
+constexpr const char* kStatFields[] = {"fer_2d", "circularity", "l_max_px", "l_min_px"};
+
+// The sample id is the directory name (layout.h); tolerate a trailing slash.
+std::string SampleIdOf(const std::string& sample_dir) {
+  fs::path p = fs::path(sample_dir).lexically_normal();
+  if (p.filename().empty()) p = p.parent_path();
+  return p.filename().string();
+}
+
+std::string ResultsDir(const std::string& sample_dir) { return sample_dir + "/" + layout::kResultsDir; }
+std::string MasksDir(const std::string& sample_dir, int side) {
+  return ResultsDir(sample_dir) + "/masks/" + layout::SideDirName(side);
+}
+
+json StatsJson(const Stats& s) {
+  return {{"mean", s.mean}, {"min", s.min}, {"max", s.max}, {"std", s.std}, {"cov", s.cov}, {"n", s.n}};
+}
+
+json StatsBlock(const std::map<std::string, std::vector<double>>& values) {
+  json out = json::object();
+  for (const char* f : kStatFields) {
+    auto it = values.find(f);
+    out[f] = StatsJson(ComputeStats(it == values.end() ? std::vector<double>{} : it->second));
+  }
+  return out;
+}
+
+// A plain file name inside the side directory: nothing that could leave it.
+bool IsPlainName(const std::string& n) {
+  return !n.empty() && n[0] != '.' && n.find('/') == std::string::npos && n.find('\0') == std::string::npos;
+}
+
+struct ManifestView {
+  int view = 0;
+  std::string image;
+  std::string sidecar;
+};
+
+Result<std::vector<ManifestView>> ReadManifest(const std::string& side_dir, int side, const std::string& sample_id) {
+  const std::string path = side_dir + "/" + layout::kManifest;
+  if (!PathExists(path))
+    return MakeError(ErrorClass::kNotFound, "side " + std::to_string(side) + " of sample " + sample_id +
+                                                " has no manifest (not captured, or the capture did not finish): " + path);
+  auto text = ReadFile(path);
+  if (!text.ok()) return text.error();
+  json m;
+  try {
+    m = json::parse(*text);
+  } catch (const json::exception& e) {
+    return MakeError(ErrorClass::kCorrupt, "manifest " + path + " is not valid JSON; re-capture the side", e.what());
+  }
+  auto corrupt = [&](const std::string& what) {
+    return MakeError(ErrorClass::kCorrupt, "manifest " + path + " is inconsistent: " + what);
+  };
+  if (!m.is_object()) return corrupt("not a JSON object");
+  if (!m.contains("side") || !m["side"].is_number_integer() || m["side"].get<int>() != side)
+    return corrupt("\"side\" is missing or is not " + std::to_string(side));
+  if (m.contains("sample_id") && (!m["sample_id"].is_string() || m["sample_id"].get<std::string>() != sample_id))
+    return corrupt("\"sample_id\" does not match the sample directory " + sample_id);
+  if (!m.contains("views") || !m["views"].is_array() || m["views"].empty())
+    return corrupt("\"views\" is missing or empty");
+  std::vector<ManifestView> views;
+  std::set<int> seen;
+  for (const auto& v : m["views"]) {
+    if (!v.is_object() || !v.contains("view") || !v["view"].is_number_integer() || !v.contains("image") ||
+        !v["image"].is_string())
+      return corrupt("a view entry lacks an integer \"view\" or a string \"image\"");
+    ManifestView mv;
+    mv.view = v["view"].get<int>();
+    mv.image = v["image"].get<std::string>();
+    if (mv.view < 0 || !seen.insert(mv.view).second)
+      return corrupt("view index " + std::to_string(mv.view) + " is negative or repeated");
+    if (!IsPlainName(mv.image)) return corrupt("image name \"" + mv.image + "\" is not a plain file name");
+    if (v.contains("sidecar") && v["sidecar"].is_string() && IsPlainName(v["sidecar"].get<std::string>()))
+      mv.sidecar = v["sidecar"].get<std::string>();
+    const std::string img = side_dir + "/" + mv.image;
+    std::error_code ec;
+    const auto size = fs::file_size(img, ec);
+    if (ec) return corrupt("listed image " + mv.image + " is missing");
+    if (v.contains("bytes")) {
+      if (!v["bytes"].is_number_unsigned() || v["bytes"].get<uint64_t>() != size)
+        return corrupt("image " + mv.image + " has " + std::to_string(size) + " bytes, the manifest says " +
+                       v["bytes"].dump());
+    }
+    views.push_back(std::move(mv));
+  }
+  std::sort(views.begin(), views.end(), [](const auto& a, const auto& b) { return a.view < b.view; });
+  return views;
+}
+
+Status WriteJson(const std::string& path, const json& j) { return WriteFileAtomic(path, j.dump(2) + "\n"); }
+
+}  // namespace
+
+std::string SideResultPath(const std::string& sample_dir, int side) {
+  return ResultsDir(sample_dir) + "/" + layout::SideDirName(side) + "_morph2d.json";
+}
+std::string SampleResultPath(const std::string& sample_dir) { return ResultsDir(sample_dir) + "/morph2d.json"; }
+std::string ViewMaskPath(const std::string& sample_dir, int side, int view) {
+  return MasksDir(sample_dir, side) + "/" + layout::ViewStem(view) + ".png";
+}
+
+Status ProcessSide(const std::string& sample_dir, int side, const WorkerOptions& opts) {
+  const std::string sample_id = SampleIdOf(sample_dir);
+  if (side < 1) return MakeError(ErrorClass::kInvalidArgument, "side must be >= 1, got " + std::to_string(side));
+  const std::string result_path = SideResultPath(sample_dir, side);
+  if (PathExists(result_path)) {
+    LogLine(LogLevel::kInfo, kCat, sample_id, "side " + std::to_string(side) + ": already done, skipped");
+    return OkStatus();
+  }
+  const std::string side_dir = sample_dir + "/" + layout::SideDirName(side);
+  auto views = ReadManifest(side_dir, side, sample_id);
+  if (!views.ok()) return views.error();
+
+  const std::string masks_dir = MasksDir(sample_dir, side);
+  if (Status s = MakeDirsDurable(masks_dir); !s.ok()) return s;
+  RemoveTempFiles(masks_dir);
+  RemoveTempFiles(ResultsDir(sample_dir));
+
+  const TimeNs t_start = MonotonicNs();
+  json jviews = json::array();
+  std::map<std::string, std::vector<double>> values;
+  int reused = 0;
+  for (const ManifestView& v : *views) {
+    if (opts.cancel && opts.cancel->load())
+      return MakeError(ErrorClass::kInvalidState, "interrupted: side " + std::to_string(side) + " of " + sample_id +
+                                                      " will resume from view " + std::to_string(v.view));
+    const TimeNs t0 = MonotonicNs();
+    const std::string mask_path = ViewMaskPath(sample_dir, side, v.view);
+    cv::Mat mask;
+    if (opts.reuse_masks && PathExists(mask_path)) {
+      mask = cv::imread(mask_path, cv::IMREAD_GRAYSCALE);
+      if (!mask.empty()) ++reused;
+    }
+    cv::Size image_size = mask.size();
+    if (mask.empty()) {
+      auto bytes = ReadFile(side_dir + "/" + v.image);
+      if (!bytes.ok()) return bytes.error();
+      const std::vector<unsigned char> buf(bytes->begin(), bytes->end());
+      const cv::Mat img = cv::imdecode(buf, cv::IMREAD_COLOR);
+      if (img.empty())
+        return MakeError(ErrorClass::kCorrupt, "image " + side_dir + "/" + v.image + " cannot be decoded");
+      image_size = img.size();
+      mask = ComputeForegroundMask(img, opts.mask);
+      std::vector<unsigned char> png;
+      if (!cv::imencode(".png", mask, png))
+        return MakeError(ErrorClass::kInternal, "PNG encoding of the mask of view " + std::to_string(v.view) + " failed");
+      if (Status s = WriteFileAtomic(mask_path, std::span<const unsigned char>(png)); !s.ok()) return s;
+    }
+    const double mask_ms = static_cast<double>(MonotonicNs() - t0) / 1e6;
+
+    json jv = {{"view", v.view}, {"image", v.image}, {"mask", "masks/" + layout::SideDirName(side) + "/" +
+                                                                  layout::ViewStem(v.view) + ".png"}};
+    if (!v.sidecar.empty()) {
+      auto sc = ReadFile(side_dir + "/" + v.sidecar);
+      json js = sc.ok() ? json::parse(*sc, nullptr, false) : json();
+      if (js.is_object()) {
+        for (const char* k : {"commanded_angle_deg", "measured_angle_deg"})
+          if (js.contains(k) && js[k].is_number()) jv[k] = js[k];
+      } else {
+        LogLine(LogLevel::kWarning, kCat, sample_id, "sidecar " + v.sidecar + " is missing or unreadable");
+      }
+    }
+    const double total_px = static_cast<double>(image_size.area());
+    jv["mask_area_fraction"] = total_px > 0 ? cv::countNonZero(mask) / total_px : 0.0;
+    auto m = ComputeMorph2D(mask);
+    if (m.ok()) {
+      jv["ok"] = true;
+      jv["l_max_px"] = m->l_max_px;
+      jv["l_min_px"] = m->l_min_px;
+      jv["fer_2d"] = m->fer_2d;
+      jv["area_px"] = m->area_px;
+      jv["perimeter_px"] = m->perimeter_px;
+      jv["circularity"] = m->circularity;
+      jv["l_max_angle_deg"] = m->l_max_angle_deg;
+      values["fer_2d"].push_back(m->fer_2d);
+      values["circularity"].push_back(m->circularity);
+      values["l_max_px"].push_back(m->l_max_px);
+      values["l_min_px"].push_back(m->l_min_px);
+    } else {
+      jv["ok"] = false;
+      jv["error"] = "no rock found in this view";
+      LogLine(LogLevel::kWarning, kCat, sample_id,
+              "side " + std::to_string(side) + " view " + std::to_string(v.view) + ": no rock found in the mask");
+    }
+    jv["timing_ms"] = mask_ms;
+    jviews.push_back(std::move(jv));
+  }
+  const int ok_views = static_cast<int>(values["fer_2d"].size());
+  if (ok_views == 0)
+    return MakeError(ErrorClass::kCorrupt, "side " + std::to_string(side) + " of " + sample_id +
+                                               ": no rock found in any view (empty turntable or wrong exposure?)");
+  const double total_ms = static_cast<double>(MonotonicNs() - t_start) / 1e6;
+  json out = {{"sample_id", sample_id},
+              {"side", side},
+              {"views", jviews},
+              {"views_total", static_cast<int>(views->size())},
+              {"views_ok", ok_views},
+              {"stats", StatsBlock(values)},
+              {"std_kind", "sample"},
+              {"mask_method", "classical: texture+chroma coarse mask, local colour boundary refinement"},
+              {"timing_ms", total_ms}};
+  if (Status s = WriteJson(result_path, out); !s.ok()) return s;
+  LogLine(LogLevel::kInfo, kCat, sample_id,
+          "side " + std::to_string(side) + ": " + std::to_string(ok_views) + "/" + std::to_string(views->size()) +
+              " views measured (" + std::to_string(reused) + " masks reused) in " +
+              std::to_string(static_cast<long>(total_ms)) + " ms");
+  return OkStatus();
+}
+
+Status ProcessSample(const std::string& sample_dir, const WorkerOptions& opts) {
+  const std::string sample_id = SampleIdOf(sample_dir);
+  const std::string result_path = SampleResultPath(sample_dir);
+  if (PathExists(result_path)) {
+    LogLine(LogLevel::kInfo, kCat, sample_id, "sample morphology already done, skipped");
+    return OkStatus();
+  }
+  std::vector<int> sides;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(sample_dir, ec)) {
+    const std::string n = e.path().filename().string();
+    if (!e.is_directory() || n.size() <= 4 || n.rfind("side", 0) != 0) continue;
+    const std::string num = n.substr(4);
+    if (!std::all_of(num.begin(), num.end(), [](char c) { return c >= '0' && c <= '9'; }) || num.size() > 4) continue;
+    sides.push_back(std::stoi(num));
+  }
+  if (ec) return ErrnoError("cannot list sample directory " + sample_dir, ec.value());
+  std::sort(sides.begin(), sides.end());
+  if (sides.empty()) return MakeError(ErrorClass::kNotFound, "sample " + sample_id + " has no captured side");
+
+  json jsides = json::array();
+  std::map<std::string, std::vector<double>> all;
+  int views_ok = 0;
+  for (int side : sides) {
+    const std::string side_result = SideResultPath(sample_dir, side);
+    if (!PathExists(side_result)) {
+      if (Status s = ProcessSide(sample_dir, side, opts); !s.ok()) return s;
+    }
+    auto text = ReadFile(side_result);
+    if (!text.ok()) return text.error();
+    const json j = json::parse(*text, nullptr, false);
+    if (!j.is_object() || !j.contains("views") || !j["views"].is_array())
+      return MakeError(ErrorClass::kCorrupt, "side result " + side_result + " is unreadable; delete it to recompute");
+    std::map<std::string, std::vector<double>> vals;
+    for (const auto& v : j["views"]) {
+      if (!v.value("ok", false)) continue;
+      for (const char* f : kStatFields)
+        if (v.contains(f) && v[f].is_number()) {
+          vals[f].push_back(v[f].get<double>());
+          all[f].push_back(v[f].get<double>());
+        }
+    }
+    views_ok += static_cast<int>(vals["fer_2d"].size());
+    jsides.push_back({{"side", side}, {"views_ok", vals["fer_2d"].size()}, {"stats", StatsBlock(vals)}});
+  }
+  json out = {{"sample_id", sample_id},
+              {"sides", jsides},
+              {"overall", {{"views_ok", views_ok}, {"stats", StatsBlock(all)}}},
+              {"std_kind", "sample"}};
+  if (Status s = WriteJson(result_path, out); !s.ok()) return s;
+  LogLine(LogLevel::kInfo, kCat, sample_id,
+          "sample morphology written: " + std::to_string(sides.size()) + " sides, " + std::to_string(views_ok) + " views");
+  return OkStatus();
+}
+
+}  // namespace aggscan

@@ -1,0 +1,45 @@
+// The worker's first stages on a durable sample directory (store/layout.h):
+// per side, a foreground mask and the 2D morphology of every view; per sample,
+// the statistics over all sides.
+//
+// Outputs (all written atomically, fsutil.h):
+//   results/masks/side<N>/view_NNN.png   0/255 rock mask of each view
+//   results/side<N>_morph2d.json         per-view figures + per-side stats; the
+//                                        side stage is finished iff it exists
+//   results/morph2d.json                 per-side and overall stats (sample stage)
+//
+// Resumable: a finished side (its result file) is skipped; within a side, a view
+// whose mask PNG already exists reuses it instead of segmenting again.
+// Temporary files (.tmp-*) left by a crash are ignored and cleaned up.
+#pragma once
+
+#include <atomic>
+#include <string>
+
+#include "common/error.h"
+#include "pipeline/mask.h"
+
+namespace aggscan {
+
+struct WorkerOptions {
+  MaskOptions mask;                           // segmentation parameters
+  bool reuse_masks = true;                    // reuse results/masks/... PNGs written by an earlier attempt
+  const std::atomic<bool>* cancel = nullptr;  // checked between views; set -> kInvalidState "interrupted"
+};
+
+/// Masks and 2D morphology of side `side` (>= 1) of the sample at `sample_dir`.
+/// kNotFound if side<N>/manifest.json is missing (the side is not captured),
+/// kCorrupt if the manifest or a listed image is inconsistent or unreadable.
+Status ProcessSide(const std::string& sample_dir, int side, const WorkerOptions& opts = {});
+
+/// results/morph2d.json from every side<N> directory of the sample: sides with a
+/// manifest but no result yet are processed first. kNotFound when no side has
+/// been captured or a side directory has no manifest.
+Status ProcessSample(const std::string& sample_dir, const WorkerOptions& opts = {});
+
+/// Paths of the outputs, relative names as in the layout above.
+std::string SideResultPath(const std::string& sample_dir, int side);
+std::string SampleResultPath(const std::string& sample_dir);
+std::string ViewMaskPath(const std::string& sample_dir, int side, int view);
+
+}  // namespace aggscan

@@ -1,0 +1,238 @@
+#include "pipeline/side_job.h"
+
+#include <atomic>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "common/fsutil.h"
+#include "store/layout.h"
+#include "store/queue.h"
+#include "synth_scene.h"
+
+namespace aggscan {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+// A sample directory with `sides` sides of `views` synthetic views each, as
+// the daemon leaves it (images, sidecars, manifest written last).
+class SideJobTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    root_ = fs::temp_directory_path() / ("aggscan_sidejob_" + std::to_string(::getpid()) + "_" +
+                                         ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(root_);
+    dir_ = (root_ / "samples" / "S-0001").string();
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(root_); }
+
+  void MakeSide(int side, int views = 3) {
+    const std::string sd = dir_ + "/" + layout::SideDirName(side);
+    fs::create_directories(sd);
+    json jviews = json::array();
+    for (int v = 0; v < views; ++v) {
+      testing::SceneParams p;
+      p.size = {640, 480};
+      p.seed = 100 + side * 10 + v;
+      p.turntable_deg = 30.0 * v;
+      const auto sc = testing::MakeScene(p);
+      Write(sd + "/" + layout::ViewImageName(v), std::string(sc.jpeg.begin(), sc.jpeg.end()));
+      Write(sd + "/" + layout::ViewSidecarName(v),
+            json{{"view", v}, {"commanded_angle_deg", 30.0 * v}, {"measured_angle_deg", 30.0 * v + 0.02}}.dump());
+      jviews.push_back({{"view", v},
+                        {"image", layout::ViewImageName(v)},
+                        {"sidecar", layout::ViewSidecarName(v)},
+                        {"bytes", sc.jpeg.size()}});
+    }
+    manifest_ = {{"sample_id", "S-0001"}, {"side", side}, {"views", jviews}, {"completed_utc", "2026-01-01T00:00:00.000Z"}};
+    Write(sd + "/" + layout::kManifest, manifest_.dump());
+  }
+  static void Write(const std::string& path, const std::string& data) {
+    std::ofstream(path, std::ios::binary) << data;
+  }
+  static json ReadJson(const std::string& path) {
+    std::ifstream f(path);
+    return json::parse(f);
+  }
+
+  fs::path root_;
+  std::string dir_;
+  json manifest_;
+};
+
+TEST_F(SideJobTest, ProcessesSidesAndSample) {
+  MakeSide(1);
+  MakeSide(2);
+  ASSERT_TRUE(ProcessSide(dir_, 1).ok());
+  for (int v = 0; v < 3; ++v) {
+    const cv::Mat m = cv::imread(ViewMaskPath(dir_, 1, v), cv::IMREAD_UNCHANGED);
+    ASSERT_FALSE(m.empty()) << v;
+    EXPECT_EQ(m.type(), CV_8UC1);
+    EXPECT_EQ(m.size(), cv::Size(640, 480));
+    EXPECT_GT(cv::countNonZero(m), 1000);
+  }
+  const json r = ReadJson(SideResultPath(dir_, 1));
+  EXPECT_EQ(r["sample_id"], "S-0001");
+  EXPECT_EQ(r["side"], 1);
+  ASSERT_EQ(r["views"].size(), 3u);
+  for (const auto& v : r["views"]) {
+    for (const char* k : {"l_max_px", "l_min_px", "fer_2d", "area_px", "perimeter_px", "circularity",
+                          "mask_area_fraction", "commanded_angle_deg", "measured_angle_deg", "timing_ms"})
+      EXPECT_TRUE(v.contains(k) && v[k].is_number()) << k;
+    EXPECT_GT(v["fer_2d"].get<double>(), 1.0);
+    EXPECT_GT(v["circularity"].get<double>(), 0.5);
+    EXPECT_LE(v["circularity"].get<double>(), 1.05);
+    EXPECT_GT(v["mask_area_fraction"].get<double>(), 0.01);
+  }
+  for (const char* f : {"fer_2d", "circularity", "l_max_px", "l_min_px"})
+    for (const char* k : {"mean", "min", "max", "std", "cov"}) EXPECT_TRUE(r["stats"][f][k].is_number()) << f << k;
+  EXPECT_EQ(r["stats"]["fer_2d"]["n"], 3);
+  EXPECT_TRUE(r["timing_ms"].is_number());
+
+  // The sample job processes side 2 itself if its job has not run yet.
+  ASSERT_TRUE(ProcessSample(dir_).ok());
+  EXPECT_TRUE(PathExists(SideResultPath(dir_, 2)));
+  const json s = ReadJson(SampleResultPath(dir_));
+  ASSERT_EQ(s["sides"].size(), 2u);
+  EXPECT_EQ(s["overall"]["views_ok"], 6);
+  EXPECT_EQ(s["overall"]["stats"]["fer_2d"]["n"], 6);
+  EXPECT_NEAR(s["sides"][0]["stats"]["circularity"]["mean"].get<double>(),
+              r["stats"]["circularity"]["mean"].get<double>(), 1e-12);
+}
+
+TEST_F(SideJobTest, FinishedSideIsSkippedAndMasksAreReused) {
+  MakeSide(1);
+  // Leftover of a crashed attempt: ignored and cleaned up.
+  fs::create_directories(dir_ + "/results");
+  Write(dir_ + "/results/.tmp-side1_morph2d.json.123", "{garbage");
+  ASSERT_TRUE(ProcessSide(dir_, 1).ok());
+  EXPECT_FALSE(fs::exists(dir_ + "/results/.tmp-side1_morph2d.json.123"));
+  const json first = ReadJson(SideResultPath(dir_, 1));
+
+  // A finished side result means done: not recomputed.
+  Write(SideResultPath(dir_, 1), R"({"marker": "untouched"})");
+  ASSERT_TRUE(ProcessSide(dir_, 1).ok());
+  EXPECT_EQ(ReadJson(SideResultPath(dir_, 1))["marker"], "untouched");
+
+  // Crash after the masks but before the result: masks are reused, same figures.
+  fs::remove(SideResultPath(dir_, 1));
+  for (int v = 0; v < 3; ++v) fs::remove(dir_ + "/side1/" + layout::ViewImageName(v));
+  Write(dir_ + "/side1/" + layout::kManifest, [&] {
+    json m = manifest_;
+    for (auto& v : m["views"]) v.erase("bytes");
+    return m.dump();
+  }());
+  for (int v = 0; v < 3; ++v) Write(dir_ + "/side1/" + layout::ViewImageName(v), "x");  // not decodable
+  ASSERT_TRUE(ProcessSide(dir_, 1).ok());
+  const json again = ReadJson(SideResultPath(dir_, 1));
+  for (int v = 0; v < 3; ++v)
+    EXPECT_DOUBLE_EQ(again["views"][v]["fer_2d"].get<double>(), first["views"][v]["fer_2d"].get<double>());
+}
+
+TEST_F(SideJobTest, CancelStopsBetweenViewsAndResumes) {
+  MakeSide(1);
+  std::atomic<bool> cancel{true};
+  WorkerOptions o;
+  o.cancel = &cancel;
+  Status s = ProcessSide(dir_, 1, o);
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().cls, ErrorClass::kInvalidState);
+  EXPECT_FALSE(PathExists(SideResultPath(dir_, 1)));
+  cancel = false;
+  EXPECT_TRUE(ProcessSide(dir_, 1, o).ok());
+}
+
+TEST_F(SideJobTest, BadManifestsAreRefused) {
+  auto expect = [&](ErrorClass cls, const std::string& why) {
+    Status s = ProcessSide(dir_, 1);
+    ASSERT_FALSE(s.ok()) << why;
+    EXPECT_EQ(s.error().cls, cls) << why << ": " << s.error().ToString();
+    EXPECT_FALSE(PathExists(SideResultPath(dir_, 1))) << why;
+  };
+  expect(ErrorClass::kNotFound, "no side directory");
+  MakeSide(1, 2);
+  const std::string mpath = dir_ + "/side1/" + layout::kManifest;
+  auto with = [&](auto edit) {
+    json m = manifest_;
+    edit(m);
+    Write(mpath, m.dump());
+  };
+  fs::remove(mpath);
+  expect(ErrorClass::kNotFound, "no manifest");
+  Write(mpath, "{\"side\": 1, \"views\": [");
+  expect(ErrorClass::kCorrupt, "truncated JSON");
+  with([](json& m) { m["side"] = 2; });
+  expect(ErrorClass::kCorrupt, "wrong side");
+  with([](json& m) { m["views"] = json::array(); });
+  expect(ErrorClass::kCorrupt, "no views");
+  with([](json& m) { m["views"][0]["bytes"] = 12; });
+  expect(ErrorClass::kCorrupt, "size mismatch");
+  with([](json& m) { m["views"][1]["image"] = "view_009.jpg"; });
+  expect(ErrorClass::kCorrupt, "missing image");
+  with([](json& m) { m["views"][1]["image"] = "../../etc/passwd"; });
+  expect(ErrorClass::kCorrupt, "path escape");
+  with([](json& m) { m["views"][1]["view"] = 0; });
+  expect(ErrorClass::kCorrupt, "duplicate view");
+  with([](json& m) { m["sample_id"] = "other"; });
+  expect(ErrorClass::kCorrupt, "other sample");
+  EXPECT_FALSE(ProcessSide(dir_, 0).ok());
+}
+
+TEST_F(SideJobTest, SampleWithoutSidesIsNotFound) {
+  Status s = ProcessSample(dir_);
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().cls, ErrorClass::kNotFound);
+}
+
+// The real aggscan-worker binary on a queue with a good sample and a bad job.
+TEST_F(SideJobTest, WorkerBinaryDrainsTheQueue) {
+  MakeSide(1);
+  {
+    auto q = JobQueue::Open(layout::QueuePath(root_.string()));
+    ASSERT_TRUE(q.ok()) << q.error().ToString();
+    ASSERT_TRUE((*q)->Enqueue("S-0001", 1).ok());
+    ASSERT_TRUE((*q)->Enqueue("S-0001", 0).ok());
+  }
+  const std::string bin = std::string(AGGSCAN_BINARY_DIR) + "/pipeline/aggscan-worker";
+  const std::string log = root_.string() + "/worker.log";
+  const std::string cmd = bin + " --state-dir " + root_.string() + " --once --poll-ms 10 2>" + log;
+  ASSERT_EQ(std::system(cmd.c_str()), 0) << std::ifstream(log).rdbuf();
+  EXPECT_TRUE(PathExists(SideResultPath(dir_, 1)));
+  EXPECT_TRUE(PathExists(SampleResultPath(dir_)));
+  {
+    auto q = JobQueue::Open(layout::QueuePath(root_.string()));
+    ASSERT_TRUE(q.ok());
+    auto jobs = (*q)->JobsForSample("S-0001");
+    ASSERT_TRUE(jobs.ok());
+    ASSERT_EQ(jobs->size(), 2u);
+    for (const auto& j : *jobs) EXPECT_EQ(j.state, "done") << j.side << " " << j.error;
+    // A job whose side was never captured fails three times, then stays failed.
+    ASSERT_TRUE((*q)->Enqueue("S-0001", 2).ok());
+  }
+  EXPECT_NE(std::system(cmd.c_str()), 0);
+  auto q = JobQueue::Open(layout::QueuePath(root_.string()));
+  ASSERT_TRUE(q.ok());
+  auto jobs = (*q)->JobsForSample("S-0001");
+  ASSERT_TRUE(jobs.ok());
+  bool seen = false;
+  for (const auto& j : *jobs)
+    if (j.side == 2) {
+      seen = true;
+      EXPECT_EQ(j.state, "failed");
+      EXPECT_EQ(j.attempts, 3);
+      EXPECT_NE(j.error.find("manifest"), std::string::npos) << j.error;
+    }
+  EXPECT_TRUE(seen);
+  std::string text((std::istreambuf_iterator<char>(std::ifstream(log).rdbuf())), std::istreambuf_iterator<char>());
+  EXPECT_NE(text.find("S-0001"), std::string::npos) << "log lines carry the sample id";
+}
+
+}  // namespace
+}  // namespace aggscan
