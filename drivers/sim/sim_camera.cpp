@@ -1,0 +1,159 @@
+#include "drivers/sim/sim_camera.h"
+
+#include <utility>
+
+#include "common/log.h"
+#include "drivers/sim/jpeg.h"
+#include "drivers/sim/render.h"
+
+namespace aggscan::sim {
+
+namespace {
+
+uint64_t Mix(uint64_t h, uint64_t v) {
+  h ^= v + 0x9E3779B97F4A7C15ull + (h << 6) + (h >> 2);
+  h ^= h >> 31;
+  h *= 0xBF58476D1CE4E5B9ull;
+  return h ^ (h >> 29);
+}
+
+}  // namespace
+
+SimCamera::SimCamera(std::shared_ptr<const SimWorld> world, Clock& clock,
+                     const CameraConfig& config, AngleFn platter_angle_at)
+    : world_(std::move(world)),
+      clock_(clock),
+      config_(config),
+      angle_at_(std::move(platter_angle_at)) {
+  if (!angle_at_) angle_at_ = [](TimeNs) { return 0.0; };
+}
+
+SimCamera::~SimCamera() { DoClose(); }
+
+CameraInfo SimCamera::Info() const { return {config_.id, "sim", "aggscan simulated camera"}; }
+
+void SimCamera::SetTruthSink(TruthSink sink) {
+  std::lock_guard<std::mutex> l(mu_);
+  truth_sink_ = std::move(sink);
+}
+
+uint64_t SimCamera::frames_rendered() const {
+  std::lock_guard<std::mutex> l(mu_);
+  return sequence_;
+}
+
+Status SimCamera::DoOpen() {
+  if (!world_) return MakeError(ErrorClass::kDeviceMissing, "sim camera has no sim world");
+  std::lock_guard<std::mutex> l(mu_);
+  stop_ = false;
+  worker_ = std::thread([this] { WorkerLoop(); });
+  return OkStatus();
+}
+
+Status SimCamera::DoConfigure(const CameraSettings& settings) {
+  std::lock_guard<std::mutex> l(mu_);
+  active_ = settings;
+  return OkStatus();
+}
+
+Status SimCamera::DoRequestStill(const StillRequest& req, FrameCallback done) {
+  std::lock_guard<std::mutex> l(mu_);
+  if (!worker_.joinable() || stop_)
+    return MakeError(ErrorClass::kInvalidState, "sim camera is not running");
+  queue_.push_back({req, std::move(done)});
+  cv_.notify_one();
+  return OkStatus();
+}
+
+void SimCamera::DoClose() {
+  std::thread t;
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    stop_ = true;
+    t = std::move(worker_);
+  }
+  cv_.notify_all();
+  if (t.joinable()) t.join();  // the worker drains the queue first
+}
+
+void SimCamera::WorkerLoop() {
+  for (;;) {
+    Job job;
+    {
+      std::unique_lock<std::mutex> l(mu_);
+      cv_.wait(l, [this] { return stop_ || !queue_.empty(); });
+      if (queue_.empty()) return;  // stopping and nothing left in flight
+      job = std::move(queue_.front());
+      queue_.pop_front();
+    }
+    Serve(job);
+  }
+}
+
+void SimCamera::Serve(Job& job) {
+  CameraSettings s;
+  TruthSink sink;
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    s = active_;
+    sink = truth_sink_;
+  }
+  // Trigger: the exposure starts now; the platter angle is taken mid-exposure.
+  const TimeNs start = clock_.Now();
+  const int64_t utc = clock_.UtcNs();
+  const double exposure_us =
+      s.manual_exposure ? s.exposure_us : world_->config().camera.exposure.exposure_us;
+  const double gain = s.manual_exposure ? s.gain : world_->config().camera.exposure.gain;
+  const double angle = angle_at_(start + static_cast<TimeNs>(exposure_us * 500.0));
+
+  if (!renderer_ || renderer_->width() != s.width || renderer_->height() != s.height) {
+    renderer_ = std::make_unique<Renderer>(*world_, s.width, s.height);
+  }
+  RenderOptions opt;
+  opt.exposure = {exposure_us, gain, s.wb_red, s.wb_blue};
+  opt.noise_seed = Mix(
+      Mix(Mix(world_->config().sim.seed, 0x53494D43414DULL), static_cast<uint64_t>(job.req.side)),
+      static_cast<uint64_t>(job.req.view));
+  opt.want_mask = static_cast<bool>(sink);
+  RenderedImage img = renderer_->Render(job.req.side, angle, opt);
+
+  Result<std::vector<unsigned char>> jpeg =
+      EncodeJpeg(img.rgb.data(), img.width, img.height, s.jpeg_quality);
+  if (!jpeg) {
+    job.done(jpeg.error());
+    return;
+  }
+  auto frame = std::make_shared<Frame>();
+  frame->request_id = job.req.request_id;
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    frame->sequence = sequence_++;
+  }
+  frame->width = img.width;
+  frame->height = img.height;
+  frame->encoding = "jpeg";
+  frame->data = std::move(jpeg).value();
+  frame->exposure_start = start;
+  frame->utc_ns = utc;
+  frame->exposure_us = exposure_us;
+  frame->gain = gain;
+  frame->wb_red = s.wb_red;
+  frame->wb_blue = s.wb_blue;
+
+  if (sink) {
+    TruthView truth;
+    truth.side = job.req.side;
+    truth.view = job.req.view;
+    truth.platter_deg = angle;
+    truth.width = img.width;
+    truth.height = img.height;
+    truth.mask = std::move(img.mask);
+    truth.rock_to_camera = world_->RockToCamera(job.req.side, angle);
+    truth.rock_to_camera_4x4 = truth.rock_to_camera.Matrix4();
+    truth.intrinsics = renderer_->intrinsics();
+    sink(job.req, truth);
+  }
+  job.done(FramePtr(std::move(frame)));
+}
+
+}  // namespace aggscan::sim
