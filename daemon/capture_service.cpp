@@ -444,7 +444,9 @@ void CaptureService::PollMotion(uint64_t epoch) {
     if (std::fabs(s.angle_deg - motion_.last_angle) > kStallEpsilonDeg) {
       motion_.last_angle = s.angle_deg;
       motion_.last_progress = now;
-    } else if (s.moving && now - motion_.last_progress > config_.capture.stall_timeout) {
+    } else if (!motion_.homing && s.moving && now - motion_.last_progress > config_.capture.stall_timeout) {
+      // Homing is exempt: controllers often hold or reset the position count
+      // while searching for the home sensor; home_timeout bounds it instead.
       motion_.active = false;
       Fault(ErrorClass::kStalled, "turntable stalled at " + Deg(s.angle_deg) + " deg while moving to " +
                                       Deg(motion_.target_deg) + " deg; check that nothing blocks the platter");

@@ -17,6 +17,7 @@
 #include "daemon/http_api.h"
 #include "daemon/systemd_notify.h"
 #include "drivers/factory.h"
+#include "drivers/sim/truth.h"
 #include "store/layout.h"
 #include "store/queue.h"
 #include "store/sample_store.h"
@@ -150,6 +151,13 @@ int main(int argc, char** argv) {
   if (!rig) {
     AGG_LOGE("main", "%s", rig.error().ToString().c_str());
     return kExitConfig;
+  }
+  // Sim rig with sim.write_truth: ground-truth masks and poses next to each
+  // sample (tests and the accuracy harness compare the worker against them).
+  std::unique_ptr<sim::TruthRecorder> truth;
+  if (config.sim.write_truth && rig->world) {
+    truth = std::make_unique<sim::TruthRecorder>(rig->world);
+    truth->Attach(*rig, [&store](const std::string& id) { return store.SampleDir(id) + "/" + layout::kTruthDir; });
   }
   CaptureService service(loop, config, effective, std::move(*rig), store, queue->get());
   SystemdNotifier notifier(loop);
