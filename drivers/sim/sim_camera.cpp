@@ -1,5 +1,7 @@
 #include "drivers/sim/sim_camera.h"
 
+#include <future>
+
 #include <utility>
 
 #include "common/log.h"
@@ -51,8 +53,22 @@ Status SimCamera::DoOpen() {
 }
 
 Status SimCamera::DoConfigure(const CameraSettings& settings) {
-  std::lock_guard<std::mutex> l(mu_);
-  active_ = settings;
+  // Like a real camera, the sim is ready to shoot once configured: build the
+  // renderer's tables and shade the background for these settings now, on the
+  // camera's thread, so the first still of a capture is not late.
+  std::promise<void> warmed;
+  std::future<void> done = warmed.get_future();
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    active_ = settings;
+    if (!worker_.joinable() || stop_) return OkStatus();
+    Job job;
+    job.warmup = true;
+    job.done = [&warmed](Result<FramePtr>) { warmed.set_value(); };
+    queue_.push_back(std::move(job));
+  }
+  cv_.notify_one();
+  done.wait();
   return OkStatus();
 }
 
@@ -104,12 +120,18 @@ void SimCamera::Serve(Job& job) {
   const double exposure_us =
       s.manual_exposure ? s.exposure_us : world_->config().camera.exposure.exposure_us;
   const double gain = s.manual_exposure ? s.gain : world_->config().camera.exposure.gain;
-  const double angle = angle_at_(start + static_cast<TimeNs>(exposure_us * 500.0));
+  const double angle = job.warmup ? 0.0 : angle_at_(start + static_cast<TimeNs>(exposure_us * 500.0));
 
   if (!renderer_ || renderer_->width() != s.width || renderer_->height() != s.height) {
     renderer_ = std::make_unique<Renderer>(*world_, s.width, s.height);
   }
   RenderOptions opt;
+  if (job.warmup) {
+    opt.exposure = {exposure_us, gain, s.wb_red, s.wb_blue};
+    (void)renderer_->Render(1, 0.0, opt);
+    job.done(MakeError(ErrorClass::kInternal, "warm-up"));
+    return;
+  }
   opt.exposure = {exposure_us, gain, s.wb_red, s.wb_blue};
   opt.noise_seed = Mix(
       Mix(Mix(world_->config().sim.seed, 0x53494D43414DULL), static_cast<uint64_t>(job.req.side)),

@@ -68,6 +68,7 @@ class SimCamera final : public Camera {
   struct Job {
     StillRequest req;
     FrameCallback done;
+    bool warmup = false;  // prepare the renderer for the active settings, no frame
   };
   void WorkerLoop();
   void Serve(Job& job);
