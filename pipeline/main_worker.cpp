@@ -39,6 +39,9 @@ extern "C" void OnSignal(int) { g_stop.store(true); }
 void Usage(FILE* f) {
   std::fprintf(f,
                "usage: aggscan-worker --state-dir DIR [--config FILE] [--once] [--poll-ms N] [--log-level L]\n"
+               "       aggscan-worker --sample SAMPLE_DIR [--config FILE] [--log-level L]\n"
+               "  --sample DIR      process one sample directory now (every captured side, then\n"
+               "                    the sample stage), without the queue; exit 1 on failure\n"
                "  --state-dir DIR   aggscan state directory (samples/, queue.db)\n"
                "  --config FILE     TOML config (worker.nice, worker.poll_interval); defaults otherwise\n"
                "  --once            exit when the queue is empty (exit 1 if a job failed for good)\n"
@@ -48,6 +51,7 @@ void Usage(FILE* f) {
 
 struct Args {
   std::string state_dir;
+  std::string sample_dir;
   std::string config;
   bool once = false;
   long poll_ms = -1;
@@ -68,6 +72,8 @@ bool ParseArgs(int argc, char** argv, Args* a) {
     std::string v;
     if (k == "--state-dir") {
       if (!need(&a->state_dir)) return false;
+    } else if (k == "--sample") {
+      if (!need(&a->sample_dir)) return false;
     } else if (k == "--config") {
       if (!need(&a->config)) return false;
     } else if (k == "--once") {
@@ -90,8 +96,8 @@ bool ParseArgs(int argc, char** argv, Args* a) {
       return false;
     }
   }
-  if (a->state_dir.empty()) {
-    std::fprintf(stderr, "aggscan-worker: --state-dir is required\n");
+  if (a->state_dir.empty() == a->sample_dir.empty()) {
+    std::fprintf(stderr, "aggscan-worker: give either --state-dir or --sample\n");
     return false;
   }
   return true;
@@ -143,6 +149,17 @@ int main(int argc, char** argv) {
   const int current = getpriority(PRIO_PROCESS, 0);
   if (errno == 0 && current != cfg.worker.nice && setpriority(PRIO_PROCESS, 0, cfg.worker.nice) != 0)
     AGG_LOGW(kCat, "cannot set nice %d (staying at %d): %s", cfg.worker.nice, current, std::strerror(errno));
+
+  if (!args.sample_dir.empty()) {
+    WorkerOptions one;
+    Status st = ProcessSample(args.sample_dir, one);
+    if (!st.ok()) {
+      AGG_LOGE(kCat, "%s: %s", args.sample_dir.c_str(), st.error().ToString().c_str());
+      return 1;
+    }
+    AGG_LOGI(kCat, "%s: processed", args.sample_dir.c_str());
+    return 0;
+  }
 
   struct sigaction sa {};
   sa.sa_handler = OnSignal;

@@ -42,7 +42,7 @@ json TruthRecorder::SampleTruth(const Config& config) const {
   const MeshProps p = ComputeMeshProps(world_->rock());
   const Intrinsics in = world_->IntrinsicsFor(config.camera.width, config.camera.height);
   json poses = json::array();
-  for (int side = 1; side <= world_->num_poses(); ++side) {
+  for (int side = 1; side <= config.capture.sides; ++side) {
     poses.push_back({{"side", side}, {"rock_to_turntable_4x4", Mat(world_->pose(side).rock_to_turntable.Matrix4())}});
   }
   json markers = json::array();

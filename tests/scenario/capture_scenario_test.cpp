@@ -263,3 +263,70 @@ TEST(CaptureScenario, InvalidConfigExits78WithEveryProblem) {
 
 }  // namespace
 }  // namespace aggscan::test
+
+namespace aggscan::test {
+namespace {
+
+double IoU(const cv::Mat& a, const cv::Mat& b) {
+  const double inter = cv::countNonZero(a & b);
+  const double uni = cv::countNonZero(a | b);
+  return uni > 0 ? inter / uni : 0.0;
+}
+
+// The offline sim capture writes a complete sample at the rig's resolution;
+// the worker's mask of every one of its 60 views matches the sim's ground
+// truth (IoU >= 0.97), and truth.json describes a riprap-sized rock.
+TEST(SimCaptureScenario, WorkerMasksMatchGroundTruthOnEveryView) {
+  TempDir t;
+  const std::string out = t.path() + "/rock-seed5";
+  const int rc = WaitExit(Spawn({Bin("cli/aggscan"), "sim", "capture", "--seed", "5", "--out", out},
+                                t.path() + "/capture.log"));
+  ASSERT_EQ(rc, 0) << ReadAll(t.path() + "/capture.log");
+  // Never overwrites: a second capture into the same folder is refused.
+  EXPECT_NE(WaitExit(Spawn({Bin("cli/aggscan"), "sim", "capture", "--seed", "6", "--out", out},
+                           t.path() + "/capture2.log")),
+            0);
+  EXPECT_NE(ReadAll(t.path() + "/capture2.log").find("refusing to overwrite"), std::string::npos);
+
+  json rec = json::parse(ReadAll(out + "/sample.json"));
+  EXPECT_EQ(rec["state"], "captured");
+  EXPECT_EQ(CheckSampleConsistent(out), 60);
+  json truth = json::parse(ReadAll(out + "/truth.json"));
+  const double a = truth["a_mm"], b = truth["b_mm"], c = truth["c_mm"];
+  EXPECT_LE(a, b);
+  EXPECT_LE(b, c);
+  EXPECT_GE(c, 70.0);
+  EXPECT_LE(c, 200.0);
+  EXPECT_GE(c / a, 1.2);
+  EXPECT_LE(c / a, 3.0);
+  EXPECT_GT(truth["volume_mm3"].get<double>(), 0.0);
+  EXPECT_GT(truth["sphericity"].get<double>(), 0.5);
+  EXPECT_LT(truth["sphericity"].get<double>(), 1.0);
+  ASSERT_EQ(truth["views"].size(), 60u);
+  ASSERT_EQ(truth["poses"].size(), 2u);
+
+  const int wrc = WaitExit(Spawn({Bin("pipeline/aggscan-worker"), "--sample", out}, t.path() + "/worker.log"));
+  ASSERT_EQ(wrc, 0) << ReadAll(t.path() + "/worker.log");
+  double worst = 1.0;
+  for (int side = 1; side <= 2; ++side) {
+    for (int v = 0; v < 30; ++v) {
+      char m[96], g[96];
+      std::snprintf(m, sizeof m, "/results/masks/side%d/view_%03d.png", side, v);
+      std::snprintf(g, sizeof g, "/truth/side%d/view_%03d_mask.pgm", side, v);
+      cv::Mat mask = cv::imread(out + m, cv::IMREAD_GRAYSCALE);
+      cv::Mat gt = cv::imread(out + g, cv::IMREAD_GRAYSCALE);
+      ASSERT_FALSE(mask.empty()) << m;
+      ASSERT_FALSE(gt.empty()) << g;
+      ASSERT_EQ(mask.size(), gt.size());
+      const double iou = IoU(mask > 127, gt > 127);
+      worst = std::min(worst, iou);
+      EXPECT_GE(iou, 0.97) << "side " << side << " view " << v;
+    }
+  }
+  std::printf("worst mask IoU over 60 views: %.4f\n", worst);
+  json m2d = json::parse(ReadAll(out + "/results/morph2d.json"), nullptr, false);
+  ASSERT_FALSE(m2d.is_discarded());
+}
+
+}  // namespace
+}  // namespace aggscan::test
