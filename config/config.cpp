@@ -621,7 +621,8 @@ class Validator {
         std::isfinite(cap.step_deg)) {
       double v = tt.max_speed_deg_s, a = tt.accel_deg_s2, d = cap.step_deg;
       double move_s = d >= v * v / a ? d / v + v / a : 2.0 * std::sqrt(d / a);
-      auto move_ns = static_cast<TimeNs>(std::ceil(move_s * kSec));
+      // Rounded up to whole milliseconds: exact enough, and readable in messages.
+      auto move_ns = static_cast<TimeNs>(std::ceil(move_s * 1000.0)) * kNsPerMs;
       if (cap.views_per_side > 1 && cap.interval > 0 && move_ns + cap.settle > cap.interval) {
         Add("capture.interval", FormatDuration(cap.interval) + " is shorter than one step (" +
                                     FormatDouble(d) + " deg at " + FormatDouble(v) + " deg/s, " +
