@@ -255,8 +255,14 @@ void PrintStatus(const json& st, std::ostream& out) {
     for (const auto& [name, dev] : st["devices"].items()) {
       std::string text;
       if (dev.is_object()) {
-        text = dev.contains("state") ? FieldText(dev, "state") : FieldText(dev, "status");
-        if (HasText(dev, "message")) text += " (" + Clean(dev["message"].get<std::string>()) + ")";
+        if (dev.contains("healthy") && dev["healthy"].is_boolean()) {
+          text = dev["healthy"].get<bool>() ? "ok" : "UNHEALTHY";
+        } else {
+          text = dev.contains("state") ? FieldText(dev, "state") : FieldText(dev, "status");
+        }
+        if (HasText(dev, "backend")) text += " [" + Clean(dev["backend"].get<std::string>()) + "]";
+        if (HasText(dev, "message") && dev["message"].get<std::string>() != "ok")
+          text += " (" + Clean(dev["message"].get<std::string>()) + ")";
       } else {
         text = Scalar(dev);
       }

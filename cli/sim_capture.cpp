@@ -78,7 +78,7 @@ int RunSimCapture(const SimCaptureOptions& opt, std::ostream& out, std::ostream&
   }
   std::shared_ptr<sim::SimWorld> world = rig->world;
   sim::TruthRecorder truth(world);
-  truth.Attach(*rig, store.SampleDir(id) + "/" + layout::kTruthDir);
+  truth.Attach(*rig, [&store](const std::string& sid) { return store.SampleDir(sid) + "/" + layout::kTruthDir; });
 
   CaptureService service(loop, config, effective, std::move(*rig), store, nullptr);
   int rc = 0;

@@ -27,8 +27,20 @@ bool ParseLogLevel(const std::string& s, LogLevel* out) {
 
 void LogLine(LogLevel level, const char* category, const std::string& sample, const std::string& text) {
   if (static_cast<int>(level) > g_level.load()) return;
-  std::string line = "<" + std::to_string(static_cast<int>(level)) + ">" + category + ": ";
-  if (!sample.empty()) line += "[" + sample + "] ";
+  // Appended piecewise (also avoids a GCC 12 -Wrestrict false positive on
+  // "literal" + std::string at -O2).
+  std::string line;
+  line.reserve(text.size() + sample.size() + 32);
+  line += '<';
+  line += std::to_string(static_cast<int>(level));
+  line += '>';
+  line += category;
+  line += ": ";
+  if (!sample.empty()) {
+    line += '[';
+    line += sample;
+    line += "] ";
+  }
   line += text;
   line += '\n';
   std::lock_guard<std::mutex> lock(g_write_mu);

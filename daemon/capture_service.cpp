@@ -510,7 +510,11 @@ json CaptureService::StatusOnLoop() const {
   return {{"state", cs::PhaseName(state_.phase)},
           {"sample_id", state_.sample_id.empty() ? json(nullptr) : json(state_.sample_id)},
           {"side", state_.side},
-          {"view", state_.view},
+          // 1-based number of the view being taken; 0 when no side is running.
+          {"view", (state_.Active() && state_.phase != cs::Phase::kArmed && state_.phase != cs::Phase::kAwaitingPose &&
+                    state_.phase != cs::Phase::kHoming)
+                       ? state_.view + 1
+                       : 0},
           {"views_per_side", config_.capture.views_per_side},
           {"sides", config_.capture.sides},
           {"profile", config_.capture.profile},

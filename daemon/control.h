@@ -15,7 +15,7 @@ namespace aggscan {
 class DaemonControl {
  public:
   virtual ~DaemonControl() = default;
-  /// {"state": "idle|armed|homing|...", "sample_id", "side", "view", "views_per_side",
+  /// {"state": "idle|armed|homing|...", "sample_id", "side", "view" (1-based, 0 = none), "views_per_side",
   ///  "sides", "fault": {"class","message"} | null, "status_line", "devices": {...},
   ///  "queue_depth", "uptime_s"}
   virtual nlohmann::json GetStatus() = 0;
