@@ -114,7 +114,10 @@ Result<int64_t> JobQueue::Enqueue(const std::string& sample_id, int side) {
     find.Bind(2, side);
     if (find.Step() == SQLITE_ROW) {
       const int64_t id = find.Int(0);
-      (void)Exec("COMMIT");
+      if (Status c = Exec("COMMIT"); !c) {
+        (void)Exec("ROLLBACK");  // never leave the transaction open: every later BEGIN would fail
+        return c.error();
+      }
       return id;
     }
   }
@@ -131,7 +134,10 @@ Result<int64_t> JobQueue::Enqueue(const std::string& sample_id, int side) {
   }
   const int64_t id = sqlite3_last_insert_rowid(db_);
   s = Exec("COMMIT");
-  if (!s) return s.error();
+  if (!s) {
+    (void)Exec("ROLLBACK");
+    return s.error();
+  }
   return id;
 }
 
@@ -156,7 +162,10 @@ Result<std::optional<Job>> JobQueue::ClaimNext() {
     job->attempts += 1;
   }
   s = Exec("COMMIT");
-  if (!s) return s.error();
+  if (!s) {
+    (void)Exec("ROLLBACK");
+    return s.error();
+  }
   return job;
 }
 

@@ -1,11 +1,15 @@
 #include "drivers/sim/world.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <map>
 #include <stdexcept>
 #include <unordered_map>
+
+#include "common/mesh_props.h"
 
 namespace aggscan::sim {
 
@@ -71,155 +75,212 @@ float ValueNoise(float x, float y, float z, uint32_t seed) {
   return y0 + (y1 - y0) * tz;
 }
 
-// --- convex hull (incremental, with a tolerance) ---
+// --- convex hull (adapter over aggscan::ConvexHull) ---
 
 struct HullTri {
-  int a, b, c;
-  Vec3 n;    // outward unit normal
-  double d;  // plane offset: n . p = d on the face
+  int a, b, c;  // indices into the input points, counter-clockwise seen from outside
+  Vec3 n;       // outward unit normal (zero for a degenerate sliver)
+  double d;     // plane offset: n . p = d on the face
 };
 
-// Convex hull of `pts`; points within `eps` outside the current hull are
-// treated as inside (that merges near-coplanar points and keeps it robust).
-// Returns outward-oriented triangles; empty for degenerate input.
-std::vector<HullTri> ConvexHull(const std::vector<Vec3>& pts, double eps) {
+// Indices of the points that can be hull vertices (Akl-Toussaint): the
+// points extreme along 62 spread directions span an inner polytope, and a
+// point strictly inside it is inside the hull. A rock mesh has ~7% of its
+// vertices on the hull, so this leaves quickhull (unoptimised in Debug
+// builds) far less to do.
+std::vector<int> HullCandidates(const std::vector<Vec3>& pts) {
   const int n = static_cast<int>(pts.size());
-  if (n < 4) return {};
-  int i0 = 0;
-  for (int i = 1; i < n; ++i)
-    if (pts[i].x < pts[i0].x) i0 = i;
-  int i1 = i0;
-  double best = 0;
-  for (int i = 0; i < n; ++i) {
-    const double d = Norm(pts[i] - pts[i0]);
-    if (d > best) best = d, i1 = i;
+  std::vector<int> all(n);
+  for (int i = 0; i < n; ++i) all[i] = i;
+  if (n < 256) return all;
+  constexpr int kDirs = 62;
+  std::vector<int> ext;
+  for (int k = 0; k < kDirs; ++k) {
+    // Fibonacci sphere: near-uniform directions, no randomness.
+    const double z = 1.0 - (2.0 * k + 1.0) / kDirs, r = std::sqrt(1.0 - z * z);
+    const double phi = k * kPi * (3.0 - std::sqrt(5.0));
+    const Vec3 dir{r * std::cos(phi), r * std::sin(phi), z};
+    int best = 0;
+    double best_d = Dot(dir, pts[0]);
+    for (int i = 1; i < n; ++i) {
+      const double d = Dot(dir, pts[i]);
+      if (d > best_d) best_d = d, best = i;
+    }
+    ext.push_back(best);
   }
-  const Vec3 dir01 = Normalized(pts[i1] - pts[i0]);
-  int i2 = i0;
-  best = 0;
-  for (int i = 0; i < n; ++i) {
-    const Vec3 v = pts[i] - pts[i0];
-    const double d = Norm(v - dir01 * Dot(v, dir01));
-    if (d > best) best = d, i2 = i;
+  std::sort(ext.begin(), ext.end());
+  ext.erase(std::unique(ext.begin(), ext.end()), ext.end());
+  std::vector<Vec3d> inner_pts;
+  double mag = 0;
+  for (int i : ext) {
+    inner_pts.push_back({pts[i].x, pts[i].y, pts[i].z});
+    mag = std::max({mag, std::abs(pts[i].x), std::abs(pts[i].y), std::abs(pts[i].z)});
   }
-  const Vec3 n012 = Normalized(Cross(pts[i1] - pts[i0], pts[i2] - pts[i0]));
-  int i3 = i0;
-  best = 0;
-  for (int i = 0; i < n; ++i) {
-    const double d = std::abs(Dot(pts[i] - pts[i0], n012));
-    if (d > best) best = d, i3 = i;
-  }
-  if (i1 == i0 || i2 == i0 || i3 == i0 || best <= eps) return {};
-
-  struct Face {
-    HullTri t;
-    bool alive;
+  Mesh inner;
+  if (!aggscan::ConvexHull(inner_pts, &inner)) return all;
+  struct Plane {
+    Vec3 n;
+    double d;
   };
-  std::vector<Face> faces;
-  auto add = [&](int a, int b, int c) {
-    const Vec3 cr = Cross(pts[b] - pts[a], pts[c] - pts[a]);
-    const double len = Norm(cr);
-    if (len <= 0) return;  // degenerate sliver; the hull is only used for rest faces
-    const Vec3 nn = cr * (1.0 / len);
-    faces.push_back({{a, b, c, nn, Dot(nn, pts[a])}, true});
-  };
-  const Vec3 inner = (pts[i0] + pts[i1] + pts[i2] + pts[i3]) * 0.25;
-  const int tet[4][3] = {{i0, i1, i2}, {i0, i3, i1}, {i1, i3, i2}, {i0, i2, i3}};
-  for (const auto& f : tet) {
-    const Vec3 cr = Cross(pts[f[1]] - pts[f[0]], pts[f[2]] - pts[f[0]]);
-    if (Dot(cr, inner - pts[f[0]]) > 0) {
-      add(f[0], f[2], f[1]);
-    } else {
-      add(f[0], f[1], f[2]);
+  std::vector<Plane> planes;
+  for (const auto& f : inner.faces) {
+    const Vec3 a = ToVec3(inner.vertices[f[0]]);
+    const Vec3 nn =
+        Normalized(Cross(ToVec3(inner.vertices[f[1]]) - a, ToVec3(inner.vertices[f[2]]) - a));
+    if (Norm(nn) > 0.5) planes.push_back({nn, Dot(nn, a)});
+  }
+  // Keep anything not clearly inside: on or near an inner face counts as outside.
+  const double tol = 1e-9 * std::max(mag, 1.0);
+  std::vector<int> keep;
+  for (int i = 0; i < n; ++i) {
+    for (const Plane& pl : planes) {
+      if (Dot(pl.n, pts[i]) - pl.d > -tol) {
+        keep.push_back(i);
+        break;
+      }
     }
   }
-  // Farthest points first: the hull grows fast and most later points are inside.
-  std::vector<int> order;
-  order.reserve(n);
-  for (int i = 0; i < n; ++i)
-    if (i != i0 && i != i1 && i != i2 && i != i3) order.push_back(i);
-  std::vector<double> dist(n);
-  for (int i = 0; i < n; ++i) dist[i] = Norm(pts[i] - inner);
+  return keep;
+}
+
+// Convex hull of `pts` as outward triangles indexed into `pts` (quickhull from
+// common/mesh_props); empty for degenerate input (fewer than 4 non-coplanar points).
+std::vector<HullTri> ConvexHull(const std::vector<Vec3>& pts) {
+  const std::vector<int> cand = HullCandidates(pts);
+  std::vector<Vec3d> in;
+  in.reserve(cand.size());
+  for (int i : cand) in.push_back({pts[i].x, pts[i].y, pts[i].z});
+  Mesh hull;
+  if (!aggscan::ConvexHull(in, &hull)) return {};
+  // The hull's vertices are exact copies of input points: map them back by
+  // value (exact duplicates are interchangeable).
+  struct Key {
+    size_t operator()(const Vec3d& v) const {
+      size_t h = 0;
+      for (double c : v) h = h * 1000003u ^ std::hash<double>{}(c);
+      return h;
+    }
+  };
+  std::unordered_map<Vec3d, int, Key> index;
+  index.reserve(hull.vertices.size());
+  for (const Vec3d& v : hull.vertices) index.emplace(v, -1);
+  for (int i = 0; i < static_cast<int>(in.size()); ++i) {
+    auto it = index.find(in[i]);
+    if (it != index.end() && it->second < 0) it->second = cand[i];
+  }
+  std::vector<HullTri> out;
+  out.reserve(hull.faces.size());
+  for (const auto& f : hull.faces) {
+    const int a = index.at(hull.vertices[f[0]]), b = index.at(hull.vertices[f[1]]),
+              c = index.at(hull.vertices[f[2]]);
+    const Vec3 n = Normalized(Cross(pts[b] - pts[a], pts[c] - pts[a]));
+    out.push_back({a, b, c, n, Dot(n, pts[a])});
+  }
+  return out;
+}
+
+// A flat facet of the hull: adjacent hull triangles whose corners all lie
+// within a tolerance of one face plane (a sawn or chipped face of a rock, a
+// cube side split into two triangles).
+struct HullFacet {
+  Vec3 n;                 // outward unit normal of the facet's largest triangle
+  double d;               // its plane offset; every hull point has n . p <= d
+  std::vector<int> verts; // indices into the points, unordered, without repeats
+};
+
+// Merges the hull triangles into facets: grown over shared edges from the
+// largest triangle left, a neighbour joins when its three corners are within
+// `eps` of the seed's plane. The seed plane is a true hull face, so a rock put
+// down on the facet rests on it exactly; the other corners are within eps.
+std::vector<HullFacet> MergeCoplanar(const std::vector<HullTri>& tris, const std::vector<Vec3>& pts,
+                                     double eps) {
+  const int nt = static_cast<int>(tris.size());
+  std::unordered_map<uint64_t, int> edge_tri;  // directed edge -> triangle holding it
+  auto key = [](int u, int v) {
+    return (static_cast<uint64_t>(static_cast<uint32_t>(u)) << 32) | static_cast<uint32_t>(v);
+  };
+  edge_tri.reserve(3 * tris.size());
+  for (int t = 0; t < nt; ++t) {
+    edge_tri[key(tris[t].a, tris[t].b)] = t;
+    edge_tri[key(tris[t].b, tris[t].c)] = t;
+    edge_tri[key(tris[t].c, tris[t].a)] = t;
+  }
+  std::vector<double> area(tris.size());
+  std::vector<int> order(tris.size());
+  for (int t = 0; t < nt; ++t) {
+    const HullTri& h = tris[t];
+    area[t] = Norm(Cross(pts[h.b] - pts[h.a], pts[h.c] - pts[h.a]));
+    order[t] = t;
+  }
   std::sort(order.begin(), order.end(),
-            [&](int a, int b) { return dist[a] > dist[b] || (dist[a] == dist[b] && a < b); });
-
-  // Directed edge -> face holding it; the neighbour across (a,b) holds (b,a).
-  std::unordered_map<uint64_t, int> edge_face;
-  auto key = [n](int a, int b) { return static_cast<uint64_t>(a) * static_cast<uint64_t>(n) + b; };
-  auto link = [&](int f) {
-    const HullTri& t = faces[f].t;
-    edge_face[key(t.a, t.b)] = f;
-    edge_face[key(t.b, t.c)] = f;
-    edge_face[key(t.c, t.a)] = f;
-  };
-  for (int f = 0; f < static_cast<int>(faces.size()); ++f) link(f);
-  std::vector<int> stamp(faces.size(), -1), visible, stack;
-  std::vector<std::pair<int, int>> horizon;
-  int dead = 0;
-  for (int p : order) {
-    if (dead > 1024 && dead * 2 > static_cast<int>(faces.size())) {
-      std::erase_if(faces, [](const Face& f) { return !f.alive; });
-      edge_face.clear();
-      for (int f = 0; f < static_cast<int>(faces.size()); ++f) link(f);
-      stamp.assign(faces.size(), -1);
-      dead = 0;
-    }
-    // The most visible face; the visible region is grown from it through
-    // neighbours, so it stays one connected patch and the hull stays a manifold.
-    int f0 = -1;
-    double best_d = eps;
-    for (int f = 0; f < static_cast<int>(faces.size()); ++f) {
-      if (!faces[f].alive) continue;
-      const double d = Dot(faces[f].t.n, pts[p]) - faces[f].t.d;
-      if (d > best_d) best_d = d, f0 = f;
-    }
-    if (f0 < 0) continue;
-    visible.clear();
-    horizon.clear();
-    stack.assign(1, f0);
-    stamp[f0] = p;
+            [&](int x, int y) { return area[x] > area[y] || (area[x] == area[y] && x < y); });
+  std::vector<char> used(tris.size(), 0);
+  std::vector<HullFacet> facets;
+  std::vector<int> stack;
+  for (int seed : order) {
+    if (used[seed]) continue;
+    const HullTri& s = tris[seed];
+    HullFacet f{s.n, s.d, {}};
+    auto on_plane = [&](int v) { return std::abs(Dot(f.n, pts[v]) - f.d) <= eps; };
+    used[seed] = 1;
+    stack.assign(1, seed);
     while (!stack.empty()) {
-      const int f = stack.back();
+      const HullTri& t = tris[stack.back()];
       stack.pop_back();
-      visible.push_back(f);
-      const HullTri t = faces[f].t;
+      for (int v : {t.a, t.b, t.c}) f.verts.push_back(v);
       const int e[3][2] = {{t.a, t.b}, {t.b, t.c}, {t.c, t.a}};
       for (const auto& ed : e) {
-        auto it = edge_face.find(key(ed[1], ed[0]));
-        const int nb = it == edge_face.end() ? -1 : it->second;
-        if (nb >= 0 && stamp[nb] == p) continue;
-        if (nb >= 0 && faces[nb].alive && Dot(faces[nb].t.n, pts[p]) - faces[nb].t.d > 0) {
-          stamp[nb] = p;
-          stack.push_back(nb);
-        } else {
-          horizon.push_back({ed[0], ed[1]});
+        auto it = edge_tri.find(key(ed[1], ed[0]));
+        if (it == edge_tri.end() || used[it->second]) continue;
+        const HullTri& nb = tris[it->second];
+        if (on_plane(nb.a) && on_plane(nb.b) && on_plane(nb.c)) {
+          used[it->second] = 1;
+          stack.push_back(it->second);
         }
       }
     }
-    // A neighbour reached as visible after being recorded as horizon cannot
-    // happen: stamps are set when a face is first pushed.
-    for (int f : visible) {
-      const HullTri& t = faces[f].t;
-      for (uint64_t k : {key(t.a, t.b), key(t.b, t.c), key(t.c, t.a)}) {
-        auto it = edge_face.find(k);
-        if (it != edge_face.end() && it->second == f) edge_face.erase(it);
-      }
-      faces[f].alive = false;
-      ++dead;
-    }
-    for (const auto& [a, b] : horizon) {
-      const size_t before = faces.size();
-      add(a, b, p);
-      if (faces.size() > before) {
-        stamp.push_back(-1);
-        link(static_cast<int>(faces.size()) - 1);
-      }
-    }
+    std::sort(f.verts.begin(), f.verts.end());
+    f.verts.erase(std::unique(f.verts.begin(), f.verts.end()), f.verts.end());
+    facets.push_back(std::move(f));
   }
-  std::vector<HullTri> out;
-  for (const auto& f : faces)
-    if (f.alive) out.push_back(f.t);
-  return out;
+  return facets;
+}
+
+// Signed distance from q to the boundary of the convex hull of `corners`
+// (all on the plane with unit normal n): positive inside, negative outside.
+double SupportMargin(const Vec3& q, const std::vector<Vec3>& corners, const Vec3& n) {
+  const Vec3 u = Normalized(Cross(n, std::abs(n.x) < 0.9 ? Vec3{1, 0, 0} : Vec3{0, 1, 0}));
+  const Vec3 w = Cross(n, u);
+  std::vector<std::array<double, 2>> p;
+  p.reserve(corners.size());
+  for (const Vec3& c : corners) p.push_back({Dot(c - q, u), Dot(c - q, w)});
+  // Andrew's monotone chain, counter-clockwise seen from the tip of n.
+  std::sort(p.begin(), p.end());
+  auto cross = [](const std::array<double, 2>& o, const std::array<double, 2>& a,
+                  const std::array<double, 2>& b) {
+    return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]);
+  };
+  std::vector<std::array<double, 2>> h(2 * p.size());
+  size_t k = 0;
+  for (size_t i = 0; i < p.size(); ++i) {
+    while (k >= 2 && cross(h[k - 2], h[k - 1], p[i]) <= 0) --k;
+    h[k++] = p[i];
+  }
+  for (size_t i = p.size() - 1, lo = k + 1; i-- > 0;) {
+    while (k >= lo && cross(h[k - 2], h[k - 1], p[i]) <= 0) --k;
+    h[k++] = p[i];
+  }
+  if (k < 4) return -1.0;  // fewer than 3 distinct corners: no area to stand on
+  h.resize(k - 1);
+  // q is the origin; the inward normal of edge (a, b) is its left normal.
+  double margin = std::numeric_limits<double>::max();
+  for (size_t i = 0; i < h.size(); ++i) {
+    const auto& a = h[i];
+    const auto& b = h[(i + 1) % h.size()];
+    const double ex = b[0] - a[0], ey = b[1] - a[1], len = std::hypot(ex, ey);
+    margin = std::min(margin, (ex * (0 - a[1]) - ey * (0 - a[0])) / len);
+  }
+  return margin;
 }
 
 // Geodesic sphere: each icosahedron face split into freq^2 triangles, vertices
@@ -233,7 +294,7 @@ void GeodesicSphere(int freq, std::vector<Vec3>* dirs, std::vector<std::array<in
       ico.push_back({s1, s2 * phi, 0});
       ico.push_back({s2 * phi, 0, s1});
     }
-  const std::vector<HullTri> ico_faces = ConvexHull(ico, 1e-9);
+  const std::vector<HullTri> ico_faces = ConvexHull(ico);
   // A vertex is identified by its integer weights on the icosahedron's
   // corners (sorted by corner), so shared edge points are built once.
   std::map<std::array<int, 6>, int> index;
@@ -412,7 +473,7 @@ Mesh MakeProceduralRock(uint64_t seed, double size_mm, int target_faces) {
     double d;
   };
   std::vector<Plane> planes;
-  for (const HullTri& t : ConvexHull(pts, 1e-9)) planes.push_back({t.n, t.d});
+  for (const HullTri& t : ConvexHull(pts)) planes.push_back({t.n, t.d});
   // Chips: flat cuts a little inside the support in a random direction.
   const int chips = 3 + rng.Int(5);
   for (int i = 0; i < chips; ++i) {
@@ -553,7 +614,11 @@ void SimWorld::ComputePoses() {
   std::vector<Vec3> pts;
   pts.reserve(rock_.vertices.size());
   for (const auto& v : rock_.vertices) pts.push_back(ToVec3(v));
-  const std::vector<HullTri> hull = ConvexHull(pts, 0.02);
+  // Corners within 0.02 mm of a resting face's plane count as touching the
+  // disc: a flat face triangulated into many hull triangles supports the rock
+  // over its whole outline, not just over the triangle under the COM.
+  constexpr double kContactTolMm = 0.02;
+  const std::vector<HullTri> hull = ConvexHull(pts);
   if (hull.empty()) throw std::runtime_error("rock mesh is flat; no convex hull");
 
   struct Candidate {
@@ -561,17 +626,15 @@ void SimWorld::ComputePoses() {
     double height, margin;
   };
   std::vector<Candidate> cands;
-  for (const HullTri& t : hull) {
-    const double h = t.d - Dot(t.n, com_);
-    const Vec3 q = com_ + t.n * h;  // COM projected onto the face plane
-    const Vec3 p[3] = {pts[t.a], pts[t.b], pts[t.c]};
-    double margin = std::numeric_limits<double>::max();
-    for (int k = 0; k < 3; ++k) {
-      const Vec3 e = p[(k + 1) % 3] - p[k];
-      const Vec3 inward = Normalized(Cross(t.n, e));
-      margin = std::min(margin, Dot(q - p[k], inward));
-    }
-    if (margin > 0 && h > 0) cands.push_back({t.n, h, margin});
+  std::vector<Vec3> corners;
+  for (const HullFacet& f : MergeCoplanar(hull, pts, kContactTolMm)) {
+    const double h = f.d - Dot(f.n, com_);
+    if (!(h > 0) || Norm(f.n) < 0.5) continue;  // not below the COM, or a degenerate sliver
+    const Vec3 q = com_ + f.n * h;  // COM projected onto the face plane
+    corners.clear();
+    for (int v : f.verts) corners.push_back(pts[v]);
+    const double margin = SupportMargin(q, corners, f.n);
+    if (margin > 0) cands.push_back({f.n, h, margin});
   }
   if (cands.empty()) throw std::runtime_error("rock has no stable rest face");
   std::sort(cands.begin(), cands.end(),
