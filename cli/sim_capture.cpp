@@ -94,7 +94,11 @@ int RunSimCapture(const SimCaptureOptions& opt, std::ostream& out, std::ostream&
         }
       });
     } else if (s.phase == capture::Phase::kIdle) {
-      loop.Quit(0);
+      // Idle after a finished sample, or after an abort: only the first is a success.
+      auto rec = store.LoadRecord(id);
+      const bool captured = rec && rec->value("state", "") == "captured";
+      if (!captured) failure = "the capture ended without completing the sample";
+      loop.Quit(captured ? 0 : 1);
     } else if (s.phase == capture::Phase::kFaulted) {
       failure = s.fault_message;
       loop.Quit(1);

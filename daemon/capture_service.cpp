@@ -57,18 +57,38 @@ CaptureService::~CaptureService() {
   if (dev_.turntable) dev_.turntable->Close();
 }
 
+// What an API call answers when the loop cannot (stopping, or a bug).
+template <typename R>
+R Unavailable() {
+  if constexpr (std::is_same_v<R, json>) {
+    return json{{"state", "unavailable"}, {"status_line", "aggscand is stopping or busy"}};
+  } else if constexpr (std::is_same_v<R, std::string>) {
+    return std::string("# aggscand is stopping or busy\n");
+  } else {
+    return MakeError(ErrorClass::kInternal, "aggscand could not run this request (stopping, or an internal error)");
+  }
+}
+
 template <typename F>
 auto CaptureService::OnLoop(F fn) -> decltype(fn()) {
   using R = decltype(fn());
   auto prom = std::make_shared<std::promise<R>>();
   std::future<R> fut = prom->get_future();
-  loop_.Post([prom, fn]() mutable { prom->set_value(fn()); });
-  if (fut.wait_for(kApiWait) != std::future_status::ready) {
-    if constexpr (std::is_same_v<R, json> || std::is_same_v<R, std::string>) {
-      return R{};
-    } else {
-      return MakeError(ErrorClass::kInternal, "the capture loop did not answer within 10 s");
+  if (!loop_.running()) return Unavailable<R>();
+  loop_.Post([prom, fn]() mutable {
+    try {
+      prom->set_value(fn());
+    } catch (const std::exception& e) {
+      // A bug must not take the capture loop down with it.
+      AGG_LOGE("capture", "API call failed with an exception: %s", e.what());
+      prom->set_value(Unavailable<R>());
     }
+  });
+  // Wait in slices: a daemon that is stopping answers at once.
+  const auto deadline = std::chrono::steady_clock::now() + kApiWait;
+  while (fut.wait_for(std::chrono::milliseconds(100)) != std::future_status::ready) {
+    if (loop_.running() && std::chrono::steady_clock::now() < deadline) continue;
+    return Unavailable<R>();
   }
   return fut.get();
 }

@@ -134,6 +134,7 @@ void EventLoop::ArmTimerFd() {
 
 int EventLoop::Run() {
   quit_ = false;
+  running_ = true;
   while (!quit_) {
     std::vector<std::function<void()>> tasks;
     int holds;
@@ -185,6 +186,7 @@ int EventLoop::Run() {
       }
     }
   }
+  running_ = false;
   return exit_code_;
 }
 

@@ -10,6 +10,7 @@
 // is deterministic.
 #pragma once
 
+#include <atomic>
 #include <functional>
 #include <map>
 #include <mutex>
@@ -43,7 +44,10 @@ class EventLoop {
   void Release();
   /// Runs until Quit(); returns the exit code given to Quit.
   int Run();
+  /// Thread-safe.
   void Quit(int code = 0);
+  /// True while Run() is executing (any thread may ask).
+  bool running() const { return running_.load(); }
   Clock& clock() { return clock_; }
 
  private:
@@ -63,7 +67,8 @@ class EventLoop {
   std::map<TimerId, Timer> timers_;
   TimerId next_id_ = 1;
   std::function<void(int)> on_signal_;
-  bool quit_ = false;
+  std::atomic<bool> quit_{false};
+  std::atomic<bool> running_{false};
   int exit_code_ = 0;
 };
 

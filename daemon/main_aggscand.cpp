@@ -59,7 +59,16 @@ int main(int argc, char** argv) {
     else if (a == "--check-config") check_only = true;
     else if (a == "--print-config") print_only = true;
     else if (a == "--state-dir") state_dir_override = need("--state-dir");
-    else if (a == "--port") port_override = std::atoi(need("--port").c_str());
+    else if (a == "--port") {
+      const std::string v = need("--port");
+      char* end = nullptr;
+      const long p = std::strtol(v.c_str(), &end, 10);
+      if (v.empty() || *end != '\0' || p < 0 || p > 65535) {
+        std::fprintf(stderr, "aggscand: --port expects 0..65535, got '%s'\n", v.c_str());
+        return 2;
+      }
+      port_override = static_cast<int>(p);
+    }
     else if (a == "--port-file") port_file = need("--port-file");
     else if (a == "--log-level") log_level = need("--log-level");
     else if (a == "-h" || a == "--help") {
@@ -137,6 +146,19 @@ int main(int argc, char** argv) {
   if (!queue) {
     AGG_LOGE("main", "%s", queue.error().ToString().c_str());
     return 1;
+  }
+  // Every captured side must reach the worker: queue what the queue lacks.
+  for (const auto& [id, side] : store.CapturedWork()) {
+    auto jobs = (*queue)->JobsForSample(id);
+    bool have = false;
+    if (jobs) {
+      for (const Job& j : *jobs) have = have || j.side == side;
+    }
+    if (!have) {
+      auto q = (*queue)->Enqueue(id, side);
+      if (q) LogLine(LogLevel::kNotice, "main", id, "re-queued " + (side ? "side " + std::to_string(side) : std::string("sample job")));
+      else LogLine(LogLevel::kError, "main", id, "cannot queue: " + q.error().ToString());
+    }
   }
 
   // Signals go to the loop: block them before any other thread starts.

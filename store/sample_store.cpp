@@ -4,6 +4,7 @@
 #include <sys/stat.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <filesystem>
 
 #include "common/clock.h"
@@ -94,6 +95,19 @@ Result<json> SampleStore::LoadRecord(const std::string& id) const {
   if (rec.is_discarded() || !rec.is_object()) {
     return MakeError(ErrorClass::kCorrupt, "sample record " + path + " is not valid JSON");
   }
+  // Every reader below relies on this shape; a damaged record is refused
+  // here, never allowed to throw later on the capture loop.
+  const bool plan_ok = rec.contains("plan") && rec["plan"].is_object() &&
+                       rec["plan"].value("sides", 0) >= 1 && rec["plan"].value("views_per_side", 0) >= 1;
+  bool sides_ok = rec.contains("sides") && rec["sides"].is_array();
+  if (sides_ok) {
+    for (const auto& sd : rec["sides"]) sides_ok = sides_ok && sd.is_object() && sd.contains("side") && sd["side"].is_number_integer();
+  }
+  if (!plan_ok || !sides_ok || !rec.value("state", json()).is_string()) {
+    return MakeError(ErrorClass::kCorrupt, "sample record " + path +
+                                               " is damaged (plan, sides or state missing); its images are untouched — "
+                                               "move the sample directory aside to re-shoot under this id");
+  }
   return rec;
 }
 
@@ -142,7 +156,8 @@ Result<RecoveryReport> SampleStore::Recover() {
 
 Result<int> SampleStore::PrepareArm(const std::string& id, const SamplePlan& plan) const {
   if (!layout::IsValidSampleId(id)) return BadId(id);
-  if (!PathExists(SampleDir(id))) return 1;
+  // No record yet (never created, or a crash before the record landed): new.
+  if (!PathExists(SampleDir(id) + "/" + layout::kSampleRecord)) return 1;
   Result<json> rec = LoadRecord(id);
   if (!rec) return rec.error();
   const std::string st = rec->value("state", "");
@@ -233,7 +248,9 @@ Status SampleStore::FinishSide(const std::string& id, int side) {
   json views = json::array();
   for (int v : CompleteViews(side_dir)) {
     struct stat st {};
-    ::stat((side_dir + "/" + layout::ViewImageName(v)).c_str(), &st);
+    if (::stat((side_dir + "/" + layout::ViewImageName(v)).c_str(), &st) != 0) {
+      return ErrnoError("cannot stat " + side_dir + "/" + layout::ViewImageName(v), errno);
+    }
     views.push_back({{"view", v},
                      {"image", layout::ViewImageName(v)},
                      {"sidecar", layout::ViewSidecarName(v)},
@@ -297,6 +314,24 @@ Result<json> SampleStore::List() const {
   return out;
 }
 
+std::vector<std::pair<std::string, int>> SampleStore::CapturedWork() const {
+  std::vector<std::pair<std::string, int>> work;
+  const std::string samples = layout::SamplesDir(state_dir_);
+  for (const auto& id : ListDir(samples)) {
+    if (!layout::IsValidSampleId(id) || !IsDir(samples + "/" + id)) continue;
+    Result<json> rec = LoadRecord(id);
+    if (!rec) continue;
+    for (const auto& sd : (*rec)["sides"]) {
+      const int side = sd["side"].get<int>();
+      if (PathExists(samples + "/" + id + "/" + layout::SideDirName(side) + "/" + layout::kManifest)) {
+        work.emplace_back(id, side);
+      }
+    }
+    if (rec->value("state", "") == "captured") work.emplace_back(id, 0);
+  }
+  return work;
+}
+
 Result<json> SampleStore::Describe(const std::string& id) const {
   Result<json> rec = LoadRecord(id);
   if (!rec) return rec.error();
@@ -308,7 +343,7 @@ Result<json> SampleStore::Describe(const std::string& id) const {
     for (int v : CompleteViews(side_dir)) {
       Result<std::string> t = ReadFile(side_dir + "/" + layout::ViewSidecarName(v));
       json car = t ? json::parse(*t, nullptr, false) : json();
-      if (car.is_discarded()) car = json();
+      if (!car.is_object()) car = json::object();
       views.push_back({{"view", v},
                        {"image", layout::SideDirName(sd.value("side", 0)) + "/" + layout::ViewImageName(v)},
                        {"commanded_angle_deg", car.value("commanded_angle_deg", 0.0)},

@@ -68,6 +68,11 @@ class SampleStore {
   /// Record + the complete views of every side (+ interrupted attempts).
   Result<nlohmann::json> Describe(const std::string& id) const;
 
+  /// Work the worker must have: (id, side) for every side with a manifest and
+  /// (id, 0) for every captured sample. Start-up re-queues any of it that the
+  /// queue lacks (e.g. an enqueue that failed or was lost with the queue file).
+  std::vector<std::pair<std::string, int>> CapturedWork() const;
+
   std::string SampleDir(const std::string& id) const;
   const std::string& state_dir() const { return state_dir_; }
 

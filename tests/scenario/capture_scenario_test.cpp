@@ -373,3 +373,58 @@ TEST(SimCaptureScenario, BadMeshIsAClearError) {
 
 }  // namespace
 }  // namespace aggscan::test
+
+namespace aggscan::test {
+namespace {
+
+const char* kTinyPlan = "profile = \"custom\"\nsides = 1\nviews_per_side = 2\nstep_deg = 30.0\n";
+
+// Captured sides reach the worker even if the queue lost them: start-up
+// re-queues every finished side and sample that has no job.
+TEST(CaptureScenario, LostQueueIsRebuiltAtStartUp) {
+  TempDir t;
+  const std::string cfg = WriteConfig(t.path(), "", 20, kTinyPlan);
+  {
+    Daemon d(cfg, t.path());
+    ASSERT_TRUE(d.ok()) << ReadAll(d.log());
+    int code = 0;
+    d.Post("/api/v1/samples", R"({"id": "q-1"})", &code);
+    ASSERT_EQ(code, 200);
+    d.Post("/api/v1/button", "{}", &code);
+    json last;
+    ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "idle"; }, 30, &last)) << last.dump();
+    EXPECT_EQ(d.Stop(), 0);
+  }
+  for (const char* f : {"/state/queue.db", "/state/queue.db-wal", "/state/queue.db-shm"}) fs::remove(t.path() + f);
+  Daemon d(cfg, t.path());
+  ASSERT_TRUE(d.ok()) << ReadAll(d.log());
+  json s = d.Get("/api/v1/samples/q-1");
+  ASSERT_EQ(s["jobs"].size(), 2u) << s.dump();
+  EXPECT_EQ(s["jobs"][0]["side"], 1);
+  EXPECT_EQ(s["jobs"][1]["side"], 0);
+  EXPECT_NE(ReadAll(d.log()).find("re-queued side 1"), std::string::npos);
+}
+
+// A damaged sample record is reported to the operator; the daemon keeps running.
+TEST(CaptureScenario, DamagedRecordIsAClearErrorNotACrash) {
+  TempDir t;
+  const std::string cfg = WriteConfig(t.path(), "", 20, kTinyPlan);
+  fs::create_directories(t.path() + "/state/samples/bad-1");
+  std::ofstream(t.path() + "/state/samples/bad-1/sample.json") << R"({"state": "capturing", "sides": 7})";
+  Daemon d(cfg, t.path());
+  ASSERT_TRUE(d.ok()) << ReadAll(d.log());
+  int code = 0;
+  json r = d.Post("/api/v1/samples", R"({"id": "bad-1"})", &code);
+  EXPECT_EQ(code, 500) << r.dump();
+  EXPECT_EQ(r["error"]["class"], "corrupt") << r.dump();
+  EXPECT_NE(r["error"]["message"].get<std::string>().find("damaged"), std::string::npos);
+  d.Get("/api/v1/samples/bad-1", &code);
+  EXPECT_EQ(code, 500);
+  json list = d.Get("/api/v1/samples", &code);
+  EXPECT_EQ(code, 200);
+  EXPECT_EQ(list[0]["state"], "unreadable") << list.dump();
+  EXPECT_EQ(StateOf(d.Get("/api/v1/status", &code)), "idle");
+}
+
+}  // namespace
+}  // namespace aggscan::test

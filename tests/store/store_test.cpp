@@ -155,6 +155,53 @@ TEST(SampleStore, BadIdsNeverTouchTheFilesystem) {
   EXPECT_EQ(store.LoadRecord("nope").error().cls, ErrorClass::kNotFound);
 }
 
+TEST(SampleStore, DamagedRecordIsRefusedNotThrown) {
+  TempDir t;
+  SampleStore store(t.path());
+  ASSERT_TRUE(store.Init());
+  ASSERT_TRUE(store.CreateOrResume("r", SmallPlan(), "cfg"));
+  for (const char* bad : {R"({"state": "armed"})", R"({"state": "armed", "plan": 3, "sides": []})",
+                          R"({"state": "armed", "plan": {"sides": 2, "views_per_side": 3}, "sides": [{"x": 1}]})",
+                          "[1,2]", "{not json"}) {
+    ASSERT_TRUE(WriteFileAtomic(store.SampleDir("r") + "/sample.json", std::string_view(bad)));
+    auto rec = store.LoadRecord("r");
+    ASSERT_FALSE(rec.ok()) << bad;
+    EXPECT_EQ(rec.error().cls, ErrorClass::kCorrupt) << bad;
+    EXPECT_EQ(store.PrepareArm("r", SmallPlan()).error().cls, ErrorClass::kCorrupt);
+    EXPECT_TRUE(store.Recover().ok());  // start-up survives it
+    EXPECT_EQ((*store.List())[0]["state"], "unreadable");
+  }
+}
+
+TEST(SampleStore, DirectoryWithoutRecordIsArmable) {
+  // A crash between creating the directory and writing the record.
+  TempDir t;
+  SampleStore store(t.path());
+  ASSERT_TRUE(store.Init());
+  ASSERT_TRUE(MakeDirsDurable(store.SampleDir("orphan")));
+  EXPECT_EQ(*store.PrepareArm("orphan", SmallPlan()), 1);
+  ASSERT_TRUE(store.CreateOrResume("orphan", SmallPlan(), "cfg"));
+  EXPECT_EQ((*store.LoadRecord("orphan"))["state"], "armed");
+}
+
+TEST(SampleStore, CapturedWorkListsFinishedSidesAndSamples) {
+  TempDir t;
+  SampleStore store(t.path());
+  ASSERT_TRUE(store.Init());
+  ASSERT_TRUE(store.CreateOrResume("a", SmallPlan(), "cfg"));
+  ASSERT_TRUE(store.BeginSide("a", 1));
+  ASSERT_TRUE(store.WriteView("a", 1, 0, Bytes("x"), {}));
+  ASSERT_TRUE(store.FinishSide("a", 1));
+  ASSERT_TRUE(store.BeginSide("a", 2));
+  ASSERT_TRUE(store.WriteView("a", 2, 0, Bytes("y"), {}));  // side 2 unfinished
+  auto work = store.CapturedWork();
+  ASSERT_EQ(work.size(), 1u);
+  EXPECT_EQ(work[0], std::make_pair(std::string("a"), 1));
+  ASSERT_TRUE(store.FinishSide("a", 2));
+  ASSERT_TRUE(store.SetSampleState("a", "captured"));
+  EXPECT_EQ(store.CapturedWork().size(), 3u);
+}
+
 TEST(JobQueue, OrderClaimCompleteAndRequeue) {
   TempDir t;
   auto q = JobQueue::Open(t.path() + "/queue.db");
