@@ -74,7 +74,7 @@ auto CaptureService::OnLoop(F fn) -> decltype(fn()) {
   using R = decltype(fn());
   auto prom = std::make_shared<std::promise<R>>();
   std::future<R> fut = prom->get_future();
-  if (!loop_.running()) return Unavailable<R>();
+  if (loop_.stopped()) return Unavailable<R>();
   loop_.Post([prom, fn]() mutable {
     try {
       prom->set_value(fn());
@@ -87,7 +87,7 @@ auto CaptureService::OnLoop(F fn) -> decltype(fn()) {
   // Wait in slices: a daemon that is stopping answers at once.
   const auto deadline = std::chrono::steady_clock::now() + kApiWait;
   while (fut.wait_for(std::chrono::milliseconds(100)) != std::future_status::ready) {
-    if (loop_.running() && std::chrono::steady_clock::now() < deadline) continue;
+    if (!loop_.stopped() && std::chrono::steady_clock::now() < deadline) continue;
     return Unavailable<R>();
   }
   return fut.get();

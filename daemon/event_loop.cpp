@@ -134,7 +134,7 @@ void EventLoop::ArmTimerFd() {
 
 int EventLoop::Run() {
   quit_ = false;
-  running_ = true;
+  stopped_ = false;
   while (!quit_) {
     std::vector<std::function<void()>> tasks;
     int holds;
@@ -186,7 +186,7 @@ int EventLoop::Run() {
       }
     }
   }
-  running_ = false;
+  stopped_ = true;
   return exit_code_;
 }
 

@@ -46,8 +46,9 @@ class EventLoop {
   int Run();
   /// Thread-safe.
   void Quit(int code = 0);
-  /// True while Run() is executing (any thread may ask).
-  bool running() const { return running_.load(); }
+  /// True once Run() has returned: posted work will never run (any thread may ask).
+  /// Before Run() starts, posted work waits for it.
+  bool stopped() const { return stopped_.load(); }
   Clock& clock() { return clock_; }
 
  private:
@@ -68,7 +69,7 @@ class EventLoop {
   TimerId next_id_ = 1;
   std::function<void(int)> on_signal_;
   std::atomic<bool> quit_{false};
-  std::atomic<bool> running_{false};
+  std::atomic<bool> stopped_{false};
   int exit_code_ = 0;
 };
 
