@@ -785,14 +785,18 @@ std::array<float, 3> SimWorld::RockAlbedo(const Vec3& p, const Vec3& n) const {
                      0.30f * ValueNoise(x * f * 2.1f, y * f * 2.1f, z * f * 2.1f, s + 1) +
                      0.15f * ValueNoise(x * f * 4.3f, y * f * 4.3f, z * f * 4.3f, s + 2);
   const float mottle = ValueNoise(x * 0.33f, y * 0.33f, z * 0.33f, s + 3);
+  const float pits = ValueNoise(x * 0.55f, y * 0.55f, z * 0.55f, s + 5);  // ~2 mm
   const float grain = ValueNoise(x * 1.25f, y * 1.25f, z * 1.25f, s + 4);
   float r = 0.30f + 0.20f * tone, g = 0.29f + 0.17f * tone, b = 0.27f + 0.14f * tone;
-  const float m = 0.80f + 0.40f * mottle;
+  // Contrast like a quarried granite/limestone face at ~0.25 mm/px: strong
+  // mottling and pitting, and grains dense enough to give SIFT blobs at the
+  // 1-3 mm scales that survive 30 deg of turntable rotation.
+  const float m = (0.62f + 0.76f * mottle) * (0.80f + 0.40f * pits);
   r *= m, g *= m, b *= m;
-  if (grain > 0.80f) {
-    r = 0.14f, g = 0.13f, b = 0.13f;  // dark grains
-  } else if (grain < 0.14f) {
-    r = 0.58f, g = 0.56f, b = 0.52f;  // light grains
+  if (grain > 0.74f) {
+    r = 0.12f, g = 0.11f, b = 0.11f;  // dark grains
+  } else if (grain < 0.20f) {
+    r = 0.60f, g = 0.58f, b = 0.54f;  // light grains
   }
   const float vein = std::abs(std::sin(0.35f * (0.8f * x + 0.5f * y - 0.3f * z) + 9.0f * tone));
   if (vein < 0.05f) r = 0.60f, g = 0.59f, b = 0.56f;
