@@ -428,3 +428,74 @@ TEST(CaptureScenario, DamagedRecordIsAClearErrorNotACrash) {
 
 }  // namespace
 }  // namespace aggscan::test
+
+#include <sys/socket.h>
+#include <sys/un.h>
+
+#include <atomic>
+
+namespace aggscan::test {
+namespace {
+
+// systemd integration as systemd sees it: the daemon's sd_notify datagrams on
+// NOTIFY_SOCKET carry READY=1 after bring-up, STATUS= progress lines
+// ("side 1 view 2/2") and WATCHDOG=1 pings at half of WATCHDOG_USEC.
+TEST(CaptureScenario, NotifiesSystemdReadyStatusAndWatchdog) {
+  TempDir t;
+  const std::string sock_path = t.path() + "/notify.sock";
+  const int fd = ::socket(AF_UNIX, SOCK_DGRAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
+  ASSERT_GE(fd, 0);
+  sockaddr_un addr{};
+  addr.sun_family = AF_UNIX;
+  std::snprintf(addr.sun_path, sizeof addr.sun_path, "%s", sock_path.c_str());
+  ASSERT_EQ(::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr), 0);
+  // Drain the socket continuously, as systemd does (a full datagram queue
+  // would block the sender).
+  std::string all;
+  int pings = 0;
+  std::atomic<bool> done{false};
+  std::thread reader([&] {
+    char buf[4096];
+    while (!done.load()) {
+      const ssize_t n = ::recv(fd, buf, sizeof buf, 0);
+      if (n <= 0) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(5));
+        continue;
+      }
+      const std::string msg(buf, static_cast<size_t>(n));
+      pings += msg.find("WATCHDOG=1") != std::string::npos;
+      all += msg + "\n";
+    }
+  });
+  ::setenv("NOTIFY_SOCKET", sock_path.c_str(), 1);
+  ::setenv("WATCHDOG_USEC", "200000", 1);  // 200 ms: pings every 100 ms
+  const std::string cfg = WriteConfig(t.path(), "", 20, "profile = \"custom\"\nsides = 1\nviews_per_side = 2\nstep_deg = 30.0\n");
+  Daemon d(cfg, t.path());
+  ::unsetenv("NOTIFY_SOCKET");
+  ::unsetenv("WATCHDOG_USEC");
+  if (!d.ok()) {
+    done = true;
+    reader.join();
+    FAIL() << ReadAll(d.log());
+  }
+  int code = 0;
+  d.Post("/api/v1/samples", R"({"id": "sd-1"})", &code);
+  d.Post("/api/v1/button", "{}", &code);
+  EXPECT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "idle"; }, 30));
+  std::this_thread::sleep_for(std::chrono::milliseconds(400));
+  d.Stop();
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  done = true;
+  reader.join();
+  ::close(fd);
+  EXPECT_NE(all.find("READY=1"), std::string::npos) << all;
+  EXPECT_NE(all.find("STATUS=side 1 view 2/2"), std::string::npos) << all;
+  EXPECT_NE(all.find("STATUS=armed sd-1"), std::string::npos) << all;
+  EXPECT_NE(all.find("STOPPING=1"), std::string::npos) << all;
+  EXPECT_GE(pings, 3) << all;
+  // READY comes before any capture status.
+  EXPECT_LT(all.find("READY=1"), all.find("STATUS=armed")) << all;
+}
+
+}  // namespace
+}  // namespace aggscan::test
