@@ -67,6 +67,14 @@ bool SamePlan(const json& a, const SamplePlan& p) {
          std::abs(a.value("step_deg", -1.0) - p.step_deg) < 1e-9;
 }
 
+// Applies fn to the record's entry for `side`.
+template <typename F>
+void ForSide(json& rec, int side, F fn) {
+  for (auto& sd : rec["sides"]) {
+    if (sd.value("side", 0) == side) fn(sd);
+  }
+}
+
 Error BadId(const std::string& id) {
   return MakeError(ErrorClass::kInvalidArgument,
                    "invalid sample id \"" + id.substr(0, 80) +
@@ -83,6 +91,14 @@ Status SampleStore::SaveRecord(const std::string& id, const json& rec) {
   json r = rec;
   r["updated_utc"] = NowUtc();
   return WriteFileAtomic(SampleDir(id) + "/" + layout::kSampleRecord, r.dump(2) + "\n");
+}
+
+Status SampleStore::UpdateRecord(const std::string& id, const std::function<void(json&)>& edit) {
+  Result<json> rec = LoadRecord(id);
+  if (!rec) return rec.error();
+  json r = std::move(*rec);
+  edit(r);
+  return SaveRecord(id, r);
 }
 
 Result<json> SampleStore::LoadRecord(const std::string& id) const {
@@ -221,18 +237,14 @@ Status SampleStore::BeginSide(const std::string& id, int side) {
   }
   Status s = MakeDirsDurable(side_dir);
   if (!s) return s;
-  Result<json> rec = LoadRecord(id);
-  if (!rec) return rec.error();
-  json r = *rec;
-  for (auto& sd : r["sides"]) {
-    if (sd.value("side", 0) == side) {
+  return UpdateRecord(id, [&](json& r) {
+    r["state"] = "capturing";
+    ForSide(r, side, [](json& sd) {
       sd["state"] = "capturing";
       sd["attempts"] = sd.value("attempts", 0) + 1;
       sd["started_utc"] = NowUtc();
-    }
-  }
-  r["state"] = "capturing";
-  return SaveRecord(id, r);
+    });
+  });
 }
 
 Status SampleStore::WriteView(const std::string& id, int side, int view, std::span<const unsigned char> image,
@@ -259,31 +271,25 @@ Status SampleStore::FinishSide(const std::string& id, int side) {
   json manifest = {{"sample_id", id}, {"side", side}, {"views", views}, {"completed_utc", NowUtc()}};
   Status s = WriteFileAtomic(side_dir + "/" + layout::kManifest, manifest.dump(2) + "\n", true);
   if (!s) return s;
-  Result<json> rec = LoadRecord(id);
-  if (!rec) return rec.error();
-  json r = *rec;
-  for (auto& sd : r["sides"]) {
-    if (sd.value("side", 0) == side) {
+  return UpdateRecord(id, [&](json& r) {
+    ForSide(r, side, [&](json& sd) {
       sd["state"] = "done";
       sd["views"] = views.size();
       sd["completed_utc"] = manifest["completed_utc"];
-    }
-  }
-  return SaveRecord(id, r);
+    });
+  });
 }
 
 Status SampleStore::SetSampleState(const std::string& id, const std::string& state, int side_in_progress,
                                    const std::string& side_state) {
-  Result<json> rec = LoadRecord(id);
-  if (!rec) return rec.error();
-  json r = *rec;
-  r["state"] = state;
-  if (side_in_progress > 0 && !side_state.empty()) {
-    for (auto& sd : r["sides"]) {
-      if (sd.value("side", 0) == side_in_progress && sd.value("state", "") != "done") sd["state"] = side_state;
+  return UpdateRecord(id, [&](json& r) {
+    r["state"] = state;
+    if (side_in_progress > 0 && !side_state.empty()) {
+      ForSide(r, side_in_progress, [&](json& sd) {
+        if (sd.value("state", "") != "done") sd["state"] = side_state;
+      });
     }
-  }
-  return SaveRecord(id, r);
+  });
 }
 
 Result<json> SampleStore::List() const {

@@ -8,6 +8,7 @@
 // side that was being captured as interrupted.
 #pragma once
 
+#include <functional>
 #include <nlohmann/json.hpp>
 #include <span>
 #include <string>
@@ -78,6 +79,8 @@ class SampleStore {
 
  private:
   Status SaveRecord(const std::string& id, const nlohmann::json& rec);
+  /// Load, edit, save atomically (one writer: the capture loop).
+  Status UpdateRecord(const std::string& id, const std::function<void(nlohmann::json&)>& edit);
   std::string state_dir_;
 };
 
