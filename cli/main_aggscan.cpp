@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "cli/client.h"
+#include "cli/morph_command.h"
 #include "cli/sim_capture.h"
 #include "pipeline/morph2d_cli.h"
 
@@ -17,6 +18,9 @@ void Usage(std::ostream& o) {
        "Daemon commands (talk to aggscand over its HTTP API):\n";
   aggscan::PrintClientUsage(o);
   o << "\nOffline commands:\n"
+       "  aggscan morph MESH [--unit mm|cm|m] [--json]\n"
+       "      3D morphology of a closed mesh (PLY/OBJ/STL): volume, area, a<=b<=c of the\n"
+       "      minimum-volume box, FER, sphericity; open or non-manifold meshes are refused\n"
        "  aggscan morph2d IMAGE_OR_MASK [--text]\n"
        "      2D morphology of the largest silhouette (JSON: l_max_px, l_min_px, fer_2d,\n"
        "      area_px, perimeter_px, circularity); a photo is segmented first\n"
@@ -109,6 +113,27 @@ int main(int argc, char** argv) {
       return 2;
     }
     return aggscan::RunMorph2dCommand(path, json, std::cout, std::cerr);
+  }
+  if (cmd == "morph") {
+    std::string path, unit = "mm";
+    bool json = false;
+    for (size_t i = 1; i < args.size(); ++i) {
+      if (args[i] == "--json") json = true;
+      else if (args[i] == "--unit" && i + 1 < args.size()) unit = args[++i];
+      else if (args[i].rfind("--", 0) == 0) {
+        std::cerr << "aggscan morph: unknown option '" << args[i] << "'\n";
+        return 2;
+      } else if (path.empty()) path = args[i];
+      else {
+        std::cerr << "aggscan morph: unexpected argument '" << args[i] << "'\n";
+        return 2;
+      }
+    }
+    if (path.empty()) {
+      std::cerr << "aggscan morph: give a mesh file (PLY, OBJ or STL)\n";
+      return 2;
+    }
+    return aggscan::RunMorphCommand(path, unit, json, std::cout, std::cerr);
   }
   if (cmd == "sim") return SimCommand(args);
   std::cerr << "aggscan: unknown command '" << cmd << "'\n\n";
