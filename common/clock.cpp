@@ -37,6 +37,8 @@ void Clock::SleepUntil(TimeNs t) {
   }
 }
 
+std::string NowUtcString() { return FormatUtc(RealUtcNs()); }
+
 TimeNs RealClock::Now() const { return MonotonicNs(); }
 int64_t RealClock::UtcNs() const { return RealUtcNs(); }
 

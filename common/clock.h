@@ -78,6 +78,8 @@ class VirtualClock final : public Clock {
 
 /// ISO 8601 UTC with milliseconds: "2026-11-22T04:14:48.123Z".
 std::string FormatUtc(int64_t utc_ns);
+/// FormatUtc of the real wall clock now (record timestamps).
+std::string NowUtcString();
 /// Raw CLOCK_MONOTONIC in ns (for measuring real durations).
 TimeNs MonotonicNs();
 

@@ -39,11 +39,6 @@ Error DbError(sqlite3* db, const std::string& what) {
   return MakeError(cls, "job queue: " + what, sqlite3_errmsg(db));
 }
 
-std::string NowUtc() {
-  RealClock c;
-  return FormatUtc(c.UtcNs());
-}
-
 constexpr const char* kJobColumns =
     "id, sample_id, side, state, attempts, COALESCE(error,''), created_utc, updated_utc";
 
@@ -121,7 +116,7 @@ Result<int64_t> JobQueue::Enqueue(const std::string& sample_id, int side) {
       return id;
     }
   }
-  const std::string now = NowUtc();
+  const std::string now = NowUtcString();
   Stmt ins(db_, "INSERT INTO jobs(sample_id, side, state, created_utc, updated_utc) VALUES(?,?,'queued',?,?)");
   ins.Bind(1, sample_id);
   ins.Bind(2, side);
@@ -151,7 +146,7 @@ Result<std::optional<Job>> JobQueue::ClaimNext() {
   }
   if (job) {
     Stmt upd(db_, "UPDATE jobs SET state='running', attempts=attempts+1, updated_utc=? WHERE id=?");
-    upd.Bind(1, NowUtc());
+    upd.Bind(1, NowUtcString());
     upd.Bind(2, job->id);
     if (upd.Step() != SQLITE_DONE) {
       Error e = DbError(db_, "cannot claim job");
@@ -171,7 +166,7 @@ Result<std::optional<Job>> JobQueue::ClaimNext() {
 
 Status JobQueue::Complete(int64_t job_id) {
   Stmt upd(db_, "UPDATE jobs SET state='done', error=NULL, updated_utc=? WHERE id=?");
-  upd.Bind(1, NowUtc());
+  upd.Bind(1, NowUtcString());
   upd.Bind(2, job_id);
   if (upd.Step() != SQLITE_DONE) return DbError(db_, "cannot complete job");
   if (sqlite3_changes(db_) != 1) return MakeError(ErrorClass::kNotFound, "job " + std::to_string(job_id) + " not found");
@@ -182,7 +177,7 @@ Status JobQueue::Fail(int64_t job_id, const std::string& error, bool requeue) {
   Stmt upd(db_, "UPDATE jobs SET state=?, error=?, updated_utc=? WHERE id=?");
   upd.Bind(1, std::string(requeue ? "queued" : "failed"));
   upd.Bind(2, error);
-  upd.Bind(3, NowUtc());
+  upd.Bind(3, NowUtcString());
   upd.Bind(4, job_id);
   if (upd.Step() != SQLITE_DONE) return DbError(db_, "cannot mark job failed");
   if (sqlite3_changes(db_) != 1) return MakeError(ErrorClass::kNotFound, "job " + std::to_string(job_id) + " not found");
@@ -191,7 +186,7 @@ Status JobQueue::Fail(int64_t job_id, const std::string& error, bool requeue) {
 
 Result<int> JobQueue::RequeueRunning() {
   Stmt upd(db_, "UPDATE jobs SET state='queued', updated_utc=? WHERE state='running'");
-  upd.Bind(1, NowUtc());
+  upd.Bind(1, NowUtcString());
   if (upd.Step() != SQLITE_DONE) return DbError(db_, "cannot requeue running jobs");
   return sqlite3_changes(db_);
 }

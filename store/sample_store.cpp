@@ -17,11 +17,6 @@ namespace {
 using nlohmann::json;
 namespace fs = std::filesystem;
 
-std::string NowUtc() {
-  RealClock c;
-  return FormatUtc(c.UtcNs());
-}
-
 bool IsDir(const std::string& p) {
   struct stat st {};
   return ::stat(p.c_str(), &st) == 0 && S_ISDIR(st.st_mode);
@@ -89,7 +84,7 @@ Status SampleStore::Init() { return MakeDirsDurable(layout::SamplesDir(state_dir
 
 Status SampleStore::SaveRecord(const std::string& id, const json& rec) {
   json r = rec;
-  r["updated_utc"] = NowUtc();
+  r["updated_utc"] = NowUtcString();
   return WriteFileAtomic(SampleDir(id) + "/" + layout::kSampleRecord, r.dump(2) + "\n");
 }
 
@@ -199,11 +194,11 @@ Status SampleStore::CreateOrResume(const std::string& id, const SamplePlan& plan
     Result<json> r = LoadRecord(id);
     if (!r) return r.error();
     rec = *r;
-    rec["resumed_utc"] = NowUtc();
+    rec["resumed_utc"] = NowUtcString();
   } else {
     Status s = MakeDirsDurable(dir);
     if (!s) return s;
-    rec = {{"id", id}, {"created_utc", NowUtc()}, {"plan", PlanToJson(plan)}, {"sides", json::array()}};
+    rec = {{"id", id}, {"created_utc", NowUtcString()}, {"plan", PlanToJson(plan)}, {"sides", json::array()}};
     for (int side = 1; side <= plan.sides; ++side) {
       rec["sides"].push_back({{"side", side}, {"state", "pending"}, {"attempts", 0}});
     }
@@ -242,7 +237,7 @@ Status SampleStore::BeginSide(const std::string& id, int side) {
     ForSide(r, side, [](json& sd) {
       sd["state"] = "capturing";
       sd["attempts"] = sd.value("attempts", 0) + 1;
-      sd["started_utc"] = NowUtc();
+      sd["started_utc"] = NowUtcString();
     });
   });
 }
@@ -268,7 +263,7 @@ Status SampleStore::FinishSide(const std::string& id, int side) {
                      {"sidecar", layout::ViewSidecarName(v)},
                      {"bytes", static_cast<int64_t>(st.st_size)}});
   }
-  json manifest = {{"sample_id", id}, {"side", side}, {"views", views}, {"completed_utc", NowUtc()}};
+  json manifest = {{"sample_id", id}, {"side", side}, {"views", views}, {"completed_utc", NowUtcString()}};
   Status s = WriteFileAtomic(side_dir + "/" + layout::kManifest, manifest.dump(2) + "\n", true);
   if (!s) return s;
   return UpdateRecord(id, [&](json& r) {

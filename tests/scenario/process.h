@@ -15,24 +15,12 @@
 #include <thread>
 #include <vector>
 
+#include "tests/util/temp_dir.h"
+
 namespace aggscan::test {
 
 inline std::string Bin(const std::string& rel) { return std::string(AGGSCAN_BINARY_DIR) + "/" + rel; }
 
-class TempDir {
- public:
-  TempDir() {
-    char tmpl[] = "/tmp/aggscan-scn-XXXXXX";
-    path_ = ::mkdtemp(tmpl);
-  }
-  ~TempDir() {
-    if (!getenv("AGGSCAN_KEEP_TMP")) std::filesystem::remove_all(path_);
-  }
-  const std::string& path() const { return path_; }
-
- private:
-  std::string path_;
-};
 
 /// Starts a program with arguments; stdout+stderr go to `log`.
 inline pid_t Spawn(const std::vector<std::string>& argv, const std::string& log) {
