@@ -14,8 +14,11 @@ PACKAGES=(
   # common / config / daemon
   nlohmann-json3-dev libtomlplusplus-dev libcpp-httplib-dev
   libsystemd-dev libsqlite3-dev libturbojpeg0-dev
-  # pipeline (worker only)
+  # pipeline (worker only): OpenCV (calib3d, features2d, aruco in contrib,
+  # dnn), Eigen, Ceres; COLMAP as a subprocess for the SfM path
   libopencv-core-dev libopencv-imgproc-dev libopencv-imgcodecs-dev
+  libopencv-calib3d-dev libopencv-features2d-dev libopencv-contrib-dev
+  libopencv-dnn-dev libeigen3-dev libceres-dev colmap
   # systemd-analyze for the unit verification test, curl for the README demo
   systemd curl
 )

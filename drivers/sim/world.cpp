@@ -750,6 +750,25 @@ Intrinsics SimWorld::IntrinsicsFor(int width, int height) const {
   return k;
 }
 
+RigCalibration SimWorld::TruthCalibration(int width, int height) const {
+  const Intrinsics k = IntrinsicsFor(width, height);
+  RigCalibration cal;
+  cal.camera.width = k.width;
+  cal.camera.height = k.height;
+  cal.camera.fx = k.fx;
+  cal.camera.fy = k.fy;
+  cal.camera.cx = k.cx;
+  cal.camera.cy = k.cy;
+  cal.camera.k1 = k.k1;
+  cal.camera.k2 = k.k2;
+  // world is the table frame at platter angle 0 (world = Rz(platter) * turntable).
+  cal.R_cam_table0 = world_to_camera_.R;
+  cal.t_cam_table0 = {world_to_camera_.t.x, world_to_camera_.t.y, world_to_camera_.t.z};
+  cal.method = "sim-truth";
+  cal.camera_id = config_.camera.id;
+  return cal;
+}
+
 Rigid SimWorld::RockToWorld(int side, double platter_deg) const {
   return TurntableToWorld(platter_deg) * pose(side).rock_to_turntable;
 }

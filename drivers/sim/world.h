@@ -25,6 +25,7 @@
 
 #include "common/error.h"
 #include "common/mesh.h"
+#include "common/rig_calibration.h"
 #include "config/config.h"
 
 namespace aggscan::sim {
@@ -174,6 +175,9 @@ class SimWorld {
   const Rigid& world_to_camera() const { return world_to_camera_; }
   /// Turntable -> world for a platter angle.
   static Rigid TurntableToWorld(double platter_deg) { return Rigid::RotZ(platter_deg); }
+  /// The rig calibration this world was built with (exact intrinsics and
+  /// camera pose), for tests that need perfect knowledge; method "sim-truth".
+  RigCalibration TruthCalibration(int width, int height) const;
   /// Rock -> world / camera for a 1-based side and platter angle.
   Rigid RockToWorld(int side, double platter_deg) const;
   Rigid RockToCamera(int side, double platter_deg) const;
