@@ -588,30 +588,103 @@ Result<Mesh> LoadMesh(const std::string& path, const std::string& unit) {
   return r;
 }
 
-Status SaveMeshPly(const Mesh& mesh, const std::string& path) {
-  std::string out =
-      "ply\nformat binary_little_endian 1.0\ncomment aggscan, units: mm\nelement vertex " +
-      std::to_string(mesh.vertices.size()) +
-      "\nproperty double x\nproperty double y\nproperty double z\nelement face " +
-      std::to_string(mesh.faces.size()) + "\nproperty list uchar int vertex_indices\nend_header\n";
+namespace {
+
+Status CheckForSave(const Mesh& mesh, const std::string& path, const VertexColors* colors) {
+  for (const auto& f : mesh.faces) {
+    for (int i : f) {
+      if (i < 0 || i >= static_cast<int>(mesh.vertices.size())) {
+        return MakeError(ErrorClass::kInvalidArgument, "cannot save mesh " + path + ": face index out of range");
+      }
+    }
+  }
+  if (colors && colors->size() != mesh.vertices.size()) {
+    return MakeError(ErrorClass::kInvalidArgument,
+                     "cannot save mesh " + path + ": " + std::to_string(colors->size()) + " colours for " +
+                         std::to_string(mesh.vertices.size()) + " vertices");
+  }
+  return OkStatus();
+}
+
+template <typename T>
+void PutLe(char*& p, T v) {
+  if constexpr (std::endian::native == std::endian::big) v = ByteSwap(v);
+  std::memcpy(p, &v, sizeof(v));
+  p += sizeof(v);
+}
+
+}  // namespace
+
+Status SaveMeshPly(const Mesh& mesh, const std::string& path, const VertexColors* colors) {
+  if (Status s = CheckForSave(mesh, path, colors); !s.ok()) return s;
+  std::string out = "ply\nformat binary_little_endian 1.0\ncomment aggscan, units: mm\nelement vertex " +
+                    std::to_string(mesh.vertices.size()) +
+                    "\nproperty double x\nproperty double y\nproperty double z\n" +
+                    (colors ? "property uchar red\nproperty uchar green\nproperty uchar blue\n" : "") +
+                    "element face " + std::to_string(mesh.faces.size()) +
+                    "\nproperty list uchar int vertex_indices\nend_header\n";
   const size_t header = out.size();
-  out.resize(header + mesh.vertices.size() * 24 + mesh.faces.size() * 13);
+  const size_t vbytes = 24 + (colors ? 3 : 0);
+  out.resize(header + mesh.vertices.size() * vbytes + mesh.faces.size() * 13);
   char* p = out.data() + header;
-  auto put = [&p](auto v) {
-    if constexpr (std::endian::native == std::endian::big) v = ByteSwap(v);
-    std::memcpy(p, &v, sizeof(v));
-    p += sizeof(v);
-  };
-  for (const auto& v : mesh.vertices)
-    for (double c : v) put(c);
+  for (size_t i = 0; i < mesh.vertices.size(); ++i) {
+    for (double c : mesh.vertices[i]) PutLe(p, c);
+    if (colors) {
+      for (uint8_t c : (*colors)[i]) *p++ = static_cast<char>(c);
+    }
+  }
   for (const auto& f : mesh.faces) {
     *p++ = 3;
-    for (int i : f) {
-      if (i < 0 || i >= static_cast<int>(mesh.vertices.size()))
-        return MakeError(ErrorClass::kInvalidArgument,
-                         "cannot save mesh " + path + ": face index out of range");
-      put(static_cast<int32_t>(i));
+    for (int i : f) PutLe(p, static_cast<int32_t>(i));
+  }
+  return WriteFileAtomic(path, std::string_view(out));
+}
+
+Status SaveMeshObj(const Mesh& mesh, const std::string& path, const VertexColors* colors) {
+  if (Status s = CheckForSave(mesh, path, colors); !s.ok()) return s;
+  std::string out = "# aggscan mesh, units: mm\n";
+  out.reserve(mesh.vertices.size() * 60 + mesh.faces.size() * 24);
+  char line[160];
+  for (size_t i = 0; i < mesh.vertices.size(); ++i) {
+    const auto& v = mesh.vertices[i];
+    int n;
+    if (colors) {
+      const auto& c = (*colors)[i];
+      n = std::snprintf(line, sizeof line, "v %.6f %.6f %.6f %.4f %.4f %.4f\n", v[0], v[1], v[2], c[0] / 255.0,
+                        c[1] / 255.0, c[2] / 255.0);
+    } else {
+      n = std::snprintf(line, sizeof line, "v %.6f %.6f %.6f\n", v[0], v[1], v[2]);
     }
+    out.append(line, static_cast<size_t>(n));
+  }
+  for (const auto& f : mesh.faces) {
+    const int n = std::snprintf(line, sizeof line, "f %d %d %d\n", f[0] + 1, f[1] + 1, f[2] + 1);
+    out.append(line, static_cast<size_t>(n));
+  }
+  return WriteFileAtomic(path, std::string_view(out));
+}
+
+Status SaveMeshStl(const Mesh& mesh, const std::string& path) {
+  if (Status s = CheckForSave(mesh, path, nullptr); !s.ok()) return s;
+  std::string out(80, ' ');
+  const std::string title = "aggscan mesh, units: mm";
+  std::memcpy(out.data(), title.data(), title.size());
+  out.resize(84 + mesh.faces.size() * 50);
+  char* p = out.data() + 80;
+  PutLe(p, static_cast<uint32_t>(mesh.faces.size()));
+  for (const auto& f : mesh.faces) {
+    const auto& a = mesh.vertices[f[0]];
+    const auto& b = mesh.vertices[f[1]];
+    const auto& c = mesh.vertices[f[2]];
+    const double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+    const double w[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+    double n[3] = {u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0]};
+    const double len = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+    for (double& x : n) x = len > 0 ? x / len : 0;
+    for (double x : n) PutLe(p, static_cast<float>(x));
+    for (const auto* v : {&a, &b, &c})
+      for (double x : *v) PutLe(p, static_cast<float>(x));
+    PutLe(p, static_cast<uint16_t>(0));
   }
   return WriteFileAtomic(path, std::string_view(out));
 }

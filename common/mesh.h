@@ -3,6 +3,7 @@
 #pragma once
 
 #include <array>
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -21,7 +22,15 @@ bool UnitToMm(const std::string& unit, double* factor);
 /// Loads PLY (ASCII or binary), OBJ or STL (ASCII or binary), chosen by
 /// extension, converting `unit` to mm. Errors name the file and the defect.
 Result<Mesh> LoadMesh(const std::string& path, const std::string& unit);
-/// Writes binary little-endian PLY (mm).
-Status SaveMeshPly(const Mesh& mesh, const std::string& path);
+/// Per-vertex sRGB colour (optional in the writers below).
+using VertexColors = std::vector<std::array<uint8_t, 3>>;
+
+/// Writes binary little-endian PLY (mm), with per-vertex red/green/blue when
+/// `colors` is given (one per vertex). Atomic (temporary file + rename).
+Status SaveMeshPly(const Mesh& mesh, const std::string& path, const VertexColors* colors = nullptr);
+/// Wavefront OBJ (mm), "v x y z r g b" (colours 0..1) when colours are given.
+Status SaveMeshObj(const Mesh& mesh, const std::string& path, const VertexColors* colors = nullptr);
+/// Binary STL (mm; STL has no unit field: the header says mm).
+Status SaveMeshStl(const Mesh& mesh, const std::string& path);
 
 }  // namespace aggscan

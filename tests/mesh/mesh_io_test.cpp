@@ -175,6 +175,41 @@ TEST_F(MeshIoTest, SaveThenLoadRoundTrip) {
   EXPECT_EQ(r->faces, m.faces);
 }
 
+TEST_F(MeshIoTest, ColouredPlyObjAndStlRoundTrip) {
+  Mesh m;
+  m.vertices = kCubeV;
+  for (const auto& q : kCubeQuads) {
+    m.faces.push_back({q[0], q[1], q[2]});
+    m.faces.push_back({q[0], q[2], q[3]});
+  }
+  VertexColors colors;
+  for (size_t i = 0; i < m.vertices.size(); ++i) colors.push_back({uint8_t(i * 30), 7, 255});
+  const std::string ply = (dir_ / "c.ply").string(), obj = (dir_ / "c.obj").string(),
+                    stl = (dir_ / "c.stl").string();
+  ASSERT_TRUE(SaveMeshPly(m, ply, &colors));
+  ASSERT_TRUE(SaveMeshObj(m, obj, &colors));
+  ASSERT_TRUE(SaveMeshStl(m, stl));
+  for (const std::string& p : {ply, obj}) {
+    auto r = LoadMesh(p, "mm");
+    ASSERT_TRUE(r.ok()) << p << ": " << r.error().ToString();
+    EXPECT_EQ(r->faces, m.faces) << p;
+    EXPECT_EQ(r->vertices, m.vertices) << p;
+  }
+  // STL is a triangle soup in float: the loader welds it back to 8 vertices.
+  ExpectCube(LoadMesh(stl, "mm"));
+  EXPECT_EQ(std::filesystem::file_size(stl), 84u + 12u * 50u);
+  // The PLY carries the colours after the coordinates.
+  std::ifstream in(ply, std::ios::binary);
+  const std::string bytes((std::istreambuf_iterator<char>(in)), {});
+  EXPECT_NE(bytes.find("property uchar red"), std::string::npos);
+  const size_t body = bytes.find("end_header\n") + 11;
+  EXPECT_EQ(static_cast<uint8_t>(bytes[body + 27 + 24]), 30);  // vertex 1's red
+  // Wrong colour count is refused.
+  colors.pop_back();
+  EXPECT_FALSE(SaveMeshPly(m, ply, &colors));
+  EXPECT_FALSE(SaveMeshObj(m, obj, &colors));
+}
+
 TEST_F(MeshIoTest, Units) {
   double f = 0;
   EXPECT_TRUE(UnitToMm("mm", &f));
