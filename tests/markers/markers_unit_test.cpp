@@ -1,0 +1,226 @@
+// Geometry helpers and the stitch decisions on synthetic data (no rendering).
+#include <cmath>
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "pipeline/geometry.h"
+#include "pipeline/markers.h"
+#include "pipeline/stitch.h"
+
+namespace aggscan {
+namespace {
+
+using Eigen::Vector2d;
+using Eigen::Vector3d;
+
+CameraModel RigLikeCamera() {
+  CameraModel c;
+  c.width = 2016, c.height = 1512;
+  c.fx = c.fy = 2769.0, c.cx = 1007.5, c.cy = 755.5;
+  c.k1 = -0.08, c.k2 = 0.02, c.p1 = 1e-4, c.p2 = -2e-4;
+  return c;
+}
+
+// A camera 650 mm from the origin looking at it from 35 deg up, turned by a.
+geom::Rigid3 LookAtOrigin(double a_deg) {
+  const double el = 35.0 * M_PI / 180, az = a_deg * M_PI / 180;
+  const Vector3d C(650 * std::cos(el) * std::cos(az), 650 * std::cos(el) * std::sin(az),
+                   650 * std::sin(el));
+  const Vector3d z = (-C).normalized(), x = z.cross(Vector3d::UnitZ()).normalized(), y = z.cross(x);
+  geom::Rigid3 T;
+  T.R.row(0) = x, T.R.row(1) = y, T.R.row(2) = z;
+  T.t = -(T.R * C);
+  return T;
+}
+
+TEST(Geometry, UndistortInvertsTheLens) {
+  const CameraModel cam = RigLikeCamera();
+  double worst = 0;
+  for (double u = 0; u <= 2015; u += 125) {
+    for (double v = 0; v <= 1511; v += 125) {
+      const Vector2d und = geom::UndistortPixel(cam, {u, v});
+      double uu = 0, vv = 0;
+      cam.Project({(und.x() - cam.cx) / cam.fx, (und.y() - cam.cy) / cam.fy, 1.0}, &uu, &vv);
+      worst = std::max(worst, (Vector2d(uu, vv) - Vector2d(u, v)).norm());
+    }
+  }
+  EXPECT_LT(worst, 1e-6);
+}
+
+TEST(Geometry, TriangulatesThroughNoiseAndOutliers) {
+  const CameraModel cam = RigLikeCamera();
+  const Vector3d X(12.0, -30.0, 41.0);
+  std::mt19937 rng(3);
+  std::normal_distribution<double> noise(0.0, 0.3);
+  std::vector<geom::Sighting> s;
+  for (int i = 0; i < 12; ++i) {
+    const geom::Rigid3 pose = LookAtOrigin(30.0 * i);
+    Vector2d px = *geom::ProjectPoint(cam, pose, X) + Vector2d(noise(rng), noise(rng));
+    if (i == 4 || i == 9) px += Vector2d(25, -14);  // two gross outliers
+    s.push_back(geom::MakeSighting(cam, pose, px, i));
+  }
+  Result<geom::TriangulatedPoint> t = geom::TriangulatePoint(s);
+  ASSERT_TRUE(t.ok()) << t.error().ToString();
+  EXPECT_LT((t->X - X).norm(), 0.1);
+  EXPECT_EQ(t->inliers.size(), 10u);
+  EXPECT_LT(t->rms_px, 0.6);
+  EXPECT_GT(t->residual_px[4], 20.0);
+
+  // One view, or two views from the same place: no point.
+  EXPECT_FALSE(geom::TriangulatePoint({s[0]}).ok());
+  EXPECT_FALSE(geom::TriangulatePoint({s[0], s[0]}).ok());
+}
+
+TEST(Geometry, AlignsWithAndWithoutScale) {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-100, 100);
+  geom::Similarity3 truth;
+  truth.scale = 0.037;
+  truth.R = Eigen::AngleAxisd(0.7, Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+  truth.t = Vector3d(5, -2, 9);
+  std::vector<Vector3d> a, b;
+  for (int i = 0; i < 6; ++i) {
+    a.emplace_back(u(rng), u(rng), u(rng));
+    b.push_back(truth.Apply(a.back()));
+  }
+  const std::optional<geom::Similarity3> s = geom::AlignPoints(a, b, true);
+  ASSERT_TRUE(s);
+  EXPECT_NEAR(s->scale, truth.scale, 1e-9);
+  EXPECT_LT(geom::RotationAngleDeg(s->R * truth.R.transpose()), 1e-6);
+  EXPECT_LT((s->t - truth.t).norm(), 1e-9);
+  // Collinear points leave a rotation free.
+  EXPECT_FALSE(geom::AlignPoints({{0, 0, 0}, {1, 1, 1}, {2, 2, 2}}, {{0, 0, 0}, {1, 1, 1}, {2, 2, 2}}, false));
+}
+
+TEST(Geometry, RansacRigidIgnoresHalfWrongPairs) {
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<double> u(-60, 60);
+  std::normal_distribution<double> n(0, 0.2);
+  geom::Rigid3 truth;
+  truth.R = Eigen::AngleAxisd(2.5, Vector3d(0.3, -1, 0.2).normalized()).toRotationMatrix();
+  truth.t = Vector3d(4, 8, -30);
+  std::vector<Vector3d> a, b;
+  for (int i = 0; i < 200; ++i) {
+    a.emplace_back(u(rng), u(rng), u(rng));
+    b.push_back(i % 2 ? Vector3d(u(rng), u(rng), u(rng))
+                      : Vector3d(truth.Apply(a.back()) + Vector3d(n(rng), n(rng), n(rng))));
+  }
+  const std::optional<geom::RansacRigidResult> r = geom::RansacRigid(a, b);
+  ASSERT_TRUE(r);
+  EXPECT_GE(r->inliers.size(), 99u);
+  EXPECT_LE(r->inliers.size(), 103u);
+  EXPECT_LT(geom::RotationAngleDeg(r->T.R * truth.R.transpose()), 0.1);
+  EXPECT_LT(r->rms_mm, 0.5);
+}
+
+SideMarkers MarkersAt(const std::vector<Vector3d>& p) {
+  SideMarkers s;
+  const char* names[4][2] = {{"purple", "head"}, {"purple", "tail"}, {"red", "head"}, {"red", "tail"}};
+  for (size_t i = 0; i < 4; ++i) {
+    MarkerPoint m;
+    m.color = names[i][0], m.segment = names[i][1];
+    m.located = i < p.size() && p[i].allFinite();
+    if (m.located) m.position = p[i];
+    if (!m.located) m.problem = "the marker was not seen in any of the 30 views";
+    s.points.push_back(m);
+  }
+  return s;
+}
+
+TEST(StitchUnit, MarkersFitDropTheBadPointAndRefuseTwo) {
+  geom::Rigid3 truth;
+  truth.R = Eigen::AngleAxisd(2.0, Vector3d(0.2, 1, 0.1).normalized()).toRotationMatrix();
+  truth.t = Vector3d(3, -4, 60);
+  const std::vector<Vector3d> side2{{40, 10, 30}, {45, -10, 28}, {-38, 12, 25}, {-42, -8, 31}};
+  std::vector<Vector3d> side1;
+  for (const Vector3d& p : side2) side1.push_back(truth.Apply(p));
+  StitchEstimate e = StitchFromMarkers(MarkersAt(side1), MarkersAt(side2));
+  ASSERT_TRUE(e.valid) << e.note;
+  EXPECT_EQ(e.inliers, 4);
+  EXPECT_LT(geom::RotationAngleDeg(e.T.R * truth.R.transpose()), 1e-6);
+  EXPECT_GT(e.rotation_sigma_deg, 0.2);  // head-tail ~20 mm apart: a weak axis
+
+  side1[1] += Vector3d(0, 6, 0);  // a bent tail located 6 mm off
+  e = StitchFromMarkers(MarkersAt(side1), MarkersAt(side2));
+  ASSERT_TRUE(e.valid) << e.note;
+  EXPECT_EQ(e.inliers, 3);
+  EXPECT_NE(e.note.find("dropped purple tail"), std::string::npos) << e.note;
+
+  const Vector3d nan = Vector3d::Constant(NAN);
+  e = StitchFromMarkers(MarkersAt({side1[0], nan, side1[2], nan}), MarkersAt(side2));
+  EXPECT_FALSE(e.valid);
+  EXPECT_NE(e.note.find("only 2 marker points"), std::string::npos) << e.note;
+}
+
+// Synthetic feature clouds: random points and descriptors, the moving side a
+// moved copy of part of the reference with a few fresh points.
+void MakeClouds(const geom::Rigid3& truth, int shared, FeatureCloud* ref, FeatureCloud* mov) {
+  std::mt19937 rng(21);
+  std::uniform_real_distribution<double> u(-50, 50);
+  std::uniform_real_distribution<float> d(0, 100);
+  std::normal_distribution<double> n(0, 0.2);
+  const geom::Rigid3 inv = truth.Inverse();
+  std::vector<cv::Mat> rr, mr;
+  for (int i = 0; i < 300; ++i) {
+    const Vector3d p(u(rng), u(rng), u(rng));
+    cv::Mat desc(1, 128, CV_32F);
+    for (int k = 0; k < 128; ++k) desc.at<float>(k) = d(rng);
+    ref->points.push_back(p);
+    rr.push_back(desc);
+    ref->point_of_row.push_back(i);
+    if (i < shared) {
+      mov->points.push_back(inv.Apply(p) + Vector3d(n(rng), n(rng), n(rng)));
+      cv::Mat dm = desc + 3.0f;  // a similar descriptor from another viewpoint
+      mr.push_back(dm);
+      mov->point_of_row.push_back(static_cast<int>(mov->points.size()) - 1);
+    }
+  }
+  cv::vconcat(rr, ref->descriptors);
+  if (!mr.empty()) cv::vconcat(mr, mov->descriptors);
+}
+
+TEST(StitchUnit, FeaturesWhenMarkersAreMissingAndAnErrorWhenNeither) {
+  geom::Rigid3 truth;
+  truth.R = Eigen::AngleAxisd(2.6, Vector3d(1, 0.1, 0).normalized()).toRotationMatrix();
+  truth.t = Vector3d(0, 5, 70);
+  FeatureCloud ref, mov;
+  MakeClouds(truth, 80, &ref, &mov);
+  const Vector3d nan = Vector3d::Constant(NAN);
+  const SideMarkers s1 = MarkersAt({{40, 10, 30}, {45, -10, 28}, {-38, 12, 25}, {-42, -8, 31}});
+  const SideMarkers s2 = MarkersAt({{1, 2, 3}, {4, 5, 6}, nan, nan});
+  Result<StitchResult> r = StitchSides(s1, s2, &ref, &mov);
+  ASSERT_TRUE(r.ok()) << r.error().ToString();
+  EXPECT_EQ(r->source, "features");
+  EXPECT_FALSE(r->markers.valid);
+  EXPECT_GE(r->features.inliers, 75);
+  EXPECT_LT(geom::RotationAngleDeg(r->T.R * truth.R.transpose()), 0.2);
+
+  FeatureCloud few_ref, few_mov;
+  MakeClouds(truth, 5, &few_ref, &few_mov);
+  r = StitchSides(s1, s2, &few_ref, &few_mov);
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().cls, ErrorClass::kInvalidArgument);
+  const std::string msg = r.error().ToString();
+  EXPECT_NE(msg.find("stitch: only 2 marker points"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("Re-shoot side 2"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("red head"), std::string::npos) << msg;
+}
+
+TEST(MarkersUnit, OptionsAreChecked) {
+  MarkerDetectOptions o;
+  EXPECT_EQ(o.Check(), "");
+  o.min_saturation = 1.5;
+  EXPECT_NE(o.Check(), "");
+  cv::Mat img(40, 40, CV_8UC3, cv::Scalar(200, 200, 200)), mask(40, 40, CV_8UC1, cv::Scalar(0));
+  EXPECT_FALSE(DetectViewMarkers(img, mask, {"pink"}, {}, nullptr).ok());
+  EXPECT_FALSE(DetectViewMarkers(img, cv::Mat(), {"red"}, {}, nullptr).ok());
+  Result<ViewMarkers> vm = DetectViewMarkers(img, mask, {"red"}, {"purple"}, nullptr);
+  ASSERT_TRUE(vm.ok());
+  EXPECT_TRUE(vm->labels.empty());
+  ASSERT_EQ(vm->objects.size(), 1u);
+  EXPECT_FALSE(vm->objects[0].seen());
+}
+
+}  // namespace
+}  // namespace aggscan
