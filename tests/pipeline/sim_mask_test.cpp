@@ -17,7 +17,8 @@
 namespace aggscan {
 namespace {
 
-// 18 views at the rig's 2016 x 1512: ~10 s (the renderer is built with -O2
+// Issue 3 item 2: IoU >= 0.98 (measured 0.9816-0.9984). 18 views at the
+// rig's 2016 x 1512: ~25 s (the renderer is built with -O2
 // even in Debug builds).
 TEST(SimMask, IoUOnRenderedViews) {
   double worst = 1.0;
@@ -46,7 +47,7 @@ TEST(SimMask, IoUOnRenderedViews) {
         const double iou = testing::MaskIoU(mask, truth);
         std::printf("sim seed %llu side %d angle %.0f: IoU %.4f, %.0f ms\n", static_cast<unsigned long long>(seed), side,
                     angle, iou, ms);
-        if (iou < 0.97 && std::getenv("AGGSCAN_DUMP")) {
+        if (iou < 0.98 && std::getenv("AGGSCAN_DUMP")) {
           const std::string stem = "/tmp/sim_s" + std::to_string(seed) + "_" + std::to_string(side) + "_" +
                                    std::to_string(static_cast<int>(angle));
           cv::Mat half;
@@ -58,7 +59,7 @@ TEST(SimMask, IoUOnRenderedViews) {
           cv::imwrite(stem + "_err.png", half);
         }
         worst = std::min(worst, iou);
-        EXPECT_GE(iou, 0.97) << "seed " << seed << " side " << side << " angle " << angle;
+        EXPECT_GE(iou, 0.98) << "seed " << seed << " side " << side << " angle " << angle;
       }
     }
   }
