@@ -77,6 +77,32 @@ void BM_RenderWithMask(benchmark::State& state) {
 }
 BENCHMARK(BM_RenderWithMask)->Unit(benchmark::kMillisecond);
 
+// Scene "charuco" (a calibration capture): the board on the disc, no rock;
+// the board's pixels are shaded per frame.
+void BM_RenderCharuco(benchmark::State& state) {
+  // A 2100 x 1500 checker PGM stands in for the printed board (same cost).
+  const std::string path = "/tmp/aggscan-bench-board.pgm";
+  std::vector<uint8_t> px(2100 * 1500);
+  for (int y = 0; y < 1500; ++y)
+    for (int x = 0; x < 2100; ++x) px[y * 2100 + x] = ((x / 300 + y / 300) % 2) ? 255 : 0;
+  if (!aggscan::sim::WritePgm(px, 2100, 1500, path)) state.SkipWithError("cannot write the board PGM");
+  Config c;
+  c.sim.scene = "charuco";
+  c.sim.board_image = path;
+  c.sim.board_yaw_deg = 12.0;
+  const SimWorld world(c, aggscan::sim::SimWorldOptions{.rock_faces = 2000});
+  Renderer r(world, static_cast<int>(state.range(0)), static_cast<int>(state.range(1)));
+  RenderOptions o;
+  RenderedImage img;
+  int view = 0;
+  for (auto _ : state) {
+    o.noise_seed = static_cast<uint64_t>(view);
+    r.RenderInto(1, 12.0 * view++, o, &img);
+    benchmark::DoNotOptimize(img.rgb.data());
+  }
+}
+BENCHMARK(BM_RenderCharuco)->Args({2016, 1512})->Unit(benchmark::kMillisecond);
+
 void BM_EncodeJpeg(benchmark::State& state) {
   const int w = static_cast<int>(state.range(0)), h = static_cast<int>(state.range(1));
   Renderer r(World(100000), w, h);

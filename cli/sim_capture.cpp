@@ -6,11 +6,13 @@
 
 #include "common/fsutil.h"
 #include "common/log.h"
+#include "common/rig_calibration.h"
 #include "config/config.h"
 #include "daemon/capture_service.h"
 #include "daemon/event_loop.h"
 #include "drivers/factory.h"
 #include "drivers/sim/truth.h"
+#include "pipeline/calibrate.h"
 #include "store/layout.h"
 #include "store/sample_store.h"
 
@@ -23,7 +25,7 @@ int RunSimCapture(const SimCaptureOptions& opt, std::ostream& out, std::ostream&
     err << "aggscan sim capture: --out DIR is required\n";
     return 2;
   }
-  if (!opt.seed && opt.mesh.empty()) {
+  if (!opt.seed && opt.mesh.empty() && opt.scene != "charuco") {
     err << "aggscan sim capture: give --seed N (procedural rock) or --mesh FILE --unit mm|cm|m\n";
     return 2;
   }
@@ -47,6 +49,17 @@ int RunSimCapture(const SimCaptureOptions& opt, std::ostream& out, std::ostream&
   if (opt.views_per_side > 0) config.capture.views_per_side = opt.views_per_side;
   if (opt.width > 0) config.camera.width = opt.width;
   if (opt.height > 0) config.camera.height = opt.height;
+  const std::string staging = opt.out + ".staging-" + std::to_string(::getpid());
+  std::string board_pgm;  // drawn here for a charuco scene without sim.board_image
+  if (!opt.scene.empty()) config.sim.scene = opt.scene;
+  if (config.sim.scene == "charuco") {
+    // A calibration capture: one side, the board seen all round.
+    if (opt.profile.empty() && (opt.config_path.empty() || config.capture.profile == "paper")) {
+      config.capture.profile = "full-turn";
+      config.capture.sides = 1;
+    }
+    if (config.sim.board_image.empty()) config.sim.board_image = board_pgm = staging + "/board.pgm";
+  }
   if (problems.empty()) {
     ApplyProfile(&config);
     ValidateConfig(config, opt.config_path.empty() ? "<command line>" : opt.config_path, &problems);
@@ -60,7 +73,15 @@ int RunSimCapture(const SimCaptureOptions& opt, std::ostream& out, std::ostream&
   // The sample id is the output folder's name when it is a valid id.
   std::string id = fs::path(opt.out).filename().string();
   if (!layout::IsValidSampleId(id)) id = "sim-" + std::to_string(config.sim.seed);
-  const std::string staging = opt.out + ".staging-" + std::to_string(::getpid());
+  if (!board_pgm.empty()) {
+    // 10 px/mm: finer than the camera sees the disc (~4 px/mm at 2016 px).
+    Status s = MakeDirsDurable(staging);
+    if (s) s = WriteBoardImage(config.calibration, board_pgm, 10.0, 0.0);
+    if (!s) {
+      err << "aggscan sim capture: cannot draw the board: " << s.error().ToString() << "\n";
+      return 1;
+    }
+  }
   config.daemon.state_dir = staging;
   const std::string effective = ConfigToToml(config);
 
@@ -68,6 +89,18 @@ int RunSimCapture(const SimCaptureOptions& opt, std::ostream& out, std::ostream&
   if (Status s = store.Init(); !s) {
     err << "aggscan sim capture: " << s.error().ToString() << "\n";
     return 1;
+  }
+  if (!opt.calibration.empty()) {
+    // In the staging state dir, where arming copies it into the sample.
+    Result<RigCalibration> cal = LoadCalibration(opt.calibration);
+    if (!cal) {
+      err << "aggscan sim capture: --calibration: " << cal.error().ToString() << "\n";
+      return 1;
+    }
+    if (Status s = SaveCalibration(CalibrationPath(staging), *cal); !s) {
+      err << "aggscan sim capture: " << s.error().ToString() << "\n";
+      return 1;
+    }
   }
   VirtualClock clock;
   EventLoop loop(clock);
@@ -139,6 +172,13 @@ int RunSimCapture(const SimCaptureOptions& opt, std::ostream& out, std::ostream&
   if (Status s = RenameDurable(store.SampleDir(id), opt.out); !s) {
     err << "aggscan sim capture: " << s.error().ToString() << "\n";
     return 1;
+  }
+  if (!board_pgm.empty()) {
+    // The board the views show, kept with them (the staging copy goes).
+    if (Status s = RenameDurable(board_pgm, opt.out + "/board.pgm"); !s) {
+      err << "aggscan sim capture: " << s.error().ToString() << "\n";
+      return 1;
+    }
   }
   std::error_code ec;
   fs::remove_all(staging, ec);

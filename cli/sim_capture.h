@@ -20,6 +20,11 @@ struct SimCaptureOptions {
   std::string config_path;       // optional TOML config (sim backends are forced)
   int width = 0, height = 0;     // resolution override (0 = config)
   int views_per_side = 0;        // override (profile full-turn/custom)
+  std::string calibration;       // calibration.json recorded in the sample as the daemon's
+                                 // state_dir/calibration.json would be (empty: none)
+  std::string scene;             // rock | charuco (empty: the config's). charuco without a
+                                 // --profile: one side of views_per_side views over a full turn;
+                                 // without sim.board_image the board is drawn from [calibration]
 };
 
 /// Returns a process exit code (0 ok, 2 usage, 78 bad config, 1 other failure).

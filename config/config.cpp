@@ -95,6 +95,26 @@ const std::vector<std::string>& MarkerColors() {
   static const std::vector<std::string> k = {"red", "green", "blue", "yellow"};
   return k;
 }
+// ArUco dictionaries by OpenCV name, with their marker counts (a board needs
+// one marker per white square).
+const std::vector<std::pair<std::string, int>>& BoardDictionaries() {
+  static const std::vector<std::pair<std::string, int>> k = {
+      {"DICT_4X4_50", 50},     {"DICT_4X4_100", 100},   {"DICT_4X4_250", 250},
+      {"DICT_4X4_1000", 1000}, {"DICT_5X5_50", 50},     {"DICT_5X5_100", 100},
+      {"DICT_5X5_250", 250},   {"DICT_5X5_1000", 1000}, {"DICT_6X6_50", 50},
+      {"DICT_6X6_100", 100},   {"DICT_6X6_250", 250},   {"DICT_6X6_1000", 1000},
+      {"DICT_7X7_50", 50},     {"DICT_7X7_100", 100},   {"DICT_7X7_250", 250},
+      {"DICT_7X7_1000", 1000}, {"DICT_ARUCO_ORIGINAL", 1024}};
+  return k;
+}
+const std::vector<std::string>& BoardDictionaryNames() {
+  static const std::vector<std::string> k = [] {
+    std::vector<std::string> v;
+    for (const auto& d : BoardDictionaries()) v.push_back(d.first);
+    return v;
+  }();
+  return k;
+}
 const std::vector<std::string>& Profiles() {
   static const std::vector<std::string> k = {"paper", "full-turn", "custom"};
   return k;
@@ -180,9 +200,26 @@ const std::vector<Field<Config>>& Fields() {
       F(sim.k2, Range(-1, 1), "radial distortion (Brown) coefficient k2"),
       F(sim.noise_sigma, Range(0, 64), "sensor noise, 8-bit levels"),
       F(sim.write_truth, Any(), "write ground-truth masks/poses next to the sample (tests)"),
+      F(sim.scene, OneOf({"rock", "charuco"}),
+        "what lies on the disc: rock | charuco (the [calibration] board, no rock)"),
+      F(sim.board_image, Any(),
+        "charuco: greyscale PGM of the board area without margin "
+        "(aggscan calibrate board --out FILE.pgm --margin-mm 0)"),
+      F(sim.board_x_mm, Range(-200, 200), "charuco: board centre on the disc, turntable frame, mm"),
+      F(sim.board_y_mm, Range(-200, 200), "charuco: board centre on the disc, turntable frame, mm"),
+      F(sim.board_yaw_deg, Range(-360, 360),
+        "charuco: board x axis from the turntable x axis, counter-clockwise, degrees"),
 
       F(rig.turntable_diameter_mm, Above(0, 5000), "turntable disc diameter, mm (the paper: 305)"),
       F(rig.marker_size_mm, Above(0, 1000), "side of each square colour label, mm"),
+
+      F(calibration.dictionary, OneOf(BoardDictionaryNames()),
+        "ArUco dictionary of the board's markers (OpenCV name, e.g. DICT_5X5_100)"),
+      F(calibration.squares_x, Range(3, 40), "chessboard squares along the board's x axis"),
+      F(calibration.squares_y, Range(3, 40), "chessboard squares along the board's y axis"),
+      F(calibration.square_mm, Above(0, 1000), "side of one chessboard square as printed, mm"),
+      F(calibration.marker_mm, Above(0, 1000),
+        "side of one ArUco marker as printed, mm (smaller than square_mm)"),
 
       D(worker.poll_interval, Above(0, 60 * kSec), "queue polling period when idle"),
       F(worker.nice, Range(0, 19), "CPU priority below the capture daemon (0..19)"),
@@ -225,6 +262,8 @@ const std::vector<Section>& Sections() {
       {"button", "Operator start button."},
       {"sim", "Simulated rig: rock, camera geometry and sensor."},
       {"rig", "Rig geometry: turntable and the background scale markers."},
+      {"calibration",
+       "ChArUco board of the rig calibration (aggscan calibrate), laid flat on the disc."},
       {"worker", "Reconstruction worker."},
   };
   return k;
@@ -649,9 +688,68 @@ class Validator {
       Add("sim.rock_size_mm",
           "must be 0 (random) or at least 10 mm, got " + FormatDouble(c.sim.rock_size_mm));
     }
+    CheckBoard(c);
     if (c.sim.camera_distance_mm <= c.rig.turntable_diameter_mm / 2) {
       Add("sim.camera_distance_mm", "camera must stand outside the turntable (radius " +
                                         FormatDouble(c.rig.turntable_diameter_mm / 2) + " mm)");
+    }
+  }
+
+  // The [calibration] board must be printable with its dictionary and lie
+  // flat on the disc (the calibration model puts every corner on the disc
+  // top); the sim's charuco scene needs the board image and a pose on the disc.
+  void CheckBoard(const Config& c) {
+    auto FormatDouble = [](double v) {  // "305", "22.5": no trailing ".0" in messages
+      std::string t = aggscan::FormatDouble(v);
+      if (t.size() > 2 && t.compare(t.size() - 2, 2, ".0") == 0) t.resize(t.size() - 2);
+      return t;
+    };
+    const CalibrationConfig& b = c.calibration;
+    if (b.marker_mm > 0 && b.square_mm > 0 && b.marker_mm >= b.square_mm) {
+      Add("calibration.marker_mm", "must be smaller than calibration.square_mm (" +
+                                       FormatDouble(b.square_mm) + " mm), got " +
+                                       FormatDouble(b.marker_mm));
+    }
+    const int markers = b.squares_x * b.squares_y / 2;
+    for (const auto& [name, size] : BoardDictionaries()) {
+      if (name == b.dictionary && markers > size) {
+        Add("calibration.dictionary", name + " has " + std::to_string(size) + " markers but a " +
+                                          std::to_string(b.squares_x) + "x" +
+                                          std::to_string(b.squares_y) + " board needs " +
+                                          std::to_string(markers) + "; choose a larger dictionary");
+      }
+    }
+    const double w = b.squares_x * b.square_mm, h = b.squares_y * b.square_mm;
+    const double disc = c.rig.turntable_diameter_mm;
+    if (b.square_mm > 0 && disc > 0 && std::hypot(w, h) > disc) {
+      Add("calibration.square_mm",
+          "the board (" + FormatDouble(w) + " x " + FormatDouble(h) + " mm, diagonal " +
+              FormatDouble(std::round(std::hypot(w, h))) + " mm) does not fit on the " +
+              FormatDouble(disc) + " mm turntable; use fewer or smaller squares");
+    }
+    if (c.sim.scene != "charuco") return;
+    if (c.sim.board_image.empty()) {
+      Add("sim.board_image",
+          "sim.scene = \"charuco\" needs the board image: write one with `aggscan calibrate "
+          "board --out FILE.pgm --margin-mm 0` and name it here");
+    }
+    // Every corner of the squares area on the disc top.
+    const double a = c.sim.board_yaw_deg * M_PI / 180.0;
+    double reach = 0;
+    for (int sx : {-1, 1}) {
+      for (int sy : {-1, 1}) {
+        const double x = sx * w / 2, y = sy * h / 2;
+        reach = std::max(reach, std::hypot(c.sim.board_x_mm + x * std::cos(a) - y * std::sin(a),
+                                           c.sim.board_y_mm + x * std::sin(a) + y * std::cos(a)));
+      }
+    }
+    if (b.square_mm > 0 && disc > 0 && reach > disc / 2) {
+      Add("sim.board_x_mm", "the board placed at (" + FormatDouble(c.sim.board_x_mm) + ", " +
+                                FormatDouble(c.sim.board_y_mm) + ") mm, yaw " +
+                                FormatDouble(c.sim.board_yaw_deg) + " deg reaches " +
+                                FormatDouble(std::round(reach)) +
+                                " mm from the axis, beyond the disc edge (" +
+                                FormatDouble(disc / 2) + " mm)");
     }
   }
 

@@ -117,8 +117,32 @@ struct SimConfig {
   double k2 = 0.02;
   double noise_sigma = 2.0;           // sensor noise, 8-bit levels
   bool write_truth = false;           // write ground-truth masks/poses next to the sample (tests)
+  // What lies on the turntable: "rock" (the procedural or mesh rock) or
+  // "charuco" (the [calibration] board, printed on paper, lying flat on the
+  // disc; no rock), for rendering a rig calibration capture.
+  std::string scene = "rock";
+  std::string board_image;            // charuco: greyscale PGM (P5) of the board area, no margin
+                                      // (`aggscan calibrate board --out FILE.pgm --margin-mm 0`)
+  double board_x_mm = 0.0;            // charuco: board centre on the disc (turntable frame), mm
+  double board_y_mm = 0.0;
+  double board_yaw_deg = 0.0;         // charuco: board x axis from the turntable x axis, ccw, degrees
 
   bool operator==(const SimConfig&) const = default;
+};
+
+// The ChArUco board used for the rig calibration (`aggscan calibrate`): printed
+// on paper and laid flat on the turntable disc. Board frame (mm): origin at the
+// centre of the squares area, x along the printed image's columns, y towards
+// its top edge, z up out of the paper; the default 7 x 5 squares of 30 mm
+// (210 x 150 mm) fits an A4 sheet and the 305 mm disc.
+struct CalibrationConfig {
+  std::string dictionary = "DICT_5X5_100";  // ArUco dictionary of the markers (OpenCV name)
+  int squares_x = 7;                        // chessboard squares along the board's x axis
+  int squares_y = 5;                        // and along its y axis
+  double square_mm = 30.0;                  // side of one chessboard square, as printed
+  double marker_mm = 22.0;                  // side of one ArUco marker (< square_mm), as printed
+
+  bool operator==(const CalibrationConfig&) const = default;
 };
 
 struct RigMarker {
@@ -153,6 +177,7 @@ struct Config {
   ButtonConfig button;
   SimConfig sim;
   RigConfig rig;
+  CalibrationConfig calibration;
   WorkerConfig worker;
 
   bool operator==(const Config&) const = default;

@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # The main job on a fresh Debian 12 machine: installs the dependencies, builds
-# aggscan, starts aggscand on the simulated rig (config/sim.toml) and
+# aggscan, calibrates the simulated rig (a ChArUco board on the turntable,
+# rendered offline, then `aggscan calibrate`), starts aggscand on the
+# simulated rig (config/sim.toml) and
 # aggscan-worker, captures a two-side sample of a simulated rock through the
 # CLI exactly as an operator would (arm, press, flip, press), lets the worker
 # process both sides and prints the results.
@@ -23,6 +25,16 @@ STATE_DIR=$("$AGGSCAND" --config "$CONFIG" --print-config | sed -n 's/^state_dir
 PORT=$("$AGGSCAND" --config "$CONFIG" --print-config | sed -n 's/^listen_port *= *\([0-9]*\).*/\1/p' | head -1)
 export AGGSCAN_URL="http://127.0.0.1:${PORT}"
 mkdir -p "$STATE_DIR"
+
+# Rig calibration, as an operator does it once per set-up: the board lying on
+# the turntable, one side captured, solved into STATE_DIR/calibration.json
+# (aggscand checks it at start and copies it into every sample). The board
+# capture is kept outside samples/ so the worker never takes it for a rock.
+CALIB="$STATE_DIR/calibration-captures/board-$(date +%Y%m%d-%H%M%S)"
+mkdir -p "$(dirname "$CALIB")"
+echo "== calibrating the rig: ChArUco board on the turntable (offline sim capture)"
+"$CLI" sim capture --scene charuco --config "$CONFIG" --out "$CALIB" 2> "$STATE_DIR/calibration-capture.log"
+"$CLI" calibrate "$CALIB" --state-dir "$STATE_DIR"
 
 "$AGGSCAND" --config "$CONFIG" 2> "$STATE_DIR/aggscand.log" &
 DAEMON=$!

@@ -3,6 +3,8 @@
 //   <state_dir>/samples/<id>/
 //     sample.json              sample record (state, plan, sides); rewritten atomically
 //     config.toml              effective config at arm time
+//     calibration.json         copy of state_dir/calibration.json at arm time (write-once;
+//                              absent when there was no valid one: see sample.json "calibration")
 //     side<N>/                 N = 1..sides
 //       view_NNN.jpg           the still, exactly as the camera delivered it
 //       view_NNN.json          sidecar: angles, timestamps, exposure, schedule error
@@ -30,6 +32,7 @@ inline std::string ViewSidecarName(int view) { return ViewStem(view) + ".json"; 
 inline constexpr const char* kManifest = "manifest.json";
 inline constexpr const char* kSampleRecord = "sample.json";
 inline constexpr const char* kConfigCopy = "config.toml";
+inline constexpr const char* kCalibrationCopy = "calibration.json";  // rig calibration at arm time
 inline constexpr const char* kResultsDir = "results";
 inline constexpr const char* kTruthDir = "truth";
 inline std::string QueuePath(const std::string& state_dir) { return state_dir + "/queue.db"; }

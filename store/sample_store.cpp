@@ -9,6 +9,7 @@
 
 #include "common/clock.h"
 #include "common/fsutil.h"
+#include "common/rig_calibration.h"
 #include "store/layout.h"
 
 namespace aggscan {
@@ -213,6 +214,23 @@ Status SampleStore::CreateOrResume(const std::string& id, const SamplePlan& plan
   } else {
     Status s = WriteFileAtomic(cfg, config_toml, true);
     if (!s) return s;
+  }
+  // The rig calibration in effect, recorded once: a resume after a new
+  // calibration keeps the sample's first one (its views were shot with it).
+  const std::string cal_copy = dir + "/" + layout::kCalibrationCopy;
+  if (!PathExists(cal_copy)) {
+    const std::string cal_path = CalibrationPath(state_dir_);
+    Result<RigCalibration> cal = LoadCalibration(cal_path);
+    Result<std::string> text = cal ? ReadFile(cal_path) : Result<std::string>(cal.error());
+    if (text) {
+      Status s = WriteFileAtomic(cal_copy, *text, /*no_replace=*/true);
+      if (!s) return s;
+      rec["calibration"] = {{"file", layout::kCalibrationCopy},
+                            {"created_utc", cal->created_utc},
+                            {"reprojection_rms_px", cal->reprojection_rms_px}};
+    } else {
+      rec["calibration"] = {{"file", nullptr}, {"reason", text.error().ToString()}};
+    }
   }
   rec["state"] = "armed";
   return SaveRecord(id, rec);

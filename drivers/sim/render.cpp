@@ -163,6 +163,14 @@ struct Renderer::Impl {
   // Tone and noise.
   std::vector<float> srgb;  // 4096 entries, linear [0,1] -> 8-bit value
   std::vector<Label> labels;
+  // Calibration board (scene "charuco"): albedo texture of the squares area,
+  // prefiltered to the camera's footprint, and the board's pose on the platter.
+  bool has_board = false;
+  std::vector<float> board_tex;
+  int board_tw = 0, board_th = 0;
+  double board_x = 0, board_y = 0, board_cos = 1, board_sin = 0;
+  double board_hw = 0, board_hh = 0;  // half width / height of the squares area, mm
+  double board_tex_per_mm_x = 0, board_tex_per_mm_y = 0;
 
   const SimWorld* world = nullptr;
   Intrinsics intr;
@@ -194,6 +202,18 @@ struct Renderer::Impl {
     const int i = static_cast<int>(x);
     const float fr = x - static_cast<float>(i);
     return lut[i] + (lut[i + 1] - lut[i]) * fr;
+  }
+  // Bilinear sample of the board texture at board-frame (x, y) mm (board.h).
+  float BoardAlbedo(double x, double y) const {
+    const double tu = (x + board_hw) * board_tex_per_mm_x - 0.5;
+    const double tv = (board_hh - y) * board_tex_per_mm_y - 0.5;
+    const double cu = std::clamp(tu, 0.0, board_tw - 1.001), cv = std::clamp(tv, 0.0, board_th - 1.001);
+    const int i = static_cast<int>(cu), j = static_cast<int>(cv);
+    const float fu = static_cast<float>(cu - i), fv = static_cast<float>(cv - j);
+    const int i1 = std::min(i + 1, board_tw - 1), j1 = std::min(j + 1, board_th - 1);
+    const float* r0 = &board_tex[static_cast<size_t>(j) * board_tw];
+    const float* r1 = &board_tex[static_cast<size_t>(j1) * board_tw];
+    return (r0[i] * (1 - fu) + r0[i1] * fu) * (1 - fv) + (r1[i] * (1 - fu) + r1[i1] * fu) * fv;
   }
   // Fraction of the ground point's light ray that passes the rock.
   float GroundVis(const FrameState& fs, const Vec3& p) const {
@@ -277,6 +297,17 @@ bool Renderer::Impl::Shade(const FrameState& fs, int u, int v, float rgb[3], flo
           if (qx >= lb.x0 && qx <= lb.x1 && qy >= lb.y0 && qy <= lb.y1) {
             albedo[0] = lb.albedo[0], albedo[1] = lb.albedo[1], albedo[2] = lb.albedo[2];
             break;
+          }
+        }
+        if (has_board) {
+          // The paper lies on top of the disc and its labels.
+          const double dx = q.x - board_x, dy = q.y - board_y;
+          const double bx = board_cos * dx + board_sin * dy, by = -board_sin * dx + board_cos * dy;
+          if (std::abs(bx) <= board_hw + kBoardPaperMarginMm &&
+              std::abs(by) <= board_hh + kBoardPaperMarginMm) {
+            float a = kPaperAlbedo;
+            if (std::abs(bx) < board_hw && std::abs(by) < board_hh) a = BoardAlbedo(bx, by);
+            albedo[0] = albedo[1] = albedo[2] = a;
           }
         }
       }
@@ -395,6 +426,57 @@ Renderer::Renderer(const SimWorld& world, int width, int height)
     ColorAlbedo(mk.color, &lb.albedo);
     m.labels.push_back(lb);
   }
+  if (const SimBoard* b = world.board()) BuildBoardTexture(*b);
+}
+
+void Renderer::BuildBoardTexture(const SimBoard& b) {
+  Impl& m = *impl_;
+  m.has_board = true;
+  m.board_tw = b.image.width;
+  m.board_th = b.image.height;
+  m.board_hw = b.width_mm / 2;
+  m.board_hh = b.height_mm / 2;
+  m.board_tex_per_mm_x = b.image.width / b.width_mm;
+  m.board_tex_per_mm_y = b.image.height / b.height_mm;
+  m.board_x = b.x_mm;
+  m.board_y = b.y_mm;
+  m.board_cos = std::cos(b.yaw_deg * M_PI / 180.0);
+  m.board_sin = std::sin(b.yaw_deg * M_PI / 180.0);
+  const size_t n = static_cast<size_t>(m.board_tw) * m.board_th;
+  m.board_tex.resize(n);
+  for (size_t i = 0; i < n; ++i) {
+    m.board_tex[i] = kInkAlbedo + (kPaperAlbedo - kInkAlbedo) * (b.image.pixels[i] / 255.0f);
+  }
+  // Point-sampling a sharp print would alias; a real lens and sensor blur it
+  // by about half a pixel. Gaussian prefilter of that footprint (mm per pixel
+  // at the disc centre), separable, clamped at the edges.
+  const double mm_per_px = Norm(m.cam_to_world.t) / intr_.fx;
+  const double sigma = 0.5 * mm_per_px * std::max(m.board_tex_per_mm_x, m.board_tex_per_mm_y);
+  if (sigma < 0.3) return;
+  const int r = static_cast<int>(std::ceil(3 * sigma));
+  std::vector<float> w(2 * r + 1);
+  float sum = 0;
+  for (int k = -r; k <= r; ++k) sum += w[k + r] = std::exp(-0.5f * k * k / static_cast<float>(sigma * sigma));
+  for (float& x : w) x /= sum;
+  std::vector<float> tmp(n);
+  const int W = m.board_tw, H = m.board_th;
+  for (int y = 0; y < H; ++y) {
+    const float* src = &m.board_tex[static_cast<size_t>(y) * W];
+    float* dst = &tmp[static_cast<size_t>(y) * W];
+    for (int x = 0; x < W; ++x) {
+      float acc = 0;
+      for (int k = -r; k <= r; ++k) acc += w[k + r] * src[std::clamp(x + k, 0, W - 1)];
+      dst[x] = acc;
+    }
+  }
+  for (int y = 0; y < H; ++y) {
+    float* dst = &m.board_tex[static_cast<size_t>(y) * W];
+    for (int x = 0; x < W; ++x) {
+      float acc = 0;
+      for (int k = -r; k <= r; ++k) acc += w[k + r] * tmp[static_cast<size_t>(std::clamp(y + k, 0, H - 1)) * W + x];
+      dst[x] = acc;
+    }
+  }
 }
 
 Renderer::~Renderer() = default;
@@ -414,9 +496,11 @@ void Renderer::RenderInto(int side, double platter_deg, const RenderOptions& opt
   const Lighting& light = world_.lighting();
 
   // ---- 1. visibility buffer of the rock (undistorted pixel space) ----
+  // The "charuco" scene has no rock: no visibility buffer, no shadow map.
+  const bool draw_rock = !m.has_board;
   const Rigid rock_to_cam = world_.RockToCamera(side, platter_deg);
   double bx0 = 1e300, bx1 = -1e300, by0 = 1e300, by1 = -1e300;
-  for (int i = 0; i < nv; ++i) {
+  for (int i = 0; i < (draw_rock ? nv : 0); ++i) {
     const Vec3 p = rock_to_cam.Apply(ToVec3(rock.vertices[i]));
     m.valid[i] = p.z > 1.0 ? 1 : 0;
     if (!m.valid[i]) continue;
@@ -453,36 +537,42 @@ void Renderer::RenderInto(int side, double platter_deg, const RenderOptions& opt
   // ---- 2. shadow map from the key light ----
   const Rigid rock_to_world = world_.RockToWorld(side, platter_deg);
   const Vec3 L = light.to_light;
-  double u0 = 1e300, u1 = -1e300, v0 = 1e300, v1 = -1e300;
-  for (int i = 0; i < nv; ++i) {
-    const Vec3 p = rock_to_world.Apply(ToVec3(rock.vertices[i]));
-    m.fu[i] = Dot(p, m.e1);
-    m.fv[i] = Dot(p, m.e2);
-    m.key[i] = static_cast<float>(Dot(p, L));
-    u0 = std::min(u0, m.fu[i]), u1 = std::max(u1, m.fu[i]);
-    v0 = std::min(v0, m.fv[i]), v1 = std::max(v1, m.fv[i]);
-  }
-  m.sm_texel = std::max(kShadowTexelMm, std::max(u1 - u0, v1 - v0) / 1200.0);
-  const double margin = (kBlurRadius * kBlurPasses + 3) * m.sm_texel;
-  m.sm_u0 = u0 - margin, m.sm_v0 = v0 - margin;
-  m.sm_w = static_cast<int>(std::ceil((u1 - u0 + 2 * margin) / m.sm_texel)) + 1;
-  m.sm_h = static_cast<int>(std::ceil((v1 - v0 + 2 * margin) / m.sm_texel)) + 1;
-  m.sm_key.assign(static_cast<size_t>(m.sm_w) * m.sm_h, kNoKey);
-  for (int i = 0; i < nv; ++i) {
-    m.valid[i] = 1;
-    m.xi[i] = static_cast<int32_t>(std::lround((m.fu[i] - m.sm_u0) / m.sm_texel * kSub));
-    m.yi[i] = static_cast<int32_t>(std::lround((m.fv[i] - m.sm_v0) / m.sm_texel * kSub));
-  }
-  // Faces turned away from the light (negative area in (e1, e2)): the depth of
-  // the far side of the first solid along each light ray, so lit surfaces are
-  // never self-shadowed by rounding.
-  Rasterize(rock.faces, m.xi.data(), m.yi.data(), m.key.data(), m.valid.data(),
-            {m.sm_w, m.sm_h, m.sm_key.data(), nullptr});
-  m.sm_cov.resize(m.sm_key.size());
-  for (size_t i = 0; i < m.sm_key.size(); ++i) m.sm_cov[i] = m.sm_key[i] > kNoKey ? 1.0f : 0.0f;
-  for (int pass = 0; pass < kBlurPasses; ++pass) {
-    BoxBlur(m.sm_cov.data(), m.sm_w, m.sm_h, kBlurRadius, true, &m.blur_tmp);
-    BoxBlur(m.sm_cov.data(), m.sm_w, m.sm_h, kBlurRadius, false, &m.blur_tmp);
+  if (draw_rock) {
+    double u0 = 1e300, u1 = -1e300, v0 = 1e300, v1 = -1e300;
+    for (int i = 0; i < nv; ++i) {
+      const Vec3 p = rock_to_world.Apply(ToVec3(rock.vertices[i]));
+      m.fu[i] = Dot(p, m.e1);
+      m.fv[i] = Dot(p, m.e2);
+      m.key[i] = static_cast<float>(Dot(p, L));
+      u0 = std::min(u0, m.fu[i]), u1 = std::max(u1, m.fu[i]);
+      v0 = std::min(v0, m.fv[i]), v1 = std::max(v1, m.fv[i]);
+    }
+    m.sm_texel = std::max(kShadowTexelMm, std::max(u1 - u0, v1 - v0) / 1200.0);
+    const double margin = (kBlurRadius * kBlurPasses + 3) * m.sm_texel;
+    m.sm_u0 = u0 - margin, m.sm_v0 = v0 - margin;
+    m.sm_w = static_cast<int>(std::ceil((u1 - u0 + 2 * margin) / m.sm_texel)) + 1;
+    m.sm_h = static_cast<int>(std::ceil((v1 - v0 + 2 * margin) / m.sm_texel)) + 1;
+    m.sm_key.assign(static_cast<size_t>(m.sm_w) * m.sm_h, kNoKey);
+    for (int i = 0; i < nv; ++i) {
+      m.valid[i] = 1;
+      m.xi[i] = static_cast<int32_t>(std::lround((m.fu[i] - m.sm_u0) / m.sm_texel * kSub));
+      m.yi[i] = static_cast<int32_t>(std::lround((m.fv[i] - m.sm_v0) / m.sm_texel * kSub));
+    }
+    // Faces turned away from the light (negative area in (e1, e2)): the depth of
+    // the far side of the first solid along each light ray, so lit surfaces are
+    // never self-shadowed by rounding.
+    Rasterize(rock.faces, m.xi.data(), m.yi.data(), m.key.data(), m.valid.data(),
+              {m.sm_w, m.sm_h, m.sm_key.data(), nullptr});
+    m.sm_cov.resize(m.sm_key.size());
+    for (size_t i = 0; i < m.sm_key.size(); ++i) m.sm_cov[i] = m.sm_key[i] > kNoKey ? 1.0f : 0.0f;
+    for (int pass = 0; pass < kBlurPasses; ++pass) {
+      BoxBlur(m.sm_cov.data(), m.sm_w, m.sm_h, kBlurRadius, true, &m.blur_tmp);
+      BoxBlur(m.sm_cov.data(), m.sm_w, m.sm_h, kBlurRadius, false, &m.blur_tmp);
+    }
+  } else {
+    m.sm_w = m.sm_h = 0;  // GroundVis: everything lit
+    m.sm_u0 = m.sm_v0 = 0;
+    m.sm_texel = 1;
   }
 
   // ---- 3. per-pixel shading ----
@@ -563,7 +653,7 @@ void Renderer::RenderInto(int side, double platter_deg, const RenderOptions& opt
     }
     boxes.push_back(b);
   }
-  {
+  if (draw_rock) {
     // The shadow map's footprint on the disc top and on the table (the rim lies between).
     const double su1 = m.sm_u0 + m.sm_w * m.sm_texel, sv1 = m.sm_v0 + m.sm_h * m.sm_texel;
     for (double z0 : {0.0, -kDiscThicknessMm}) {
@@ -580,6 +670,17 @@ void Renderer::RenderInto(int side, double platter_deg, const RenderOptions& opt
   for (const Label& lb : m.labels) {
     box_of_world_quad({platter.Apply({lb.x0, lb.y0, 0}), platter.Apply({lb.x1, lb.y0, 0}),
                        platter.Apply({lb.x1, lb.y1, 0}), platter.Apply({lb.x0, lb.y1, 0})});
+  }
+  if (m.has_board) {
+    // The paper sheet (squares area plus margin).
+    const double hw = m.board_hw + kBoardPaperMarginMm, hh = m.board_hh + kBoardPaperMarginMm;
+    std::array<Vec3, 4> q;
+    const double cx[4] = {-hw, hw, hw, -hw}, cy[4] = {-hh, -hh, hh, hh};
+    for (int i = 0; i < 4; ++i) {
+      q[i] = platter.Apply({m.board_x + m.board_cos * cx[i] - m.board_sin * cy[i],
+                            m.board_y + m.board_sin * cx[i] + m.board_cos * cy[i], 0});
+    }
+    box_of_world_quad(q);
   }
   std::vector<std::pair<int, int>> spans;
   float rgb[3];

@@ -68,6 +68,8 @@ class Renderer {
 
  private:
   struct Impl;
+  void BuildBoardTexture(const SimBoard& board);
+
   const SimWorld& world_;
   Intrinsics intr_;
   std::unique_ptr<Impl> impl_;

@@ -79,6 +79,13 @@ json TruthRecorder::SampleTruth(const Config& config) const {
 
 Status TruthRecorder::WriteTruthJson(const std::string& path, const Config& config) const {
   json t = SampleTruth(config);
+  if (const SimBoard* b = world_->board()) {
+    // Scene "charuco": the calibration board's pose on the disc (board.h frames).
+    t["scene"] = "charuco";
+    t["board"] = {{"x_mm", b->x_mm}, {"y_mm", b->y_mm}, {"yaw_deg", b->yaw_deg},
+                  {"width_mm", b->width_mm}, {"height_mm", b->height_mm}};
+    t["calibration"] = CalibrationToJson(world_->TruthCalibration(config.camera.width, config.camera.height));
+  }
   {
     std::lock_guard<std::mutex> l(mu_);
     t["views"] = views_;

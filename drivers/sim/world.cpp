@@ -571,6 +571,11 @@ SimWorld::SimWorld(const Config& config, const SimWorldOptions& options)
   world_to_camera_.R = {xc.x, xc.y, xc.z, yc.x, yc.y, yc.z, zc.x, zc.y, zc.z};
   world_to_camera_.t = -world_to_camera_.Rotate(centre);
 
+  if (config.sim.scene == "charuco") {
+    Result<SimBoard> b = LoadSimBoard(config);
+    if (!b) throw std::runtime_error(b.error().ToString());
+    board_.push_back(std::move(b).value());
+  }
   BuildRock();
   ComputePoses();
   PlaceMarkers();

@@ -27,6 +27,7 @@
 #include "common/mesh.h"
 #include "common/rig_calibration.h"
 #include "config/config.h"
+#include "drivers/sim/board.h"
 
 namespace aggscan::sim {
 
@@ -185,6 +186,10 @@ class SimWorld {
   /// distortion applied; false when behind the camera.
   bool ProjectTurntablePoint(const Vec3& p_tt, double platter_deg, const Intrinsics& intr,
                              double* u, double* v) const;
+  /// The calibration board lying on the disc in the "charuco" scene (no rock
+  /// is drawn then); null in the "rock" scene.
+  const SimBoard* board() const { return board_.empty() ? nullptr : &board_.front(); }
+
   /// Reference exposure (exposure_us * gain of the configured default): a
   /// frame taken with this product has nominal brightness.
   double reference_exposure() const { return reference_exposure_; }
@@ -208,6 +213,7 @@ class SimWorld {
   double reference_exposure_ = 8000.0;
   uint32_t texture_seed_ = 0;
   std::array<float, 3> tint_{1, 1, 1};
+  std::vector<SimBoard> board_;  // one in the "charuco" scene
 };
 
 }  // namespace aggscan::sim

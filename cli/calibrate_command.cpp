@@ -1,0 +1,275 @@
+#include "cli/calibrate_command.h"
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <ctime>
+#include <filesystem>
+
+#include "common/fsutil.h"
+#include "common/rig_calibration.h"
+#include "config/config.h"
+#include "pipeline/calibrate.h"
+#include "store/layout.h"
+
+namespace aggscan {
+
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string F(double v, int digits) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.*f", digits, v);
+  return buf;
+}
+
+bool ParseNumber(const std::string& s, double* out) {
+  char* end = nullptr;
+  errno = 0;
+  const double v = std::strtod(s.c_str(), &end);
+  if (s.empty() || *end != '\0' || errno != 0 || !std::isfinite(v)) return false;
+  *out = v;
+  return true;
+}
+
+// Loads a config file; prints its problems.
+bool LoadBoardConfig(const std::string& path, Config* config, std::ostream& err) {
+  std::vector<ConfigProblem> problems;
+  Result<Config> c = LoadConfigFile(path, &problems);
+  if (!c) {
+    err << "aggscan calibrate: invalid configuration " << path << ":\n";
+    for (const auto& p : problems) err << "  " << p.ToString() << "\n";
+    if (problems.empty()) err << "  " << c.error().ToString() << "\n";
+    return false;
+  }
+  *config = *c;
+  return true;
+}
+
+int BoardCommand(const std::vector<std::string>& a, std::ostream& out, std::ostream& err) {
+  std::string path, config_path;
+  double dpi = 300, margin_mm = 10;
+  for (size_t i = 1; i < a.size(); ++i) {
+    auto val = [&](const char* name, std::string* v) {
+      if (i + 1 >= a.size()) {
+        err << "aggscan calibrate board: " << name << " needs a value\n";
+        return false;
+      }
+      *v = a[++i];
+      return true;
+    };
+    std::string v;
+    if (a[i] == "--out") {
+      if (!val("--out", &path)) return 2;
+    } else if (a[i] == "--config") {
+      if (!val("--config", &config_path)) return 2;
+    } else if (a[i] == "--dpi") {
+      if (!val("--dpi", &v)) return 2;
+      if (!ParseNumber(v, &dpi) || dpi < 50 || dpi > 2400) {
+        err << "aggscan calibrate board: --dpi expects 50..2400, got '" << v << "'\n";
+        return 2;
+      }
+    } else if (a[i] == "--margin-mm") {
+      if (!val("--margin-mm", &v)) return 2;
+      if (!ParseNumber(v, &margin_mm) || margin_mm < 0 || margin_mm > 200) {
+        err << "aggscan calibrate board: --margin-mm expects 0..200, got '" << v << "'\n";
+        return 2;
+      }
+    } else {
+      err << "aggscan calibrate board: unknown argument '" << a[i] << "'\n";
+      return 2;
+    }
+  }
+  if (path.empty()) {
+    err << "aggscan calibrate board: --out FILE.png (or FILE.pgm) is required\n";
+    return 2;
+  }
+  Config config;
+  if (!config_path.empty() && !LoadBoardConfig(config_path, &config, err)) return 78;
+  const CalibrationConfig& b = config.calibration;
+  if (Status s = WriteBoardImage(b, path, dpi / 25.4, margin_mm); !s) {
+    err << "aggscan calibrate board: " << s.error().ToString() << "\n";
+    return s.error().cls == ErrorClass::kInvalidArgument ? 2 : 1;
+  }
+  out << "board written to " << path << ": " << b.squares_x << "x" << b.squares_y << " squares of "
+      << F(b.square_mm, 1) << " mm (" << F(b.squares_x * b.square_mm, 1) << " x "
+      << F(b.squares_y * b.square_mm, 1) << " mm), markers " << F(b.marker_mm, 1) << " mm, "
+      << b.dictionary << ", " << F(dpi, 0) << " dpi, margin " << F(margin_mm, 1) << " mm\n"
+      << "print it at 100 % (no fit-to-page), measure a square and write the true size into\n"
+      << "[calibration] square_mm / marker_mm; lay it flat on the turntable.\n";
+  return 0;
+}
+
+// "20240513T101500Z" from the wall clock.
+std::string CompactUtc() {
+  const std::time_t t = std::time(nullptr);
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buf[32];
+  std::strftime(buf, sizeof buf, "%Y%m%dT%H%M%SZ", &tm);
+  return buf;
+}
+
+// Keeps an existing file as <path>.prev-<utc> (a hard link, so <path> stays
+// in place until the new file replaces it atomically). Returns the name used,
+// empty when there was nothing to keep.
+Result<std::string> KeepPrevious(const std::string& path) {
+  if (!PathExists(path)) return std::string();
+  std::string prev = path + ".prev-" + CompactUtc();
+  for (int k = 2; PathExists(prev); ++k) prev = path + ".prev-" + CompactUtc() + "-" + std::to_string(k);
+  if (::link(path.c_str(), prev.c_str()) != 0) {
+    // A filesystem without hard links: a durable copy instead.
+    Result<std::string> old = ReadFile(path);
+    if (!old) return old.error();
+    if (Status s = WriteFileAtomic(prev, *old, true); !s) return s.error();
+    return prev;
+  }
+  const std::string dir = fs::path(path).parent_path().string();
+  if (Status s = FsyncDir(dir.empty() ? "." : dir); !s) return s.error();
+  return prev;
+}
+
+int SolveCommand(const std::vector<std::string>& a, std::ostream& out, std::ostream& err) {
+  std::string sample, state_dir, out_path, config_path;
+  int side = 1;
+  bool json = false;
+  for (size_t i = 0; i < a.size(); ++i) {
+    auto val = [&](const char* name, std::string* v) {
+      if (i + 1 >= a.size()) {
+        err << "aggscan calibrate: " << name << " needs a value\n";
+        return false;
+      }
+      *v = a[++i];
+      return true;
+    };
+    std::string v;
+    if (a[i] == "--side") {
+      if (!val("--side", &v)) return 2;
+      double d = 0;
+      if (!ParseNumber(v, &d) || d < 1 || d > 4 || d != std::floor(d)) {
+        err << "aggscan calibrate: --side expects 1..4, got '" << v << "'\n";
+        return 2;
+      }
+      side = static_cast<int>(d);
+    } else if (a[i] == "--state-dir") {
+      if (!val("--state-dir", &state_dir)) return 2;
+    } else if (a[i] == "--out") {
+      if (!val("--out", &out_path)) return 2;
+    } else if (a[i] == "--config") {
+      if (!val("--config", &config_path)) return 2;
+    } else if (a[i] == "--json") {
+      json = true;
+    } else if (a[i].rfind("--", 0) == 0) {
+      err << "aggscan calibrate: unknown option '" << a[i] << "'\n";
+      return 2;
+    } else if (sample.empty()) {
+      sample = a[i];
+    } else {
+      err << "aggscan calibrate: unexpected argument '" << a[i] << "'\n";
+      return 2;
+    }
+  }
+  if (sample.empty()) {
+    err << "aggscan calibrate: give the sample directory of a board capture (or 'board --out FILE')\n";
+    return 2;
+  }
+  if (!state_dir.empty() && !out_path.empty()) {
+    err << "aggscan calibrate: give --state-dir DIR or --out FILE, not both\n";
+    return 2;
+  }
+  while (sample.size() > 1 && sample.back() == '/') sample.pop_back();
+  if (!fs::is_directory(sample)) {
+    err << "aggscan calibrate: " << sample << " is not a sample directory\n";
+    return 1;
+  }
+  if (out_path.empty()) {
+    if (state_dir.empty()) {
+      // STATE_DIR/samples/ID: the calibration belongs to that state directory.
+      const fs::path parent = fs::absolute(sample).lexically_normal().parent_path();
+      if (parent.filename() == "samples") state_dir = parent.parent_path().string();
+    }
+    if (state_dir.empty()) {
+      err << "aggscan calibrate: " << sample
+          << " is not inside a state directory (STATE_DIR/samples/ID); say where the calibration goes "
+             "with --state-dir DIR or --out FILE\n";
+      return 2;
+    }
+    out_path = CalibrationPath(state_dir);
+  }
+
+  // The board: --config, else the one the sample was captured with.
+  Config config;
+  if (!config_path.empty()) {
+    if (!LoadBoardConfig(config_path, &config, err)) return 78;
+  } else if (PathExists(sample + "/" + layout::kConfigCopy)) {
+    if (!LoadBoardConfig(sample + "/" + layout::kConfigCopy, &config, err)) {
+      err << "  (the sample's config copy is unusable: give the board with --config FILE)\n";
+      return 78;
+    }
+  }
+  const CalibrationConfig& b = config.calibration;
+
+  Result<CalibrationResult> r = CalibrateSampleSide(sample, side, b);
+  if (!r) {
+    err << "aggscan calibrate: " << r.error().ToString() << "\n";
+    return 1;
+  }
+  Result<std::string> prev = KeepPrevious(out_path);
+  if (!prev) {
+    err << "aggscan calibrate: cannot keep the previous " << out_path << ": " << prev.error().ToString()
+        << "; nothing written\n";
+    return 1;
+  }
+  if (Status s = SaveCalibration(out_path, r->cal); !s) {
+    err << "aggscan calibrate: cannot write " << out_path << ": " << s.error().ToString() << "\n";
+    return 1;
+  }
+  const RigCalibration& cal = r->cal;
+  if (json) {
+    out << CalibrationToJson(cal).dump(2) << "\n";
+  } else {
+    const CameraModel& m = cal.camera;
+    const auto C = cal.CameraCentreTable0();
+    const double horiz = std::hypot(C[0], C[1]);
+    const double dist = std::hypot(horiz, C[2]);
+    const double elev = std::atan2(C[2], horiz) * 180 / M_PI;
+    // Optical axis in the table frame: the third row of R.
+    const double down = std::asin(std::clamp(-cal.R_cam_table0[8], -1.0, 1.0)) * 180 / M_PI;
+    out << "calibration written to " << out_path << "\n"
+        << "  views used " << cal.views_used << " of " << r->views_total << ", corners " << cal.corners_used
+        << ", reprojection RMS " << F(cal.reprojection_rms_px, 3) << " px (worst view "
+        << F(r->max_view_rms_px, 3) << " px)\n"
+        << "  lens " << m.width << "x" << m.height << ": fx = fy = " << F(m.fx, 1) << " px, centre ("
+        << F(m.cx, 1) << ", " << F(m.cy, 1) << ") px (fixed: one plane), k1 " << F(m.k1, 4) << ", k2 "
+        << F(m.k2, 4)
+        << (r->k2_estimated ? "" : " (fixed: the board covers too little of the image to measure it)") << "\n"
+        << "  standard deviations: fx " << F(r->sigma_fx_px, 2) << " px, k1 " << F(r->sigma_k1, 4) << "\n"
+        << "  camera " << F(dist, 1) << " mm from the table origin, " << F(C[2], 1)
+        << " mm above the disc, elevation " << F(elev, 2) << " deg; optical axis " << F(down, 2)
+        << " deg below horizontal\n"
+        << "  board on the disc: centre (" << F(r->board_x_mm, 1) << ", " << F(r->board_y_mm, 1)
+        << ") mm, yaw " << F(r->board_yaw_deg, 2) << " deg\n"
+        << "  " << F(r->seconds, 1) << " s\n";
+  }
+  for (const auto& s : r->skipped) err << "aggscan calibrate: not used: " << s << "\n";
+  if (r->outlier_corners > 0) {
+    err << "aggscan calibrate: " << r->outlier_corners
+        << " corner(s) off by more than 2 px were down-weighted (glare, a crease in the paper?)\n";
+  }
+  if (!prev->empty()) err << "aggscan calibrate: the previous calibration is kept as " << *prev << "\n";
+  return 0;
+}
+
+}  // namespace
+
+int RunCalibrateCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {
+  if (!args.empty() && args[0] == "board") return BoardCommand(args, out, err);
+  return SolveCommand(args, out, err);
+}
+
+}  // namespace aggscan

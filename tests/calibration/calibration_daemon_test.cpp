@@ -1,0 +1,150 @@
+// aggscand and the rig calibration: checked at start and at every arm, shown
+// in the status API, never fatal; every sample records the calibration in
+// effect (samples/<id>/calibration.json, write-once).
+#include <gtest/gtest.h>
+
+#include <fstream>
+
+#include "common/fsutil.h"
+#include "common/rig_calibration.h"
+#include "config/config.h"
+#include "daemon/calibration_check.h"
+#include "drivers/sim/world.h"
+#include "store/sample_store.h"
+#include "tests/scenario/process.h"
+
+namespace aggscan::test {
+namespace {
+
+using nlohmann::json;
+
+RigCalibration SimCalibration(int width, int height, const std::string& created) {
+  Config c;
+  sim::SimWorld w(c, {.rock_faces = 2000});
+  RigCalibration cal = w.TruthCalibration(width, height);
+  cal.method = "charuco";
+  cal.created_utc = created;
+  cal.reprojection_rms_px = 0.123;
+  cal.views_used = 30;
+  return cal;
+}
+
+json Calibration(Daemon& d) { return d.Get("/api/v1/status").value("calibration", json()); }
+
+TEST(CalibrationDaemon, MissingThenWrittenWhileRunning) {
+  TempDir t;
+  const std::string cfg = WriteConfig(t.path());
+  const std::string state = t.path() + "/state";
+  Daemon d(cfg, t.path());
+  ASSERT_TRUE(d.ok()) << ReadAll(d.log());
+  json c = Calibration(d);
+  ASSERT_TRUE(c.is_object()) << d.Get("/api/v1/status").dump();
+  EXPECT_EQ(c["state"], "missing");
+  EXPECT_NE(c["message"].get<std::string>().find("aggscan calibrate"), std::string::npos) << c.dump();
+  EXPECT_NE(ReadAll(d.log()).find("rig calibration missing"), std::string::npos) << ReadAll(d.log());
+
+  // Not fatal: a sample can be armed; it records that there was none.
+  int code = 0;
+  d.Post("/api/v1/samples", R"({"id": "no-cal"})", &code);
+  ASSERT_EQ(code, 200);
+  EXPECT_FALSE(PathExists(state + "/samples/no-cal/calibration.json"));
+  json rec = json::parse(ReadAll(state + "/samples/no-cal/sample.json"));
+  EXPECT_TRUE(rec["calibration"]["file"].is_null()) << rec.dump();
+  d.Post("/api/v1/abort", "{}", &code);
+  ASSERT_EQ(code, 200);
+
+  // `aggscan calibrate` writes one while aggscand runs: the next arm sees it
+  // and copies it into the sample.
+  ASSERT_TRUE(SaveCalibration(CalibrationPath(state), SimCalibration(640, 480, "2026-01-02T03:04:05Z")));
+  d.Post("/api/v1/samples", R"({"id": "with-cal"})", &code);
+  ASSERT_EQ(code, 200);
+  c = Calibration(d);
+  EXPECT_EQ(c["state"], "ok") << c.dump();
+  EXPECT_EQ(c["created_utc"], "2026-01-02T03:04:05Z");
+  EXPECT_DOUBLE_EQ(c["reprojection_rms_px"].get<double>(), 0.123);
+  const std::string copy = state + "/samples/with-cal/calibration.json";
+  ASSERT_TRUE(PathExists(copy));
+  EXPECT_EQ(ReadAll(copy), ReadAll(CalibrationPath(state)));
+  rec = json::parse(ReadAll(state + "/samples/with-cal/sample.json"));
+  EXPECT_EQ(rec["calibration"]["file"], "calibration.json") << rec.dump();
+  EXPECT_EQ(rec["calibration"]["created_utc"], "2026-01-02T03:04:05Z");
+  EXPECT_EQ(d.Stop(), 0);
+}
+
+TEST(CalibrationDaemon, PresentAtStartAndInvalidOnes) {
+  TempDir t;
+  const std::string cfg = WriteConfig(t.path());
+  const std::string state = t.path() + "/state";
+  std::filesystem::create_directories(state);
+  ASSERT_TRUE(SaveCalibration(CalibrationPath(state), SimCalibration(1280, 960, "2026-02-03T04:05:06Z")));
+  {
+    // 1280x960 has the camera's 640x480 aspect: the lens scales, so ok.
+    Daemon d(cfg, t.path());
+    ASSERT_TRUE(d.ok()) << ReadAll(d.log());
+    const json c = Calibration(d);
+    EXPECT_EQ(c["state"], "ok") << c.dump();
+    EXPECT_EQ(c["created_utc"], "2026-02-03T04:05:06Z");
+    EXPECT_TRUE(c["reprojection_rms_px"].is_number());
+  }
+  // Another aspect ratio: invalid, and says to calibrate again.
+  ASSERT_TRUE(SaveCalibration(CalibrationPath(state), SimCalibration(1920, 1080, "2026-02-03T04:05:06Z")));
+  {
+    Daemon d(cfg, t.path());
+    ASSERT_TRUE(d.ok()) << ReadAll(d.log());
+    const json c = Calibration(d);
+    EXPECT_EQ(c["state"], "invalid") << c.dump();
+    EXPECT_NE(c["message"].get<std::string>().find("1920x1080"), std::string::npos) << c.dump();
+    EXPECT_NE(c["message"].get<std::string>().find("calibrate again"), std::string::npos) << c.dump();
+    // Capture still works.
+    int code = 0;
+    d.Post("/api/v1/samples", R"({"id": "s1"})", &code);
+    EXPECT_EQ(code, 200);
+  }
+  // Damaged file: invalid with the reason.
+  std::ofstream(CalibrationPath(state)) << "{ \"format\": \"aggscan-calibration-1\", ";
+  {
+    Daemon d(cfg, t.path());
+    ASSERT_TRUE(d.ok()) << ReadAll(d.log());
+    const json c = Calibration(d);
+    EXPECT_EQ(c["state"], "invalid") << c.dump();
+    EXPECT_NE(c["message"].get<std::string>().find("not valid JSON"), std::string::npos) << c.dump();
+  }
+}
+
+TEST(CalibrationStore, SampleCopyIsWriteOnce) {
+  TempDir t;
+  SampleStore store(t.path());
+  ASSERT_TRUE(store.Init());
+  SamplePlan plan;
+  plan.sides = 1;
+  ASSERT_TRUE(SaveCalibration(CalibrationPath(t.path()), SimCalibration(640, 480, "first")));
+  ASSERT_TRUE(store.CreateOrResume("r1", plan, "cfg"));
+  const std::string copy = store.SampleDir("r1") + "/calibration.json";
+  ASSERT_TRUE(PathExists(copy));
+  // A new calibration before the sample is resumed: the sample keeps the
+  // one its first views were shot with.
+  ASSERT_TRUE(SaveCalibration(CalibrationPath(t.path()), SimCalibration(640, 480, "second")));
+  ASSERT_TRUE(store.CreateOrResume("r1", plan, "cfg"));
+  auto kept = LoadCalibration(copy);
+  ASSERT_TRUE(kept);
+  EXPECT_EQ(kept->created_utc, "first");
+  // A damaged state-dir calibration is not copied; the record says why.
+  std::ofstream(CalibrationPath(t.path())) << "garbage";
+  ASSERT_TRUE(store.CreateOrResume("r2", plan, "cfg"));
+  EXPECT_FALSE(PathExists(store.SampleDir("r2") + "/calibration.json"));
+  auto rec = store.LoadRecord("r2");
+  ASSERT_TRUE(rec);
+  EXPECT_NE((*rec)["calibration"].value("reason", "").find("not valid JSON"), std::string::npos)
+      << rec->dump();
+}
+
+TEST(CalibrationCheck, StatesWithoutTheDaemon) {
+  TempDir t;
+  EXPECT_EQ(CheckRigCalibration(t.path(), 640, 480)["state"], "missing");
+  ASSERT_TRUE(SaveCalibration(CalibrationPath(t.path()), SimCalibration(640, 480, "x")));
+  EXPECT_EQ(CheckRigCalibration(t.path(), 640, 480)["state"], "ok");
+  EXPECT_EQ(CheckRigCalibration(t.path(), 640, 400)["state"], "invalid");
+}
+
+}  // namespace
+}  // namespace aggscan::test
