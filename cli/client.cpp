@@ -271,6 +271,12 @@ void PrintStatus(const json& st, std::ostream& out) {
   }
   if (HasNumber(st, "queue_depth"))
     out << "queue: " << Scalar(st["queue_depth"]) << " job(s) waiting\n";
+  if (st.contains("calibration") && st["calibration"].is_object()) {
+    const json& c = st["calibration"];
+    out << "calibration: " << FieldText(c, "state");
+    if (HasText(c, "message")) out << " (" << Clean(c["message"].get<std::string>()) << ")";
+    out << "\n";
+  }
   if (HasNumber(st, "uptime_s"))
     out << "uptime: " << Duration(st["uptime_s"].get<double>()) << "\n";
 }

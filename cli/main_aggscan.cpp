@@ -6,8 +6,10 @@
 #include <string>
 #include <vector>
 
+#include "cli/calibrate_command.h"
 #include "cli/client.h"
 #include "cli/morph_command.h"
+#include "cli/reconstruct_command.h"
 #include "cli/sim_capture.h"
 #include "pipeline/morph2d_cli.h"
 
@@ -18,6 +20,15 @@ void Usage(std::ostream& o) {
        "Daemon commands (talk to aggscand over its HTTP API):\n";
   aggscan::PrintClientUsage(o);
   o << "\nOffline commands:\n"
+       "  aggscan calibrate board --out FILE.png|FILE.pgm [--dpi N] [--margin-mm M] [--config FILE]\n"
+       "      the printable ChArUco board of [calibration] (default 7x5 squares of 30 mm)\n"
+       "  aggscan calibrate SAMPLE_DIR [--side N] [--state-dir DIR | --out FILE] [--config FILE]\n"
+       "                    [--json]\n"
+       "      rig calibration (lens, turntable axis, camera pose) from a side captured with the\n"
+       "      board lying on the turntable; writes calibration.json, keeps the previous one\n"
+       "  aggscan reconstruct SAMPLE_DIR [--state-dir DIR]\n"
+       "      run the worker's stages on a sample now (masks, poses, stitching, surface,\n"
+       "      morphology) and print results/morphology.json; resumes finished stages\n"
        "  aggscan morph MESH [--unit mm|cm|m] [--json]\n"
        "      3D morphology of a closed mesh (PLY/OBJ/STL): volume, area, a<=b<=c of the\n"
        "      minimum-volume box, FER, sphericity; open or non-manifold meshes are refused\n"
@@ -26,9 +37,12 @@ void Usage(std::ostream& o) {
        "      area_px, perimeter_px, circularity); a photo is segmented first\n"
        "  aggscan sim capture (--seed N | --mesh FILE --unit mm|cm|m) --out DIR\n"
        "                      [--profile paper|full-turn] [--views N] [--width W --height H]\n"
-       "                      [--config FILE]\n"
+       "                      [--config FILE] [--scene rock|charuco] [--calibration FILE]\n"
        "      capture a simulated rock into a new sample directory, as aggscand would,\n"
-       "      plus truth.json and truth/ (ground-truth masks and poses)\n";
+       "      plus truth.json and truth/ (ground-truth masks and poses); --scene charuco: the\n"
+       "      [calibration] board on the disc instead of a rock (one side over a full turn),\n"
+       "      input for `aggscan calibrate`; --calibration: recorded in the sample as\n"
+       "      aggscand records state_dir/calibration.json\n";
 }
 
 int SimCommand(const std::vector<std::string>& a) {
@@ -64,10 +78,16 @@ int SimCommand(const std::vector<std::string>& a) {
     else if (a[i] == "--width") o.width = static_cast<int>(num("--width"));
     else if (a[i] == "--height") o.height = static_cast<int>(num("--height"));
     else if (a[i] == "--views") o.views_per_side = static_cast<int>(num("--views"));
+    else if (a[i] == "--scene") o.scene = val("--scene");
+    else if (a[i] == "--calibration") o.calibration = val("--calibration");
     else {
       std::cerr << "aggscan sim capture: unknown option '" << a[i] << "'\n";
       return 2;
     }
+  }
+  if (!o.scene.empty() && o.scene != "rock" && o.scene != "charuco") {
+    std::cerr << "aggscan sim capture: --scene must be rock or charuco\n";
+    return 2;
   }
   if (o.unit != "mm" && o.unit != "cm" && o.unit != "m") {
     std::cerr << "aggscan sim capture: --unit must be mm, cm or m\n";
@@ -135,7 +155,10 @@ int main(int argc, char** argv) {
     }
     return aggscan::RunMorphCommand(path, unit, json, std::cout, std::cerr);
   }
+  if (cmd == "reconstruct")
+    return aggscan::RunReconstructCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
   if (cmd == "sim") return SimCommand(args);
+  if (cmd == "calibrate") return aggscan::RunCalibrateCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
   std::cerr << "aggscan: unknown command '" << cmd << "'\n\n";
   Usage(std::cerr);
   return 2;

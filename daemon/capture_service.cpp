@@ -1,10 +1,13 @@
 #include "daemon/capture_service.h"
 
+#include <algorithm>
 #include <cmath>
 #include <future>
 #include <sstream>
 
+#include "common/fsutil.h"
 #include "common/log.h"
+#include "daemon/calibration_check.h"
 #include "store/layout.h"
 
 namespace aggscan {
@@ -544,7 +547,8 @@ json CaptureService::StatusOnLoop() const {
           {"queue_depth", depth},
           {"views_captured", views_captured_},
           {"time_scale", loop_.clock().Scale()},
-          {"uptime_s", static_cast<double>(MonotonicNs() - started_real_) / 1e9}};
+          {"uptime_s", static_cast<double>(MonotonicNs() - started_real_) / 1e9},
+          {"calibration", calibration_}};
 }
 
 Result<json> CaptureService::ArmOnLoop(const std::string& sample_id) {
@@ -555,6 +559,8 @@ Result<json> CaptureService::ArmOnLoop(const std::string& sample_id) {
   }
   Status healthy = CheckDevicesHealthy();
   if (!healthy) return healthy.error();
+  // The store copies the calibration into the sample: show what it copies.
+  if (!calibration_.is_null()) RefreshCalibration();
   const SamplePlan plan = PlanFromConfig(config_);
   Result<int> first = store_.PrepareArm(sample_id, plan);
   if (!first) return first.error();
@@ -565,6 +571,23 @@ Result<json> CaptureService::ArmOnLoop(const std::string& sample_id) {
   json out = StatusOnLoop();
   out["first_side"] = *first;
   return out;
+}
+
+void CaptureService::RefreshCalibration() {
+  json now = CheckRigCalibration(config_.daemon.state_dir, config_.camera.width, config_.camera.height);
+  const std::string state = now.value("state", "");
+  const bool changed = calibration_.is_null() || calibration_.value("state", "") != state ||
+                       calibration_.value("created_utc", "") != now.value("created_utc", "");
+  calibration_ = std::move(now);
+  if (!changed) return;
+  const std::string msg = calibration_.value("message", "");
+  if (state == "ok") {
+    AGG_LOGI("calibration", "%s", msg.c_str());
+  } else {
+    // Not fatal: views are still captured; the worker needs full SfM without it.
+    AGG_LOGW("calibration", "rig calibration %s: %s; capture works, reconstruction falls back to full SfM",
+             state.c_str(), msg.c_str());
+  }
 }
 
 Result<json> CaptureService::AbortOnLoop() {
@@ -635,6 +658,25 @@ Result<json> CaptureService::GetSample(const std::string& sample_id) {
     }
   }
   return out;
+}
+
+Result<std::string> CaptureService::ResultFile(const std::string& sample_id, const std::string& name) {
+  const auto& names = ResultFileNames();
+  if (std::find(names.begin(), names.end(), name) == names.end()) {
+    return MakeError(ErrorClass::kNotFound, "no result file \"" + name + "\"; results are morphology.json, mesh.ply, "
+                                            "mesh.obj and mesh.stl");
+  }
+  const std::string dir = store_.SampleDir(sample_id);
+  if (!PathExists(dir + "/" + layout::kSampleRecord)) {
+    return MakeError(ErrorClass::kNotFound, "no sample \"" + sample_id + "\"");
+  }
+  const std::string path = dir + "/" + layout::kResultsDir + "/" + name;
+  // The mesh files are complete once the worker has written morphology.json.
+  if (!PathExists(dir + "/" + layout::kResultsDir + "/morphology.json") || !PathExists(path)) {
+    return MakeError(ErrorClass::kNotFound, "sample \"" + sample_id + "\" has no results yet: the worker has not "
+                                            "finished it (see GET /api/v1/samples/" + sample_id + " for its jobs)");
+  }
+  return path;
 }
 
 std::string CaptureService::Metrics() {

@@ -55,6 +55,7 @@ class CaptureService final : public DaemonControl {
   Result<nlohmann::json> Reset() override;
   Result<nlohmann::json> ListSamples() override;
   Result<nlohmann::json> GetSample(const std::string& sample_id) override;
+  Result<std::string> ResultFile(const std::string& sample_id, const std::string& name) override;
   std::string Metrics() override;
 
   // Loop-thread versions (used by the offline sim capture and by the above).
@@ -65,6 +66,11 @@ class CaptureService final : public DaemonControl {
   nlohmann::json StatusOnLoop() const;
   const capture::State& state() const { return state_; }
   std::string StatusLine() const;
+  /// Loop thread (or before the loop runs): checks state_dir/calibration.json
+  /// against the camera config and logs a change; the status API shows the
+  /// result as "calibration" (null until the first check). Once called, every
+  /// arm checks again (a calibration may be written while aggscand runs).
+  void RefreshCalibration();
 
  private:
   struct MotionWatch {
@@ -117,6 +123,7 @@ class CaptureService final : public DaemonControl {
   bool reopen_scheduled_ = false;
   TimeNs started_real_ = 0;
   std::string last_status_;
+  nlohmann::json calibration_;  // CheckRigCalibration() result; null = never checked
   std::function<void(const std::string&)> on_status_;
   std::function<void(const capture::State&)> on_transition_;
 

@@ -7,10 +7,17 @@
 
 #include <nlohmann/json.hpp>
 #include <string>
+#include <vector>
 
 #include "common/error.h"
 
 namespace aggscan {
+
+/// The result files the API serves, as named in results/ (pipeline/reconstruct.h).
+inline const std::vector<std::string>& ResultFileNames() {
+  static const std::vector<std::string> names = {"morphology.json", "mesh.ply", "mesh.obj", "mesh.stl"};
+  return names;
+}
 
 class DaemonControl {
  public:
@@ -29,6 +36,10 @@ class DaemonControl {
   virtual Result<nlohmann::json> ListSamples() = 0;
   /// The sample record plus per-side view lists and job states.
   virtual Result<nlohmann::json> GetSample(const std::string& sample_id) = 0;
+  /// Path of one of a sample's result files, written by the worker: name is
+  /// "morphology.json", "mesh.ply", "mesh.obj" or "mesh.stl" (ResultFileNames()).
+  /// kNotFound when the sample does not exist or has no such result yet.
+  virtual Result<std::string> ResultFile(const std::string& sample_id, const std::string& name) = 0;
   /// Prometheus text exposition format.
   virtual std::string Metrics() = 0;
 };

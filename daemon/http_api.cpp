@@ -15,6 +15,7 @@
 #include <string_view>
 #include <utility>
 
+#include "common/fsutil.h"
 #include "common/log.h"
 #include "store/layout.h"
 
@@ -77,13 +78,14 @@ std::string Printable(std::string_view s, size_t max_len = 200) {
   return out;
 }
 
-enum class Endpoint { kNone, kStatus, kSamples, kSample, kButton, kAbort, kReset, kMetrics };
+enum class Endpoint { kNone, kStatus, kSamples, kSample, kSampleFile, kButton, kAbort, kReset, kMetrics };
 
 // Methods each endpoint accepts (HEAD is answered wherever GET is).
 const char* AllowedMethods(Endpoint ep) {
   switch (ep) {
     case Endpoint::kStatus:
     case Endpoint::kSample:
+    case Endpoint::kSampleFile:
     case Endpoint::kMetrics:
       return "GET, HEAD";
     case Endpoint::kSamples:
@@ -111,8 +113,9 @@ bool MethodAllowed(Endpoint ep, const std::string& method) {
 }
 
 // `path` is already percent-decoded by cpp-httplib; `id` gets whatever follows
-// the samples prefix, unvalidated.
-Endpoint Match(const std::string& path, std::string* id) {
+// the samples prefix up to the next '/', unvalidated, and `file` what follows
+// that ("results" or a mesh file name).
+Endpoint Match(const std::string& path, std::string* id, std::string* file) {
   if (path == "/api/v1/status") return Endpoint::kStatus;
   if (path == "/api/v1/samples") return Endpoint::kSamples;
   if (path == "/api/v1/button") return Endpoint::kButton;
@@ -121,6 +124,18 @@ Endpoint Match(const std::string& path, std::string* id) {
   if (path == "/metrics") return Endpoint::kMetrics;
   if (path.rfind(kSamplesPrefix, 0) == 0) {
     *id = path.substr(std::strlen(kSamplesPrefix));
+    const size_t slash = id->find('/');
+    if (slash == std::string::npos) return Endpoint::kSample;
+    *file = id->substr(slash + 1);
+    id->resize(slash);
+    if (*file == "results") {
+      *file = "morphology.json";
+      return Endpoint::kSampleFile;
+    }
+    if (*file == "mesh.ply" || *file == "mesh.obj" || *file == "mesh.stl") return Endpoint::kSampleFile;
+    // Anything else is not a sub-resource: the whole rest is the (invalid) id.
+    *id = path.substr(std::strlen(kSamplesPrefix));
+    file->clear();
     return Endpoint::kSample;
   }
   return Endpoint::kNone;
@@ -251,8 +266,8 @@ struct HttpApi::Impl {
       }
     }
 
-    std::string id;
-    const Endpoint ep = Match(req.path, &id);
+    std::string id, file;
+    const Endpoint ep = Match(req.path, &id, &file);
     if (ep == Endpoint::kNone) {
       SetError(
           res, 404, ErrorClass::kNotFound,
@@ -291,6 +306,13 @@ struct HttpApi::Impl {
         }
         Reply(res, control.GetSample(id));
         return;
+      case Endpoint::kSampleFile:
+        if (!layout::IsValidSampleId(id)) {
+          SetError(res, 400, ErrorClass::kInvalidArgument, InvalidIdMessage(id));
+          return;
+        }
+        ServeResultFile(id, file, res);
+        return;
       case Endpoint::kButton:
         Reply(res, control.Press("api"));
         return;
@@ -308,6 +330,28 @@ struct HttpApi::Impl {
         break;
     }
     SetError(res, 500, ErrorClass::kInternal, "unrouted endpoint; report it");
+  }
+
+  void ServeResultFile(const std::string& id, const std::string& name, httplib::Response& res) {
+    Result<std::string> path = control.ResultFile(id, name);
+    if (!path) {
+      SetError(res, path.error());
+      return;
+    }
+    Result<std::string> bytes = ReadFile(*path);
+    if (!bytes) {
+      SetError(res, bytes.error());
+      return;
+    }
+    const bool is_json = name.size() > 5 && name.compare(name.size() - 5, 5, ".json") == 0;
+    res.status = 200;
+    if (!is_json) {
+      res.set_header("Content-Disposition", "attachment; filename=\"" + id + "_" + name + "\"");
+    }
+    res.set_content(std::move(*bytes), is_json                       ? kJsonType
+                                       : name.ends_with(".obj")      ? "text/plain; charset=utf-8"
+                                       : name.ends_with(".stl")      ? "model/stl"
+                                                                     : "application/octet-stream");
   }
 
   void ArmFromBody(const std::string& body, httplib::Response& res) {

@@ -182,6 +182,9 @@ int main(int argc, char** argv) {
     truth->Attach(*rig, [&store](const std::string& id) { return store.SampleDir(id) + "/" + layout::kTruthDir; });
   }
   CaptureService service(loop, config, effective, std::move(*rig), store, queue->get());
+  // The rig calibration: checked now and at every arm; missing or invalid is a
+  // warning and a status field, never a reason not to capture.
+  service.RefreshCalibration();
   SystemdNotifier notifier(loop);
   service.SetStatusListener([&notifier](const std::string& line) { notifier.Status(line); });
   service.Start();

@@ -12,6 +12,7 @@
 #include <optional>
 #include <stdexcept>
 #include <string>
+#include <map>
 #include <vector>
 
 #include "daemon/control.h"
@@ -92,6 +93,14 @@ class FakeControl : public DaemonControl {
                           {"state", "done"},
                           {"created_utc", "2026-01-01T10:00:00.000Z"},
                           {"sides", {{{"side", 1}, {"job", "done"}, {"views", views}}}}};
+  }
+  std::map<std::string, std::string> result_files;  // "id/name" -> path
+  Result<std::string> ResultFile(const std::string& id, const std::string& name) override {
+    Record("result:" + id + "/" + name);
+    if (fail) return *fail;
+    auto it = result_files.find(id + "/" + name);
+    if (it == result_files.end()) return MakeError(ErrorClass::kNotFound, "no results yet for " + id);
+    return it->second;
   }
   std::string Metrics() override {
     Record("metrics");

@@ -1,6 +1,8 @@
 #include "daemon/http_api.h"
 
 #include <gtest/gtest.h>
+
+#include <fstream>
 #include <httplib.h>
 #include <poll.h>
 
@@ -116,6 +118,42 @@ TEST_F(HttpApiTest, ListAndShowSamples) {
   EXPECT_EQ(one->status, 200);
   EXPECT_EQ(Body(one)["id"], "rock-11");
   EXPECT_EQ(fake_.Calls(), (std::vector<std::string>{"list", "get:rock-11"}));
+}
+
+TEST_F(HttpApiTest, ResultsAndMeshFiles) {
+  const std::string dir = ::testing::TempDir();
+  const std::string morph = dir + "/api_morphology.json", ply = dir + "/api_mesh.ply";
+  { std::ofstream(morph) << R"({"sample_id": "rock-11", "morphology_3d": {"volume_mm3": 1234.5}})"; }
+  { std::ofstream(ply, std::ios::binary) << std::string("ply\0\x01\x02binary", 15); }
+  fake_.result_files["rock-11/morphology.json"] = morph;
+  fake_.result_files["rock-11/mesh.ply"] = ply;
+  auto r = client_->Get("/api/v1/samples/rock-11/results");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 200);
+  EXPECT_EQ(r->get_header_value("Content-Type"), "application/json");
+  EXPECT_EQ(Body(r)["morphology_3d"]["volume_mm3"], 1234.5);
+  auto m = client_->Get("/api/v1/samples/rock-11/mesh.ply");
+  ASSERT_TRUE(m);
+  EXPECT_EQ(m->status, 200);
+  EXPECT_EQ(m->body, std::string("ply\0\x01\x02binary", 15));
+  EXPECT_EQ(m->get_header_value("Content-Type"), "application/octet-stream");
+  EXPECT_NE(m->get_header_value("Content-Disposition").find("rock-11_mesh.ply"), std::string::npos);
+  // Not finished yet: 404 with the reason; unknown files and bad ids.
+  auto stl = client_->Get("/api/v1/samples/rock-11/mesh.stl");
+  ASSERT_TRUE(stl);
+  EXPECT_EQ(stl->status, 404);
+  EXPECT_NE(Body(stl)["error"]["message"].get<std::string>().find("no results yet"), std::string::npos);
+  auto other = client_->Get("/api/v1/samples/rock-11/sample.json");
+  ASSERT_TRUE(other);
+  EXPECT_EQ(other->status, 400);  // not a result: "rock-11/sample.json" is no sample id
+  auto bad = client_->Get("/api/v1/samples/..%2Fetc/results");
+  ASSERT_TRUE(bad);
+  EXPECT_EQ(bad->status, 400);
+  auto post = client_->Post("/api/v1/samples/rock-11/results", "", "text/plain");
+  ASSERT_TRUE(post);
+  EXPECT_EQ(post->status, 405);
+  EXPECT_EQ(fake_.Calls(), (std::vector<std::string>{"result:rock-11/morphology.json", "result:rock-11/mesh.ply",
+                                                     "result:rock-11/mesh.stl"}));
 }
 
 TEST_F(HttpApiTest, ButtonAbortReset) {

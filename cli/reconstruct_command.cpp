@@ -1,0 +1,57 @@
+#include "cli/reconstruct_command.h"
+
+#include <filesystem>
+
+#include "pipeline/reconstruct.h"
+
+namespace aggscan {
+
+int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {
+  std::string sample_dir, state_dir;
+  for (size_t i = 0; i < args.size(); ++i) {
+    if (args[i] == "--state-dir") {
+      if (i + 1 >= args.size()) {
+        err << "aggscan reconstruct: --state-dir needs a directory\n";
+        return 2;
+      }
+      state_dir = args[++i];
+    } else if (!args[i].empty() && args[i][0] == '-') {
+      err << "aggscan reconstruct: unknown option '" << args[i] << "'\n";
+      return 2;
+    } else if (sample_dir.empty()) {
+      sample_dir = args[i];
+    } else {
+      err << "aggscan reconstruct: unexpected argument '" << args[i] << "'\n";
+      return 2;
+    }
+  }
+  if (sample_dir.empty()) {
+    err << "aggscan reconstruct: give a sample directory (STATE_DIR/samples/ID)\n";
+    return 2;
+  }
+  std::error_code ec;
+  if (!std::filesystem::is_directory(sample_dir, ec)) {
+    err << "aggscan reconstruct: " << sample_dir << " is not a directory\n";
+    return 2;
+  }
+  if (state_dir.empty()) {
+    // A sample inside a state directory: STATE/samples/ID.
+    const auto parent = std::filesystem::absolute(sample_dir).lexically_normal().parent_path();
+    if (parent.filename() == "samples") state_dir = parent.parent_path().string();
+  }
+  ReconstructOptions opts;
+  opts.state_dir = state_dir;
+  if (Status s = ReconstructSample(sample_dir, opts); !s) {
+    err << "aggscan reconstruct: " << s.error().ToString() << "\n";
+    return 1;
+  }
+  auto m = ReadMorphology(sample_dir);
+  if (!m) {
+    err << "aggscan reconstruct: " << m.error().ToString() << "\n";
+    return 1;
+  }
+  out << m->dump(2) << "\n";
+  return 0;
+}
+
+}  // namespace aggscan

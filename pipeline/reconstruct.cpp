@@ -1,0 +1,650 @@
+#include "pipeline/reconstruct.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <thread>
+
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "common/clock.h"
+#include "common/fsutil.h"
+#include "common/log.h"
+#include "common/mesh_check.h"
+#include "common/mesh_props.h"
+#include "common/rig_calibration.h"
+#include "pipeline/morph2d.h"
+#include "pipeline/stitch_stage.h"
+#include "store/layout.h"
+
+namespace aggscan {
+
+std::string results::PosesName(int side) { return "poses_" + layout::SideDirName(side) + ".json"; }
+
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+constexpr const char* kCat = "worker";
+
+std::string SampleIdOf(const std::string& sample_dir) {
+  fs::path p = fs::path(sample_dir).lexically_normal();
+  if (p.filename().empty()) p = p.parent_path();
+  return p.filename().string();
+}
+
+std::string ResultsPath(const std::string& sample_dir, const std::string& name) {
+  return sample_dir + "/" + layout::kResultsDir + "/" + name;
+}
+
+Status WriteJson(const std::string& path, const json& j) { return WriteFileAtomic(path, j.dump(2) + "\n"); }
+
+Result<json> ReadJson(const std::string& path, const std::string& what) {
+  auto text = ReadFile(path);
+  if (!text) return text.error();
+  json j = json::parse(*text, nullptr, false);
+  if (j.is_discarded() || !j.is_object()) {
+    return MakeError(ErrorClass::kCorrupt, what + " " + path + " is not valid JSON; delete it to recompute that stage");
+  }
+  return j;
+}
+
+double Seconds(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+Eigen::Isometry3d IsoFromRowMajor(const std::array<double, 16>& m) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) T.linear()(r, c) = m[r * 4 + c];
+    T.translation()(r) = m[r * 4 + 3];
+  }
+  return T;
+}
+
+json IsoToJson(const Eigen::Isometry3d& T) {
+  json a = json::array();
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c) a.push_back(T.matrix()(r, c));
+  return a;
+}
+
+Result<Eigen::Isometry3d> IsoFromJson(const json& j, const std::string& what) {
+  if (!j.is_array() || j.size() != 16) return MakeError(ErrorClass::kCorrupt, what + ": not a 4x4 matrix");
+  std::array<double, 16> m{};
+  for (int i = 0; i < 16; ++i) {
+    if (!j[i].is_number()) return MakeError(ErrorClass::kCorrupt, what + ": not a 4x4 matrix");
+    m[i] = j[i].get<double>();
+  }
+  return IsoFromRowMajor(m);
+}
+
+// --- stage: calibration --------------------------------------------------
+
+Result<RigCalibration> CalibrationStage(const std::string& sample_dir, const ReconstructOptions& opts,
+                                        const cv::Size& image_size, json* timings) {
+  const std::string out = ResultsPath(sample_dir, results::kCalibrationUsed);
+  if (PathExists(out)) {
+    auto j = ReadJson(out, "calibration record");
+    if (!j) return j.error();
+    auto cal = CalibrationFromJson(*j, out);
+    if (!cal) return cal.error();
+    (*timings)["calibration_s"] = j->value("stage_seconds", 0.0);
+    return cal;
+  }
+  const auto t0 = std::chrono::steady_clock::now();
+  std::string path = sample_dir + "/calibration.json";
+  if (!PathExists(path) && !opts.state_dir.empty()) path = CalibrationPath(opts.state_dir);
+  auto cal = LoadCalibration(path);
+  if (!cal) {
+    return MakeError(cal.error().cls, "calibration stage: " + cal.error().message, cal.error().detail);
+  }
+  if (Status s = CheckCalibrationFits(*cal, image_size.width, image_size.height); !s) {
+    return MakeError(ErrorClass::kInvalidConfig, "calibration stage: " + s.error().message);
+  }
+  if (cal->camera.width != image_size.width) cal->camera = cal->camera.Resized(image_size.width, image_size.height);
+  json j = CalibrationToJson(*cal);
+  j["origin"] = path;
+  j["stage_seconds"] = Seconds(t0);
+  if (Status s = WriteJson(out, j); !s) return s.error();
+  (*timings)["calibration_s"] = j["stage_seconds"];
+  return cal;
+}
+
+// --- stage: poses --------------------------------------------------------
+
+struct ViewInput {
+  int side = 0;
+  int view = 0;
+  double angle_deg = 0;
+  std::string image;  // path
+  std::string mask;   // path
+  Eigen::Isometry3d cam_from_table = Eigen::Isometry3d::Identity();
+};
+
+Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int side, const RigCalibration& cal,
+                                          json* timings) {
+  const std::string out = ResultsPath(sample_dir, results::PosesName(side));
+  const std::string side_dir = sample_dir + "/" + layout::SideDirName(side);
+  std::vector<ViewInput> views;
+  if (!PathExists(out)) {
+    const auto t0 = std::chrono::steady_clock::now();
+    auto side_result = ReadJson(SideResultPath(sample_dir, side), "side result");
+    if (!side_result) return side_result.error();
+    json jviews = json::array();
+    for (const auto& v : side_result->value("views", json::array())) {
+      if (!v.value("ok", false)) continue;  // no rock in this view: it cannot bound the hull
+      if (!v.contains("measured_angle_deg") || !v["measured_angle_deg"].is_number()) {
+        return MakeError(ErrorClass::kCorrupt, "poses stage: view " + std::to_string(v.value("view", -1)) + " of " +
+                                                   layout::SideDirName(side) +
+                                                   " has no measured turntable angle in its sidecar");
+      }
+      const double angle = v["measured_angle_deg"].get<double>();
+      const Eigen::Isometry3d T = IsoFromRowMajor(cal.CamFromTable(angle));
+      jviews.push_back({{"view", v["view"]},
+                        {"image", v.value("image", "")},
+                        {"mask", v.value("mask", "")},
+                        {"angle_deg", angle},
+                        {"cam_from_table_4x4", IsoToJson(T)}});
+    }
+    if (jviews.size() < 3) {
+      return MakeError(ErrorClass::kCorrupt, "poses stage: " + layout::SideDirName(side) + " has only " +
+                                                 std::to_string(jviews.size()) +
+                                                 " views with a rock; at least 3 are needed: re-capture the side");
+    }
+    json j = {{"side", side},
+              {"method", "turntable"},
+              {"method_detail", "calibrated turntable: cam_from_table0 * Rz(measured angle)"},
+              {"views", jviews},
+              {"stage_seconds", Seconds(t0)}};
+    if (Status s = WriteJson(out, j); !s) return s.error();
+  }
+  auto j = ReadJson(out, "poses");
+  if (!j) return j.error();
+  for (const auto& v : j->value("views", json::array())) {
+    ViewInput in;
+    in.side = side;
+    in.view = v.value("view", 0);
+    in.angle_deg = v.value("angle_deg", 0.0);
+    in.image = side_dir + "/" + v.value("image", "");
+    in.mask = sample_dir + "/" + layout::kResultsDir + "/" + v.value("mask", "");
+    auto T = IsoFromJson(v.value("cam_from_table_4x4", json()), out);
+    if (!T) return T.error();
+    in.cam_from_table = *T;
+    views.push_back(std::move(in));
+  }
+  (*timings)["poses_" + layout::SideDirName(side) + "_s"] = j->value("stage_seconds", 0.0);
+  return views;
+}
+
+// --- stage: surface ------------------------------------------------------
+
+// Per-vertex colour from the view that sees the vertex most head-on among
+// those where it lies well inside the silhouette.
+Result<VertexColors> ColourVertices(const Mesh& mesh, const std::vector<ViewInput>& views,
+                                    const std::vector<Eigen::Isometry3d>& cam_from_object,
+                                    const std::vector<cv::Mat>& masks, const CameraModel& cam) {
+  const size_t nv = mesh.vertices.size();
+  std::vector<Eigen::Vector3d> normals(nv, Eigen::Vector3d::Zero());
+  for (const auto& f : mesh.faces) {
+    const Eigen::Vector3d a(mesh.vertices[f[0]].data()), b(mesh.vertices[f[1]].data()), c(mesh.vertices[f[2]].data());
+    const Eigen::Vector3d n = (b - a).cross(c - a);
+    for (int i : f) normals[i] += n;
+  }
+  std::vector<int> best(nv, -1);
+  std::vector<double> score(nv, 0.0);
+  std::vector<Eigen::Vector2f> uv(nv);
+  for (size_t vi = 0; vi < views.size(); ++vi) {
+    const Eigen::Isometry3d& T = cam_from_object[vi];
+    const Eigen::Vector3d C = T.inverse().translation();
+    for (size_t i = 0; i < nv; ++i) {
+      const Eigen::Vector3d p(mesh.vertices[i].data());
+      const Eigen::Vector3d to_cam = (C - p).normalized();
+      const double s = normals[i].normalized().dot(to_cam);
+      if (s <= score[i]) continue;
+      const Eigen::Vector3d pc = T * p;
+      double u, v;
+      if (!cam.Project({pc.x(), pc.y(), pc.z()}, &u, &v)) continue;
+      const int x = static_cast<int>(std::lround(u)), y = static_cast<int>(std::lround(v));
+      if (x < 2 || y < 2 || x >= cam.width - 2 || y >= cam.height - 2) continue;
+      if (masks[vi].at<uint8_t>(y, x) == 0) continue;
+      score[i] = s;
+      best[i] = static_cast<int>(vi);
+      uv[i] = Eigen::Vector2f(static_cast<float>(u), static_cast<float>(v));
+    }
+  }
+  VertexColors colors(nv, {128, 128, 128});
+  for (size_t vi = 0; vi < views.size(); ++vi) {
+    bool any = false;
+    for (size_t i = 0; i < nv && !any; ++i) any = best[i] == static_cast<int>(vi);
+    if (!any) continue;
+    const cv::Mat img = cv::imread(views[vi].image, cv::IMREAD_COLOR);
+    if (img.empty()) {
+      return MakeError(ErrorClass::kCorrupt, "surface stage: image " + views[vi].image + " cannot be decoded");
+    }
+    for (size_t i = 0; i < nv; ++i) {
+      if (best[i] != static_cast<int>(vi)) continue;
+      cv::Mat patch;
+      cv::getRectSubPix(img, cv::Size(1, 1), cv::Point2f(uv[i].x(), uv[i].y()), patch);
+      const cv::Vec3b bgr = patch.at<cv::Vec3b>(0, 0);
+      colors[i] = {bgr[2], bgr[1], bgr[0]};
+    }
+  }
+  return colors;
+}
+
+// IoU between each view's mask and the hull's silhouette in it (at a quarter
+// of the resolution): how well the masks and poses agree. A visual hull's
+// silhouette lies inside every mask; a mask that disagrees with the others
+// (a leak, a wrong pose) loses area.
+std::vector<double> SilhouetteAgreement(const Mesh& mesh, const std::vector<Eigen::Isometry3d>& cam_from_object,
+                                        const std::vector<cv::Mat>& masks, const CameraModel& cam) {
+  constexpr int kDown = 1;
+  std::vector<double> iou(masks.size(), 0.0);
+  auto work = [&](size_t begin, size_t step) {
+    std::vector<cv::Point> pts(mesh.vertices.size());
+    for (size_t vi = begin; vi < masks.size(); vi += step) {
+      const Eigen::Isometry3d& T = cam_from_object[vi];
+      for (size_t i = 0; i < mesh.vertices.size(); ++i) {
+        const Eigen::Vector3d pc = T * Eigen::Vector3d(mesh.vertices[i].data());
+        double u = 0, v = 0;
+        cam.Project({pc.x(), pc.y(), pc.z()}, &u, &v);
+        pts[i] = cv::Point(static_cast<int>(std::lround((u + 0.5) * 16.0 / kDown - 8)),
+                           static_cast<int>(std::lround((v + 0.5) * 16.0 / kDown - 8)));
+      }
+      cv::Mat small_mask;
+      cv::resize(masks[vi], small_mask, cv::Size(cam.width / kDown, cam.height / kDown), 0, 0, cv::INTER_AREA);
+      small_mask = small_mask > 127;
+      cv::Mat sil = cv::Mat::zeros(small_mask.size(), CV_8UC1);
+      for (const auto& f : mesh.faces) {
+        const cv::Point tri[3] = {pts[f[0]], pts[f[1]], pts[f[2]]};
+        cv::fillConvexPoly(sil, tri, 3, cv::Scalar(255), cv::LINE_8, 4);
+      }
+      const double inter = cv::countNonZero(sil & small_mask);
+      const double uni = cv::countNonZero(sil | small_mask);
+      iou[vi] = uni > 0 ? inter / uni : 0.0;
+    }
+  };
+  std::thread t(work, 1, 2);
+  work(0, 2);
+  t.join();
+  return iou;
+}
+
+struct SurfaceOut {
+  Mesh mesh;
+  json record;
+};
+
+Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewInput>& views,
+                          const std::map<int, Eigen::Isometry3d>& table_from_object,
+                          const RigCalibration& cal, const ReconstructOptions& opts, const std::string& sample_id) {
+  const std::string out = ResultsPath(sample_dir, results::kSurface);
+  if (PathExists(out)) return ReadJson(out, "surface record");
+  const auto t0 = std::chrono::steady_clock::now();
+  std::vector<SilhouetteView> sv;
+  std::vector<cv::Mat> masks;
+  std::vector<Eigen::Isometry3d> cam_from_object;
+  for (const ViewInput& v : views) {
+    cv::Mat m = cv::imread(v.mask, cv::IMREAD_GRAYSCALE);
+    if (m.empty()) {
+      return MakeError(ErrorClass::kCorrupt, "surface stage: mask " + v.mask + " is missing or unreadable; delete " +
+                                                 "results/" + layout::SideDirName(v.side) +
+                                                 "_morph2d.json to recompute the side's masks");
+    }
+    if (m.cols != cal.camera.width || m.rows != cal.camera.height) {
+      return MakeError(ErrorClass::kCorrupt, "surface stage: mask " + v.mask + " is " + std::to_string(m.cols) + "x" +
+                                                 std::to_string(m.rows) + ", the calibration is " +
+                                                 std::to_string(cal.camera.width) + "x" +
+                                                 std::to_string(cal.camera.height));
+    }
+    SilhouetteView s;
+    s.mask = m;
+    s.camera = cal.camera;
+    s.cam_from_object = v.cam_from_table * table_from_object.at(v.side);
+    cam_from_object.push_back(s.cam_from_object);
+    masks.push_back(m);
+    sv.push_back(std::move(s));
+  }
+  // Each side's turntable top is a floor: the rock lies on it.
+  std::vector<HalfSpace> floors;
+  for (const auto& [side, T] : table_from_object) {
+    HalfSpace h;
+    h.normal = T.linear().row(2).transpose();
+    h.offset = T.translation().z();
+    floors.push_back(h);
+  }
+  // The search region: the side-1 disc, up to the largest riprap size above it.
+  const Eigen::Vector3d lo(-260, -260, -5), hi(260, 260, 320);
+  auto hull = CarveVisualHull(sv, floors, Eigen::AlignedBox3d(lo, hi), opts.hull);
+  if (!hull) return MakeError(hull.error().cls, "surface stage: " + hull.error().message, hull.error().detail);
+  const double carve_s = hull->seconds;
+  const auto tc = std::chrono::steady_clock::now();
+  auto colors = ColourVertices(hull->mesh, views, cam_from_object, masks, cal.camera);
+  if (!colors) return colors.error();
+  const double colour_s = Seconds(tc);
+  const auto ti = std::chrono::steady_clock::now();
+  const std::vector<double> iou = SilhouetteAgreement(hull->mesh, cam_from_object, masks, cal.camera);
+  const double iou_s = Seconds(ti);
+  const auto te = std::chrono::steady_clock::now();
+  for (auto [name, st] : {std::pair{results::kMeshPly, SaveMeshPly(hull->mesh, ResultsPath(sample_dir, results::kMeshPly), &*colors)},
+                          std::pair{results::kMeshObj, SaveMeshObj(hull->mesh, ResultsPath(sample_dir, results::kMeshObj), &*colors)},
+                          std::pair{results::kMeshStl, SaveMeshStl(hull->mesh, ResultsPath(sample_dir, results::kMeshStl))}}) {
+    if (!st) return st.error();
+  }
+  json jiou = json::array();
+  for (size_t i = 0; i < views.size(); ++i) {
+    jiou.push_back({{"side", views[i].side}, {"view", views[i].view}, {"iou", iou[i]}});
+  }
+  json j = {{"method", "visual-hull"},
+            {"method_detail",
+             "silhouette signed-distance field over all views of all sides in the object frame (side 1's turntable "
+             "frame), each side's turntable top as a floor; marching tetrahedra"},
+            {"voxel_mm", hull->voxel_mm},
+            {"vertices", hull->mesh.vertices.size()},
+            {"faces", hull->mesh.faces.size()},
+            {"views", views.size()},
+            {"silhouette_iou", jiou},
+            {"files", {{"ply", results::kMeshPly}, {"obj", results::kMeshObj}, {"stl", results::kMeshStl}}},
+            {"timings_s", {{"carve", carve_s}, {"colour", colour_s}, {"silhouette_check", iou_s}, {"export", Seconds(te)}}},
+            {"stage_seconds", Seconds(t0)}};
+  if (Status s = WriteJson(out, j); !s) return s.error();
+  LogLine(LogLevel::kInfo, kCat, sample_id,
+          "surface: " + std::to_string(hull->mesh.faces.size()) + " faces at " + std::to_string(hull->voxel_mm) +
+              " mm in " + std::to_string(Seconds(t0)) + " s");
+  return j;
+}
+
+// --- stage: morphology ---------------------------------------------------
+
+json StatsJson(const std::vector<double>& v) {
+  const Stats s = ComputeStats(v);
+  return {{"mean", s.mean}, {"min", s.min}, {"max", s.max}, {"std", s.std}, {"cov", s.cov}, {"n", s.n}};
+}
+
+Status AppendLibraryRow(const std::string& state_dir, const json& morphology) {
+  if (state_dir.empty()) return OkStatus();
+  const std::string path = state_dir + "/" + results::kLibraryCsv;
+  const std::string id = morphology.value("sample_id", "");
+  std::string text;
+  if (PathExists(path)) {
+    auto t = ReadFile(path);
+    if (!t) return t.error();
+    text = *t;
+    // Already there (a resumed run after the row was written): nothing to do.
+    if (text.find("\n" + id + ",") != std::string::npos) return OkStatus();
+  } else {
+    text = LibraryCsvHeader();
+  }
+  // Rewrite the whole file atomically: a crash leaves the old or the new one.
+  text += LibraryCsvRow(morphology);
+  return WriteFileAtomic(path, std::string_view(text));
+}
+
+}  // namespace
+
+std::string LibraryCsvHeader() {
+  return "sample_id,created_utc,volume_mm3,surface_area_mm2,a_mm,b_mm,c_mm,fer_3d,ratio_c_b,ratio_b_a,sphericity,"
+         "fer_2d_mean,circularity_mean,views,poses_method,stitch_method,surface_method,stitch_rms_mm,"
+         "silhouette_iou_mean,total_s\n";
+}
+
+std::string LibraryCsvRow(const json& m) {
+  const json& d = m.at("morphology_3d");
+  const json& o = m.at("stats_2d").at("overall");
+  const json& q = m.at("quality");
+  auto num = [](const json& v) {
+    char b[64];
+    std::snprintf(b, sizeof b, "%.6g", v.is_number() ? v.get<double>() : std::nan(""));
+    return std::string(b);
+  };
+  std::string row = m.value("sample_id", "") + "," + m.value("created_utc", "");
+  for (const char* k : {"volume_mm3", "surface_area_mm2", "a_mm", "b_mm", "c_mm", "fer_3d", "ratio_c_b", "ratio_b_a",
+                        "sphericity"}) {
+    row += "," + num(d.value(k, json()));
+  }
+  row += "," + num(o.at("fer_2d").value("mean", json())) + "," + num(o.at("circularity").value("mean", json()));
+  row += "," + std::to_string(m.value("views_2d", json::array()).size());
+  row += "," + m.at("methods").value("poses", "") + "," + m.at("methods").value("stitch", "") + "," +
+         m.at("methods").value("surface", "");
+  row += "," + num(q.value("stitch_rms_mm", json())) + "," + num(q.value("silhouette_iou_mean", json()));
+  row += "," + num(m.at("timings_s").value("total", json())) + "\n";
+  return row;
+}
+
+Result<json> ReadMorphology(const std::string& sample_dir) {
+  const std::string path = ResultsPath(sample_dir, results::kMorphology);
+  if (!PathExists(path)) {
+    return MakeError(ErrorClass::kNotFound, "no results yet for " + SampleIdOf(sample_dir) +
+                                                " (the worker has not finished it; see its state and the worker log)");
+  }
+  return ReadJson(path, "results");
+}
+
+Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions& opts) {
+  const auto t_all = std::chrono::steady_clock::now();
+  const std::string sample_id = SampleIdOf(sample_dir);
+  const std::string morph_path = ResultsPath(sample_dir, results::kMorphology);
+  if (PathExists(morph_path)) {
+    auto m = ReadJson(morph_path, "results");
+    if (!m) return m.error();
+    return AppendLibraryRow(opts.state_dir, *m);
+  }
+  // Masks and 2D figures of every side (resumes per view).
+  WorkerOptions wo = opts.worker;
+  if (!wo.cancel) wo.cancel = opts.cancel;
+  const auto t_masks = std::chrono::steady_clock::now();
+  if (Status s = ProcessSample(sample_dir, wo); !s) return s;
+  const double masks_s = Seconds(t_masks);
+  auto morph2d = ReadJson(SampleResultPath(sample_dir), "2D results");
+  if (!morph2d) return morph2d.error();
+  std::vector<int> sides;
+  for (const auto& s : morph2d->value("sides", json::array())) sides.push_back(s.value("side", 0));
+  if (sides.empty()) return MakeError(ErrorClass::kNotFound, "sample " + sample_id + " has no captured side");
+
+  json timings = json::object();
+  // Image size from the first mask.
+  cv::Size image_size;
+  {
+    auto side1 = ReadJson(SideResultPath(sample_dir, sides[0]), "side result");
+    if (!side1) return side1.error();
+    for (const auto& v : side1->value("views", json::array())) {
+      const cv::Mat m = cv::imread(sample_dir + "/" + layout::kResultsDir + "/" + v.value("mask", ""),
+                                   cv::IMREAD_GRAYSCALE);
+      if (!m.empty()) {
+        image_size = m.size();
+        break;
+      }
+    }
+    if (image_size.area() == 0) {
+      return MakeError(ErrorClass::kCorrupt, "sample " + sample_id + ": no readable mask in " +
+                                                 layout::SideDirName(sides[0]));
+    }
+  }
+  auto cal = CalibrationStage(sample_dir, opts, image_size, &timings);
+  if (!cal) return cal.error();
+
+  std::map<int, std::vector<ViewInput>> side_views;
+  std::vector<ViewInput> all_views;
+  for (int side : sides) {
+    if (opts.cancel && opts.cancel->load()) {
+      return MakeError(ErrorClass::kInvalidState, "interrupted before the poses of " + layout::SideDirName(side));
+    }
+    auto v = PosesStage(sample_dir, side, *cal, &timings);
+    if (!v) return v.error();
+    side_views[side] = *v;
+    all_views.insert(all_views.end(), v->begin(), v->end());
+  }
+  if (opts.cancel && opts.cancel->load()) return MakeError(ErrorClass::kInvalidState, "interrupted before stitching");
+  StitchStageInput sin;
+  sin.sample_dir = sample_dir;
+  sin.calibration = &*cal;
+  for (const auto& [side, vs] : side_views) {
+    for (const ViewInput& v : vs) {
+      sin.views[side].push_back({v.view, v.angle_deg, v.image, v.mask, v.cam_from_table});
+    }
+  }
+  const std::string stitch_path = ResultsPath(sample_dir, results::kStitch);
+  if (!PathExists(stitch_path)) {
+    auto st = RunStitchStage(sin);
+    if (!st) return st.error();
+    if (Status s = WriteJson(stitch_path, *st); !s) return s;
+  }
+  auto stitch = ReadJson(stitch_path, "stitch record");
+  if (!stitch) return stitch.error();
+  std::map<int, Eigen::Isometry3d> table_from_object;
+  for (const auto& s : stitch->value("sides", json::array())) {
+    auto T = IsoFromJson(s.value("table_from_object_4x4", json()), stitch_path);
+    if (!T) return T.error();
+    table_from_object[s.value("side", 0)] = *T;
+  }
+  for (int side : sides) {
+    if (!table_from_object.count(side)) {
+      return MakeError(ErrorClass::kCorrupt, stitch_path + " has no transform for " + layout::SideDirName(side) +
+                                                 "; delete it to stitch again");
+    }
+  }
+  timings["stitch_s"] = stitch->value("stage_seconds", 0.0);
+
+  if (opts.cancel && opts.cancel->load()) return MakeError(ErrorClass::kInvalidState, "interrupted before the surface");
+  auto surface = SurfaceStage(sample_dir, all_views, table_from_object, *cal, opts, sample_id);
+  if (!surface) return surface.error();
+  timings["surface_s"] = surface->value("stage_seconds", 0.0);
+  timings["surface_detail_s"] = surface->value("timings_s", json::object());
+
+  // Morphology.
+  const auto t_m = std::chrono::steady_clock::now();
+  auto mesh = LoadMesh(ResultsPath(sample_dir, results::kMeshPly), "mm");
+  if (!mesh) return mesh.error();
+  const Status watertight = CheckClosedManifold(*mesh, "reconstructed mesh");
+  const MeshProps p = ComputeMeshProps(*mesh);
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  for (const auto& v : mesh->vertices) centroid += Eigen::Vector3d(v.data());
+  centroid /= std::max<size_t>(1, mesh->vertices.size());
+
+  // Every view's 2D figures, in mm at the rock's depth in that view.
+  std::map<std::pair<int, int>, const ViewInput*> by_view;
+  for (const ViewInput& v : all_views) by_view[{v.side, v.view}] = &v;
+  json views2d = json::array();
+  std::map<int, std::map<std::string, std::vector<double>>> per_side;
+  std::map<std::string, std::vector<double>> overall;
+  for (int side : sides) {
+    auto sr = ReadJson(SideResultPath(sample_dir, side), "side result");
+    if (!sr) return sr.error();
+    for (const auto& v : sr->value("views", json::array())) {
+      if (!v.value("ok", false)) continue;
+      const int view = v.value("view", 0);
+      json jv = {{"side", side}, {"view", view}};
+      double mm_per_px = 0;
+      auto it = by_view.find({side, view});
+      if (it != by_view.end()) {
+        const Eigen::Vector3d pc = it->second->cam_from_table * table_from_object[side] * centroid;
+        mm_per_px = pc.z() / std::sqrt(cal->camera.fx * cal->camera.fy);
+        jv["angle_deg"] = it->second->angle_deg;
+      }
+      jv["fer_2d"] = v.value("fer_2d", 0.0);
+      jv["circularity"] = v.value("circularity", 0.0);
+      jv["l_max_px"] = v.value("l_max_px", 0.0);
+      jv["l_min_px"] = v.value("l_min_px", 0.0);
+      jv["area_px"] = v.value("area_px", 0.0);
+      jv["perimeter_px"] = v.value("perimeter_px", 0.0);
+      jv["mm_per_px_at_rock"] = mm_per_px;
+      jv["l_max_mm"] = v.value("l_max_px", 0.0) * mm_per_px;
+      jv["l_min_mm"] = v.value("l_min_px", 0.0) * mm_per_px;
+      for (const char* k : {"fer_2d", "circularity", "l_max_mm", "l_min_mm"}) {
+        per_side[side][k].push_back(jv[k].get<double>());
+        overall[k].push_back(jv[k].get<double>());
+      }
+      views2d.push_back(std::move(jv));
+    }
+  }
+  json stats = json::object();
+  auto block = [&](std::map<std::string, std::vector<double>>& vals) {
+    json b = json::object();
+    for (const char* k : {"fer_2d", "circularity", "l_max_mm", "l_min_mm"}) b[k] = StatsJson(vals[k]);
+    return b;
+  };
+  for (int side : sides) stats[layout::SideDirName(side)] = block(per_side[side]);
+  stats["overall"] = block(overall);
+  stats["std_kind"] = "sample";
+  const double fer2d_mean = ComputeStats(overall["fer_2d"]).mean;
+  const double circ_mean = ComputeStats(overall["circularity"]).mean;
+  const double lo = std::min(p.c_over_b, p.b_over_a), hi = std::max(p.c_over_b, p.b_over_a);
+
+  std::vector<double> ious;
+  for (const auto& e : surface->value("silhouette_iou", json::array())) ious.push_back(e.value("iou", 0.0));
+  const Stats iou = ComputeStats(ious);
+  json quality = {{"silhouette_iou_mean", iou.mean},
+                  {"silhouette_iou_min", iou.min},
+                  {"silhouette_iou_note",
+                   "IoU of each mask with the reconstructed surface's silhouette: an estimate of mask and pose "
+                   "consistency (1 = every mask agrees with all the others)"},
+                  {"calibration_reprojection_rms_px", cal->reprojection_rms_px},
+                  {"stitch_rms_mm", stitch->value("rms_mm", json())},
+                  {"stitch_max_mm", stitch->value("max_mm", json())},
+                  {"scale_residual_mm", stitch->value("scale_residual_mm", json())},
+                  {"watertight", watertight.ok()}};
+  timings["masks_and_2d_s"] = masks_s;
+  timings["morphology_s"] = Seconds(t_m);
+  double total = masks_s;
+  for (const char* k : {"calibration_s", "stitch_s", "surface_s", "morphology_s"}) total += timings.value(k, 0.0);
+  for (int side : sides) total += timings.value("poses_" + layout::SideDirName(side) + "_s", 0.0);
+  timings["total"] = total;
+  timings["this_run_wall"] = Seconds(t_all);
+
+  json out = {
+      {"format", "aggscan-morphology-1"},
+      {"sample_id", sample_id},
+      {"created_utc", NowUtcString()},
+      {"units", "mm, mm2, mm3, degrees; ratios dimensionless; 2D lengths in px and in mm at the rock's depth"},
+      {"methods",
+       {{"calibration", cal->method},
+        {"poses", "turntable"},
+        {"stitch", stitch->value("method", "")},
+        {"surface", surface->value("method", "")},
+        {"masks", "classical"}}},
+      {"morphology_3d",
+       {{"volume_mm3", p.volume_mm3},
+        {"surface_area_mm2", p.surface_area_mm2},
+        {"a_mm", p.a_mm},
+        {"b_mm", p.b_mm},
+        {"c_mm", p.c_mm},
+        {"fer_3d", p.fer_3d},
+        {"ratio_c_b", p.c_over_b},
+        {"ratio_b_a", p.b_over_a},
+        {"sphericity", p.sphericity},
+        {"watertight", watertight.ok()}}},
+      {"views_2d", views2d},
+      {"stats_2d", stats},
+      {"comparison_2d_3d",
+       {{"fer_3d", p.fer_3d},
+        {"fer_2d_mean", fer2d_mean},
+        {"fer_2d_mean_over_fer_3d", p.fer_3d > 0 ? fer2d_mean / p.fer_3d : 0.0},
+        {"ratio_c_b", p.c_over_b},
+        {"ratio_b_a", p.b_over_a},
+        {"fer_2d_mean_between_c_b_and_b_a", fer2d_mean >= lo && fer2d_mean <= hi},
+        {"sphericity", p.sphericity},
+        {"circularity_mean", circ_mean},
+        {"circularity_mean_minus_sphericity", circ_mean - p.sphericity}}},
+      {"quality", quality},
+      {"timings_s", timings},
+      {"files",
+       {{"mesh_ply", results::kMeshPly},
+        {"mesh_obj", results::kMeshObj},
+        {"mesh_stl", results::kMeshStl},
+        {"stitch", results::kStitch},
+        {"surface", results::kSurface}}}};
+  if (!watertight) out["morphology_3d"]["watertight_problem"] = watertight.error().message;
+  if (Status s = WriteJson(morph_path, out); !s) return s;
+  LogLine(LogLevel::kNotice, kCat, sample_id,
+          "reconstructed: V " + std::to_string(static_cast<long>(p.volume_mm3)) + " mm3, a/b/c " +
+              std::to_string(p.a_mm) + "/" + std::to_string(p.b_mm) + "/" + std::to_string(p.c_mm) + " mm");
+  return AppendLibraryRow(opts.state_dir, out);
+}
+
+}  // namespace aggscan

@@ -1,0 +1,59 @@
+// The sample stages after the per-side masks (side_job.h): from a captured,
+// masked sample to a metric, closed rock model and its morphology.
+//
+// Stages, each finished iff its output file exists (written atomically), so a
+// crash or kill at any stage resumes at that stage:
+//   results/calibration_used.json  the rig calibration the sample is reconstructed with
+//                                  (samples/<id>/calibration.json, else the state dir's)
+//   results/poses_side<N>.json     every view's pose in its side's turntable frame
+//   results/stitch.json            each side's turntable frame -> side 1's (object frame)
+//   results/surface.json           the mesh files below are complete
+//     results/mesh.ply (binary, per-vertex colour), mesh.obj, mesh.stl   (mm, object frame)
+//   results/morphology.json        3D figures, every view's 2D figures, statistics,
+//                                  2D-vs-3D comparison, quality figures, timings
+// and one row per sample appended to state_dir/library.csv.
+#pragma once
+
+#include <atomic>
+#include <functional>
+#include <string>
+
+#include <nlohmann/json.hpp>
+
+#include "common/error.h"
+#include "pipeline/side_job.h"
+#include "pipeline/visual_hull.h"
+
+namespace aggscan {
+
+struct ReconstructOptions {
+  WorkerOptions worker;        // per-side masks
+  VisualHullOptions hull;      // surface
+  std::string state_dir;       // for the library CSV and the fallback calibration; may be empty
+  const std::atomic<bool>* cancel = nullptr;
+};
+
+namespace results {
+inline constexpr const char* kMorphology = "morphology.json";
+inline constexpr const char* kSurface = "surface.json";
+inline constexpr const char* kStitch = "stitch.json";
+inline constexpr const char* kCalibrationUsed = "calibration_used.json";
+inline constexpr const char* kMeshPly = "mesh.ply";
+inline constexpr const char* kMeshObj = "mesh.obj";
+inline constexpr const char* kMeshStl = "mesh.stl";
+inline constexpr const char* kLibraryCsv = "library.csv";
+std::string PosesName(int side);  // "poses_side1.json"
+}  // namespace results
+
+/// Runs every unfinished stage of the sample (sides first) and writes
+/// results/morphology.json. Errors name the stage and what to do.
+Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions& opts);
+
+/// results/morphology.json of a sample, parsed; kNotFound before it exists.
+Result<nlohmann::json> ReadMorphology(const std::string& sample_dir);
+
+/// The CSV header of the library and one sample's row (from morphology.json).
+std::string LibraryCsvHeader();
+std::string LibraryCsvRow(const nlohmann::json& morphology);
+
+}  // namespace aggscan

@@ -1,0 +1,146 @@
+// The sample stages on simulated captures: from photos to a closed metric
+// mesh and morphology.json, resumable, compared with the sim's ground truth.
+#include "pipeline/reconstruct.h"
+
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include <opencv2/imgcodecs.hpp>
+
+#include "cli/sim_capture.h"
+#include "common/fsutil.h"
+#include "common/mesh.h"
+#include "common/mesh_check.h"
+#include "config/config.h"
+#include "drivers/sim/world.h"
+#include "tests/util/temp_dir.h"
+
+namespace aggscan {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+// Renders a sample offline and gives it the sim's exact calibration. With
+// truth_masks, the sim's ground-truth masks are put where the side stage
+// keeps its masks (it reuses them), to test the geometric stages alone.
+std::string Capture(const std::string& dir, uint64_t seed, int sides, bool truth_masks = true) {
+  const std::string cfg = dir + "/cfg.toml";
+  std::ofstream(cfg) << "[capture]\nprofile = \"custom\"\nsides = " << sides << "\nviews_per_side = 30\nstep_deg = 30\n";
+  SimCaptureOptions o;
+  o.seed = seed;
+  o.out = dir + "/sample";
+  o.config_path = cfg;
+  o.width = 1008;
+  o.height = 756;
+  std::ostringstream out, err;
+  EXPECT_EQ(RunSimCapture(o, out, err), 0) << err.str();
+  Config c;
+  c.sim.seed = seed;
+  sim::SimWorld world(c);
+  EXPECT_TRUE(SaveCalibration(o.out + "/calibration.json", world.TruthCalibration(1008, 756)));
+  if (truth_masks) {
+    for (int side = 1; side <= sides; ++side) {
+      const std::string dst = o.out + "/results/masks/side" + std::to_string(side);
+      fs::create_directories(dst);
+      for (int v = 0; v < 30; ++v) {
+        char name[32];
+        std::snprintf(name, sizeof name, "view_%03d", v);
+        const cv::Mat m = cv::imread(o.out + "/truth/side" + std::to_string(side) + "/" + name + "_mask.pgm",
+                                     cv::IMREAD_GRAYSCALE);
+        EXPECT_FALSE(m.empty());
+        cv::imwrite(dst + "/" + name + ".png", m);
+      }
+    }
+  }
+  return o.out;
+}
+
+json Truth(const std::string& sample) {
+  std::ifstream in(sample + "/truth.json");
+  return json::parse(in);
+}
+
+TEST(Reconstruct, OneSideGivesAClosedMeshAndResults) {
+  test::TempDir tmp;
+  const std::string sample = Capture(tmp.path(), 6, 1);
+  ReconstructOptions opts;
+  opts.state_dir = tmp.path();
+  {
+    auto st = ReconstructSample(sample, opts);
+    ASSERT_TRUE(st) << st.error().ToString();
+  }
+  auto m = ReadMorphology(sample);
+  ASSERT_TRUE(m) << m.error().ToString();
+  const json& d = (*m)["morphology_3d"];
+  EXPECT_TRUE(d["watertight"].get<bool>());
+  const json truth = Truth(sample);
+  // One side: the floor bounds the hull, so the hidden underside adds volume.
+  EXPECT_GT(d["volume_mm3"].get<double>(), truth["volume_mm3"].get<double>() * 0.99);
+  EXPECT_GT((*m)["quality"]["silhouette_iou_mean"].get<double>(), 0.95);
+  EXPECT_EQ((*m)["views_2d"].size(), 30u);
+  for (const char* f : {"mesh.ply", "mesh.obj", "mesh.stl"}) {
+    auto mesh = LoadMesh(sample + "/results/" + f, "mm");
+    ASSERT_TRUE(mesh) << f;
+    EXPECT_TRUE(CheckClosedManifold(*mesh, f)) << f;
+  }
+  // The library has one row; a second run changes nothing.
+  auto csv = ReadFile(tmp.path() + "/library.csv");
+  ASSERT_TRUE(csv);
+  {
+    auto st = ReconstructSample(sample, opts);
+    ASSERT_TRUE(st) << st.error().ToString();
+  }
+  auto csv2 = ReadFile(tmp.path() + "/library.csv");
+  EXPECT_EQ(*csv, *csv2);
+  EXPECT_EQ(std::count(csv->begin(), csv->end(), '\n'), 2);
+  std::printf("one side: V %.0f (truth %.0f), iou %.4f, total %.1f s\n", d["volume_mm3"].get<double>(),
+              truth["volume_mm3"].get<double>(), (*m)["quality"]["silhouette_iou_mean"].get<double>(),
+              (*m)["timings_s"]["total"].get<double>());
+}
+
+TEST(Reconstruct, ResumesAtTheInterruptedStage) {
+  test::TempDir tmp;
+  const std::string sample = Capture(tmp.path(), 7, 1);
+  ReconstructOptions opts;
+  {
+    auto st = ReconstructSample(sample, opts);
+    ASSERT_TRUE(st) << st.error().ToString();
+  }
+  const std::string res = sample + "/results/";
+  const auto morph_before = ReadFile(res + "morphology.json");
+  // A kill during the surface stage leaves no surface.json (and perhaps
+  // some mesh files): only that stage and the next run again.
+  fs::remove(res + "surface.json");
+  fs::remove(res + "morphology.json");
+  fs::remove(res + "mesh.stl");
+  const auto poses_time = fs::last_write_time(res + "poses_side1.json");
+  {
+    auto st = ReconstructSample(sample, opts);
+    ASSERT_TRUE(st) << st.error().ToString();
+  }
+  EXPECT_TRUE(fs::exists(res + "mesh.stl"));
+  EXPECT_EQ(fs::last_write_time(res + "poses_side1.json"), poses_time);
+  auto m = ReadMorphology(sample);
+  ASSERT_TRUE(m);
+  const json before = json::parse(*morph_before);
+  EXPECT_DOUBLE_EQ((*m)["morphology_3d"]["volume_mm3"].get<double>(), before["morphology_3d"]["volume_mm3"].get<double>());
+}
+
+TEST(Reconstruct, MissingCalibrationSaysWhatToDo) {
+  test::TempDir tmp;
+  const std::string sample = Capture(tmp.path(), 8, 1);
+  fs::remove(sample + "/calibration.json");
+  ReconstructOptions opts;
+  opts.state_dir = tmp.path();
+  auto s = ReconstructSample(sample, opts);
+  ASSERT_FALSE(s);
+  EXPECT_NE(s.error().message.find("aggscan calibrate"), std::string::npos) << s.error().message;
+  EXPECT_FALSE(fs::exists(sample + "/results/morphology.json"));
+}
+
+}  // namespace
+}  // namespace aggscan
