@@ -361,10 +361,15 @@ cv::Mat GraphCutRefine(const Scene& s, const cv::Mat& seed, const MaskOptions& o
 
 // Paint blobs next to the rock: an object marker that runs to the silhouette
 // edge (or wraps over it) is rock, a colour label that the rock touches or
-// partly hides is not. With the graph cut, `decided` (its mask at full
-// resolution) has settled that and a blob joins when it mostly lies in it;
-// otherwise a blob joins when most of its rim is rock.
-void AttachPaintBlobs(const cv::Mat& paint, const cv::Mat& decided, const MaskOptions& o, cv::Mat& mask) {
+// partly hides is not. The two differ in shape, which survives whatever the
+// segmentation did around them: labels are thick (`thick`, ThickPaint at the
+// working resolution, brought to this one), markers are thin strokes. A blob
+// that is not thick joins the rock when at least marker_touch_fraction of its
+// rim is rock; a thick one never does. (Deciding by the graph cut's labelling
+// instead failed on markers lying along the silhouette: the cut, with paint
+// neutral, sided with the background and left a notch that carved a groove
+// into the visual hull.)
+void AttachPaintBlobs(const cv::Mat& paint, const cv::Mat& thick, const MaskOptions& o, cv::Mat& mask) {
   cv::Mat labels, stats, centroids;
   const int n = cv::connectedComponentsWithStats(paint, labels, stats, centroids, 8, CV_32S);
   const cv::Mat k = Disk(2);
@@ -375,17 +380,12 @@ void AttachPaintBlobs(const cv::Mat& paint, const cv::Mat& decided, const MaskOp
     const cv::Mat blob = labels(box) == i;
     const double blob_n = cv::countNonZero(blob);
     if (cv::countNonZero(mask(box) & blob) == blob_n) continue;  // already inside
-    bool join = false;
-    if (!decided.empty()) {
-      join = cv::countNonZero(decided(box) & blob) >= 0.5 * blob_n;
-    } else {
-      cv::Mat grown;
-      cv::dilate(blob, grown, k);
-      const cv::Mat rim = grown & ~blob;
-      const double rim_n = cv::countNonZero(rim);
-      join = rim_n > 0 && cv::countNonZero(rim & mask(box)) >= o.marker_touch_fraction * rim_n;
-    }
-    if (join) mask(box).setTo(255, blob);
+    if (!thick.empty() && cv::countNonZero(thick(box) & blob) > 0.5 * blob_n) continue;  // a label
+    cv::Mat grown;
+    cv::dilate(blob, grown, k);
+    const cv::Mat rim = grown & ~blob;
+    const double rim_n = cv::countNonZero(rim);
+    if (rim_n > 0 && cv::countNonZero(rim & mask(box)) >= o.marker_touch_fraction * rim_n) mask(box).setTo(255, blob);
   }
 }
 
@@ -482,7 +482,18 @@ cv::Mat FinishMask(const cv::Mat& bgr, const Scene& s, cv::Mat work, const MaskO
   cv::morphologyEx(refined, refined, cv::MORPH_OPEN, Disk(1));
   cv::morphologyEx(refined, refined, cv::MORPH_CLOSE, Disk(2));
   refined = LargestComponentFilled(refined);
-  AttachPaintBlobs(saturated, o.refine == MaskRefine::kGraphCut ? full : cv::Mat(), o, refined);
+  cv::Mat thick;  // label-thick paint, from the working resolution
+  {
+    const cv::Mat t = ThickPaint(s.paint, work, o);
+    if (scale < 1.0) {
+      cv::Mat up;
+      cv::resize(t, up, bgr.size(), 0, 0, cv::INTER_NEAREST);
+      thick = up(roi).clone();
+    } else {
+      thick = t(roi).clone();
+    }
+  }
+  AttachPaintBlobs(saturated, thick, o, refined);
   refined = LargestComponentFilled(refined);
   refined.copyTo(out(roi));
   return out;

@@ -25,8 +25,9 @@
 //      around the boundary, each pixel goes to the nearer of the local rock and
 //      local background mean colours (normalised convolution over the sure
 //      regions on both sides).
-//   5. Saturated blobs that mostly touch the rock (a marker crossing the
-//      silhouette edge) join it; blobs lying on the disc (labels) do not.
+//   5. Thin saturated blobs touching the rock (a marker along or across the
+//      silhouette edge) join it; label-thick blobs (labels on the disc, even
+//      when the rock touches or partly hides them) do not.
 #pragma once
 
 #include <opencv2/core.hpp>
@@ -67,7 +68,7 @@ struct MaskOptions {
   int band_outer_px = 6;            // and this far outside
   double local_sigma_px = 10.0;     // full-res Gaussian of the local mean colours
   double chroma_weight = 2.0;       // weight of a,b against L in the local colour distance
-  double marker_touch_fraction = 0.75;  // without the graph cut, a paint blob joins the rock if this much of its rim is rock
+  double marker_touch_fraction = 0.3;   // a thin paint blob (not label-thick) joins the rock if this much of its rim is rock
 };
 
 /// 0/255 CV_8UC1 mask of the rock in a CV_8UC3 BGR photo (same size). An
