@@ -484,6 +484,17 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
   StitchStageInput sin;
   sin.sample_dir = sample_dir;
   sin.calibration = &*cal;
+  // The background labels are the ones configured when the sample was armed.
+  if (const std::string cfg_path = sample_dir + "/" + layout::kConfigCopy; PathExists(cfg_path)) {
+    std::vector<ConfigProblem> problems;
+    auto sample_cfg = LoadConfigFile(cfg_path, &problems);
+    if (!sample_cfg) {
+      return MakeError(ErrorClass::kInvalidConfig, "stitch stage: the sample's " + cfg_path +
+                                                       " does not load (" + sample_cfg.error().message +
+                                                       "); it is written at arm time and must not be edited");
+    }
+    sin.rig = sample_cfg->rig;
+  }
   for (const auto& [side, vs] : side_views) {
     for (const ViewInput& v : vs) {
       sin.views[side].push_back({v.view, v.angle_deg, v.image, v.mask, v.cam_from_table});

@@ -2,6 +2,12 @@
 
 #include <chrono>
 
+#include <opencv2/imgcodecs.hpp>
+
+#include "pipeline/geometry.h"
+#include "pipeline/markers.h"
+#include "pipeline/stitch.h"
+
 namespace aggscan {
 
 using nlohmann::json;
@@ -15,24 +21,203 @@ json IsoJson(const Eigen::Isometry3d& T) {
   return a;
 }
 
+Eigen::Isometry3d ToIso(const geom::Rigid3& r) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = r.R;
+  T.translation() = r.t;
+  return T;
+}
+
+geom::Rigid3 ToRigid(const Eigen::Isometry3d& T) { return {T.linear(), T.translation()}; }
+
+json Vec(const Eigen::Vector3d& p) { return json::array({p.x(), p.y(), p.z()}); }
+
+json EstimateJson(const StitchEstimate& e) {
+  json j = {{"valid", e.valid},       {"pairs", e.pairs},   {"inliers", e.inliers},
+            {"rms_mm", e.rms_mm},     {"max_mm", e.max_mm}, {"points", e.points},
+            {"note", e.note}};
+  if (e.rotation_sigma_deg > 0) j["rotation_sigma_deg"] = e.rotation_sigma_deg;
+  if (e.valid) j["moving_to_reference_4x4"] = IsoJson(ToIso(e.T));
+  return j;
+}
+
+json MarkersJson(const SideMarkers& m) {
+  json pts = json::array();
+  for (const MarkerPoint& p : m.points) {
+    json jp = {{"name", p.Name()}, {"located", p.located}, {"views_seen", p.views_seen},
+               {"views_used", p.views_used}};
+    if (p.located) {
+      jp["position_mm"] = Vec(p.position);
+      jp["rms_px"] = p.rms_px;
+      jp["max_px"] = p.max_px;
+    } else {
+      jp["problem"] = p.problem;
+    }
+    pts.push_back(jp);
+  }
+  return {{"located", m.located()}, {"points", pts}};
+}
+
+json LabelsJson(const Result<LabelScale>& ls) {
+  if (!ls) return {{"ok", false}, {"problem", ls.error().message}};
+  json labels = json::array();
+  for (const LabelPoint& l : ls->labels) {
+    json jl = {{"color", l.color}, {"located", l.located}, {"views_seen", l.views_seen},
+               {"views_used", l.views_used}};
+    if (l.located) {
+      jl["position_mm"] = Vec(l.position);
+      jl["rms_px"] = l.rms_px;
+    } else {
+      jl["problem"] = l.problem;
+    }
+    labels.push_back(jl);
+  }
+  return {{"ok", true},
+          {"labels_used", ls->labels_used},
+          {"scale", ls->scale},
+          {"pair_rms_mm", ls->pair_rms_mm},
+          {"pair_max_mm", ls->pair_max_mm},
+          {"align_rms_mm", ls->align_rms_mm},
+          {"align_max_mm", ls->align_max_mm},
+          {"labels", labels}};
+}
+
+// Everything one side contributes to the stitch.
+struct SideEvidence {
+  SideMarkers markers;
+  FeatureCloud cloud;
+  json record;
+};
+
+Result<SideEvidence> GatherSide(const StitchStageInput& in, int side, const std::vector<StitchViewInput>& views,
+                                bool want_features) {
+  const CameraModel& cam = in.calibration->camera;
+  std::vector<std::string> label_colors;
+  for (const RigMarker& m : in.rig.markers) label_colors.push_back(m.color);
+  std::vector<geom::Rigid3> poses;
+  for (const StitchViewInput& v : views) poses.push_back(ToRigid(v.cam_from_table));
+  const std::vector<int> distinct = want_features ? DistinctViewpoints(poses) : std::vector<int>{};
+  std::vector<bool> is_distinct(views.size(), false);
+  for (int i : distinct) is_distinct[static_cast<size_t>(i)] = true;
+
+  MarkerDetectOptions mopts;
+  mopts.expected_label_side_px = ExpectedLabelSidePx(*in.calibration, in.rig);
+  std::vector<ViewMarkers> vm(views.size());
+  std::vector<ViewFeatures> vf(views.size());
+  int detect_failures = 0;
+  for (size_t i = 0; i < views.size(); ++i) {
+    const cv::Mat bgr = cv::imread(views[i].image, cv::IMREAD_COLOR);
+    if (bgr.empty()) {
+      return MakeError(ErrorClass::kCorrupt, "stitch stage: image " + views[i].image +
+                                                 " cannot be decoded; the sample's photos must not change");
+    }
+    const cv::Mat mask = cv::imread(views[i].mask, cv::IMREAD_GRAYSCALE);
+    if (mask.empty() || mask.size() != bgr.size()) {
+      return MakeError(ErrorClass::kCorrupt, "stitch stage: mask " + views[i].mask +
+                                                 " is missing, unreadable or not the photo's size; delete the "
+                                                 "side's results to compute the masks again");
+    }
+    auto m = DetectViewMarkers(bgr, mask, label_colors, in.object_colors, &cam, mopts);
+    if (m) {
+      vm[i] = std::move(*m);
+    } else {
+      ++detect_failures;
+    }
+    if (is_distinct[i]) vf[i] = ExtractRockFeatures(bgr, mask);
+  }
+  SideEvidence ev;
+  ev.markers = LocateObjectMarkers(vm, poses, cam, in.object_colors);
+  const Result<LabelScale> labels = LocateLabels(vm, poses, cam, in.rig);
+  if (want_features) ev.cloud = BuildFeatureCloud(vf, poses, cam);
+  ev.record = {{"side", side},
+               {"views", views.size()},
+               {"marker_detection_failures", detect_failures},
+               {"object_markers", MarkersJson(ev.markers)},
+               {"background_labels", LabelsJson(labels)}};
+  if (want_features) {
+    ev.record["feature_cloud"] = {{"viewpoints", ev.cloud.views},
+                                  {"view_pairs", ev.cloud.view_pairs},
+                                  {"points", ev.cloud.points.size()}};
+  }
+  return ev;
+}
+
 }  // namespace
 
 Result<json> RunStitchStage(const StitchStageInput& in) {
   const auto t0 = std::chrono::steady_clock::now();
   if (in.views.empty()) return MakeError(ErrorClass::kInvalidArgument, "stitch stage: no sides");
-  if (in.views.size() == 1) {
-    const int side = in.views.begin()->first;
-    return json{{"method", "single-side"},
-                {"sides", json::array({{{"side", side}, {"table_from_object_4x4", IsoJson(Eigen::Isometry3d::Identity())}}})},
-                {"rms_mm", nullptr},
-                {"max_mm", nullptr},
-                {"stage_seconds", std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()}};
+  if (!in.calibration) return MakeError(ErrorClass::kInvalidArgument, "stitch stage: no calibration");
+  const bool several = in.views.size() > 1;
+
+  std::map<int, SideEvidence> sides;
+  json side_records = json::array();
+  std::vector<double> scale_residuals;
+  for (const auto& [side, views] : in.views) {
+    auto ev = GatherSide(in, side, views, several);
+    if (!ev) return ev.error();
+    const json& lab = ev->record["background_labels"];
+    if (lab.value("ok", false)) scale_residuals.push_back(lab.value("pair_rms_mm", 0.0));
+    side_records.push_back(ev->record);
+    sides.emplace(side, std::move(*ev));
   }
-  // The marker/feature stitching (issue 3 item 5) is being integrated; until
-  // then only one-side samples reconstruct, and a two-side sample says so.
-  return MakeError(ErrorClass::kInvalidState,
-                   "stitch stage: this build reconstructs one side only; stitching " +
-                       std::to_string(in.views.size()) + " sides by the object markers is not in this build yet");
+  json j = {{"per_side", side_records}};
+  // The scale check: worst side's RMS label-distance residual (the calibrated
+  // rig measures in mm; the labels confirm it). Null when no side located
+  // enough labels.
+  if (scale_residuals.empty()) {
+    j["scale_residual_mm"] = nullptr;
+  } else {
+    j["scale_residual_mm"] = *std::max_element(scale_residuals.begin(), scale_residuals.end());
+  }
+
+  const int ref = in.views.begin()->first;
+  json transforms = json::array({{{"side", ref}, {"table_from_object_4x4", IsoJson(Eigen::Isometry3d::Identity())}}});
+  if (!several) {
+    j["method"] = "single-side";
+    j["rms_mm"] = nullptr;
+    j["max_mm"] = nullptr;
+  } else {
+    json stitches = json::array();
+    double worst_rms = 0, worst_max = 0;
+    std::string method;
+    for (const auto& [side, ev] : sides) {
+      if (side == ref) continue;
+      StitchOptions so;
+      so.reference_side = ref;
+      so.moving_side = side;
+      const SideEvidence& r = sides.at(ref);
+      auto st = StitchSides(r.markers, ev.markers, &r.cloud, &ev.cloud, so);
+      if (!st) {
+        return MakeError(st.error().cls, "stitch stage: side " + std::to_string(side) + " onto side " +
+                                             std::to_string(ref) + ": " + st.error().message,
+                         st.error().detail);
+      }
+      const StitchEstimate& chosen = st->source == "features" ? st->features : st->markers;
+      worst_rms = std::max(worst_rms, chosen.rms_mm);
+      worst_max = std::max(worst_max, chosen.max_mm);
+      method = method.empty() ? st->source : (method == st->source ? method : "mixed");
+      // T maps the moving side's table frame into side 1's (the object frame).
+      transforms.push_back({{"side", side}, {"table_from_object_4x4", IsoJson(ToIso(st->T.Inverse()))}});
+      stitches.push_back({{"side", side},
+                          {"onto_side", ref},
+                          {"source", st->source},
+                          {"markers", EstimateJson(st->markers)},
+                          {"features", EstimateJson(st->features)},
+                          {"cross_checked", st->cross_checked},
+                          {"disagreement_deg", st->disagreement_deg},
+                          {"disagreement_mm", st->disagreement_mm},
+                          {"consistent", st->consistent},
+                          {"warning", st->warning}});
+    }
+    j["method"] = method;
+    j["rms_mm"] = worst_rms;
+    j["max_mm"] = worst_max;
+    j["stitches"] = stitches;
+  }
+  j["sides"] = transforms;
+  j["stage_seconds"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return j;
 }
 
 }  // namespace aggscan

@@ -2,6 +2,15 @@
 // into one object frame (side 1's turntable frame). Adapts the per-view inputs
 // of reconstruct.cpp to the marker and stitching library (markers.h,
 // stitch.h) and records what it found as results/stitch.json.
+//
+// Per side: every view's background labels and object markers are detected
+// (with its rock mask and the calibrated lens); the labels are triangulated
+// and their distances compared with the configured ones (the scale check of a
+// calibrated rig: its residual is the sample's scale residual); the object
+// markers' heads and tails are triangulated; SIFT features inside the masks of
+// the side's distinct viewpoints are matched and triangulated into a feature
+// cloud. Every further side is then stitched onto side 1 (StitchSides: markers
+// and features, cross-checked).
 #pragma once
 
 #include <map>
@@ -13,6 +22,7 @@
 
 #include "common/error.h"
 #include "common/rig_calibration.h"
+#include "config/config.h"
 
 namespace aggscan {
 
@@ -27,12 +37,17 @@ struct StitchViewInput {
 struct StitchStageInput {
   std::string sample_dir;
   const RigCalibration* calibration = nullptr;
+  RigConfig rig;                                      // background labels (the sample's config)
+  std::vector<std::string> object_colors = {"purple", "red"};  // the study's object markers
   std::map<int, std::vector<StitchViewInput>> views;  // per side (1-based)
 };
 
 /// The stitch record: {"method", "sides": [{"side", "table_from_object_4x4"}],
-/// "rms_mm", "max_mm", "scale_residual_mm", ..., "stage_seconds"}. With one
-/// side the object frame is that side's turntable frame.
+/// "rms_mm", "max_mm", "scale_residual_mm", per-side markers, labels and
+/// feature clouds, the two estimates and their cross-check, "stage_seconds"}.
+/// With one side the object frame is that side's turntable frame (the labels
+/// are still located for the scale check). Errors say what was seen on each
+/// side and what to do.
 Result<nlohmann::json> RunStitchStage(const StitchStageInput& in);
 
 }  // namespace aggscan

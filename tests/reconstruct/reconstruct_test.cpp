@@ -130,6 +130,49 @@ TEST(Reconstruct, ResumesAtTheInterruptedStage) {
   EXPECT_DOUBLE_EQ((*m)["morphology_3d"]["volume_mm3"].get<double>(), before["morphology_3d"]["volume_mm3"].get<double>());
 }
 
+// Two sides, the real worker path: masks computed from the photos, markers
+// and features detected, the sides stitched, one closed mesh from all views.
+void TwoSides(bool truth_masks) {
+  test::TempDir tmp;
+  const std::string sample = Capture(tmp.path(), 1, 2, truth_masks);
+  ReconstructOptions opts;
+  opts.state_dir = tmp.path();
+  {
+    auto st = ReconstructSample(sample, opts);
+    ASSERT_TRUE(st) << st.error().ToString();
+  }
+  auto m = ReadMorphology(sample);
+  ASSERT_TRUE(m) << m.error().ToString();
+  const json& d = (*m)["morphology_3d"];
+  const json truth = Truth(sample);
+  auto rel = [&](const char* k) { return d[k].get<double>() / truth[k].get<double>() - 1.0; };
+  auto stitch = json::parse(*ReadFile(sample + "/results/stitch.json"));
+  std::printf("two sides: V %+.2f %% A %+.2f %% a %+.2f %% b %+.2f %% c %+.2f %%, sphericity %.4f (truth %.4f); "
+              "stitch %s rms %.3f mm, scale residual %s mm; iou %.4f; total %.1f s\n",
+              100 * rel("volume_mm3"), 100 * rel("surface_area_mm2"), 100 * rel("a_mm"), 100 * rel("b_mm"),
+              100 * rel("c_mm"), d["sphericity"].get<double>(), truth["sphericity"].get<double>(),
+              stitch["method"].get<std::string>().c_str(), stitch["rms_mm"].get<double>(),
+              stitch["scale_residual_mm"].dump().c_str(), (*m)["quality"]["silhouette_iou_mean"].get<double>(),
+              (*m)["timings_s"]["total"].get<double>());
+  EXPECT_TRUE(d["watertight"].get<bool>());
+  EXPECT_EQ(stitch["sides"].size(), 2u);
+  EXPECT_NE(stitch["method"].get<std::string>(), "single-side");
+  EXPECT_LT(stitch["rms_mm"].get<double>(), 2.0);
+  ASSERT_TRUE(stitch["scale_residual_mm"].is_number());
+  EXPECT_LT(stitch["scale_residual_mm"].get<double>(), 0.5);
+  EXPECT_EQ((*m)["views_2d"].size(), 60u);
+  // A visual hull only over-estimates (concavities); the stitch misalignment
+  // and the masks' edge errors shift it either way.
+  EXPECT_NEAR(rel("volume_mm3"), 0.0, 0.05);
+  EXPECT_NEAR(rel("a_mm"), 0.0, 0.03);
+  EXPECT_NEAR(rel("b_mm"), 0.0, 0.03);
+  EXPECT_NEAR(rel("c_mm"), 0.0, 0.03);
+  EXPECT_NEAR(d["sphericity"].get<double>(), truth["sphericity"].get<double>(), 0.03);
+}
+
+TEST(Reconstruct, TwoSidesStitchedFromComputedMasks) { TwoSides(false); }
+TEST(Reconstruct, TwoSidesStitchedFromTruthMasks) { TwoSides(true); }
+
 TEST(Reconstruct, MissingCalibrationSaysWhatToDo) {
   test::TempDir tmp;
   const std::string sample = Capture(tmp.path(), 8, 1);
