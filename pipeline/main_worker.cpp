@@ -1,6 +1,9 @@
 // aggscan-worker: takes side and sample jobs from the queue in the state
-// directory and runs the reconstruction stages on them (masks and 2D
-// morphology so far). Niced below the capture daemon. SIGTERM/SIGINT: the
+// directory and runs the reconstruction stages on them: side jobs compute the
+// masks and 2D figures of one side; a sample job, when the sample recorded a
+// rig calibration at arm time (samples/<id>/calibration.json), runs every
+// stage to the 3D model and morphology (pipeline/reconstruct.h), else only
+// the 2D figures, saying how to calibrate. Niced below the capture daemon. SIGTERM/SIGINT: the
 // current side stops between views (resumes there next time, the job stays
 // "running" and is requeued at the next start without counting an attempt).
 //
@@ -21,6 +24,8 @@
 
 #include "common/log.h"
 #include "config/config.h"
+#include "common/fsutil.h"
+#include "pipeline/reconstruct.h"
 #include "pipeline/side_job.h"
 #include "store/layout.h"
 #include "store/queue.h"
@@ -109,11 +114,28 @@ void IdleWait(long ms) {
     std::this_thread::sleep_for(std::chrono::milliseconds(std::min<long>(20, ms - waited)));
 }
 
+// The sample stage: the 3D reconstruction when the sample carries its rig
+// calibration, the 2D figures alone otherwise.
+Status RunSampleStage(const std::string& dir, const std::string& state_dir, const WorkerOptions& opts) {
+  if (!PathExists(dir + "/" + layout::kCalibrationCopy)) {
+    AGG_LOGW(kCat, "%s: no rig calibration recorded in the sample: 2D figures only; run `aggscan calibrate` "
+                   "(the daemon records it in every later sample), or give this sample a calibration.json and "
+                   "run `aggscan reconstruct %s`",
+             dir.c_str(), dir.c_str());
+    return ProcessSample(dir, opts);
+  }
+  ReconstructOptions ro;
+  ro.worker = opts;
+  ro.state_dir = state_dir;
+  ro.cancel = opts.cancel;
+  return ReconstructSample(dir, ro);
+}
+
 Status RunJob(const std::string& state_dir, const Job& job, const WorkerOptions& opts) {
   if (!layout::IsValidSampleId(job.sample_id))
     return MakeError(ErrorClass::kCorrupt, "job " + std::to_string(job.id) + " names an invalid sample id");
   const std::string dir = layout::SampleDir(state_dir, job.sample_id);
-  return job.side > 0 ? ProcessSide(dir, job.side, opts) : ProcessSample(dir, opts);
+  return job.side > 0 ? ProcessSide(dir, job.side, opts) : RunSampleStage(dir, state_dir, opts);
 }
 
 }  // namespace
@@ -152,7 +174,7 @@ int main(int argc, char** argv) {
 
   if (!args.sample_dir.empty()) {
     WorkerOptions one;
-    Status st = ProcessSample(args.sample_dir, one);
+    Status st = RunSampleStage(args.sample_dir, "", one);
     if (!st.ok()) {
       AGG_LOGE(kCat, "%s: %s", args.sample_dir.c_str(), st.error().ToString().c_str());
       return 1;

@@ -19,8 +19,8 @@ PACKAGES=(
   libopencv-core-dev libopencv-imgproc-dev libopencv-imgcodecs-dev
   libopencv-calib3d-dev libopencv-features2d-dev libopencv-contrib-dev
   libopencv-dnn-dev libeigen3-dev libceres-dev colmap
-  # systemd-analyze for the unit verification test, curl for the README demo
-  systemd curl
+  # systemd-analyze for the unit verification test, curl and python3 for the README demo
+  systemd curl python3
 )
 
 missing=()

@@ -5,7 +5,7 @@
 # simulated rig (config/sim.toml) and
 # aggscan-worker, captures a two-side sample of a simulated rock through the
 # CLI exactly as an operator would (arm, press, flip, press), lets the worker
-# process both sides and prints the results.
+# reconstruct the rock (a closed metric mesh) and prints its 3D morphology.
 #   scripts/run-sim-demo.sh [SAMPLE_ID]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -62,12 +62,24 @@ wait_state awaiting_pose
 echo "== the simulated operator flipped the rock; pressing start: side 2"
 "$CLI" press
 wait_state idle
-echo "== waiting for the worker"
-for _ in $(seq 600); do
-  [ -f "$STATE_DIR/samples/$SAMPLE/results/morph2d.json" ] && break; sleep 0.2
+echo "== waiting for the worker (masks, markers, stitching, surface, morphology)"
+RES="$STATE_DIR/samples/$SAMPLE/results"
+for _ in $(seq 3000); do  # up to 10 min
+  [ -f "$RES/morphology.json" ] && break
+  if ! kill -0 $WORKER_PID 2>/dev/null; then echo "the worker stopped; see $STATE_DIR/worker.log" >&2; exit 1; fi
+  sleep 0.2
 done
+[ -f "$RES/morphology.json" ] || { echo "no results after 10 min; see $STATE_DIR/worker.log" >&2; exit 1; }
 "$CLI" show "$SAMPLE"
-echo "== 2D morphology (results/morph2d.json)"
-cat "$STATE_DIR/samples/$SAMPLE/results/morph2d.json"
-echo
+echo "== 3D morphology and quality (GET /api/v1/samples/$SAMPLE/results)"
+curl -fsS "$AGGSCAN_URL/api/v1/samples/$SAMPLE/results" | python3 -c '
+import json, sys
+m = json.load(sys.stdin)
+d = m["morphology_3d"]
+print("volume %.1f cm3, area %.1f cm2, a/b/c %.1f/%.1f/%.1f mm, FER %.2f, sphericity %.3f, watertight %s" % (
+    d["volume_mm3"] / 1e3, d["surface_area_mm2"] / 1e2, d["a_mm"], d["b_mm"], d["c_mm"], d["fer_3d"],
+    d["sphericity"], d["watertight"]))
+print("quality:", json.dumps(m["quality"]))
+print("methods:", json.dumps(m["methods"]), " total %.1f s" % m["timings_s"]["total"])'
+echo "mesh: $RES/mesh.ply (also mesh.obj, mesh.stl); library: $STATE_DIR/library.csv"
 echo "sample directory: $STATE_DIR/samples/$SAMPLE"
