@@ -15,11 +15,14 @@
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "config/config.h"
 #include "drivers/sim/render.h"
+#include "pipeline/side_job.h"
+#include "store/layout.h"
 #include "synth_scene.h"
 
 namespace aggscan {
@@ -149,6 +152,37 @@ TEST_F(MaskNetTest, LoadMaskNetFollowsTheConfig) {
   EXPECT_TRUE((*net)->options().logits);
   EXPECT_EQ((*net)->options().input_size, cv::Size(256, 192));
   EXPECT_EQ((*net)->options().mean_rgb, cv::Scalar(0.5, 0.5, 0.5));
+}
+
+// The worker uses the network when WorkerOptions carries one: the mask it
+// stores for a view is the network's (refined) mask of that photo.
+TEST_F(MaskNetTest, WorkerMasksComeFromTheNetwork) {
+  const std::string sample = (dir_ / "samples" / "S-0001").string();
+  const std::string side_dir = sample + "/" + layout::SideDirName(1);
+  std::filesystem::create_directories(side_dir);
+  testing::SceneParams p;
+  p.size = {640, 480};
+  const auto sc = testing::MakeScene(p);
+  std::ofstream(side_dir + "/" + layout::ViewImageName(0), std::ios::binary)
+      .write(reinterpret_cast<const char*>(sc.jpeg.data()), static_cast<std::streamsize>(sc.jpeg.size()));
+  const nlohmann::json manifest = {
+      {"sample_id", "S-0001"},
+      {"side", 1},
+      {"views", {{{"view", 0}, {"image", layout::ViewImageName(0)}, {"bytes", sc.jpeg.size()}}}},
+      {"completed_utc", "2026-01-01T00:00:00.000Z"}};
+  std::ofstream(side_dir + "/" + layout::kManifest) << manifest.dump();
+
+  auto net = MaskNet::Load(Options("texture.onnx", true));
+  ASSERT_TRUE(net.ok()) << net.error().ToString();
+  WorkerOptions w;
+  w.mask_net = std::shared_ptr<MaskNet>(std::move(*net));
+  ASSERT_TRUE(ProcessSide(sample, 1, w).ok());
+  const cv::Mat stored = cv::imread(ViewMaskPath(sample, 1, 0), cv::IMREAD_GRAYSCALE);
+  ASSERT_FALSE(stored.empty());
+  auto expected = w.mask_net->Mask(sc.bgr);
+  ASSERT_TRUE(expected.ok());
+  EXPECT_EQ(cv::countNonZero(stored != *expected), 0);
+  EXPECT_GT(cv::countNonZero(stored != ComputeForegroundMask(sc.bgr)), 0);
 }
 
 TEST_F(MaskNetTest, MissingFileIsAConfigError) {
