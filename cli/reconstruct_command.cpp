@@ -2,14 +2,22 @@
 
 #include <filesystem>
 
+#include "config/config.h"
+#include "pipeline/mask_net.h"
 #include "pipeline/reconstruct.h"
 
 namespace aggscan {
 
 int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {
-  std::string sample_dir, state_dir;
+  std::string sample_dir, state_dir, config_path;
   for (size_t i = 0; i < args.size(); ++i) {
-    if (args[i] == "--state-dir") {
+    if (args[i] == "--config") {
+      if (i + 1 >= args.size()) {
+        err << "aggscan reconstruct: --config needs a file\n";
+        return 2;
+      }
+      config_path = args[++i];
+    } else if (args[i] == "--state-dir") {
       if (i + 1 >= args.size()) {
         err << "aggscan reconstruct: --state-dir needs a directory\n";
         return 2;
@@ -41,6 +49,22 @@ int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& ou
   }
   ReconstructOptions opts;
   opts.state_dir = state_dir;
+  if (!config_path.empty()) {
+    // Only the [mask] section matters here: an ONNX mask network, if configured.
+    std::vector<ConfigProblem> problems;
+    auto cfg = LoadConfigFile(config_path, &problems);
+    if (!cfg.ok()) {
+      for (const auto& p : problems) err << "aggscan reconstruct: " << p.ToString() << "\n";
+      err << "aggscan reconstruct: invalid config: " << cfg.error().ToString() << "\n";
+      return 2;
+    }
+    auto net = LoadMaskNet(cfg->mask);
+    if (!net.ok()) {
+      err << "aggscan reconstruct: " << net.error().ToString() << "\n";
+      return 2;
+    }
+    opts.worker.mask_net = *net;
+  }
   if (Status s = ReconstructSample(sample_dir, opts); !s) {
     err << "aggscan reconstruct: " << s.error().ToString() << "\n";
     return 1;

@@ -221,6 +221,22 @@ const std::vector<Field<Config>>& Fields() {
       F(calibration.marker_mm, Above(0, 1000),
         "side of one ArUco marker as printed, mm (smaller than square_mm)"),
 
+      F(mask.method, OneOf({"classical", "onnx"}),
+        "classical (colour, texture, graph cut) | onnx (a salient-object network seeds the "
+        "refinement)"),
+      F(mask.model, Any(), "onnx: path of the .onnx network file"),
+      F(mask.input_width, Range(8, 4096), "onnx: network input width, pixels"),
+      F(mask.input_height, Range(8, 4096), "onnx: network input height, pixels"),
+      F(mask.mean_r, Range(-10, 10), "onnx: mean subtracted from red/255"),
+      F(mask.mean_g, Range(-10, 10), "onnx: mean subtracted from green/255"),
+      F(mask.mean_b, Range(-10, 10), "onnx: mean subtracted from blue/255"),
+      F(mask.std_r, Above(0, 10), "onnx: standard deviation red is divided by"),
+      F(mask.std_g, Above(0, 10), "onnx: standard deviation green is divided by"),
+      F(mask.std_b, Above(0, 10), "onnx: standard deviation blue is divided by"),
+      F(mask.output, OneOf({"probability", "logits"}),
+        "onnx: probability (sigmoid already applied) | logits"),
+      F(mask.threshold, Above(0, 1), "onnx: probability above which a pixel is rock (0..1)"),
+
       D(worker.poll_interval, Above(0, 60 * kSec), "queue polling period when idle"),
       F(worker.nice, Range(0, 19), "CPU priority below the capture daemon (0..19)"),
   };
@@ -264,6 +280,9 @@ const std::vector<Section>& Sections() {
       {"rig", "Rig geometry: turntable and the background scale markers."},
       {"calibration",
        "ChArUco board of the rig calibration (aggscan calibrate), laid flat on the disc."},
+      {"mask",
+       "Foreground masks: classical segmentation, or an ONNX salient-object network that seeds "
+       "its refinement."},
       {"worker", "Reconstruction worker."},
   };
   return k;
@@ -689,6 +708,14 @@ class Validator {
           "must be 0 (random) or at least 10 mm, got " + FormatDouble(c.sim.rock_size_mm));
     }
     CheckBoard(c);
+    if (c.mask.method == "onnx" && c.mask.model.empty()) {
+      Add("mask.model",
+          "mask.method = \"onnx\" needs the network: name its .onnx file here, or set "
+          "mask.method = \"classical\"");
+    }
+    if (c.mask.threshold == 1.0) {
+      Add("mask.threshold", "must be < 1 (a probability), got " + FormatDouble(c.mask.threshold));
+    }
     if (c.sim.camera_distance_mm <= c.rig.turntable_diameter_mm / 2) {
       Add("sim.camera_distance_mm", "camera must stand outside the turntable (radius " +
                                         FormatDouble(c.rig.turntable_diameter_mm / 2) + " mm)");

@@ -162,6 +162,28 @@ struct RigConfig {
   bool operator==(const RigConfig&) const = default;
 };
 
+// Foreground masks of the worker (pipeline/mask.h): the classical
+// segmentation, or a salient-object network (ONNX, run by OpenCV DNN) whose
+// output, resized to the photo and thresholded, seeds the same refinement.
+// The network takes one 1x3xHxW float input, RGB, each channel (value/255 -
+// mean) / std, and gives one HxW map (1x1xHxW, 1xHxW or HxW).
+struct MaskConfig {
+  std::string method = "classical";  // classical | onnx
+  std::string model;                 // onnx: path of the .onnx file
+  int input_width = 320;             // onnx: network input size, pixels (the photo is resized to it)
+  int input_height = 320;
+  double mean_r = 0.485;             // onnx: per-channel mean subtracted from value/255 (ImageNet's)
+  double mean_g = 0.456;
+  double mean_b = 0.406;
+  double std_r = 0.229;              // onnx: and the standard deviation it is divided by
+  double std_g = 0.224;
+  double std_b = 0.225;
+  std::string output = "probability";  // onnx: probability (sigmoid already applied) | logits
+  double threshold = 0.5;            // onnx: probability above which a pixel is rock
+
+  bool operator==(const MaskConfig&) const = default;
+};
+
 struct WorkerConfig {
   TimeNs poll_interval = 500 * kNsPerMs;  // queue polling period when idle
   int nice = 10;                          // CPU priority below the capture daemon
@@ -178,6 +200,7 @@ struct Config {
   SimConfig sim;
   RigConfig rig;
   CalibrationConfig calibration;
+  MaskConfig mask;
   WorkerConfig worker;
 
   bool operator==(const Config&) const = default;

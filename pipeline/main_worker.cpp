@@ -172,8 +172,18 @@ int main(int argc, char** argv) {
   if (errno == 0 && current != cfg.worker.nice && setpriority(PRIO_PROCESS, 0, cfg.worker.nice) != 0)
     AGG_LOGW(kCat, "cannot set nice %d (staying at %d): %s", cfg.worker.nice, current, std::strerror(errno));
 
+  // The mask network (if configured) is loaded once, at start: a missing or
+  // broken model is a config error, reported before any job is claimed.
+  auto mask_net = LoadMaskNet(cfg.mask);
+  if (!mask_net.ok()) {
+    std::fprintf(stderr, "aggscan-worker: %s\n", mask_net.error().ToString().c_str());
+    return 2;
+  }
+  if (*mask_net) AGG_LOGI(kCat, "masks: ONNX network %s", cfg.mask.model.c_str());
+
   if (!args.sample_dir.empty()) {
     WorkerOptions one;
+    one.mask_net = *mask_net;
     Status st = RunSampleStage(args.sample_dir, "", one);
     if (!st.ok()) {
       AGG_LOGE(kCat, "%s: %s", args.sample_dir.c_str(), st.error().ToString().c_str());
@@ -202,6 +212,7 @@ int main(int argc, char** argv) {
 
   WorkerOptions opts;
   opts.cancel = &g_stop;
+  opts.mask_net = *mask_net;
   AGG_LOGI(kCat, "started: state dir %s, poll %ld ms%s", args.state_dir.c_str(), poll_ms, args.once ? ", once" : "");
   bool failed_for_good = false;
   while (!g_stop.load()) {

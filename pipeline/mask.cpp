@@ -5,7 +5,6 @@
 #include <vector>
 
 #include <opencv2/imgproc.hpp>
-#include <opencv2/imgcodecs.hpp>
 
 #include "pipeline/mask_graphcut.h"
 #include "pipeline/morph2d.h"
@@ -159,6 +158,28 @@ struct Scene {
   cv::Mat texture;                  // CV_32F, TextureMap of `small`
 };
 
+// Hysteresis (0/255): the 8-connected regions of `strong | weak` that hold a
+// `strong` pixel.
+cv::Mat Hysteresis(const cv::Mat& strong, const cv::Mat& weak) {
+  cv::Mat labels;
+  const int n = cv::connectedComponents(strong | weak, labels, 8, CV_32S);
+  std::vector<uchar> keep(static_cast<size_t>(n), 0);
+  for (int y = 0; y < labels.rows; ++y) {
+    const int* l = labels.ptr<int>(y);
+    const uchar* st = strong.ptr<uchar>(y);
+    for (int x = 0; x < labels.cols; ++x)
+      if (st[x]) keep[static_cast<size_t>(l[x])] = 255;
+  }
+  keep[0] = 0;
+  cv::Mat out(strong.size(), CV_8UC1);
+  for (int y = 0; y < labels.rows; ++y) {
+    const int* l = labels.ptr<int>(y);
+    uchar* po = out.ptr<uchar>(y);
+    for (int x = 0; x < labels.cols; ++x) po[x] = keep[static_cast<size_t>(l[x])];
+  }
+  return out;
+}
+
 cv::Mat BorderStrip(cv::Size size, const MaskOptions& o) {
   const int b = std::max(2, static_cast<int>(std::lround(o.border_fraction * std::min(size.width, size.height))));
   cv::Mat strip(size, CV_8UC1, cv::Scalar(255));
@@ -189,23 +210,7 @@ cv::Mat PaintMap(const cv::Mat& ab, const cv::Mat& color_distance, cv::Vec2f roc
   const cv::Mat unexplained = color_distance > o.color_threshold;
   const cv::Mat strong = (mag > o.saturated_chroma) & unexplained;
   const cv::Mat weak = (mag > 0.5 * o.saturated_chroma) & unexplained;
-  cv::Mat labels;
-  const int n = cv::connectedComponents(weak, labels, 8, CV_32S);
-  std::vector<uchar> keep(static_cast<size_t>(n), 0);
-  for (int y = 0; y < labels.rows; ++y) {
-    const int* l = labels.ptr<int>(y);
-    const uchar* st = strong.ptr<uchar>(y);
-    for (int x = 0; x < labels.cols; ++x)
-      if (st[x]) keep[static_cast<size_t>(l[x])] = 255;
-  }
-  keep[0] = 0;
-  cv::Mat out(ab.size(), CV_8UC1);
-  for (int y = 0; y < labels.rows; ++y) {
-    const int* l = labels.ptr<int>(y);
-    uchar* po = out.ptr<uchar>(y);
-    for (int x = 0; x < labels.cols; ++x) po[x] = keep[static_cast<size_t>(l[x])];
-  }
-  return out;
+  return Hysteresis(strong, weak);
 }
 
 Scene PrepareScene(const cv::Mat& bgr, const MaskOptions& o) {
@@ -248,9 +253,18 @@ cv::Mat CoarseMask(Scene& s, const MaskOptions& o) {
   const cv::Mat& tex = s.texture;
   // A busy background (cloth, wood grain) raises the bar until the border
   // itself is not "textured"; the rig's plain table leaves it at the floor.
-  const double tex_threshold =
-      std::max(o.texture_threshold, o.texture_border_factor * Quantile(tex, BorderStrip(tex.size(), o), 0.99));
-  const cv::Mat evidence = (tex > tex_threshold) | (s.color_distance > o.color_threshold);
+  const cv::Mat strip = BorderStrip(tex.size(), o);
+  const double tex_threshold = std::max(o.texture_threshold, o.texture_border_factor * Quantile(tex, strip, 0.99));
+  cv::Mat evidence = (tex > tex_threshold) | (s.color_distance > o.color_threshold);
+  // A busy background (stone2: a patterned cloth) widens its colour clusters,
+  // which shrinks every distance measured in their spread: the rock may lie
+  // clearly apart from the border's colours and still stay under
+  // color_threshold but for a few pixels. Regions above a lower threshold
+  // join where they hold such a pixel (hysteresis, as in Canny's edge linking);
+  // the lower threshold never drops into the border's own distances.
+  const double weak_threshold =
+      std::max(o.color_weak_ratio * o.color_threshold, o.color_border_factor * Quantile(s.color_distance, strip, 0.99));
+  if (weak_threshold < o.color_threshold) evidence = Hysteresis(evidence, s.color_distance > weak_threshold);
   // First estimate with everything, for the rock's colour. The graph cut takes
   // it as it is (paint is neutral there); the other refinements want the paint
   // set aside (a label touching the rock must not join it) and re-attach
@@ -347,9 +361,7 @@ cv::Mat GraphCutRefine(const Scene& s, const cv::Mat& seed, const MaskOptions& o
   mask_detail::GraphCutOptions g;
   g.iterations = o.graphcut_iterations;
   g.texture_weight = o.graphcut_texture_weight;
-  if (getenv("NRC")) g.neutral_rock_cost = atof(getenv("NRC"));
   cv::Mat fg = mask_detail::SegmentGraphCut(img, o.graphcut_texture_weight > 0 ? tex : cv::Mat(), gc, neutral, g);
-  if (const char* dd = getenv("MASK_DEBUG_DIR")) { cv::imwrite(std::string(dd) + "/gc_img.png", img); cv::imwrite(std::string(dd) + "/gc_tri.png", gc * 60); cv::imwrite(std::string(dd) + "/gc_neutral.png", neutral); cv::imwrite(std::string(dd) + "/gc_fg.png", fg); }
   if (f < 1.0) {
     cv::resize(fg, fg, roi.size(), 0, 0, cv::INTER_LINEAR);
     fg = fg > 127;
@@ -444,9 +456,7 @@ cv::Mat BandRefine(const cv::Mat& bgr_roi, const cv::Mat& coarse_full, const cv:
 // Working-resolution mask -> full-resolution mask, refined as opts say.
 cv::Mat FinishMask(const cv::Mat& bgr, const Scene& s, cv::Mat work, const MaskOptions& o) {
   cv::Mat out = cv::Mat::zeros(bgr.size(), CV_8UC1);
-  if (const char* dd = getenv("MASK_DEBUG_DIR")) { cv::imwrite(std::string(dd) + "/coarse.png", work); cv::imwrite(std::string(dd) + "/small.png", s.small); cv::Mat t8; s.texture.convertTo(t8, CV_8U, 255.0 / 0.1); cv::imwrite(std::string(dd) + "/tex.png", t8); }
   if (o.refine == MaskRefine::kGraphCut) work = GraphCutRefine(s, work, o);
-  if (const char* dd = getenv("MASK_DEBUG_DIR")) cv::imwrite(std::string(dd) + "/gc.png", work);
   const cv::Rect wbox = cv::boundingRect(work);
   if (wbox.area() == 0) return out;
 
@@ -477,7 +487,6 @@ cv::Mat FinishMask(const cv::Mat& bgr, const Scene& s, cv::Mat work, const MaskO
   }
   const bool band = o.refine == MaskRefine::kBand || (o.refine == MaskRefine::kGraphCut && scale < 1.0);
   cv::Mat refined = band ? BandRefine(bgr(roi), full, saturated, o) : full;
-  if (const char* dd = getenv("MASK_DEBUG_DIR")) { cv::imwrite(std::string(dd) + "/f_full.png", full); cv::imwrite(std::string(dd) + "/f_band.png", refined); cv::imwrite(std::string(dd) + "/f_sat.png", saturated); }
   refined &= ~saturated;
   cv::morphologyEx(refined, refined, cv::MORPH_OPEN, Disk(1));
   cv::morphologyEx(refined, refined, cv::MORPH_CLOSE, Disk(2));
@@ -518,22 +527,6 @@ cv::Mat TextureMap(const cv::Mat& bgr, const MaskOptions& o) {
   cv::Mat energy;
   cv::GaussianBlur(hp.mul(hp), energy, cv::Size(0, 0), o.texture_sigma);
   cv::sqrt(energy, energy);
-  if (const char* m = getenv("TEX_ISO")) {
-    cv::Mat gx, gy;
-    cv::Sobel(logi, gx, CV_32F, 1, 0, 3);
-    cv::Sobel(logi, gy, CV_32F, 0, 1, 3);
-    cv::Mat j11, j22, j12;
-    const double sig = getenv("TEX_ISO_SIG") ? atof(getenv("TEX_ISO_SIG")) : 2 * o.texture_sigma;
-    cv::GaussianBlur(gx.mul(gx), j11, cv::Size(0, 0), sig);
-    cv::GaussianBlur(gy.mul(gy), j22, cv::Size(0, 0), sig);
-    cv::GaussianBlur(gx.mul(gy), j12, cv::Size(0, 0), sig);
-    cv::Mat d = j11 - j22, diff;
-    cv::sqrt(d.mul(d) + 4 * j12.mul(j12), diff);
-    cv::Mat iso = 1.0 - diff / (j11 + j22 + 1e-9);
-    if (atoi(m) == 1) energy = energy.mul(iso);
-    else if (atoi(m) == 2) { cv::Mat s; cv::sqrt(cv::max(iso, 0), s); energy = energy.mul(s); }
-    else energy.setTo(0, iso < atof(getenv("TEX_ISO_T")));
-  }
   return energy;
 }
 

@@ -13,8 +13,11 @@
 //      [shade_min, shade_max], so shadows and disc shading stay background).
 //   2. Evidence of rock = colour not explained by the background model, or
 //      local texture above what the border shows (the texture cue switches
-//      itself off on a busy background). Saturated pixels the background does
-//      not explain (labels, markers) are set aside.
+//      itself off on a busy background). Colour uses hysteresis: regions
+//      above a lower threshold join where they hold a pixel above the upper
+//      one, since a busy background's wide clusters compress all distances.
+//      Saturated pixels the background does not explain (labels, markers)
+//      are set aside.
 //   3. Open (drops thin edge responses such as the disc rim), close, keep the
 //      largest component, fill holes (brings back the object markers inside).
 //   4. Refinement (refine): kGrabCut runs cv::grabCut seeded with that mask
@@ -49,6 +52,8 @@ struct MaskOptions {
   double shade_max = 1.3;           //   (shadow .. highlight)
   double color_threshold = 4.0;     // normalised distance to the nearest cluster above which a pixel is rock
   double noise_levels = 3.0;        // 8-bit levels of colour noise added to every cluster's spread
+  double color_weak_ratio = 0.5;    // hysteresis: pixels above this times color_threshold join a rock region
+  double color_border_factor = 1.5; //   when also above this times the border's 99th percentile distance
   // Texture cue:
   double texture_sigma = 1.5;       // coarse px, scale of the texture high-pass and of its local RMS
   double texture_threshold = 0.02;  // RMS of high-passed ln(gray + 8) above which a pixel is textured

@@ -167,7 +167,13 @@ Status ProcessSide(const std::string& sample_dir, int side, const WorkerOptions&
       if (img.empty())
         return MakeError(ErrorClass::kCorrupt, "image " + side_dir + "/" + v.image + " cannot be decoded");
       image_size = img.size();
-      mask = ComputeForegroundMask(img, opts.mask);
+      if (opts.mask_net) {
+        auto m = opts.mask_net->Mask(img, opts.mask);
+        if (!m.ok()) return m.error();
+        mask = std::move(*m);
+      } else {
+        mask = ComputeForegroundMask(img, opts.mask);
+      }
       std::vector<unsigned char> png;
       if (!cv::imencode(".png", mask, png))
         return MakeError(ErrorClass::kInternal, "PNG encoding of the mask of view " + std::to_string(v.view) + " failed");

@@ -14,15 +14,18 @@
 #pragma once
 
 #include <atomic>
+#include <memory>
 #include <string>
 
 #include "common/error.h"
 #include "pipeline/mask.h"
+#include "pipeline/mask_net.h"
 
 namespace aggscan {
 
 struct WorkerOptions {
-  MaskOptions mask;                           // segmentation parameters
+  MaskOptions mask;                           // segmentation parameters (and the network's refinement)
+  std::shared_ptr<MaskNet> mask_net;          // set ([mask] method = "onnx"): its output seeds the mask
   bool reuse_masks = true;                    // reuse results/masks/... PNGs written by an earlier attempt
   const std::atomic<bool>* cancel = nullptr;  // checked between views; set -> kInvalidState "interrupted"
 };

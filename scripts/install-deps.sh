@@ -21,6 +21,8 @@ PACKAGES=(
   libopencv-dnn-dev libeigen3-dev libceres-dev colmap
   # systemd-analyze for the unit verification test, curl and python3 for the README demo
   systemd curl python3
+  # tests only: writes the small ONNX networks of the mask-network test
+  python3-onnx
 )
 
 missing=()

@@ -217,8 +217,23 @@ TEST(Config, OutOfRangeHasLine) {
       {"[turntable.faults]\ndisconnect_after = \"0s\"\n", "turntable.faults.disconnect_after",
        "must be > 0s"},
       {"[worker]\nnice = 20\n", "worker.nice", "0..19"},
+      {"[mask]\nmethod = \"dnn\"\n", "mask.method", "classical | onnx"},
+      {"[mask]\noutput = \"softmax\"\n", "mask.output", "probability | logits"},
+      {"[mask]\ninput_width = 4\n", "mask.input_width", "8..4096"},
+      {"[mask]\nstd_g = 0\n", "mask.std_g", "must be > 0"},
+      {"[mask]\nthreshold = 0\n", "mask.threshold", "must be > 0"},
+      {"[mask]\nthreshold = 1\n", "mask.threshold", "must be < 1"},
   };
   for (const auto& c : cases) ExpectOneProblem(c.toml, 2, c.key, c.text);
+}
+
+TEST(Config, OnnxMaskNeedsAModel) {
+  ExpectOneProblem("[mask]\nmodel = \"\"\nmethod = \"onnx\"\n", 2, "mask.model",
+                   "needs the network: name its .onnx file here, or set mask.method = \"classical\"");
+  Loaded l = Load("[mask]\nmethod = \"onnx\"\nmodel = \"/opt/u2net.onnx\"\noutput = \"logits\"\n");
+  ASSERT_TRUE(l.result.ok()) << Dump(l.problems);
+  EXPECT_EQ(l.result->mask.model, "/opt/u2net.onnx");
+  EXPECT_EQ(l.result->mask.output, "logits");
 }
 
 TEST(Config, MarkerRules) {
@@ -520,6 +535,8 @@ TEST(ConfigToToml, RoundTripEveryFieldChanged) {
   c.rig.markers = {{"yellow", -0.0, 4999.999}, {"green", 1e-3, -5000.0}};
   c.worker.poll_interval = 60 * kNsPerSec;
   c.worker.nice = 0;
+  c.mask = {"onnx", "models/u2net \"rig\".onnx", 288, 4096, -0.5, 0.0, 1e-9, 0.1, 1.0 / 3, 10.0,
+            "logits", 0.999};
   std::vector<ConfigProblem> problems;
   ValidateConfig(c, "struct", &problems);
   ASSERT_TRUE(problems.empty()) << Dump(problems);

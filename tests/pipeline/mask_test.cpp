@@ -119,22 +119,29 @@ TEST(Mask, EmptySceneGivesEmptyMask) {
   EXPECT_EQ(cv::countNonZero(ComputeForegroundMask(white)), 0);
 }
 
-// Real photo from the MSR GrabCut set (a rock on a plain table): the value is
-// reported, not asserted, since the scene differs from the rig's.
+// Real photos from the MSR GrabCut set: stone1 a rock on a plain orange table,
+// stone2 the same rock on a busy patterned cloth (apples and pine cones). The
+// scenes differ from the rig's, so the figures are held where they were
+// measured (stone1 0.9857, stone2 0.9616, 640 x 480, default options) with
+// 0.01 of slack: a change that loses more on real photos shows up here.
+// stone2 scored 0.0035 before the colour cue's hysteresis (mask.h, step 2).
 TEST(Mask, GrabCutStoneReport) {
   const std::string dir = std::string(AGGSCAN_SHARED_DATA) + "/masks/grabcut";
   if (!std::filesystem::exists(dir + "/boundary_GT/stone1.bmp")) GTEST_SKIP() << "no " << dir;
-  for (const char* name : {"stone1", "stone2"}) {
-    const cv::Mat img = cv::imread(dir + "/data_GT/" + name + ".JPG", cv::IMREAD_COLOR);
-    const cv::Mat gt = cv::imread(dir + "/boundary_GT/" + name + ".bmp", cv::IMREAD_GRAYSCALE);
-    if (img.empty() || gt.empty()) GTEST_SKIP() << "unreadable " << name;
+  const struct {
+    const char* name;
+    double min_iou;
+  } stones[] = {{"stone1", 0.9857 - 0.01}, {"stone2", 0.9616 - 0.01}};
+  for (const auto& stone : stones) {
+    const cv::Mat img = cv::imread(dir + "/data_GT/" + stone.name + ".JPG", cv::IMREAD_COLOR);
+    const cv::Mat gt = cv::imread(dir + "/boundary_GT/" + stone.name + ".bmp", cv::IMREAD_GRAYSCALE);
+    if (img.empty() || gt.empty()) GTEST_SKIP() << "unreadable " << stone.name << " in " << dir;
     ASSERT_EQ(img.size(), gt.size());
     const cv::Mat mask = ComputeForegroundMask(img);
-    const double iou = MaskIoU(mask, gt == 255, gt == 128);
-    std::printf("grabcut %s (%dx%d): IoU %.4f\n", name, img.cols, img.rows, iou);
-    RecordProperty(std::string("iou_") + name, std::to_string(iou));
-    EXPECT_GE(iou, 0.0);
-    EXPECT_LE(iou, 1.0);
+    const double iou = MaskIoU(mask, gt == 255, gt == 128);  // 128: unlabelled border band
+    std::printf("grabcut %s (%dx%d): IoU %.4f\n", stone.name, img.cols, img.rows, iou);
+    RecordProperty(std::string("iou_") + stone.name, std::to_string(iou));
+    EXPECT_GE(iou, stone.min_iou) << stone.name;
   }
 }
 
