@@ -157,6 +157,40 @@ TEST(BundleAdjust, RefiningTheRigToo) {
   }
 }
 
+// The study's capture: 30 views, 30 deg apart (2.5 turns, so 12 viewpoints
+// seen 2-3 times). With every view in the adjustment each one gets its own
+// angle, and the repeated viewpoints give longer tracks: the correction is
+// much better than on the distinct viewpoints alone, at about 3x the cost.
+// Measured (Debug, shared cores): 1066 tracks, 4567 observations, RMS 0.430 ->
+// 0.381 px; views 3, 15, 22: +0.417 -> +0.076, -0.390 -> -0.071, +0.396 ->
+// +0.264 deg; angle RMS over the 30 views 0.129 -> 0.057 deg, the well-read
+// views within 0.07 deg; SIFT 6.8 s, matching 12.5 s, solve 9.2 s.
+TEST(BundleAdjust, EveryViewOfAThirtyViewSide) {
+  Config cfg;
+  cfg.sim.seed = 3;
+  auto w = sim::SimWorld::Create(cfg);
+  ASSERT_TRUE(w.ok());
+  sim::Renderer rr(**w, kW, kH);
+  Side s;
+  s.world = *w;
+  s.cal = s.world->TruthCalibration(kW, kH);
+  s.views = testing::RenderSide(rr, 1, 30, 3);
+  std::vector<double> measured;
+  for (const auto& v : s.views) measured.push_back(v.measured_deg);
+  for (int v : {3, 15, 22}) measured[v] += (v == 15 ? -0.4 : 0.4);
+  BundleAdjustOptions o;
+  o.features.distinct_viewpoints_only = false;
+  const BundleAdjustResult r = Adjust(s, measured, o);
+  Print("seed 3, 30 views, every view", s, measured, r);
+  ASSERT_TRUE(r.refined) << r.reason;
+  EXPECT_LT(r.final_rms_px, r.initial_rms_px);
+  for (int v : {3, 15, 22}) {
+    EXPECT_LT(std::abs(r.angle_deg[v] - s.views[v].true_deg), std::abs(measured[v] - s.views[v].true_deg))
+        << "view " << v;
+  }
+  EXPECT_LT(Errors(s, r.angle_deg).rms, 0.6 * Errors(s, measured).rms);
+}
+
 TEST(BundleAdjust, TooFewFeaturesFallsBackToTheMeasuredAngles) {
   const Side& s = RenderedSide(3);
   const std::vector<double> measured = MeasuredWithInjected(s);
