@@ -33,11 +33,19 @@ struct ReconstructOptions {
   /// Poses: refine each side's measured turntable angles by bundle adjustment
   /// over the features inside the rock masks (pipeline/bundle_adjust.h);
   /// recorded as "turntable+ba", or "turntable" with the reason when there
-  /// are too few tracks. Off by default: on the sim at 1008 x 756 it removes
-  /// only 20-60 % of a 0.3-0.5 deg reading error and moves well-read views by
-  /// 0.05-0.09 deg (tests/poses), worse than the sim turntable's own 0.02 deg.
+  /// are too few tracks. Off by default: on the sim at 1008 x 756 (tests/poses)
+  /// every view of a 30-view side takes ~30 s (Debug) and brings 0.4 deg
+  /// reading errors to 0.07-0.26 deg, but the well-read views move by up to
+  /// 0.07 deg, more than the sim turntable's own 0.02 deg error.
   bool bundle_adjust = false;
-  BundleAdjustOptions ba;
+  /// Every view takes part, not only the distinct viewpoints: repeated
+  /// viewpoints lengthen the tracks and each view gets its own angle (the
+  /// distinct viewpoints alone correct only 10-50 % of a large error).
+  BundleAdjustOptions ba = [] {
+    BundleAdjustOptions o;
+    o.features.distinct_viewpoints_only = false;
+    return o;
+  }();
   VisualHullOptions hull;      // surface
   std::string state_dir;       // for the library CSV and the fallback calibration; may be empty
   const std::atomic<bool>* cancel = nullptr;
