@@ -1,5 +1,8 @@
 #include "pipeline/bundle_adjust.h"
 
+#include <ceres/ceres.h>
+#include <ceres/rotation.h>
+
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -7,9 +10,6 @@
 #include <cstdio>
 #include <numeric>
 #include <set>
-
-#include <ceres/ceres.h>
-#include <ceres/rotation.h>
 
 #include "pipeline/geometry.h"
 
@@ -37,8 +37,8 @@ enum Lens { kFx, kFy, kCx, kCy, kK1, kK2, kLensParams };
 // OpenCV lens model (rig_calibration.h) with the refinable fx, fy, cx, cy, k1,
 // k2 and the calibration's fixed p1, p2, k3.
 struct ReprojectionCost {
-  ReprojectionCost(const Eigen::Vector2d& observed, const Eigen::Matrix3d& R0, const Eigen::Vector3d& t0,
-                   const CameraModel& cam)
+  ReprojectionCost(const Eigen::Vector2d& observed, const Eigen::Matrix3d& R0,
+                   const Eigen::Vector3d& t0, const CameraModel& cam)
       : obs(observed), R0(R0), t0(t0), p1(cam.p1), p2(cam.p2), k3(cam.k3) {}
 
   template <typename T>
@@ -48,7 +48,8 @@ struct ReprojectionCost {
     const T c = cos(a), s = sin(a);
     const T q[3] = {c * X[0] - s * X[1], s * X[0] + c * X[1], X[2]};
     T p[3];
-    for (int r = 0; r < 3; ++r) p[r] = T(R0(r, 0)) * q[0] + T(R0(r, 1)) * q[1] + T(R0(r, 2)) * q[2] + T(t0(r));
+    for (int r = 0; r < 3; ++r)
+      p[r] = T(R0(r, 0)) * q[0] + T(R0(r, 1)) * q[1] + T(R0(r, 2)) * q[2] + T(t0(r));
     T pc[3];
     ceres::AngleAxisRotatePoint(rig, p, pc);
     for (int r = 0; r < 3; ++r) pc[r] += rig[3 + r];
@@ -91,8 +92,8 @@ struct RigPrior {
 };
 
 struct Observation {
-  int view = 0;   // input view index
-  int point = 0;  // index into the points
+  int view = 0;        // input view index
+  int point = 0;       // index into the points
   Eigen::Vector2d uv;  // observed distorted pixel
 };
 
@@ -109,16 +110,18 @@ std::string BundleAdjustOptions::Check() const {
   bad(!(outlier_px > huber_px), "outlier_px must exceed huber_px");
   bad(min_tracks < 1 || min_views < 2, "min_tracks must be >= 1 and min_views >= 2");
   bad(max_iterations < 1 || num_threads < 1, "max_iterations and num_threads must be >= 1");
-  bad(!(features.image_scale > 0 && features.image_scale <= 1), "features.image_scale must be in (0, 1]");
+  bad(!(features.image_scale > 0 && features.image_scale <= 1),
+      "features.image_scale must be in (0, 1]");
   bad(sift_max_width < 64, "sift_max_width must be >= 64 px");
   bad(!(max_correction_deg > 0), "max_correction_deg must be > 0");
-  if (std::string t = features.triangulation.Check(); !t.empty()) bad(true, "features.triangulation: " + t);
+  if (std::string t = features.triangulation.Check(); !t.empty())
+    bad(true, "features.triangulation: " + t);
   return e;
 }
 
 BundleAdjustResult BundleAdjustSide(const std::vector<ViewFeatures>& views,
-                                    const std::vector<double>& measured_deg, const RigCalibration& cal,
-                                    const BundleAdjustOptions& opts) {
+                                    const std::vector<double>& measured_deg,
+                                    const RigCalibration& cal, const BundleAdjustOptions& opts) {
   BundleAdjustResult res;
   const int nv = static_cast<int>(measured_deg.size());
   res.angle_deg = measured_deg;
@@ -161,15 +164,17 @@ BundleAdjustResult BundleAdjustSide(const std::vector<ViewFeatures>& views,
   res.observations = static_cast<int>(obs.size());
   auto too_little = [&]() -> bool {
     if (res.tracks < opts.min_tracks) {
-      res.reason = "only " + std::to_string(res.tracks) + " feature tracks inside the rock masks (need " +
+      res.reason = "only " + std::to_string(res.tracks) +
+                   " feature tracks inside the rock masks (need " +
                    std::to_string(opts.min_tracks) +
                    "): the rock shows too little texture or the masks are too small; the measured "
                    "turntable angles are used as they are";
       return true;
     }
     if (res.views_used < opts.min_views) {
-      res.reason = "only " + std::to_string(res.views_used) + " views have tracked features (need " +
-                   std::to_string(opts.min_views) + "); the measured turntable angles are used as they are";
+      res.reason = "only " + std::to_string(res.views_used) +
+                   " views have tracked features (need " + std::to_string(opts.min_views) +
+                   "); the measured turntable angles are used as they are";
       return true;
     }
     return false;
@@ -188,8 +193,8 @@ BundleAdjustResult BundleAdjustSide(const std::vector<ViewFeatures>& views,
   const CameraModel& cam = cal.camera;
   std::array<double, kLensParams> lens{cam.fx, cam.fy, cam.cx, cam.cy, cam.k1, cam.k2};
 
-  auto residual_px = [&](const Observation& o, const std::vector<double>& ang, const std::array<double, 6>& rg,
-                         const std::array<double, kLensParams>& ln,
+  auto residual_px = [&](const Observation& o, const std::vector<double>& ang,
+                         const std::array<double, 6>& rg, const std::array<double, kLensParams>& ln,
                          const std::vector<std::array<double, 3>>& pts) {
     const ReprojectionCost f(o.uv, R0, t0, cam);
     double r[2];
@@ -220,7 +225,8 @@ BundleAdjustResult BundleAdjustSide(const std::vector<ViewFeatures>& views,
     for (const Observation& x : o) {
       auto* cost = new ceres::AutoDiffCostFunction<ReprojectionCost, 2, 1, 6, kLensParams, 3>(
           new ReprojectionCost(x.uv, R0, t0, cam));
-      problem.AddResidualBlock(cost, loss, &angle[x.view], rig.data(), lens.data(), points[x.point].data());
+      problem.AddResidualBlock(cost, loss, &angle[x.view], rig.data(), lens.data(),
+                               points[x.point].data());
     }
     std::set<int> vs;
     for (const Observation& x : o) vs.insert(x.view);
@@ -234,8 +240,8 @@ BundleAdjustResult BundleAdjustSide(const std::vector<ViewFeatures>& views,
       }
     }
     if (opts.refine_rig) {
-      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<RigPrior, 6, 6>(
-                                   new RigPrior{opts.rig_prior_deg * kPi / 180.0, opts.rig_prior_mm}),
+      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<RigPrior, 6, 6>(new RigPrior{
+                                   opts.rig_prior_deg * kPi / 180.0, opts.rig_prior_mm}),
                                nullptr, rig.data());
     } else {
       problem.SetParameterBlockConstant(rig.data());
@@ -272,10 +278,12 @@ BundleAdjustResult BundleAdjustSide(const std::vector<ViewFeatures>& views,
   count(obs, &res.views_used, &res.tracks);
   res.observations = static_cast<int>(obs.size());
   if (too_little()) return res;
-  if (std::none_of(obs.begin(), obs.end(), [&](const Observation& x) { return x.view == res.fixed_view; })) {
+  if (std::none_of(obs.begin(), obs.end(),
+                   [&](const Observation& x) { return x.view == res.fixed_view; })) {
     // Without its observations the gauge view no longer ties the others down.
     res.reason = "the gauge view " + std::to_string(res.fixed_view) +
-                 " lost all its observations as outliers; the measured turntable angles are used as they are";
+                 " lost all its observations as outliers; the measured turntable angles are used "
+                 "as they are";
     return res;
   }
   ceres::Solver::Summary s2 = solve(obs);
@@ -289,8 +297,9 @@ BundleAdjustResult BundleAdjustSide(const std::vector<ViewFeatures>& views,
   res.initial_rms_px = rms(obs, measured_deg, initial_rig, initial_lens, initial_points);
   res.final_rms_px = rms(obs, angle, rig, lens, points);
   if (!(res.final_rms_px <= res.initial_rms_px)) {
-    res.reason = "the adjustment raised the reprojection RMS (" + Fmt("%.3f", res.initial_rms_px) + " -> " +
-                 Fmt("%.3f px", res.final_rms_px) + "); the measured turntable angles are used as they are";
+    res.reason = "the adjustment raised the reprojection RMS (" + Fmt("%.3f", res.initial_rms_px) +
+                 " -> " + Fmt("%.3f px", res.final_rms_px) +
+                 "); the measured turntable angles are used as they are";
     return res;
   }
 
@@ -298,11 +307,12 @@ BundleAdjustResult BundleAdjustSide(const std::vector<ViewFeatures>& views,
   for (const Observation& x : obs) final_views.insert(x.view);
   for (int v : final_views) {
     if (std::abs(angle[v] - measured_deg[v]) > opts.max_correction_deg) {
-      res.reason = "view " + std::to_string(v) + "'s angle would move by " +
-                   Fmt("%.2f deg", angle[v] - measured_deg[v]) + ", more than the " +
-                   Fmt("%.2f deg", opts.max_correction_deg) +
-                   " a working turntable can be off: the features or the calibration are wrong (recalibrate "
-                   "the rig if this repeats); the measured turntable angles are used as they are";
+      res.reason =
+          "view " + std::to_string(v) + "'s angle would move by " +
+          Fmt("%.2f deg", angle[v] - measured_deg[v]) + ", more than the " +
+          Fmt("%.2f deg", opts.max_correction_deg) +
+          " a working turntable can be off: the features or the calibration are wrong (recalibrate "
+          "the rig if this repeats); the measured turntable angles are used as they are";
       return res;
     }
   }
@@ -324,14 +334,16 @@ BundleAdjustResult BundleAdjustSide(const std::vector<ViewFeatures>& views,
   }
   if (opts.refine_lens) {
     CameraModel& c = res.calibration.camera;
-    c.fx = lens[kFx], c.fy = lens[kFy], c.cx = lens[kCx], c.cy = lens[kCy], c.k1 = lens[kK1], c.k2 = lens[kK2];
+    c.fx = lens[kFx], c.fy = lens[kFy], c.cx = lens[kCx], c.cy = lens[kCy], c.k1 = lens[kK1],
+    c.k2 = lens[kK2];
   }
   res.refined = true;
   return res;
 }
 
 BundleAdjustResult BundleAdjustSideImages(int views, const BundleAdjustViewLoader& load,
-                                          const std::vector<double>& measured_deg, const RigCalibration& cal,
+                                          const std::vector<double>& measured_deg,
+                                          const RigCalibration& cal,
                                           const BundleAdjustOptions& opts) {
   const auto t0 = std::chrono::steady_clock::now();
   std::vector<ViewFeatures> vf(std::max(0, views));

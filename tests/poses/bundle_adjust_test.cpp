@@ -5,11 +5,11 @@
 // reprojection RMS must drop, and too few features must fall back cleanly.
 #include "pipeline/bundle_adjust.h"
 
+#include <gtest/gtest.h>
+
 #include <cmath>
 #include <cstdio>
 #include <map>
-
-#include <gtest/gtest.h>
 
 #include "tests/markers/sim_capture.h"
 
@@ -44,11 +44,12 @@ const Side& RenderedSide(uint64_t seed) {
 // Reading errors larger than the turntable's own, on three views (deg).
 const std::map<int, double> kInjected = {{3, +0.40}, {7, -0.35}, {10, +0.50}};
 
-BundleAdjustResult Adjust(const Side& s, const std::vector<double>& measured, const BundleAdjustOptions& o,
-                          bool erase_masks = false) {
+BundleAdjustResult Adjust(const Side& s, const std::vector<double>& measured,
+                          const BundleAdjustOptions& o, bool erase_masks = false) {
   auto load = [&](int v, cv::Mat* bgr, cv::Mat* mask) {
     *bgr = s.views[v].bgr;
-    *mask = erase_masks ? cv::Mat::zeros(s.views[v].truth_mask.size(), CV_8UC1) : s.views[v].truth_mask;
+    *mask =
+        erase_masks ? cv::Mat::zeros(s.views[v].truth_mask.size(), CV_8UC1) : s.views[v].truth_mask;
     return true;
   };
   return BundleAdjustSideImages(static_cast<int>(s.views.size()), load, measured, s.cal, o);
@@ -67,18 +68,23 @@ AngleErrors Errors(const Side& s, const std::vector<double>& angles) {
   return e;
 }
 
-void Print(const char* what, const Side& s, const std::vector<double>& measured, const BundleAdjustResult& r) {
+void Print(const char* what, const Side& s, const std::vector<double>& measured,
+           const BundleAdjustResult& r) {
   const AngleErrors before = Errors(s, measured), after = Errors(s, r.angle_deg);
-  std::printf("%s: refined %d, %d views, %d tracks, %d observations (%d outliers dropped), RMS %.3f -> %.3f px, "
-              "%d iterations; angle error vs truth RMS %.3f -> %.3f deg, max %.3f -> %.3f deg; "
-              "SIFT %.2f s, matching %.2f s, solve %.2f s%s%s\n",
-              what, r.refined, r.views_used, r.tracks, r.observations, r.outliers_dropped, r.initial_rms_px,
-              r.final_rms_px, r.iterations, before.rms, after.rms, before.max, after.max, r.features_s,
-              r.matching_s, r.solve_s, r.reason.empty() ? "" : "; ", r.reason.c_str());
+  std::printf(
+      "%s: refined %d, %d views, %d tracks, %d observations (%d outliers dropped), RMS %.3f -> "
+      "%.3f px, "
+      "%d iterations; angle error vs truth RMS %.3f -> %.3f deg, max %.3f -> %.3f deg; "
+      "SIFT %.2f s, matching %.2f s, solve %.2f s%s%s\n",
+      what, r.refined, r.views_used, r.tracks, r.observations, r.outliers_dropped, r.initial_rms_px,
+      r.final_rms_px, r.iterations, before.rms, after.rms, before.max, after.max, r.features_s,
+      r.matching_s, r.solve_s, r.reason.empty() ? "" : "; ", r.reason.c_str());
   for (size_t v = 0; v < measured.size(); ++v) {
-    std::printf("  view %2zu: true %8.3f measured %8.3f (err %+.3f) refined %8.3f (err %+.3f) correction %+.3f\n", v,
-                s.views[v].true_deg, measured[v], measured[v] - s.views[v].true_deg, r.angle_deg[v],
-                r.angle_deg[v] - s.views[v].true_deg, r.correction_deg[v]);
+    std::printf(
+        "  view %2zu: true %8.3f measured %8.3f (err %+.3f) refined %8.3f (err %+.3f) correction "
+        "%+.3f\n",
+        v, s.views[v].true_deg, measured[v], measured[v] - s.views[v].true_deg, r.angle_deg[v],
+        r.angle_deg[v] - s.views[v].true_deg, r.correction_deg[v]);
   }
 }
 
@@ -185,7 +191,8 @@ TEST(BundleAdjust, EveryViewOfAThirtyViewSide) {
   ASSERT_TRUE(r.refined) << r.reason;
   EXPECT_LT(r.final_rms_px, r.initial_rms_px);
   for (int v : {3, 15, 22}) {
-    EXPECT_LT(std::abs(r.angle_deg[v] - s.views[v].true_deg), std::abs(measured[v] - s.views[v].true_deg))
+    EXPECT_LT(std::abs(r.angle_deg[v] - s.views[v].true_deg),
+              std::abs(measured[v] - s.views[v].true_deg))
         << "view " << v;
   }
   EXPECT_LT(Errors(s, r.angle_deg).rms, 0.6 * Errors(s, measured).rms);
