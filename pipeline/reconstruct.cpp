@@ -127,8 +127,29 @@ struct ViewInput {
   Eigen::Isometry3d cam_from_table = Eigen::Isometry3d::Identity();
 };
 
+// The figures of a bundle adjustment for the poses record.
+json BundleAdjustJson(const BundleAdjustResult& r) {
+  json j = {{"refined", r.refined},
+            {"views_used", r.views_used},
+            {"tracks", r.tracks},
+            {"observations", r.observations},
+            {"outliers_dropped", r.outliers_dropped},
+            {"initial_rms_px", r.initial_rms_px},
+            {"final_rms_px", r.final_rms_px},
+            {"iterations", r.iterations},
+            {"gauge_view_index", r.fixed_view},
+            {"features_s", r.features_s},
+            {"matching_s", r.matching_s},
+            {"solve_s", r.solve_s}};
+  if (!r.reason.empty()) j["reason"] = r.reason;
+  double max_abs = 0;
+  for (double c : r.correction_deg) max_abs = std::max(max_abs, std::abs(c));
+  j["max_abs_correction_deg"] = max_abs;
+  return j;
+}
+
 Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int side, const RigCalibration& cal,
-                                          json* timings) {
+                                          const ReconstructOptions& opts, json* timings, std::string* method) {
   const std::string out = ResultsPath(sample_dir, results::PosesName(side));
   const std::string side_dir = sample_dir + "/" + layout::SideDirName(side);
   std::vector<ViewInput> views;
@@ -159,9 +180,41 @@ Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int sid
     }
     json j = {{"side", side},
               {"method", "turntable"},
-              {"method_detail", "calibrated turntable: cam_from_table0 * Rz(measured angle)"},
-              {"views", jviews},
-              {"stage_seconds", Seconds(t0)}};
+              {"method_detail", "calibrated turntable: cam_from_table0 * Rz(measured angle)"}};
+    if (opts.bundle_adjust) {
+      // Eq. 2 of the study: only the features inside the rock masks refine the
+      // poses; the photos are read one at a time.
+      std::vector<double> measured;
+      for (const auto& v : jviews) measured.push_back(v["angle_deg"].get<double>());
+      auto load = [&](int i, cv::Mat* bgr, cv::Mat* mask) {
+        *bgr = cv::imread(side_dir + "/" + jviews[i].value("image", ""), cv::IMREAD_COLOR);
+        *mask = cv::imread(ResultsPath(sample_dir, jviews[i].value("mask", "")), cv::IMREAD_GRAYSCALE);
+        return !bgr->empty() && !mask->empty() && bgr->size() == mask->size();
+      };
+      const BundleAdjustResult ba =
+          BundleAdjustSideImages(static_cast<int>(jviews.size()), load, measured, cal, opts.ba);
+      j["bundle_adjustment"] = BundleAdjustJson(ba);
+      if (ba.refined) {
+        j["method"] = "turntable+ba";
+        j["method_detail"] =
+            "calibrated turntable, angles refined by bundle adjustment (Ceres) over feature tracks inside the "
+            "rock masks";
+        for (size_t i = 0; i < jviews.size(); ++i) {
+          jviews[i]["measured_angle_deg"] = measured[i];
+          jviews[i]["angle_deg"] = ba.angle_deg[i];
+          jviews[i]["angle_correction_deg"] = ba.correction_deg[i];
+          jviews[i]["ba_adjusted"] = static_cast<bool>(ba.adjusted[i]);
+          jviews[i]["cam_from_table_4x4"] = IsoToJson(IsoFromRowMajor(ba.calibration.CamFromTable(ba.angle_deg[i])));
+        }
+      } else {
+        LogLine(LogLevel::kWarning, kCat, SampleIdOf(sample_dir),
+                layout::SideDirName(side) + ": poses not refined: " + ba.reason);
+      }
+    } else {
+      j["bundle_adjustment"] = {{"refined", false}, {"reason", "bundle adjustment is turned off"}};
+    }
+    j["views"] = jviews;
+    j["stage_seconds"] = Seconds(t0);
     if (Status s = WriteJson(out, j); !s) return s.error();
   }
   auto j = ReadJson(out, "poses");
@@ -179,6 +232,7 @@ Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int sid
     views.push_back(std::move(in));
   }
   (*timings)["poses_" + layout::SideDirName(side) + "_s"] = j->value("stage_seconds", 0.0);
+  *method = j->value("method", "turntable");
   return views;
 }
 
@@ -470,12 +524,15 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
   if (!cal) return cal.error();
 
   std::map<int, std::vector<ViewInput>> side_views;
+  std::map<int, std::string> poses_methods;
   std::vector<ViewInput> all_views;
   for (int side : sides) {
     if (opts.cancel && opts.cancel->load()) {
       return MakeError(ErrorClass::kInvalidState, "interrupted before the poses of " + layout::SideDirName(side));
     }
-    auto v = PosesStage(sample_dir, side, *cal, &timings);
+    std::string method;
+    auto v = PosesStage(sample_dir, side, *cal, opts, &timings, &method);
+    poses_methods[side] = method;
     if (!v) return v.error();
     side_views[side] = *v;
     all_views.insert(all_views.end(), v->begin(), v->end());
@@ -608,6 +665,18 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
   timings["total"] = total;
   timings["this_run_wall"] = Seconds(t_all);
 
+  // One method when every side agrees, else each side's.
+  std::string poses_method;
+  for (const auto& [side, m] : poses_methods) {
+    if (poses_method.empty()) poses_method = m;
+    if (m != poses_methods.begin()->second) {
+      poses_method.clear();
+      for (const auto& [s2, m2] : poses_methods) {
+        poses_method += (poses_method.empty() ? "" : ", ") + layout::SideDirName(s2) + ": " + m2;
+      }
+      break;
+    }
+  }
   json out = {
       {"format", "aggscan-morphology-1"},
       {"sample_id", sample_id},
@@ -615,7 +684,7 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
       {"units", "mm, mm2, mm3, degrees; ratios dimensionless; 2D lengths in px and in mm at the rock's depth"},
       {"methods",
        {{"calibration", cal->method},
-        {"poses", "turntable"},
+        {"poses", poses_method},
         {"stitch", stitch->value("method", "")},
         {"surface", surface->value("method", "")},
         {"masks", "classical"}}},

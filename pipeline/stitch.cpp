@@ -161,7 +161,12 @@ FeatureCloud BuildFeatureCloud(const std::vector<ViewFeatures>& views,
   FeatureCloud out;
   const int nv = static_cast<int>(std::min(views.size(), poses.size()));
   std::vector<int> used;
-  for (int i : DistinctViewpoints(std::vector<geom::Rigid3>(poses.begin(), poses.begin() + nv))) {
+  std::vector<int> candidates(nv);
+  std::iota(candidates.begin(), candidates.end(), 0);
+  if (opts.distinct_viewpoints_only) {
+    candidates = DistinctViewpoints(std::vector<geom::Rigid3>(poses.begin(), poses.begin() + nv));
+  }
+  for (int i : candidates) {
     if (!views[i].keypoints.empty() && !views[i].descriptors.empty()) used.push_back(i);
   }
   out.views = static_cast<int>(used.size());
@@ -225,8 +230,10 @@ FeatureCloud BuildFeatureCloud(const std::vector<ViewFeatures>& views,
     const int pid = static_cast<int>(out.points.size());
     out.points.push_back(tp->X);
     out.rms_px.push_back(tp->rms_px);
+    out.tracks.emplace_back();
     for (int in : tp->inliers) {
       const auto& [v, k] = members[in];
+      out.tracks.back().push_back({v, k});
       rows.push_back(views[v].descriptors.row(k));
       out.point_of_row.push_back(pid);
     }

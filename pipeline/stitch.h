@@ -49,6 +49,10 @@ struct FeatureCloudOptions {
   double epipolar_px = 2.0;      // Sampson distance allowed for a match, undistorted px
   geom::TriangulationOptions triangulation{.inlier_px = 1.5, .min_views = 2,
                                            .min_angle_deg = 8.0};
+  /// Only the first view of each viewpoint takes part (DistinctViewpoints);
+  /// false: every view with keypoints does (bundle adjustment of every view's
+  /// angle needs each view's own observations).
+  bool distinct_viewpoints_only = true;
 };
 
 /// SIFT keypoints and descriptors of one view, inside its rock mask; keypoint
@@ -68,6 +72,9 @@ struct FeatureCloud {
   std::vector<double> rms_px;           // reprojection RMS per point
   cv::Mat descriptors;                  // CV_32F, one row per (point, view) sighting
   std::vector<int> point_of_row;        // descriptors row -> index into points
+  /// Per point, its inlier sightings as (view index, keypoint index into that
+  /// view's ViewFeatures): the tracks bundle adjustment refines.
+  std::vector<std::vector<std::pair<int, int>>> tracks;
   int views = 0, view_pairs = 0;        // viewpoints used and pairs matched
 };
 

@@ -69,6 +69,7 @@ TEST(Reconstruct, OneSideGivesAClosedMeshAndResults) {
   const std::string sample = Capture(tmp.path(), 6, 1);
   ReconstructOptions opts;
   opts.state_dir = tmp.path();
+  opts.bundle_adjust = true;  // off by default; exercised here
   {
     auto st = ReconstructSample(sample, opts);
     ASSERT_TRUE(st) << st.error().ToString();
@@ -86,6 +87,27 @@ TEST(Reconstruct, OneSideGivesAClosedMeshAndResults) {
     auto mesh = LoadMesh(sample + "/results/" + f, "mm");
     ASSERT_TRUE(mesh) << f;
     EXPECT_TRUE(CheckClosedManifold(*mesh, f)) << f;
+  }
+  // Poses: the measured angles refined by bundle adjustment over the features
+  // inside the masks.
+  {
+    auto text = ReadFile(sample + "/results/poses_side1.json");
+    ASSERT_TRUE(text);
+    const json poses = json::parse(*text);
+    const json& ba = poses["bundle_adjustment"];
+    EXPECT_EQ((*m)["methods"]["poses"], poses["method"]);
+    if (poses["method"] == "turntable+ba") {
+      EXPECT_LE(ba.value("final_rms_px", 1e9), ba.value("initial_rms_px", 0.0)) << ba.dump();
+      EXPECT_LT(ba.value("max_abs_correction_deg", 1e9), 0.5) << ba.dump();
+    } else {
+      EXPECT_EQ(poses["method"], "turntable");
+      EXPECT_FALSE(ba.value("reason", "").empty()) << ba.dump();
+    }
+    std::printf("one side: poses %s, %d tracks, RMS %.3f -> %.3f px, max correction %.3f deg, SIFT %.2f s, "
+                "matching %.2f s, solve %.2f s %s\n",
+                poses.value("method", "").c_str(), ba.value("tracks", 0), ba.value("initial_rms_px", 0.0),
+                ba.value("final_rms_px", 0.0), ba.value("max_abs_correction_deg", 0.0), ba.value("features_s", 0.0),
+                ba.value("matching_s", 0.0), ba.value("solve_s", 0.0), ba.value("reason", "").c_str());
   }
   // The library has one row; a second run changes nothing.
   auto csv = ReadFile(tmp.path() + "/library.csv");
@@ -124,6 +146,13 @@ TEST(Reconstruct, ResumesAtTheInterruptedStage) {
   }
   EXPECT_TRUE(fs::exists(res + "mesh.stl"));
   EXPECT_EQ(fs::last_write_time(res + "poses_side1.json"), poses_time);
+  {
+    auto text = ReadFile(res + "poses_side1.json");
+    ASSERT_TRUE(text);
+    const json poses = json::parse(*text);
+    EXPECT_EQ(poses["method"], "turntable");  // bundle adjustment is off by default
+    EXPECT_FALSE(poses["bundle_adjustment"]["refined"].get<bool>());
+  }
   auto m = ReadMorphology(sample);
   ASSERT_TRUE(m);
   const json before = json::parse(*morph_before);
