@@ -493,7 +493,9 @@ void PrintValidateUsage(std::ostream& o) {
        "      errors, flip) of N procedural rocks (default 20, seeds S..S+N-1) or of every mesh in\n"
        "      DIR scaled so its longest dimension is L mm (LO..HI spread over the files),\n"
        "      reconstructed by the worker; prints true vs reconstructed volume, area, a, b, c,\n"
-       "      sphericity, volume MPE/MAPE and PASS/FAIL against the targets; exit 0 all pass, 1 not\n";
+       "      sphericity, volume MPE/MAPE and PASS/FAIL against the targets (--json: the same as\n"
+       "      JSON); calibration from a simulated ChArUco capture unless --calibration truth;\n"
+       "      exit 0 all targets met, 1 a target missed or a rock failed, 2 usage\n";
 }
 
 int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {
