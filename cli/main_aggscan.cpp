@@ -11,6 +11,7 @@
 #include "cli/morph_command.h"
 #include "cli/reconstruct_command.h"
 #include "cli/sim_capture.h"
+#include "cli/validate_command.h"
 #include "pipeline/morph2d_cli.h"
 
 namespace {
@@ -43,6 +44,7 @@ void Usage(std::ostream& o) {
        "      [calibration] board on the disc instead of a rock (one side over a full turn),\n"
        "      input for `aggscan calibrate`; --calibration: recorded in the sample as\n"
        "      aggscand records state_dir/calibration.json\n";
+  aggscan::PrintValidateUsage(o);
 }
 
 int SimCommand(const std::vector<std::string>& a) {
@@ -158,6 +160,7 @@ int main(int argc, char** argv) {
   if (cmd == "reconstruct")
     return aggscan::RunReconstructCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
   if (cmd == "sim") return SimCommand(args);
+  if (cmd == "validate") return aggscan::RunValidateCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
   if (cmd == "calibrate") return aggscan::RunCalibrateCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
   std::cerr << "aggscan: unknown command '" << cmd << "'\n\n";
   Usage(std::cerr);

@@ -1,0 +1,620 @@
+#include "cli/validate_command.h"
+
+#include <stdlib.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cerrno>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "cli/sim_capture.h"
+#include "common/fsutil.h"
+#include "common/mesh.h"
+#include "common/mesh_check.h"
+#include "common/mesh_props.h"
+#include "common/rig_calibration.h"
+#include "config/config.h"
+#include "drivers/sim/world.h"
+#include "pipeline/calibrate.h"
+#include "pipeline/reconstruct.h"
+
+namespace aggscan {
+
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+// Riprap the rig takes (the disc is 305 mm): a mesh used at its own size must
+// have its longest dimension in this range, otherwise --scale-to-mm is needed.
+constexpr double kMinRockMm = 50.0;
+constexpr double kMaxRockMm = 300.0;
+// The study's protocol: the turntable turns ~30 deg between shots.
+constexpr double kStepDeg = 30.0;
+
+double Seconds(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+double Pct(double rec, double truth) { return truth != 0 ? 100.0 * (rec - truth) / truth : 0.0; }
+
+RockFigures FiguresFrom(const json& j) {
+  RockFigures f;
+  f.volume_mm3 = j.value("volume_mm3", 0.0);
+  f.area_mm2 = j.value("surface_area_mm2", 0.0);
+  f.a_mm = j.value("a_mm", 0.0);
+  f.b_mm = j.value("b_mm", 0.0);
+  f.c_mm = j.value("c_mm", 0.0);
+  f.sphericity = j.value("sphericity", 0.0);
+  return f;
+}
+
+json FiguresJson(const RockFigures& f) {
+  return {{"volume_mm3", f.volume_mm3}, {"surface_area_mm2", f.area_mm2}, {"a_mm", f.a_mm},
+          {"b_mm", f.b_mm},             {"c_mm", f.c_mm},                 {"sphericity", f.sphericity}};
+}
+
+// What the sim rig does to the photos and the turntable (config.h defaults):
+// reported so the table says under which conditions it was measured.
+json Realism(const Config& c, int sides) {
+  return {{"sensor_noise_sigma_levels", c.sim.noise_sigma},
+          {"lens_distortion_k1", c.sim.k1},
+          {"lens_distortion_k2", c.sim.k2},
+          {"jpeg_quality", c.camera.jpeg_quality},
+          {"turntable_repeatability_deg", c.turntable.repeatability_deg},
+          {"turntable_backlash_deg", c.turntable.backlash_deg},
+          {"turntable_settle_amplitude_deg", c.turntable.settle_amplitude_deg},
+          {"settle_before_shot_ms", static_cast<double>(c.capture.settle) / 1e6},
+          {"flip_between_sides", sides > 1},
+          {"note",
+           "angles in the sidecars are the sim encoder's readings (they carry the repeatability and backlash "
+           "errors); the flip puts the rock on its next stable rest for each side"}};
+}
+
+// Writes the capture config: the study's protocol with the chosen sides and views.
+Status WriteCaptureConfig(const std::string& path, const ValidateOptions& o) {
+  std::ostringstream t;
+  t << "[capture]\nprofile = \"custom\"\nsides = " << o.sides << "\nviews_per_side = " << o.views_per_side
+    << "\nstep_deg = " << kStepDeg << "\n";
+  return WriteFileAtomic(path, t.str());
+}
+
+// The calibration every rock is captured and reconstructed with.
+Result<json> MakeCalibration(const ValidateOptions& o, const std::string& work, const std::string& out_path,
+                             std::ostream& log) {
+  const Config defaults;
+  const int w = o.width > 0 ? o.width : defaults.camera.width;
+  const int h = o.height > 0 ? o.height : defaults.camera.height;
+  Config c;
+  sim::SimWorld world(c);  // the rig geometry does not depend on the rock
+  const RigCalibration truth = world.TruthCalibration(w, h);
+  if (o.calibration == "truth") {
+    if (Status s = SaveCalibration(out_path, truth); !s) return s.error();
+    return json{{"method", "sim-truth"}, {"note", "the sim's exact lens and camera pose"}};
+  }
+  // As on the real rig: the board on the disc, one side over a full turn,
+  // then `aggscan calibrate`'s solver.
+  const auto t0 = std::chrono::steady_clock::now();
+  SimCaptureOptions cap;
+  cap.scene = "charuco";
+  cap.seed = 1;
+  cap.out = work + "/calibration-capture";
+  cap.width = w;
+  cap.height = h;
+  std::ostringstream cout_, cerr_;
+  if (RunSimCapture(cap, cout_, cerr_) != 0) {
+    return MakeError(ErrorClass::kInternal, "the simulated calibration capture failed: " + cerr_.str() +
+                                                "; try --calibration truth to validate without it");
+  }
+  auto r = CalibrateSampleSide(cap.out, 1, c.calibration);
+  if (!r) {
+    return MakeError(r.error().cls, "calibration from the simulated board failed: " + r.error().message +
+                                        "; try --calibration truth to validate without it");
+  }
+  if (Status s = SaveCalibration(out_path, r->cal); !s) return s.error();
+  const double fx_err = Pct(r->cal.camera.fx, truth.camera.fx);
+  const auto cc = r->cal.CameraCentreTable0(), ct = truth.CameraCentreTable0();
+  const double centre_err =
+      std::sqrt((cc[0] - ct[0]) * (cc[0] - ct[0]) + (cc[1] - ct[1]) * (cc[1] - ct[1]) + (cc[2] - ct[2]) * (cc[2] - ct[2]));
+  char line[256];
+  std::snprintf(line, sizeof line,
+                "calibration: charuco, %d views, reprojection RMS %.3f px, fx %+.3f %% vs truth, camera centre "
+                "%.2f mm from truth, k2 %s (%.1f s)\n",
+                r->cal.views_used, r->cal.reprojection_rms_px, fx_err, centre_err,
+                r->k2_estimated ? "estimated" : "fixed at 0", Seconds(t0));
+  log << line << std::flush;
+  return json{{"method", "charuco"},
+              {"note", "simulated ChArUco capture on the disc, solved by aggscan calibrate's solver"},
+              {"views_used", r->cal.views_used},
+              {"reprojection_rms_px", r->cal.reprojection_rms_px},
+              {"fx_error_pct", fx_err},
+              {"camera_centre_error_mm", centre_err},
+              {"k1", r->cal.camera.k1},
+              {"k2", r->cal.camera.k2},
+              {"k2_estimated", r->k2_estimated},
+              {"seconds", Seconds(t0)}};
+}
+
+struct RockInput {
+  std::string id, source;
+  std::optional<uint64_t> seed;
+  std::string mesh_file;  // the scaled mesh in mm (mesh rocks)
+  double scale = 1;
+  std::string skip;       // non-empty: unusable input, why
+};
+
+std::vector<std::string> MeshFiles(const std::string& dir) {
+  std::vector<std::string> files;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(dir, ec)) {
+    if (!e.is_regular_file()) continue;
+    std::string ext = e.path().extension().string();
+    std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char ch) { return std::tolower(ch); });
+    if (ext == ".ply" || ext == ".obj" || ext == ".stl") files.push_back(e.path().string());
+  }
+  std::sort(files.begin(), files.end());
+  return files;
+}
+
+// Loads, checks and scales one mesh file; writes the mm mesh the sim renders.
+RockInput PrepareMesh(const std::string& file, const ValidateOptions& o, double target_mm, const std::string& work) {
+  RockInput in;
+  in.id = fs::path(file).stem().string();
+  in.source = file;
+  auto mesh = LoadMesh(file, o.unit);
+  if (!mesh) {
+    in.skip = mesh.error().message;
+    return in;
+  }
+  // Scaled first: the closedness check's tolerances are in mm.
+  const MeshProps p = ComputeMeshProps(*mesh);
+  if (target_mm > 0 && p.c_mm > 0) {
+    in.scale = target_mm / p.c_mm;
+    for (auto& v : mesh->vertices)
+      for (double& x : v) x *= in.scale;
+  }
+  if (Status s = CheckClosedManifold(*mesh, fs::path(file).filename().string()); !s) {
+    in.skip = s.error().message + " (the true morphology needs a closed mesh)";
+    return in;
+  }
+  if (target_mm <= 0 && (p.c_mm < kMinRockMm || p.c_mm > kMaxRockMm)) {
+    char b[200];
+    std::snprintf(b, sizeof b, "its longest dimension is %.1f mm in unit %s, outside the rig's %.0f..%.0f mm; give "
+                  "--scale-to-mm L (or LO:HI)", p.c_mm, o.unit.c_str(), kMinRockMm, kMaxRockMm);
+    in.skip = b;
+    return in;
+  }
+  in.mesh_file = work + "/" + in.id + ".rock.ply";
+  if (Status s = SaveMeshPly(*mesh, in.mesh_file); !s) in.skip = "cannot write the scaled mesh: " + s.error().message;
+  return in;
+}
+
+void RunRock(const RockInput& in, const ValidateOptions& o, const std::string& work, const std::string& cfg,
+             const std::string& calibration, ValidateRock* row, std::ostream& log) {
+  const auto t0 = std::chrono::steady_clock::now();
+  row->id = in.id;
+  row->source = in.source;
+  row->scale = in.scale;
+  if (!in.skip.empty()) {
+    row->status = "skipped";
+    row->message = in.skip;
+    log << "rock " << in.id << ": skipped: " << in.skip << "\n" << std::flush;
+    return;
+  }
+  SimCaptureOptions cap;
+  cap.seed = in.seed;
+  if (!in.mesh_file.empty()) {
+    cap.seed = 1;  // texture and noise; the rock is the mesh
+    cap.mesh = in.mesh_file;
+    cap.unit = "mm";
+  }
+  cap.out = work + "/" + in.id;
+  cap.config_path = cfg;
+  cap.width = o.width;
+  cap.height = o.height;
+  cap.calibration = calibration;
+  std::ostringstream cout_, cerr_;
+  if (RunSimCapture(cap, cout_, cerr_) != 0) {
+    row->status = "failed";
+    row->message = "capture: " + cerr_.str();
+    while (!row->message.empty() && row->message.back() == '\n') row->message.pop_back();
+    log << "rock " << in.id << ": " << row->message << "\n" << std::flush;
+    return;
+  }
+  auto truth_text = ReadFile(cap.out + "/truth.json");
+  json truth = truth_text ? json::parse(*truth_text, nullptr, false) : json();
+  if (!truth.is_object()) {
+    row->status = "failed";
+    row->message = "capture: no readable truth.json in " + cap.out;
+    return;
+  }
+  row->truth = FiguresFrom(truth);
+  ReconstructOptions ro;  // the sample carries its calibration; no library CSV
+  if (Status s = ReconstructSample(cap.out, ro); !s) {
+    row->status = "failed";
+    row->message = "reconstruction: " + s.error().ToString();
+    row->seconds = Seconds(t0);
+    log << "rock " << in.id << ": " << row->message << "\n" << std::flush;
+    return;
+  }
+  auto m = ReadMorphology(cap.out);
+  if (!m) {
+    row->status = "failed";
+    row->message = "reconstruction: " + m.error().ToString();
+    return;
+  }
+  row->rec = FiguresFrom(m->value("morphology_3d", json::object()));
+  row->status = "ok";
+  row->seconds = Seconds(t0);
+  char b[200];
+  std::snprintf(b, sizeof b, "rock %s: V %.1f cm3 (true %.1f, %+.2f %%) in %.1f s\n", in.id.c_str(),
+                row->rec.volume_mm3 / 1000, row->truth.volume_mm3 / 1000, Pct(row->rec.volume_mm3, row->truth.volume_mm3),
+                row->seconds);
+  log << b << std::flush;
+}
+
+bool ParseDouble(const std::string& s, double* v) {
+  char* end = nullptr;
+  *v = std::strtod(s.c_str(), &end);
+  return end != s.c_str() && *end == '\0' && std::isfinite(*v);
+}
+
+bool ParseCount(const std::string& s, long long* v) {
+  char* end = nullptr;
+  *v = std::strtoll(s.c_str(), &end, 10);
+  return end != s.c_str() && *end == '\0' && *v >= 0;
+}
+
+}  // namespace
+
+ValidateSummary Summarize(const std::vector<ValidateRock>& rocks, const ValidateTargets& t) {
+  ValidateSummary s;
+  double sum = 0, sum_abs = 0, sum_area = 0;
+  for (const ValidateRock& r : rocks) {
+    if (r.status == "skipped") ++s.rocks_skipped;
+    if (r.status == "failed") ++s.rocks_failed;
+    if (r.status != "ok") continue;
+    ++s.rocks_ok;
+    const double e = Pct(r.rec.volume_mm3, r.truth.volume_mm3);
+    sum += e;
+    sum_abs += std::fabs(e);
+    s.volume_max_abs_pct = std::max(s.volume_max_abs_pct, std::fabs(e));
+    sum_area += Pct(r.rec.area_mm2, r.truth.area_mm2);
+    s.a_max_abs_pct = std::max(s.a_max_abs_pct, std::fabs(Pct(r.rec.a_mm, r.truth.a_mm)));
+    s.b_max_abs_pct = std::max(s.b_max_abs_pct, std::fabs(Pct(r.rec.b_mm, r.truth.b_mm)));
+    s.c_max_abs_pct = std::max(s.c_max_abs_pct, std::fabs(Pct(r.rec.c_mm, r.truth.c_mm)));
+    s.sphericity_max_abs = std::max(s.sphericity_max_abs, std::fabs(r.rec.sphericity - r.truth.sphericity));
+  }
+  if (s.rocks_ok > 0) {
+    s.volume_mpe_pct = sum / s.rocks_ok;
+    s.volume_mape_pct = sum_abs / s.rocks_ok;
+    s.area_mpe_pct = sum_area / s.rocks_ok;
+  }
+  const bool any = s.rocks_ok > 0;
+  s.volume_mpe_pass = any && std::fabs(s.volume_mpe_pct) <= t.volume_mpe_pct;
+  s.volume_mape_pass = any && s.volume_mape_pct <= t.volume_mape_pct;
+  s.dims_pass = any && std::max({s.a_max_abs_pct, s.b_max_abs_pct, s.c_max_abs_pct}) <= t.dims_pct;
+  s.sphericity_pass = any && s.sphericity_max_abs <= t.sphericity;
+  s.pass = s.volume_mpe_pass && s.volume_mape_pass && s.dims_pass && s.sphericity_pass && s.rocks_failed == 0;
+  return s;
+}
+
+Result<ValidateReport> RunValidation(const ValidateOptions& o, std::ostream& log) {
+  ValidateReport rep;
+  rep.options = o;
+  std::string work = o.keep;
+  bool temporary = false;
+  if (work.empty()) {
+    const char* tmp = std::getenv("TMPDIR");
+    std::string tmpl = std::string(tmp && *tmp ? tmp : "/tmp") + "/aggscan-validate-XXXXXX";
+    if (::mkdtemp(tmpl.data()) == nullptr) return ErrnoError("cannot create a work folder under " + tmpl + "; set TMPDIR to a writable folder", errno);
+    work = tmpl;
+    temporary = true;
+  } else if (Status s = MakeDirsDurable(work); !s) {
+    return s.error();
+  }
+  struct Cleanup {
+    std::string dir;
+    ~Cleanup() {
+      std::error_code ec;
+      if (!dir.empty()) fs::remove_all(dir, ec);
+    }
+  } cleanup{temporary ? work : std::string()};
+
+  const std::string cfg = work + "/capture.toml";
+  if (Status s = WriteCaptureConfig(cfg, o); !s) return s.error();
+  const std::string cal_path = work + "/calibration.json";
+  auto cal = MakeCalibration(o, work, cal_path, log);
+  if (!cal) return cal.error();
+
+  Config effective;
+  rep.settings = {{"width", o.width > 0 ? o.width : effective.camera.width},
+                  {"height", o.height > 0 ? o.height : effective.camera.height},
+                  {"sides", o.sides},
+                  {"views_per_side", o.views_per_side},
+                  {"step_deg", kStepDeg},
+                  {"calibration", *cal},
+                  {"masks", "computed by the worker (classical segmentation), not the sim's truth masks"},
+                  {"sim_realism", Realism(effective, o.sides)},
+                  {"work_dir", temporary ? std::string() : work}};
+
+  std::vector<RockInput> inputs;
+  if (!o.mesh_dir.empty()) {
+    const std::vector<std::string> files = MeshFiles(o.mesh_dir);
+    for (size_t i = 0; i < files.size(); ++i) {
+      double target = o.scale_min_mm;
+      if (o.scale_max_mm > o.scale_min_mm && files.size() > 1) {
+        target = o.scale_min_mm + (o.scale_max_mm - o.scale_min_mm) * static_cast<double>(i) / (files.size() - 1);
+      }
+      inputs.push_back(PrepareMesh(files[i], o, target, work));
+    }
+  } else {
+    for (int i = 0; i < o.count; ++i) {
+      RockInput in;
+      in.seed = o.seed + static_cast<uint64_t>(i);
+      in.id = "seed-" + std::to_string(*in.seed);
+      in.source = "procedural seed " + std::to_string(*in.seed);
+      inputs.push_back(in);
+    }
+  }
+  for (const RockInput& in : inputs) {
+    ValidateRock row;
+    RunRock(in, o, work, cfg, cal_path, &row, log);
+    rep.rocks.push_back(std::move(row));
+  }
+  rep.summary = Summarize(rep.rocks, rep.targets);
+  return rep;
+}
+
+void PrintValidateReport(const ValidateReport& r, std::ostream& out) {
+  const json& st = r.settings;
+  char b[512];
+  std::snprintf(b, sizeof b, "aggscan validate: %s, %d side(s) x %d views at %dx%d, calibration %s, computed masks\n",
+                r.options.mesh_dir.empty() ? "procedural rocks" : ("meshes in " + r.options.mesh_dir).c_str(),
+                r.options.sides, r.options.views_per_side, st.value("width", 0), st.value("height", 0),
+                st["calibration"].value("method", "").c_str());
+  out << b;
+  const json& re = st["sim_realism"];
+  std::snprintf(b, sizeof b,
+                "sim realism: sensor noise %.1f levels, lens k1 %.3f k2 %.3f, JPEG q%d, turntable repeatability "
+                "%.2f deg + backlash %.2f deg + settle ringing %.2f deg, %s\n\n",
+                re.value("sensor_noise_sigma_levels", 0.0), re.value("lens_distortion_k1", 0.0),
+                re.value("lens_distortion_k2", 0.0), re.value("jpeg_quality", 0),
+                re.value("turntable_repeatability_deg", 0.0), re.value("turntable_backlash_deg", 0.0),
+                re.value("turntable_settle_amplitude_deg", 0.0),
+                re.value("flip_between_sides", false) ? "rock flipped between sides" : "one side (no flip)");
+  out << b;
+  std::snprintf(b, sizeof b, "%-22s %9s %9s %7s  %8s %8s  %6s %6s  %6s %6s  %6s %6s  %6s %6s\n", "rock", "V_true",
+                "V_rec", "V_err%", "A_true", "A_rec", "a_true", "a_rec", "b_true", "b_rec", "c_true", "c_rec",
+                "sph_t", "sph_r");
+  out << b;
+  std::snprintf(b, sizeof b, "%-22s %9s %9s %7s  %8s %8s  %6s %6s  %6s %6s  %6s %6s  %6s %6s\n", "", "cm3", "cm3", "",
+                "cm2", "cm2", "mm", "mm", "mm", "mm", "mm", "mm", "", "");
+  out << b;
+  for (const ValidateRock& k : r.rocks) {
+    std::string id = k.id.size() > 22 ? k.id.substr(0, 19) + "..." : k.id;
+    if (k.status != "ok") {
+      out << id << std::string(id.size() < 23 ? 23 - id.size() : 1, ' ') << k.status << ": " << k.message << "\n";
+      continue;
+    }
+    std::snprintf(b, sizeof b,
+                  "%-22s %9.2f %9.2f %+7.2f  %8.2f %8.2f  %6.1f %6.1f  %6.1f %6.1f  %6.1f %6.1f  %6.4f %6.4f\n",
+                  id.c_str(), k.truth.volume_mm3 / 1000, k.rec.volume_mm3 / 1000,
+                  Pct(k.rec.volume_mm3, k.truth.volume_mm3), k.truth.area_mm2 / 100, k.rec.area_mm2 / 100, k.truth.a_mm,
+                  k.rec.a_mm, k.truth.b_mm, k.rec.b_mm, k.truth.c_mm, k.rec.c_mm, k.truth.sphericity,
+                  k.rec.sphericity);
+    out << b;
+  }
+  const ValidateSummary& s = r.summary;
+  const ValidateTargets& t = r.targets;
+  auto verdict = [](bool p) { return p ? "PASS" : "FAIL"; };
+  std::snprintf(b, sizeof b, "\nrocks: %d measured, %d failed, %d skipped\n", s.rocks_ok, s.rocks_failed,
+                s.rocks_skipped);
+  out << b;
+  std::snprintf(b, sizeof b, "volume MPE        %+7.2f %%   target |MPE| <= %.1f %%   %s\n", s.volume_mpe_pct,
+                t.volume_mpe_pct, verdict(s.volume_mpe_pass));
+  out << b;
+  std::snprintf(b, sizeof b, "volume MAPE       %7.2f %%   target <= %.1f %%         %s   (max |error| %.2f %%)\n",
+                s.volume_mape_pct, t.volume_mape_pct, verdict(s.volume_mape_pass), s.volume_max_abs_pct);
+  out << b;
+  std::snprintf(b, sizeof b, "max |a|,|b|,|c| error %.2f / %.2f / %.2f %%   target <= %.1f %%   %s\n",
+                s.a_max_abs_pct, s.b_max_abs_pct, s.c_max_abs_pct, t.dims_pct, verdict(s.dims_pass));
+  out << b;
+  std::snprintf(b, sizeof b, "max |sphericity error| %.4f   target <= %.2f   %s\n", s.sphericity_max_abs, t.sphericity,
+                verdict(s.sphericity_pass));
+  out << b;
+  std::snprintf(b, sizeof b, "area MPE          %+7.2f %%   (no target)\n", s.area_mpe_pct);
+  out << b;
+  out << "result: " << verdict(s.pass);
+  if (s.rocks_failed > 0) out << " (" << s.rocks_failed << " rock(s) failed to capture or reconstruct)";
+  if (s.rocks_ok == 0) out << " (no rock measured)";
+  out << "\n";
+}
+
+json ValidateReportToJson(const ValidateReport& r) {
+  json rocks = json::array();
+  for (const ValidateRock& k : r.rocks) {
+    json j = {{"id", k.id}, {"source", k.source}, {"status", k.status}};
+    if (!k.message.empty()) j["message"] = k.message;
+    if (k.scale != 1) j["scale"] = k.scale;
+    if (k.status == "ok") {
+      j["truth"] = FiguresJson(k.truth);
+      j["reconstructed"] = FiguresJson(k.rec);
+      j["errors"] = {{"volume_pct", Pct(k.rec.volume_mm3, k.truth.volume_mm3)},
+                     {"surface_area_pct", Pct(k.rec.area_mm2, k.truth.area_mm2)},
+                     {"a_pct", Pct(k.rec.a_mm, k.truth.a_mm)},
+                     {"b_pct", Pct(k.rec.b_mm, k.truth.b_mm)},
+                     {"c_pct", Pct(k.rec.c_mm, k.truth.c_mm)},
+                     {"sphericity", k.rec.sphericity - k.truth.sphericity}};
+    }
+    if (k.seconds > 0) j["seconds"] = k.seconds;
+    rocks.push_back(std::move(j));
+  }
+  const ValidateSummary& s = r.summary;
+  const ValidateTargets& t = r.targets;
+  return {{"format", "aggscan-validate-1"},
+          {"settings", r.settings},
+          {"rocks", rocks},
+          {"summary",
+           {{"rocks_measured", s.rocks_ok},
+            {"rocks_failed", s.rocks_failed},
+            {"rocks_skipped", s.rocks_skipped},
+            {"volume_mpe_pct", s.volume_mpe_pct},
+            {"volume_mape_pct", s.volume_mape_pct},
+            {"volume_max_abs_error_pct", s.volume_max_abs_pct},
+            {"surface_area_mpe_pct", s.area_mpe_pct},
+            {"a_max_abs_error_pct", s.a_max_abs_pct},
+            {"b_max_abs_error_pct", s.b_max_abs_pct},
+            {"c_max_abs_error_pct", s.c_max_abs_pct},
+            {"sphericity_max_abs_error", s.sphericity_max_abs}}},
+          {"targets",
+           {{"volume_abs_mpe_pct", t.volume_mpe_pct},
+            {"volume_mape_pct", t.volume_mape_pct},
+            {"dims_pct", t.dims_pct},
+            {"sphericity", t.sphericity}}},
+          {"verdicts",
+           {{"volume_mpe", s.volume_mpe_pass},
+            {"volume_mape", s.volume_mape_pass},
+            {"dims", s.dims_pass},
+            {"sphericity", s.sphericity_pass}}},
+          {"pass", s.pass}};
+}
+
+void PrintValidateUsage(std::ostream& o) {
+  o << "  aggscan validate [--count N] [--seed S] [--mesh-dir DIR --unit mm|cm|m [--scale-to-mm L|LO:HI]]\n"
+       "                   [--sides 1|2] [--views N] [--width W --height H] [--calibration charuco|truth]\n"
+       "                   [--json] [--keep DIR]\n"
+       "      accuracy harness: simulated two-side captures (noise, distortion, JPEG, turntable\n"
+       "      errors, flip) of N procedural rocks (default 20, seeds S..S+N-1) or of every mesh in\n"
+       "      DIR scaled so its longest dimension is L mm (LO..HI spread over the files),\n"
+       "      reconstructed by the worker; prints true vs reconstructed volume, area, a, b, c,\n"
+       "      sphericity, volume MPE/MAPE and PASS/FAIL against the targets (--json: the same as\n"
+       "      JSON); calibration from a simulated ChArUco capture unless --calibration truth;\n"
+       "      exit 0 all targets met, 1 a target missed or a rock failed, 2 usage\n";
+}
+
+int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {
+  ValidateOptions o;
+  bool json_out = false, count_given = false, seed_given = false;
+  for (size_t i = 0; i < args.size(); ++i) {
+    const std::string& a = args[i];
+    const bool has_value = i + 1 < args.size();
+    auto need = [&](const char* what) {
+      err << "aggscan validate: " << a << " needs " << what << "\n";
+      return 2;
+    };
+    long long n = 0;
+    if (a == "--json") {
+      json_out = true;
+    } else if (a == "--count" || a == "--seed" || a == "--views" || a == "--width" || a == "--height" ||
+               a == "--sides") {
+      if (!has_value) return need("a number");
+      if (!ParseCount(args[++i], &n) || (a != "--seed" && n == 0)) {
+        err << "aggscan validate: " << a << " expects a " << (a == "--seed" ? "non-negative" : "positive")
+            << " integer, got '" << args[i] << "'\n";
+        return 2;
+      }
+      if (a == "--count") o.count = static_cast<int>(n), count_given = true;
+      if (a == "--seed") o.seed = static_cast<uint64_t>(n), seed_given = true;
+      if (a == "--views") o.views_per_side = static_cast<int>(n);
+      if (a == "--width") o.width = static_cast<int>(n);
+      if (a == "--height") o.height = static_cast<int>(n);
+      if (a == "--sides") o.sides = static_cast<int>(n);
+    } else if (a == "--mesh-dir") {
+      if (!has_value) return need("a folder of PLY/OBJ/STL meshes");
+      o.mesh_dir = args[++i];
+    } else if (a == "--unit") {
+      if (!has_value) return need("mm, cm or m");
+      o.unit = args[++i];
+    } else if (a == "--scale-to-mm") {
+      if (!has_value) return need("a length L or a range LO:HI in mm");
+      const std::string v = args[++i];
+      const size_t colon = v.find(':');
+      double lo = 0, hi = 0;
+      const bool ok = colon == std::string::npos
+                          ? ParseDouble(v, &lo) && (hi = lo, true)
+                          : ParseDouble(v.substr(0, colon), &lo) && ParseDouble(v.substr(colon + 1), &hi);
+      if (!ok || lo < kMinRockMm || hi > kMaxRockMm || hi < lo) {
+        err << "aggscan validate: --scale-to-mm expects L or LO:HI in mm within " << kMinRockMm << ".." << kMaxRockMm
+            << " (riprap on a 305 mm disc), got '" << v << "'\n";
+        return 2;
+      }
+      o.scale_min_mm = lo;
+      o.scale_max_mm = hi;
+    } else if (a == "--calibration") {
+      if (!has_value) return need("charuco or truth");
+      o.calibration = args[++i];
+    } else if (a == "--keep") {
+      if (!has_value) return need("a new folder");
+      o.keep = args[++i];
+    } else {
+      err << "aggscan validate: unknown option '" << a << "'\n";
+      return 2;
+    }
+  }
+  if (o.sides > 2) {
+    err << "aggscan validate: --sides must be 1 or 2\n";
+    return 2;
+  }
+  if (o.calibration != "charuco" && o.calibration != "truth") {
+    err << "aggscan validate: --calibration must be charuco or truth, got '" << o.calibration << "'\n";
+    return 2;
+  }
+  if ((o.width > 0) != (o.height > 0)) {
+    err << "aggscan validate: give --width and --height together\n";
+    return 2;
+  }
+  if (o.width > 0 && (o.width < 320 || o.height < 240)) {
+    err << "aggscan validate: --width/--height below 320x240 are too small to reconstruct a rock\n";
+    return 2;
+  }
+  if (!o.mesh_dir.empty()) {
+    if (count_given || seed_given) {
+      err << "aggscan validate: --count and --seed choose procedural rocks; drop them with --mesh-dir\n";
+      return 2;
+    }
+    double f = 0;
+    if (o.unit.empty() || !UnitToMm(o.unit, &f)) {
+      err << "aggscan validate: --mesh-dir needs --unit mm|cm|m (the unit of the files' coordinates)\n";
+      return 2;
+    }
+    std::error_code ec;
+    if (!fs::is_directory(o.mesh_dir, ec)) {
+      err << "aggscan validate: --mesh-dir " << o.mesh_dir
+          << " is not a folder; give a folder of PLY/OBJ/STL rock meshes\n";
+      return 2;
+    }
+    if (MeshFiles(o.mesh_dir).empty()) {
+      err << "aggscan validate: --mesh-dir " << o.mesh_dir << " has no .ply, .obj or .stl file\n";
+      return 2;
+    }
+  } else if (!o.unit.empty() || o.scale_min_mm > 0) {
+    err << "aggscan validate: --unit and --scale-to-mm apply to --mesh-dir only\n";
+    return 2;
+  }
+  if (!o.keep.empty()) {
+    std::error_code ec;
+    if (fs::exists(o.keep, ec)) {
+      err << "aggscan validate: --keep " << o.keep << " already exists; give a new folder\n";
+      return 2;
+    }
+  }
+  auto rep = RunValidation(o, err);
+  if (!rep) {
+    err << "aggscan validate: " << rep.error().ToString() << "\n";
+    return 1;
+  }
+  if (json_out) {
+    out << ValidateReportToJson(*rep).dump(2) << "\n";
+  } else {
+    PrintValidateReport(*rep, out);
+  }
+  return rep->summary.pass ? 0 : 1;
+}
+
+}  // namespace aggscan

@@ -1,0 +1,97 @@
+// `aggscan validate`: the accuracy harness (issue 3 item 9). For each rock
+// (procedural seeds, or the meshes of a folder scaled to riprap size) it
+// captures a simulated sample with the sim rig's realism on, reconstructs it
+// with the worker's stages (computed masks, calibrated turntable poses,
+// stitching, surface, morphology) and compares the reconstructed 3D
+// morphology with the true mesh's. The table follows the source study's
+// Table 1; the summary gives volume MPE = mean((R-T)/T) and MAPE, the worst
+// a, b, c and sphericity errors, and the verdict against the targets.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <ostream>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "common/error.h"
+
+namespace aggscan {
+
+struct ValidateOptions {
+  int count = 20;                 // procedural rocks: seeds seed .. seed+count-1
+  uint64_t seed = 1;              // first seed
+  std::string mesh_dir;           // instead: every .ply/.obj/.stl file in this folder
+  std::string unit;               // unit of those files: mm | cm | m (required with mesh_dir)
+  double scale_min_mm = 0;        // mesh rocks: longest dimension c scaled to this (0: as given) ...
+  double scale_max_mm = 0;        // ... up to this, spread evenly over the files in name order
+  int sides = 2;                  // sides per rock (the operator flips the rock between them)
+  int views_per_side = 30;        // views per side, 30 deg apart (the study's protocol)
+  int width = 0, height = 0;      // image size (0: the config's 2016 x 1512)
+  std::string calibration = "charuco";  // charuco: calibrate from a simulated board capture;
+                                        // truth: the sim's exact calibration
+  std::string keep;               // keep every sample under this new folder (empty: temporary)
+};
+
+/// Targets of issue 3 item 9.
+struct ValidateTargets {
+  double volume_mpe_pct = 1.0;   // |mean((R-T)/T)| in %
+  double volume_mape_pct = 2.0;  // mean(|R-T|/T) in %
+  double dims_pct = 2.0;         // every rock's a, b, c within this, in %
+  double sphericity = 0.02;      // every rock's |R-T|
+};
+
+/// The figures compared: study Table 1's columns.
+struct RockFigures {
+  double volume_mm3 = 0, area_mm2 = 0, a_mm = 0, b_mm = 0, c_mm = 0, sphericity = 0;
+};
+
+struct ValidateRock {
+  std::string id;        // "seed-7" or the mesh file's stem
+  std::string source;    // "procedural seed 7" or the mesh path
+  std::string status;    // ok | skipped (unusable input) | failed (capture or reconstruction)
+  std::string message;   // why skipped or failed
+  double scale = 1;      // mesh rocks: factor applied to the file (after its unit)
+  RockFigures truth, rec;
+  double seconds = 0;    // capture + reconstruction, wall time
+};
+
+struct ValidateSummary {
+  int rocks_ok = 0, rocks_failed = 0, rocks_skipped = 0;
+  double volume_mpe_pct = 0, volume_mape_pct = 0, volume_max_abs_pct = 0;
+  double area_mpe_pct = 0;
+  double a_max_abs_pct = 0, b_max_abs_pct = 0, c_max_abs_pct = 0;
+  double sphericity_max_abs = 0;
+  bool volume_mpe_pass = false, volume_mape_pass = false, dims_pass = false, sphericity_pass = false;
+  bool pass = false;  // every target met, no rock failed, at least one rock measured
+};
+
+struct ValidateReport {
+  ValidateOptions options;
+  ValidateTargets targets;
+  nlohmann::json settings;     // resolution, views, calibration used, the sim's realism switches
+  std::vector<ValidateRock> rocks;
+  ValidateSummary summary;
+};
+
+/// Runs the whole harness; progress lines go to `log`. Errors are for the
+/// harness itself (work folder, calibration); a rock that fails is a row.
+Result<ValidateReport> RunValidation(const ValidateOptions& options, std::ostream& log);
+
+/// Summary statistics and verdicts over the rows with status ok.
+ValidateSummary Summarize(const std::vector<ValidateRock>& rocks, const ValidateTargets& targets);
+
+/// The table and summary as text, and as JSON.
+void PrintValidateReport(const ValidateReport& report, std::ostream& out);
+nlohmann::json ValidateReportToJson(const ValidateReport& report);
+
+/// The command: parses args (after "validate"), runs, prints. Exit code 0 when
+/// every target is met, 1 when one is not (or a rock failed), 2 usage.
+int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err);
+
+/// The usage lines of the command (for aggscan's help).
+void PrintValidateUsage(std::ostream& out);
+
+}  // namespace aggscan
