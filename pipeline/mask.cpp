@@ -242,10 +242,43 @@ void SetRockColor(Scene& s, const cv::Mat& rock, const MaskOptions& o) {
   s.paint = PaintMap(s.ab, s.color_distance, s.rock_ab, o);
 }
 
+// The component of `evidence` that is the rock, holes filled. A rock's
+// silhouette is compact (area over convex-hull area, the solidity, 0.8-1);
+// the other things that can survive the evidence steps are not: the shaded
+// side of the disc is a long thin arc (solidity ~0.1-0.2) and, under a small
+// rock, can be larger than it. So the largest component wins only among the
+// compact ones; a non-compact one counts with its area scaled by solidity^2.
+cv::Mat RockComponentFilled(const cv::Mat& evidence) {
+  cv::Mat labels, stats, centroids;
+  const int n = cv::connectedComponentsWithStats(evidence, labels, stats, centroids, 8, CV_32S);
+  if (n <= 2) return LargestComponentFilled(evidence);
+  int max_area = 0;
+  for (int i = 1; i < n; ++i) max_area = std::max(max_area, stats.at<int>(i, cv::CC_STAT_AREA));
+  int best = -1;
+  double best_score = -1;
+  for (int i = 1; i < n; ++i) {
+    const int area = stats.at<int>(i, cv::CC_STAT_AREA);
+    if (area < 0.05 * max_area) continue;
+    const cv::Rect box(stats.at<int>(i, cv::CC_STAT_LEFT), stats.at<int>(i, cv::CC_STAT_TOP),
+                       stats.at<int>(i, cv::CC_STAT_WIDTH), stats.at<int>(i, cv::CC_STAT_HEIGHT));
+    std::vector<std::vector<cv::Point>> contours;
+    cv::findContours(labels(box) == i, contours, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_SIMPLE);
+    std::vector<cv::Point> all;
+    for (const auto& c : contours) all.insert(all.end(), c.begin(), c.end());
+    std::vector<cv::Point> hull;
+    if (all.size() >= 3) cv::convexHull(all, hull);
+    const double hull_area = hull.size() >= 3 ? cv::contourArea(hull) : 0.0;
+    const double solidity = hull_area > 0 ? std::min(1.0, area / hull_area) : 1.0;
+    const double score = solidity >= 0.5 ? area : area * solidity * solidity;
+    if (score > best_score) best_score = score, best = i;
+  }
+  return LargestComponentFilled(labels == best);
+}
+
 cv::Mat CleanEvidence(cv::Mat evidence, const MaskOptions& o) {
   cv::morphologyEx(evidence, evidence, cv::MORPH_OPEN, Disk(o.open_radius));
   cv::morphologyEx(evidence, evidence, cv::MORPH_CLOSE, Disk(o.close_radius));
-  return LargestComponentFilled(evidence);
+  return RockComponentFilled(evidence);
 }
 
 // Coarse rock mask at the working resolution (0/255), holes filled.
