@@ -449,15 +449,34 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
     }
     if (pass == 0) res.faces_folded = nbad;
     if (nbad == 0) break;
-    if (pass >= 40) break;  // cannot happen: all-zero moves restore the hull
-    if (pass >= 12) {
+    if (pass >= 60) break;  // cannot happen: all-zero moves restore the hull
+    res.fold_passes = pass + 1;
+    if (pass < 20) {
+      // First smooth the field where it inverts faces (it changes faster
+      // there than the surface allows): halving alone would leave pits.
+      std::vector<char> zone = bad;
+      for (size_t i = 0; i < nv; ++i) {
+        if (bad[i]) {
+          for (int j : nb[i]) zone[j] = 1;
+        }
+      }
+      std::vector<double> next = field;
+      for (size_t i = 0; i < nv; ++i) {
+        if (!zone[i] || nb[i].empty()) continue;
+        double s = field[i];
+        for (int j : nb[i]) s += field[j];
+        next[i] = s / (nb[i].size() + 1);
+      }
+      field.swap(next);
+      continue;
+    }
+    if (pass >= 32) {
       // Give up moving the folding vertices at all.
       for (size_t i = 0; i < nv; ++i) {
         if (bad[i]) field[i] = 0;
       }
       continue;
     }
-    res.fold_passes = pass + 1;
     for (size_t i = 0; i < nv; ++i) {
       if (bad[i]) field[i] *= 0.5;
     }

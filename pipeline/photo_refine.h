@@ -18,13 +18,14 @@
 //  3. A vertex's move is kept only when it is confident: the best score is at
 //     least min_ncc and beats the score at the hull (d = 0) by min_gain.
 //     Confident vertices whose best depth is the hull keep 0 as data.
-//  4. The displacement field is regularised: a 1-ring median removes isolated
-//     outliers, then a data-weighted Laplacian smoothing fills in vertices
-//     without data from their neighbours and smooths the rest; capped at
-//     max_depth_mm.
+//  4. The displacement field is regularised: a data-weighted Laplacian
+//     smoothing fills in vertices without data from their neighbours and
+//     smooths the rest; data farther than outlier_mm from that field are
+//     dropped and the smoothing repeated; capped at max_depth_mm.
 //  5. Vertices are moved; a face whose normal turns by more than
-//     max_face_turn_deg (a fold or flip) has its vertices' moves halved, and
-//     this repeats until no face folds. Topology is untouched, so a closed
+//     max_face_turn_deg (inverted) has the field smoothed around its vertices
+//     (up to 20 passes), then its vertices' moves halved, until no face is
+//     inverted. Topology is untouched, so a closed
 //     manifold hull stays closed and manifold.
 #pragma once
 
@@ -63,9 +64,10 @@ struct PhotoRefineOptions {
   double min_gain = 0.1;            // ... and at least this above the NCC at the hull
   int sample_rings = 1;            // score one vertex per this many rings (0: every vertex); the rest are filled in
   double outlier_mm = 1.5;          // data this far from the smoothed field are dropped before the second pass
-  int smooth_iterations = 30;       // Laplacian smoothing passes of the displacement field
-  double smooth_lambda = 1.0;       // neighbour weight relative to a confident vertex's data weight
-  double max_face_turn_deg = 75.0;  // a face turning more than this is a fold: its moves are halved
+  int smooth_iterations = 100;      // Laplacian smoothing passes of the displacement field
+  double smooth_lambda = 10.0;      // neighbour weight relative to a confident vertex's data weight
+  double max_face_turn_deg = 150.0; // a face turning more than this is inverted: its moves are halved
+                                    // (not less: the hull's sliver faces turn a lot and are harmless)
   int threads = 2;
 
   /// Empty when usable; otherwise every problem found.

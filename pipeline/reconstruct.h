@@ -21,6 +21,7 @@
 #include <nlohmann/json.hpp>
 
 #include "common/error.h"
+#include "pipeline/photo_refine.h"
 #include "pipeline/side_job.h"
 #include "pipeline/visual_hull.h"
 
@@ -29,6 +30,8 @@ namespace aggscan {
 struct ReconstructOptions {
   WorkerOptions worker;        // per-side masks
   VisualHullOptions hull;      // surface
+  bool photo_refine = false;   // refine the hull by photo-consistency (concavities); off: see photo_refine_test figures
+  PhotoRefineOptions photo;    // ... with these options
   std::string state_dir;       // for the library CSV and the fallback calibration; may be empty
   const std::atomic<bool>* cancel = nullptr;
 };
