@@ -32,6 +32,7 @@ std::vector<std::string> PhotoRefineOptions::Check() const {
   if (!(smooth_lambda > 0)) p.push_back("smooth_lambda must be > 0");
   if (!(outlier_mm > 0)) p.push_back("outlier_mm must be > 0");
   if (!(max_face_turn_deg > 0 && max_face_turn_deg < 180)) p.push_back("max_face_turn_deg must be in (0, 180)");
+  if (surface_smooth_iterations < 0) p.push_back("surface_smooth_iterations must be >= 0");
   if (threads < 1) p.push_back("threads must be >= 1");
   return p;
 }
@@ -482,15 +483,51 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
     }
   }
 
+  // Taubin smoothing (lambda|mu, no shrinkage) of the moved region's
+  // positions: the depth field is rough where it is deep, which inflates the
+  // area. Unmoved hull vertices stay put; no vertex leaves the hull outward.
+  if (opts.surface_smooth_iterations > 0) {
+    std::vector<char> movable(nv, 0);
+    for (size_t i = 0; i < nv; ++i) movable[i] = field[i] > 0.05 ? 1 : 0;
+    std::vector<Vec3> X = W, next(nv);
+    for (int it = 0; it < 2 * opts.surface_smooth_iterations; ++it) {
+      const double f = (it % 2 == 0) ? 0.5 : -0.53;
+      for (size_t i = 0; i < nv; ++i) {
+        next[i] = X[i];
+        if (!movable[i] || nb[i].empty()) continue;
+        Vec3 c = Vec3::Zero();
+        for (int j : nb[i]) c += X[j];
+        next[i] = X[i] + f * (c / nb[i].size() - X[i]);
+      }
+      X.swap(next);
+    }
+    for (size_t i = 0; i < nv; ++i) {
+      const double out = (X[i] - V[i]).dot(N[i]);
+      if (out > 0) X[i] -= out * N[i];
+    }
+    // Keep the smoothing only where it inverts no face.
+    std::vector<char> bad(nv, 0);
+    for (size_t f = 0; f < F.size(); ++f) {
+      const Vec3 c = (X[F[f][1]] - X[F[f][0]]).cross(X[F[f][2]] - X[F[f][0]]);
+      const double l = c.norm();
+      if (l > 1e-12 && c.dot(fn0[f]) / l >= cos_turn) continue;
+      for (int k = 0; k < 3; ++k) bad[F[f][k]] = 1;
+    }
+    for (size_t i = 0; i < nv; ++i) {
+      if (!bad[i]) W[i] = X[i];
+    }
+  }
+
   res.mesh.faces = F;
   res.mesh.vertices.resize(nv);
   double sum = 0;
   for (size_t i = 0; i < nv; ++i) {
     res.mesh.vertices[i] = {W[i].x(), W[i].y(), W[i].z()};
-    if (field[i] > 0.05) {
+    const double d = (W[i] - V[i]).norm();
+    if (d > 0.05) {
       ++res.vertices_moved;
-      sum += field[i];
-      res.max_displacement_mm = std::max(res.max_displacement_mm, field[i]);
+      sum += d;
+      res.max_displacement_mm = std::max(res.max_displacement_mm, d);
     }
   }
   res.mean_displacement_mm = res.vertices_moved > 0 ? sum / res.vertices_moved : 0.0;

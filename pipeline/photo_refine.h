@@ -25,7 +25,8 @@
 //  5. Vertices are moved; a face whose normal turns by more than
 //     max_face_turn_deg (inverted) has the field smoothed around its vertices
 //     (up to 20 passes), then its vertices' moves halved, until no face is
-//     inverted. Topology is untouched, so a closed
+//     inverted. The moved region is then Taubin-smoothed (no shrinkage),
+//     except where that would invert a face. Topology is untouched, so a closed
 //     manifold hull stays closed and manifold.
 #pragma once
 
@@ -68,6 +69,7 @@ struct PhotoRefineOptions {
   double smooth_lambda = 10.0;      // neighbour weight relative to a confident vertex's data weight
   double max_face_turn_deg = 150.0; // a face turning more than this is inverted: its moves are halved
                                     // (not less: the hull's sliver faces turn a lot and are harmless)
+  int surface_smooth_iterations = 30; // Taubin passes over the moved vertices' positions (0: none)
   int threads = 2;
 
   /// Empty when usable; otherwise every problem found.

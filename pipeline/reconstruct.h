@@ -30,7 +30,7 @@ namespace aggscan {
 struct ReconstructOptions {
   WorkerOptions worker;        // per-side masks
   VisualHullOptions hull;      // surface
-  bool photo_refine = false;   // refine the hull by photo-consistency (concavities); off: see photo_refine_test figures
+  bool photo_refine = true;    // refine the hull by photo-consistency (concavities the silhouettes miss)
   PhotoRefineOptions photo;    // ... with these options
   std::string state_dir;       // for the library CSV and the fallback calibration; may be empty
   const std::atomic<bool>* cancel = nullptr;

@@ -132,7 +132,7 @@ TEST(Reconstruct, ResumesAtTheInterruptedStage) {
 
 // Two sides, the real worker path: masks computed from the photos, markers
 // and features detected, the sides stitched, one closed mesh from all views.
-void TwoSides(bool truth_masks, bool photo_refine = false) {
+void TwoSides(bool truth_masks, bool photo_refine) {
   test::TempDir tmp;
   const std::string sample = Capture(tmp.path(), 1, 2, truth_masks);
   ReconstructOptions opts;
@@ -173,9 +173,13 @@ void TwoSides(bool truth_masks, bool photo_refine = false) {
   EXPECT_NEAR(d["sphericity"].get<double>(), truth["sphericity"].get<double>(), 0.03);
 }
 
-TEST(Reconstruct, TwoSidesStitchedFromComputedMasks) { TwoSides(false); }
-TEST(Reconstruct, TwoSidesStitchedFromTruthMasks) { TwoSides(true); }
-// The same with the hull refined by photo-consistency (off by default).
+TEST(Reconstruct, TwoSidesStitchedFromComputedMasks) { TwoSides(false, true); }
+// The visual hull alone, and refined by photo-consistency (the default).
+// Measured (seed 1): hull V +4.49 % A +1.57 % a +1.46 % b -0.52 % c +0.06 %,
+// sphericity 0.8941 (truth 0.8820); refined V +0.51 % A +1.45 % a -0.04 %
+// b -0.50 % c -0.57 %, sphericity 0.8723, refinement 6.1 s. Computed masks,
+// refined: V +0.20 % A +1.11 % a +0.04 % b +0.01 % c -1.82 %, 0.8734.
+TEST(Reconstruct, TwoSidesStitchedFromTruthMasks) { TwoSides(true, false); }
 TEST(Reconstruct, TwoSidesPhotoRefinedFromTruthMasks) { TwoSides(true, true); }
 
 TEST(Reconstruct, MissingCalibrationSaysWhatToDo) {

@@ -84,6 +84,12 @@ const Capture& SimCapture() {
   return *cap;
 }
 
+// Measured (seed 1, 1008x756, 2 x 30 views, truth masks and poses, default
+// options): hull V +3.78 % A +1.00 % sphericity 0.8951 (truth 0.8820);
+// refined V +1.30 % A +1.08 % sphericity 0.8801; 15.5k of 50.3k vertices
+// moved, mean 1.00 mm, max 4.65 mm; 4.0 s wall (Debug build, this file -O2,
+// 2 cores shared with other builds). Without the Taubin pass the area grew
+// to +2.84 % (rough field in deep concavities).
 TEST(PhotoRefine, RecoversPartOfWhatTheHullCannotSee) {
   const Capture& cap = SimCapture();
   ASSERT_FALSE(cap.hull.mesh.faces.empty());
@@ -109,6 +115,8 @@ TEST(PhotoRefine, RecoversPartOfWhatTheHullCannotSee) {
   // Only inward moves: the hull bounds the rock.
   EXPECT_LE(got.volume_mm3, hull.volume_mm3);
   EXPECT_LT(std::abs(got.volume_mm3 - t.volume_mm3), std::abs(hull.volume_mm3 - t.volume_mm3));
+  EXPECT_LT(std::abs(got.sphericity - t.sphericity), std::abs(hull.sphericity - t.sphericity));
+  EXPECT_NEAR(got.surface_area_mm2 / t.surface_area_mm2, 1.0, 0.02);
   EXPECT_GT(res->vertices_moved, 0);
   EXPECT_LE(res->max_displacement_mm, PhotoRefineOptions{}.max_depth_mm + 1e-9);
 }
