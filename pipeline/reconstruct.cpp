@@ -378,6 +378,53 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
   auto hull = CarveVisualHull(sv, floors, Eigen::AlignedBox3d(lo, hi), opts.hull);
   if (!hull) return MakeError(hull.error().cls, "surface stage: " + hull.error().message, hull.error().detail);
   const double carve_s = hull->seconds;
+  // Photo-consistency: the hull is an upper bound; concavities are recovered
+  // where the textured photos agree on a deeper surface.
+  json photo = {{"enabled", opts.photo_refine}};
+  double photo_s = 0;
+  if (opts.photo_refine) {
+    const auto tp = std::chrono::steady_clock::now();
+    // Decoding at half size is much faster than decoding and shrinking.
+    const bool half = opts.photo.image_scale <= 0.5;
+    PhotoRefineOptions po = opts.photo;
+    std::vector<PhotoView> pv(views.size());
+    std::vector<std::string> unreadable;
+    auto load = [&](size_t begin, size_t step) {
+      for (size_t i = begin; i < views.size(); i += step) {
+        pv[i].image = cv::imread(views[i].image, half ? cv::IMREAD_REDUCED_GRAYSCALE_2 : cv::IMREAD_GRAYSCALE);
+        pv[i].camera = half ? cal.camera.Resized(pv[i].image.cols, pv[i].image.rows) : cal.camera;
+        pv[i].cam_from_object = cam_from_object[i];
+      }
+    };
+    std::thread lt(load, 1, 2);
+    load(0, 2);
+    lt.join();
+    if (half) po.image_scale = std::min(1.0, opts.photo.image_scale * 2);
+    for (size_t i = 0; i < views.size(); ++i) {
+      if (pv[i].image.empty()) {
+        return MakeError(ErrorClass::kCorrupt, "surface stage: image " + views[i].image +
+                                                   " cannot be decoded for the photo refinement; restore it, or turn "
+                                                   "the refinement off");
+      }
+    }
+    auto refined = RefineByPhotoConsistency(hull->mesh, pv, po);
+    if (!refined) return MakeError(refined.error().cls, "surface stage: " + refined.error().message);
+    if (Status st = CheckClosedManifold(refined->mesh, "the photo-refined hull"); !st) {
+      return MakeError(ErrorClass::kInternal, "surface stage: " + st.error().message);
+    }
+    hull->mesh = std::move(refined->mesh);
+    photo_s = Seconds(tp);
+    photo.update({{"vertices", refined->vertices},
+                  {"vertices_scored", refined->vertices_scored},
+                  {"vertices_confident", refined->vertices_confident},
+                  {"vertices_moved", refined->vertices_moved},
+                  {"mean_displacement_mm", refined->mean_displacement_mm},
+                  {"max_displacement_mm", refined->max_displacement_mm},
+                  {"fold_passes", refined->fold_passes},
+                  {"refine_s", refined->seconds},
+                  {"max_depth_mm", opts.photo.max_depth_mm},
+                  {"image_scale", opts.photo.image_scale}});
+  }
   const auto tc = std::chrono::steady_clock::now();
   auto colors = ColourVertices(hull->mesh, views, cam_from_object, masks, cal.camera);
   if (!colors) return colors.error();
@@ -395,17 +442,21 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
   for (size_t i = 0; i < views.size(); ++i) {
     jiou.push_back({{"side", views[i].side}, {"view", views[i].view}, {"iou", iou[i]}});
   }
-  json j = {{"method", "visual-hull"},
+  json j = {{"method", opts.photo_refine ? "visual-hull+photo" : "visual-hull"},
             {"method_detail",
-             "silhouette signed-distance field over all views of all sides in the object frame (side 1's turntable "
-             "frame), each side's turntable top as a floor; marching tetrahedra"},
+             std::string("silhouette signed-distance field over all views of all sides in the object frame (side 1's "
+                         "turntable frame), each side's turntable top as a floor; marching tetrahedra") +
+                 (opts.photo_refine ? "; vertices moved inward to the depth of best multi-view NCC of tangent-plane "
+                                      "patches, confident moves only, smoothed, folds undone"
+                                    : "")},
+            {"photo_refine", photo},
             {"voxel_mm", hull->voxel_mm},
             {"vertices", hull->mesh.vertices.size()},
             {"faces", hull->mesh.faces.size()},
             {"views", views.size()},
             {"silhouette_iou", jiou},
             {"files", {{"ply", results::kMeshPly}, {"obj", results::kMeshObj}, {"stl", results::kMeshStl}}},
-            {"timings_s", {{"carve", carve_s}, {"colour", colour_s}, {"silhouette_check", iou_s}, {"export", Seconds(te)}}},
+            {"timings_s", {{"carve", carve_s}, {"photo_refine", photo_s}, {"colour", colour_s}, {"silhouette_check", iou_s}, {"export", Seconds(te)}}},
             {"stage_seconds", Seconds(t0)}};
   if (Status s = WriteJson(out, j); !s) return s.error();
   LogLine(LogLevel::kInfo, kCat, sample_id,

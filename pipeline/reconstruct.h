@@ -23,6 +23,7 @@
 
 #include "common/error.h"
 #include "pipeline/bundle_adjust.h"
+#include "pipeline/photo_refine.h"
 #include "pipeline/side_job.h"
 #include "pipeline/visual_hull.h"
 
@@ -47,6 +48,8 @@ struct ReconstructOptions {
     return o;
   }();
   VisualHullOptions hull;      // surface
+  bool photo_refine = true;    // refine the hull by photo-consistency (concavities the silhouettes miss)
+  PhotoRefineOptions photo;    // ... with these options
   std::string state_dir;       // for the library CSV and the fallback calibration; may be empty
   const std::atomic<bool>* cancel = nullptr;
 };

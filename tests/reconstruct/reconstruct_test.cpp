@@ -161,11 +161,12 @@ TEST(Reconstruct, ResumesAtTheInterruptedStage) {
 
 // Two sides, the real worker path: masks computed from the photos, markers
 // and features detected, the sides stitched, one closed mesh from all views.
-void TwoSides(bool truth_masks) {
+void TwoSides(bool truth_masks, bool photo_refine) {
   test::TempDir tmp;
   const std::string sample = Capture(tmp.path(), 1, 2, truth_masks);
   ReconstructOptions opts;
   opts.state_dir = tmp.path();
+  opts.photo_refine = photo_refine;
   {
     auto st = ReconstructSample(sample, opts);
     ASSERT_TRUE(st) << st.error().ToString();
@@ -176,6 +177,8 @@ void TwoSides(bool truth_masks) {
   const json truth = Truth(sample);
   auto rel = [&](const char* k) { return d[k].get<double>() / truth[k].get<double>() - 1.0; };
   auto stitch = json::parse(*ReadFile(sample + "/results/stitch.json"));
+  auto surface = json::parse(*ReadFile(sample + "/results/surface.json"));
+  std::printf("surface %s: %s\n", surface["method"].get<std::string>().c_str(), surface["photo_refine"].dump().c_str());
   std::printf("two sides: V %+.2f %% A %+.2f %% a %+.2f %% b %+.2f %% c %+.2f %%, sphericity %.4f (truth %.4f); "
               "stitch %s rms %.3f mm, scale residual %s mm; iou %.4f; total %.1f s\n",
               100 * rel("volume_mm3"), 100 * rel("surface_area_mm2"), 100 * rel("a_mm"), 100 * rel("b_mm"),
@@ -199,8 +202,14 @@ void TwoSides(bool truth_masks) {
   EXPECT_NEAR(d["sphericity"].get<double>(), truth["sphericity"].get<double>(), 0.03);
 }
 
-TEST(Reconstruct, TwoSidesStitchedFromComputedMasks) { TwoSides(false); }
-TEST(Reconstruct, TwoSidesStitchedFromTruthMasks) { TwoSides(true); }
+TEST(Reconstruct, TwoSidesStitchedFromComputedMasks) { TwoSides(false, true); }
+// The visual hull alone, and refined by photo-consistency (the default).
+// Measured (seed 1): hull V +4.49 % A +1.57 % a +1.46 % b -0.52 % c +0.06 %,
+// sphericity 0.8941 (truth 0.8820); refined V +0.51 % A +1.45 % a -0.04 %
+// b -0.50 % c -0.57 %, sphericity 0.8723, refinement 6.1 s. Computed masks,
+// refined: V +0.20 % A +1.11 % a +0.04 % b +0.01 % c -1.82 %, 0.8734.
+TEST(Reconstruct, TwoSidesStitchedFromTruthMasks) { TwoSides(true, false); }
+TEST(Reconstruct, TwoSidesPhotoRefinedFromTruthMasks) { TwoSides(true, true); }
 
 TEST(Reconstruct, MissingCalibrationSaysWhatToDo) {
   test::TempDir tmp;

@@ -1,0 +1,98 @@
+// Photo-consistency refinement of a visual hull: moves the hull's vertices
+// inward where the photos say the surface lies deeper (concavities, which no
+// silhouette can see). The hull is an upper bound of the object, so vertices
+// only ever move inward, along the hull's (smoothed) normal.
+//
+// Method:
+//  1. Per view, a depth map of the current mesh at reduced resolution (z-buffer
+//     of the projected triangles): a vertex is visible in a view when its depth
+//     is within a tolerance of the map's, and the view sees it frontally
+//     (normal . direction to the camera >= min_cos).
+//  2. Per vertex, the `views_per_vertex` most frontal visible views at least
+//     min_baseline_deg apart (repeated angles add no depth signal); the most
+//     frontal is the reference. Hypotheses p - d n for d in [0, max_depth_mm]:
+//     a square patch in the tangent plane at each hypothesis, its grid spaced
+//     about one reference pixel, is projected into every chosen view (with
+//     lens distortion) and sampled bilinearly from grey images; the score is
+//     the mean NCC of the reference patch against each other view's.
+//  3. A vertex's move is kept only when it is confident: the best score is at
+//     least min_ncc and beats the score at the hull (d = 0) by min_gain.
+//     Confident vertices whose best depth is the hull keep 0 as data.
+//  4. The displacement field is regularised: a data-weighted Laplacian
+//     smoothing fills in vertices without data from their neighbours and
+//     smooths the rest; data farther than outlier_mm from that field are
+//     dropped and the smoothing repeated; capped at max_depth_mm.
+//  5. Vertices are moved; a face whose normal turns by more than
+//     max_face_turn_deg (inverted) has the field smoothed around its vertices
+//     (up to 20 passes), then its vertices' moves halved, until no face is
+//     inverted. The moved region is then Taubin-smoothed (no shrinkage),
+//     except where that would invert a face. Topology is untouched, so a closed
+//     manifold hull stays closed and manifold.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <opencv2/core.hpp>
+
+#include "common/error.h"
+#include "common/mesh.h"
+#include "common/rig_calibration.h"
+
+namespace aggscan {
+
+struct PhotoView {
+  cv::Mat image;          // CV_8UC1 grey or CV_8UC3 BGR, at camera.width x camera.height
+  CameraModel camera;     // lens for that resolution
+  Eigen::Isometry3d cam_from_object = Eigen::Isometry3d::Identity();  // mm
+};
+
+struct PhotoRefineOptions {
+  double max_depth_mm = 6.0;        // deepest inward move searched (and the cap on moves)
+  double step_mm = 0.2;             // spacing of the depth hypotheses
+  int views_per_vertex = 4;         // reference + up to 3 others, most frontal first
+  double min_baseline_deg = 5.0;    // chosen views at least this far apart as seen from the vertex
+  double min_cos = 0.35;            // a view must see the vertex at most ~70 deg off its normal
+  int patch_radius = 4;             // patch is (2r+1)^2 samples
+  double patch_spacing_px = 1.0;    // sample spacing in reference pixels
+  double image_scale = 1.0;         // images are resized by this first (0.5 halves 2016x1512 for speed)
+  double blur_sigma_px = 0.8;       // Gaussian pre-blur against sensor noise and JPEG blocks (scaled px)
+  int depth_map_downscale = 4;      // depth maps at image size / this
+  double depth_tolerance_mm = 1.5;  // a vertex within this of a depth map's surface is visible
+  double min_ncc = 0.6;             // confident: best mean NCC at least this
+  double min_gain = 0.1;            // ... and at least this above the NCC at the hull
+  int sample_rings = 1;            // score one vertex per this many rings (0: every vertex); the rest are filled in
+  double outlier_mm = 1.5;          // data this far from the smoothed field are dropped before the second pass
+  int smooth_iterations = 100;      // Laplacian smoothing passes of the displacement field
+  double smooth_lambda = 10.0;      // neighbour weight relative to a confident vertex's data weight
+  double max_face_turn_deg = 150.0; // a face turning more than this is inverted: its moves are halved
+                                    // (not less: the hull's sliver faces turn a lot and are harmless)
+  int surface_smooth_iterations = 30; // Taubin passes over the moved vertices' positions (0: none)
+  int threads = 2;
+
+  /// Empty when usable; otherwise every problem found.
+  std::vector<std::string> Check() const;
+};
+
+struct PhotoRefineResult {
+  Mesh mesh;
+  int64_t vertices = 0;        // of the mesh
+  int64_t vertices_scored = 0; // with at least two views to compare
+  int64_t vertices_confident = 0;
+  int64_t vertices_moved = 0;  // final displacement > 0.05 mm
+  double mean_displacement_mm = 0;  // over moved vertices
+  double max_displacement_mm = 0;
+  int64_t faces_folded = 0;   // faces that turned too far with the smoothed moves, before undoing
+  int fold_passes = 0;         // halving passes needed to remove folded faces
+  double seconds = 0;
+};
+
+/// Refines `hull` (closed, consistently oriented, counter-clockwise from
+/// outside) against the photos. Errors: bad options, no views, an image of the
+/// wrong size or type.
+Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::vector<PhotoView>& views,
+                                                   const PhotoRefineOptions& opts = {});
+
+}  // namespace aggscan
