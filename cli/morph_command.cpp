@@ -42,16 +42,8 @@ int RunMorphCommand(const std::string& path, const std::string& unit, bool json,
                       {"vertices", mesh->vertices.size()},
                       {"faces", mesh->faces.size()},
                       {"components", topo.components},
-                      {"watertight", true},
-                      {"volume_mm3", p.volume_mm3},
-                      {"surface_area_mm2", p.surface_area_mm2},
-                      {"a_mm", p.a_mm},
-                      {"b_mm", p.b_mm},
-                      {"c_mm", p.c_mm},
-                      {"fer_3d", p.fer_3d},
-                      {"ratio_c_b", p.c_over_b},
-                      {"ratio_b_a", p.b_over_a},
-                      {"sphericity", p.sphericity}};
+                      {"watertight", true}};
+  j.update(MeshPropsJson(p));
   if (json) {
     out << j.dump(2) << "\n";
     return 0;

@@ -718,4 +718,12 @@ MeshProps ComputeMeshProps(const Mesh& mesh) {
   return p;
 }
 
+nlohmann::json MeshPropsJson(const MeshProps& p) {
+  return {{"volume_mm3", p.volume_mm3}, {"surface_area_mm2", p.surface_area_mm2},
+          {"a_mm", p.a_mm},             {"b_mm", p.b_mm},
+          {"c_mm", p.c_mm},             {"fer_3d", p.fer_3d},
+          {"ratio_c_b", p.c_over_b},    {"ratio_b_a", p.b_over_a},
+          {"sphericity", p.sphericity}};
+}
+
 }  // namespace aggscan

@@ -5,6 +5,8 @@
 // truth.json and for checking the reconstruction's morphology.
 #pragma once
 
+#include <nlohmann/json.hpp>
+
 #include <array>
 #include <vector>
 
@@ -38,6 +40,11 @@ struct OrientedBox {
 /// Volume, area and the minimum-volume box of `mesh` (mm). A mesh with
 /// misoriented faces gets a meaningless volume; open meshes likewise.
 MeshProps ComputeMeshProps(const Mesh& mesh);
+
+/// The figures as JSON with units in the names (volume_mm3, surface_area_mm2,
+/// a_mm, b_mm, c_mm, fer_3d, ratio_c_b, ratio_b_a, sphericity): the one
+/// spelling `aggscan morph --json` and results/morphology.json share.
+nlohmann::json MeshPropsJson(const MeshProps& p);
 
 /// Signed volume (positive for outward-facing counter-clockwise faces).
 double SignedVolume(const Mesh& mesh);

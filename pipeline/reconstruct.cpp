@@ -553,10 +553,12 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
   if (sides.empty()) return MakeError(ErrorClass::kNotFound, "sample " + sample_id + " has no captured side");
 
   json timings = json::object();
+  std::string mask_method = "classical";  // what the side jobs ran (side results' mask_method)
   // Image size from the first mask.
   cv::Size image_size;
   {
     auto side1 = ReadJson(SideResultPath(sample_dir, sides[0]), "side result");
+    if (side1) mask_method = side1->value("mask_method", mask_method);
     if (!side1) return side1.error();
     for (const auto& v : side1->value("views", json::array())) {
       const cv::Mat m = cv::imread(sample_dir + "/" + layout::kResultsDir + "/" + v.value("mask", ""),
@@ -728,6 +730,8 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
       break;
     }
   }
+  json morphology_3d = MeshPropsJson(p);
+  morphology_3d["watertight"] = watertight.ok();
   json out = {
       {"format", "aggscan-morphology-1"},
       {"sample_id", sample_id},
@@ -738,18 +742,8 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
         {"poses", poses_method},
         {"stitch", stitch->value("method", "")},
         {"surface", surface->value("method", "")},
-        {"masks", "classical"}}},
-      {"morphology_3d",
-       {{"volume_mm3", p.volume_mm3},
-        {"surface_area_mm2", p.surface_area_mm2},
-        {"a_mm", p.a_mm},
-        {"b_mm", p.b_mm},
-        {"c_mm", p.c_mm},
-        {"fer_3d", p.fer_3d},
-        {"ratio_c_b", p.c_over_b},
-        {"ratio_b_a", p.b_over_a},
-        {"sphericity", p.sphericity},
-        {"watertight", watertight.ok()}}},
+        {"masks", mask_method}}},
+      {"morphology_3d", morphology_3d},
       {"views_2d", views2d},
       {"stats_2d", stats},
       {"comparison_2d_3d",

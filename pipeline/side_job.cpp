@@ -230,7 +230,7 @@ Status ProcessSide(const std::string& sample_dir, int side, const WorkerOptions&
               {"views_ok", ok_views},
               {"stats", StatsBlock(values)},
               {"std_kind", "sample"},
-              {"mask_method", "classical: texture+chroma coarse mask, local colour boundary refinement"},
+              {"mask_method", opts.mask_net ? "onnx" : "classical"},
               {"timing_ms", total_ms}};
   if (Status s = WriteJson(result_path, out); !s.ok()) return s;
   LogLine(LogLevel::kInfo, kCat, sample_id,
