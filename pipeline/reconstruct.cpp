@@ -708,6 +708,7 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
                   {"calibration_reprojection_rms_px", cal->reprojection_rms_px},
                   {"stitch_rms_mm", stitch->value("rms_mm", json())},
                   {"stitch_max_mm", stitch->value("max_mm", json())},
+                  {"stitch_silhouette_deficit", stitch->value("silhouette_deficit", json())},
                   {"scale_residual_mm", stitch->value("scale_residual_mm", json())},
                   {"watertight", watertight.ok()}};
   timings["masks_and_2d_s"] = masks_s;

@@ -7,6 +7,7 @@
 #include <unordered_map>
 
 #include <Eigen/Eigenvalues>
+#include <Eigen/Geometry>
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -387,7 +388,7 @@ StitchEstimate StitchFromFeatures(const FeatureCloud& ref, const FeatureCloud& m
 
 Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
                                  const FeatureCloud* ref_features, const FeatureCloud* mov_features,
-                                 const StitchOptions& opts) {
+                                 const StitchOptions& opts, const SilhouetteStitcher* silhouettes) {
   StitchResult out;
   const bool clouds = ref_features && mov_features;
   out.markers = StitchFromMarkers(ref, mov, opts);
@@ -426,7 +427,108 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
   } else if (f.valid) {
     out.T = f.T;
     out.source = "features";
-  } else {
+  }
+  if (silhouettes) {
+    SilhouetteRefinement& sr = out.silhouettes;
+    auto refine = [&](const geom::Rigid3& start, double step_deg) {
+      const SilhouetteFit fit = silhouettes->Refine(start, step_deg, step_deg);
+      sr.evaluations += fit.evaluations;
+      sr.seconds += fit.seconds;
+      return fit;
+    };
+    auto record = [&](const std::string& start, const geom::Rigid3& T0, const SilhouetteFit& fit) {
+      sr.tried = true;
+      sr.start = start;
+      sr.deficit_start = fit.deficit_start;
+      sr.deficit = fit.deficit;
+      sr.moved_deg = geom::RotationAngleDeg(fit.T.R * T0.R.transpose());
+      sr.moved_mm = DisplacementRms(fit.T, T0, rock);
+    };
+    if (out.source == "markers") {
+      // The markers' weak axis: refine by the silhouettes, keep it when they confirm.
+      const SilhouetteFit fit = refine(m.T, std::max(2.0, 2 * m.rotation_sigma_deg));
+      record("markers", m.T, fit);
+      if (fit.deficit <= opts.silhouette_accept) {
+        sr.used = true;
+        out.T = fit.T;
+        out.source = "markers+silhouettes";
+      } else {
+        sr.note = "the silhouettes do not confirm the marker estimate (deficit " + std::to_string(fit.deficit) +
+                  " after refinement); the marker estimate is kept";
+      }
+    } else if (out.source == "features") {
+      // The features are the more precise; the silhouettes only check them.
+      const double d = silhouettes->Deficit(f.T);
+      sr.tried = true;
+      sr.start = "features (check only)";
+      sr.deficit_start = sr.deficit = d;
+      if (d > opts.silhouette_accept) {
+        sr.note = "the feature estimate leaves " + std::to_string(d) +
+                  " of the silhouettes uncovered (more than " + std::to_string(opts.silhouette_accept) + ")";
+      }
+    } else {
+      // Neither estimate alone: refine whatever partial evidence there is.
+      struct Start {
+        std::string what;
+        geom::Rigid3 T;
+        double step_deg;
+      };
+      std::vector<Start> starts;
+      if (m.inliers >= 3) starts.push_back({"markers (" + m.note + ")", m.T, 3.0});
+      if (f.inliers >= 3) {
+        starts.push_back({"features (" + std::to_string(f.inliers) + " consistent matches)", f.T, 3.0});
+      }
+      // Two marker points fix the motion but for a rotation about the line
+      // through them: try rotations about it, keep the most coherent two.
+      std::vector<Vector3d> pa, pb;
+      std::vector<std::string> pn;
+      for (const MarkerPoint& p : mov.points) {
+        const MarkerPoint* q = ref.Find(p.color, p.segment);
+        if (p.located && q && q->located) pa.push_back(p.position), pb.push_back(q->position), pn.push_back(p.Name());
+      }
+      if (pa.size() == 2 && (pa[1] - pa[0]).norm() > 5.0) {
+        const Vector3d da = (pa[1] - pa[0]).normalized(), db = (pb[1] - pb[0]).normalized();
+        const Eigen::Matrix3d R0 = Eigen::Quaterniond::FromTwoVectors(da, db).toRotationMatrix();
+        const Vector3d ma = 0.5 * (pa[0] + pa[1]), mb = 0.5 * (pb[0] + pb[1]);
+        std::vector<std::pair<double, geom::Rigid3>> trials;
+        for (double a = 0; a < 360 - 1e-9; a += opts.sweep_deg) {
+          geom::Rigid3 T;
+          T.R = Eigen::AngleAxisd(a * 3.14159265358979323846 / 180, db).toRotationMatrix() * R0;
+          T.t = mb - T.R * ma;
+          trials.push_back({silhouettes->Deficit(T), T});
+          ++sr.evaluations;
+        }
+        std::sort(trials.begin(), trials.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
+        for (size_t i = 0; i < std::min<size_t>(2, trials.size()); ++i) {
+          starts.push_back({pn[0] + " and " + pn[1] + ", swept about their axis", trials[i].second,
+                            opts.sweep_deg / 2});
+        }
+      }
+      double best = 2;
+      for (const Start& st : starts) {
+        const SilhouetteFit fit = refine(st.T, st.step_deg);
+        if (fit.deficit < best) {
+          best = fit.deficit;
+          const int evals = sr.evaluations;
+          const double secs = sr.seconds;
+          record(st.what, st.T, fit);
+          sr.evaluations = evals, sr.seconds = secs;
+          out.T = fit.T;
+        }
+      }
+      if (sr.tried && sr.deficit <= opts.silhouette_accept) {
+        sr.used = true;
+        out.source = "silhouettes";
+      } else if (sr.tried) {
+        sr.note = "best silhouette-refined start (" + sr.start + ") leaves " + std::to_string(sr.deficit) +
+                  " of the silhouettes uncovered (accepted up to " + std::to_string(opts.silhouette_accept) + ")";
+      } else {
+        sr.note = "no partial estimate to start from (fewer than 2 marker points on both sides and fewer than 3 "
+                  "consistent feature matches)";
+      }
+    }
+  }
+  if (out.source.empty()) {
     std::string seen;
     for (const MarkerPoint& p : mov.points) {
       const MarkerPoint* q = ref.Find(p.color, p.segment);
@@ -445,12 +547,14 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
             std::to_string(opts.reference_side) + " and " + std::to_string(opts.moving_side) +
             (m.pairs >= 3 ? " (" + m.note + ")" : "") + " and " + std::to_string(f.inliers) +
             " consistent feature matches (need 4 marker points, or 3 that agree, or " +
-            std::to_string(opts.min_feature_inliers) +
-            " feature matches). Re-shoot side " + std::to_string(opts.moving_side) +
+            std::to_string(opts.min_feature_inliers) + " feature matches" +
+            (silhouettes ? ", or a partial estimate the silhouettes confirm" : std::string()) +
+            "). Re-shoot side " + std::to_string(opts.moving_side) +
             " with the rock placed so that both object markers (purple and red, head and "
             "tail) face the camera in some views, or repaint them where both sides show "
             "them",
-        "markers: " + seen + "; features: " + f.note);
+        "markers: " + seen + "; features: " + f.note +
+            (silhouettes ? "; silhouettes: " + out.silhouettes.note : std::string()));
   }
   if (out.cross_checked && !out.consistent) {
     out.warning = "the marker and feature estimates disagree by " +

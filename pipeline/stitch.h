@@ -34,6 +34,7 @@
 #include "common/rig_calibration.h"
 #include "pipeline/geometry.h"
 #include "pipeline/markers.h"
+#include "pipeline/silhouette_stitch.h"
 
 namespace aggscan {
 
@@ -106,6 +107,12 @@ struct StitchOptions {
   double marker_sigma_mm = 0.5;        // typical marker point error (sim: 0.05-1.4 mm), for the rotation uncertainty
   double agree_deg = 2.0;              // estimates closer than this in rotation (plus 3 sigma of the markers') ...
   double agree_mm = 3.0;               // ... and this in displacement over the rock agree
+  /// Silhouette coherence (silhouette_stitch.h): a stitch refined by the
+  /// silhouettes is accepted when the mean fraction of rock pixels its model
+  /// leaves uncovered is at most this (sim, computed masks: 0.003 at the true
+  /// motion, 0.013-0.025 at 3 deg off, 0.05-0.09 at 8 deg off).
+  double silhouette_accept = 0.01;
+  double sweep_deg = 15;               // 2 marker points: trial rotations about their axis this far apart
 };
 
 /// One estimate of the motion moving side -> reference side.
@@ -124,12 +131,31 @@ struct StitchEstimate {
   std::string note;        // why not valid, or what was dropped
 };
 
+/// What the silhouettes did to the stitch.
+struct SilhouetteRefinement {
+  bool tried = false;       // a silhouette stitcher was given and there was a start
+  bool used = false;        // the refined motion was taken
+  std::string start;        // what the refinement started from
+  double deficit_start = 0; // silhouette deficit of the start, and after refinement
+  double deficit = 0;
+  double moved_deg = 0;     // refined vs start: rotation, and displacement RMS over the rock
+  double moved_mm = 0;
+  int evaluations = 0;
+  double seconds = 0;
+  std::string note;
+};
+
 struct StitchResult {
   geom::Rigid3 T;          // the chosen moving -> reference motion
   /// "features" when both estimates exist and agree (the more precise one;
   /// the markers are its check) or the markers are insufficient; "markers"
-  /// without a feature estimate, or when 4 fitting marker points contradict it.
+  /// without a feature estimate, or when 4 fitting marker points contradict
+  /// it; "markers+silhouettes" when a marker estimate was refined by the
+  /// silhouettes (its weak axis); "silhouettes" when neither estimate was
+  /// sufficient alone but a partial one (2 marker points, a feature fit with
+  /// few inliers) refined by the silhouettes explains every view.
   std::string source;
+  SilhouetteRefinement silhouettes;
   StitchEstimate markers, features;
 
   bool cross_checked = false;      // both estimates exist
@@ -150,11 +176,16 @@ StitchEstimate StitchFromFeatures(const FeatureCloud& reference, const FeatureCl
                                   const StitchOptions& opts = {});
 
 /// Both estimates, compared, and the choice. `reference_features` and
-/// `moving_features` may be null (no cross-check). kInvalidArgument, with what
-/// was seen on each side and what to do, when neither estimate is sufficient.
+/// `moving_features` may be null (no cross-check). With `silhouettes`, a
+/// marker-only estimate is refined by silhouette coherence, a feature
+/// estimate is checked by it, and when neither estimate is sufficient the
+/// partial evidence is refined and accepted if the silhouettes confirm it.
+/// kInvalidArgument, with what was seen on each side and what to do, when
+/// nothing is sufficient.
 Result<StitchResult> StitchSides(const SideMarkers& reference, const SideMarkers& moving,
                                  const FeatureCloud* reference_features,
                                  const FeatureCloud* moving_features,
-                                 const StitchOptions& opts = {});
+                                 const StitchOptions& opts = {},
+                                 const SilhouetteStitcher* silhouettes = nullptr);
 
 }  // namespace aggscan

@@ -86,6 +86,7 @@ json LabelsJson(const Result<LabelScale>& ls) {
 struct SideEvidence {
   SideMarkers markers;
   FeatureCloud cloud;
+  SilhouetteSideInput silhouettes;  // the distinct viewpoints' masks and poses
   json record;
 };
 
@@ -105,6 +106,7 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side, const std:
   std::vector<ViewMarkers> vm(views.size());
   std::vector<ViewFeatures> vf(views.size());
   int detect_failures = 0;
+  SilhouetteSideInput sil;
   for (size_t i = 0; i < views.size(); ++i) {
     const cv::Mat bgr = cv::imread(views[i].image, cv::IMREAD_COLOR);
     if (bgr.empty()) {
@@ -123,9 +125,14 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side, const std:
     } else {
       ++detect_failures;
     }
-    if (is_distinct[i]) vf[i] = ExtractRockFeatures(bgr, mask);
+    if (is_distinct[i]) {
+      vf[i] = ExtractRockFeatures(bgr, mask);
+      sil.masks.push_back(mask);
+      sil.cam_from_table.push_back(poses[i]);
+    }
   }
   SideEvidence ev;
+  ev.silhouettes = std::move(sil);
   ev.markers = LocateObjectMarkers(vm, poses, cam, in.object_colors);
   const Result<LabelScale> labels = LocateLabels(vm, poses, cam, in.rig);
   if (want_features) ev.cloud = BuildFeatureCloud(vf, poses, cam);
@@ -179,7 +186,8 @@ Result<json> RunStitchStage(const StitchStageInput& in) {
     j["max_mm"] = nullptr;
   } else {
     json stitches = json::array();
-    double worst_rms = 0, worst_max = 0;
+    double worst_rms = 0, worst_max = 0, worst_deficit = -1;
+    bool residual_known = true;
     std::string method;
     for (const auto& [side, ev] : sides) {
       if (side == ref) continue;
@@ -187,15 +195,44 @@ Result<json> RunStitchStage(const StitchStageInput& in) {
       so.reference_side = ref;
       so.moving_side = side;
       const SideEvidence& r = sides.at(ref);
-      auto st = StitchSides(r.markers, ev.markers, &r.cloud, &ev.cloud, so);
+      // Silhouette coherence needs no markers or features: it refines and
+      // checks their estimates, and rescues a stitch each is too weak for.
+      auto sil = SilhouetteStitcher::Create(r.silhouettes, ev.silhouettes, in.calibration->camera);
+      json sil_record = {{"available", sil.ok()}};
+      if (!sil) sil_record["problem"] = sil.error().message;
+      auto st = StitchSides(r.markers, ev.markers, &r.cloud, &ev.cloud, so, sil ? &*sil : nullptr);
       if (!st) {
         return MakeError(st.error().cls, "stitch stage: side " + std::to_string(side) + " onto side " +
                                              std::to_string(ref) + ": " + st.error().message,
                          st.error().detail);
       }
-      const StitchEstimate& chosen = st->source == "features" ? st->features : st->markers;
-      worst_rms = std::max(worst_rms, chosen.rms_mm);
-      worst_max = std::max(worst_max, chosen.max_mm);
+      // The residual of the estimate the chosen motion came from (none for a
+      // silhouette rescue: its figure is the silhouette deficit).
+      const bool from_features = st->source.rfind("features", 0) == 0;
+      const bool from_markers = st->source.rfind("markers", 0) == 0;
+      if (from_features || from_markers) {
+        const StitchEstimate& chosen = from_features ? st->features : st->markers;
+        worst_rms = std::max(worst_rms, chosen.rms_mm);
+        worst_max = std::max(worst_max, chosen.max_mm);
+      } else {
+        residual_known = false;
+      }
+      const SilhouetteRefinement& sr = st->silhouettes;
+      if (sil) {
+        sil_record["voxel_mm"] = sil->voxel_mm();
+        sil_record["views_per_side"] = sil->views_used();
+        sil_record["tried"] = sr.tried;
+        sil_record["used"] = sr.used;
+        sil_record["start"] = sr.start;
+        sil_record["deficit_start"] = sr.deficit_start;
+        sil_record["deficit"] = sr.deficit;
+        sil_record["moved_deg"] = sr.moved_deg;
+        sil_record["moved_mm"] = sr.moved_mm;
+        sil_record["evaluations"] = sr.evaluations;
+        sil_record["seconds"] = sr.seconds;
+        sil_record["note"] = sr.note;
+        if (sr.tried) worst_deficit = std::max(worst_deficit, sr.deficit);
+      }
       method = method.empty() ? st->source : (method == st->source ? method : "mixed");
       // T maps the moving side's table frame into side 1's (the object frame).
       transforms.push_back({{"side", side}, {"table_from_object_4x4", IsoJson(ToIso(st->T.Inverse()))}});
@@ -208,11 +245,13 @@ Result<json> RunStitchStage(const StitchStageInput& in) {
                           {"disagreement_deg", st->disagreement_deg},
                           {"disagreement_mm", st->disagreement_mm},
                           {"consistent", st->consistent},
+                          {"silhouettes", sil_record},
                           {"warning", st->warning}});
     }
     j["method"] = method;
-    j["rms_mm"] = worst_rms;
-    j["max_mm"] = worst_max;
+    j["rms_mm"] = residual_known ? json(worst_rms) : json();
+    j["max_mm"] = residual_known ? json(worst_max) : json();
+    j["silhouette_deficit"] = worst_deficit >= 0 ? json(worst_deficit) : json();
     j["stitches"] = stitches;
   }
   j["sides"] = transforms;

@@ -23,25 +23,6 @@ struct PreparedView {
   double mm_per_px_per_mm = 0;  // 1 / f: px * z / f = mm at depth z
 };
 
-// Bilinear sample of the signed distance; outside the image the border value
-// minus the distance to the border (the image edge is background on the rig).
-double SampleSd(const cv::Mat& sd, double u, double v) {
-  const int w = sd.cols, h = sd.rows;
-  double extra = 0;
-  if (u < 0) { extra += -u; u = 0; }
-  if (v < 0) { extra += -v; v = 0; }
-  if (u > w - 1) { extra += u - (w - 1); u = w - 1; }
-  if (v > h - 1) { extra += v - (h - 1); v = h - 1; }
-  const int x0 = std::min(static_cast<int>(u), w - 2), y0 = std::min(static_cast<int>(v), h - 2);
-  const double ax = u - x0, ay = v - y0;
-  const float* r0 = sd.ptr<float>(y0);
-  const float* r1 = sd.ptr<float>(y0 + 1);
-  const double top = r0[x0] * (1 - ax) + r0[x0 + 1] * ax;
-  const double bot = r1[x0] * (1 - ax) + r1[x0 + 1] * ax;
-  const double val = top * (1 - ay) + bot * ay;
-  return extra > 0 ? std::min(val, 0.0) - extra : val;
-}
-
 class Field {
  public:
   Field(std::vector<PreparedView> views, std::vector<HalfSpace> floors)
@@ -63,7 +44,7 @@ class Field {
       } else {
         double u, v;
         pv.cam.Project({pc.x(), pc.y(), pc.z()}, &u, &v);
-        d = SampleSd(pv.sd, u, v) * pc.z() * pv.mm_per_px_per_mm;
+        d = SampleSignedDistance(pv.sd, u, v) * pc.z() * pv.mm_per_px_per_mm;
       }
       f = std::min(f, d);
       if (f < stop_below) return f;
@@ -215,6 +196,23 @@ Mesh Contour(const Grid& g) {
 }
 
 }  // namespace
+
+double SampleSignedDistance(const cv::Mat& sd, double u, double v) {
+  const int w = sd.cols, h = sd.rows;
+  double extra = 0;
+  if (u < 0) { extra += -u; u = 0; }
+  if (v < 0) { extra += -v; v = 0; }
+  if (u > w - 1) { extra += u - (w - 1); u = w - 1; }
+  if (v > h - 1) { extra += v - (h - 1); v = h - 1; }
+  const int x0 = std::min(static_cast<int>(u), w - 2), y0 = std::min(static_cast<int>(v), h - 2);
+  const double ax = u - x0, ay = v - y0;
+  const float* r0 = sd.ptr<float>(y0);
+  const float* r1 = sd.ptr<float>(y0 + 1);
+  const double top = r0[x0] * (1 - ax) + r0[x0 + 1] * ax;
+  const double bot = r1[x0] * (1 - ax) + r1[x0 + 1] * ax;
+  const double val = top * (1 - ay) + bot * ay;
+  return extra > 0 ? std::min(val, 0.0) - extra : val;
+}
 
 cv::Mat SilhouetteSignedDistance(const cv::Mat& mask) {
   cv::Mat bin = mask > 127;

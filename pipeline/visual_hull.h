@@ -66,6 +66,11 @@ struct VisualHullResult {
 /// inside, +-0.5 at the pixel edges next to the boundary).
 cv::Mat SilhouetteSignedDistance(const cv::Mat& mask);
 
+/// Bilinear sample of a SilhouetteSignedDistance map at (u, v); outside the
+/// image, the border value (at most 0) minus the distance to the border: the
+/// image edge is background on the rig.
+double SampleSignedDistance(const cv::Mat& sd, double u, double v);
+
 /// Carves the visual hull inside `search_box`. Errors: no views, a mask of
 /// the wrong size or type, nothing left (the silhouettes do not intersect:
 /// poses or masks are wrong), or the hull touching the search box (the rock
