@@ -848,11 +848,8 @@ class Validator {
         }
       }
     }
-    if (c.camera.backend == "sim" && c.sim.aruco_image.empty()) {
-      Add("sim.aruco_image",
-          "rig.aruco_markers is not empty, so the sim camera must draw the markers: write their "
-          "image with `aggscan calibrate aruco --out FILE.pgm` and name it here");
-    }
+    // No rule for sim.aruco_image here: `aggscan calibrate aruco` writes it from
+    // this very config; the sim world refuses to start without it and says so.
   }
 
   // The [calibration] board must be printable with its dictionary and lie
