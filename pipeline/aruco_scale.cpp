@@ -40,8 +40,8 @@ bool TouchesRock(const std::vector<cv::Point2f>& quad, const cv::Mat& rock, int 
     const uint8_t* row = rock.ptr<uint8_t>(y);
     for (int x = box.x; x < box.x + box.width; ++x) {
       if (row[x] == 0) continue;
-      if (cv::pointPolygonTest(quad, cv::Point2f(static_cast<float>(x), static_cast<float>(y)), true) >=
-          -clearance) {
+      if (cv::pointPolygonTest(quad, cv::Point2f(static_cast<float>(x), static_cast<float>(y)),
+                               true) >= -clearance) {
         return true;
       }
     }
@@ -71,14 +71,22 @@ struct DictName {
 };
 // The names config.cpp accepts (its BoardDictionaries()).
 constexpr DictName kDictionaries[] = {
-    {"DICT_4X4_50", cv::aruco::DICT_4X4_50},     {"DICT_4X4_100", cv::aruco::DICT_4X4_100},
-    {"DICT_4X4_250", cv::aruco::DICT_4X4_250},   {"DICT_4X4_1000", cv::aruco::DICT_4X4_1000},
-    {"DICT_5X5_50", cv::aruco::DICT_5X5_50},     {"DICT_5X5_100", cv::aruco::DICT_5X5_100},
-    {"DICT_5X5_250", cv::aruco::DICT_5X5_250},   {"DICT_5X5_1000", cv::aruco::DICT_5X5_1000},
-    {"DICT_6X6_50", cv::aruco::DICT_6X6_50},     {"DICT_6X6_100", cv::aruco::DICT_6X6_100},
-    {"DICT_6X6_250", cv::aruco::DICT_6X6_250},   {"DICT_6X6_1000", cv::aruco::DICT_6X6_1000},
-    {"DICT_7X7_50", cv::aruco::DICT_7X7_50},     {"DICT_7X7_100", cv::aruco::DICT_7X7_100},
-    {"DICT_7X7_250", cv::aruco::DICT_7X7_250},   {"DICT_7X7_1000", cv::aruco::DICT_7X7_1000},
+    {"DICT_4X4_50", cv::aruco::DICT_4X4_50},
+    {"DICT_4X4_100", cv::aruco::DICT_4X4_100},
+    {"DICT_4X4_250", cv::aruco::DICT_4X4_250},
+    {"DICT_4X4_1000", cv::aruco::DICT_4X4_1000},
+    {"DICT_5X5_50", cv::aruco::DICT_5X5_50},
+    {"DICT_5X5_100", cv::aruco::DICT_5X5_100},
+    {"DICT_5X5_250", cv::aruco::DICT_5X5_250},
+    {"DICT_5X5_1000", cv::aruco::DICT_5X5_1000},
+    {"DICT_6X6_50", cv::aruco::DICT_6X6_50},
+    {"DICT_6X6_100", cv::aruco::DICT_6X6_100},
+    {"DICT_6X6_250", cv::aruco::DICT_6X6_250},
+    {"DICT_6X6_1000", cv::aruco::DICT_6X6_1000},
+    {"DICT_7X7_50", cv::aruco::DICT_7X7_50},
+    {"DICT_7X7_100", cv::aruco::DICT_7X7_100},
+    {"DICT_7X7_250", cv::aruco::DICT_7X7_250},
+    {"DICT_7X7_1000", cv::aruco::DICT_7X7_1000},
     {"DICT_ARUCO_ORIGINAL", cv::aruco::DICT_ARUCO_ORIGINAL},
 };
 
@@ -118,7 +126,8 @@ std::optional<std::pair<Vector2d, Vector2d>> FitLine(const std::vector<Vector2d>
   return std::make_pair(c, Vector2d(es.eigenvectors().col(1)));
 }
 
-std::optional<Vector2d> Meet(const std::pair<Vector2d, Vector2d>& a, const std::pair<Vector2d, Vector2d>& b) {
+std::optional<Vector2d> Meet(const std::pair<Vector2d, Vector2d>& a,
+                             const std::pair<Vector2d, Vector2d>& b) {
   const Vector2d& da = a.second;
   const Vector2d& db = b.second;
   const double den = da.x() * db.y() - da.y() * db.x();
@@ -130,8 +139,8 @@ std::optional<Vector2d> Meet(const std::pair<Vector2d, Vector2d>& a, const std::
 // The corners of a detected marker (distorted pixels, OpenCV order) from its
 // four outer edges (see the header); false when a side has too few edge
 // points, and the corners are left as they were.
-bool RefineByEdges(const cv::Mat& lin, const CameraModel* cam, int cells, const ArucoDetectOptions& opts,
-                   std::array<Vector2d, 4>* corners) {
+bool RefineByEdges(const cv::Mat& lin, const CameraModel* cam, int cells,
+                   const ArucoDetectOptions& opts, std::array<Vector2d, 4>* corners) {
   const std::array<Vector2d, 4>& q = *corners;
   Vector2d centre = Vector2d::Zero();
   for (const Vector2d& c : q) centre += c / 4.0;
@@ -158,22 +167,28 @@ bool RefineByEdges(const cv::Mat& lin, const CameraModel* cam, int cells, const 
       for (int i = -steps; i <= steps && inside; ++i) {
         const Vector2d p = base + normal * (reach * i / steps);
         const std::optional<double> v = Sample(lin, p.x(), p.y());
-        if (!v) inside = false;
-        else prof[static_cast<size_t>(i + steps)] = *v;
+        if (!v)
+          inside = false;
+        else
+          prof[static_cast<size_t>(i + steps)] = *v;
       }
       if (!inside) continue;
       // Dark and light levels from the profile's ends; the edge where it
       // crosses halfway, the crossing nearest the detected side.
       const int e = std::max(1, steps / 4);
       double dark = 0, light = 0;
-      for (int i = 0; i < e; ++i) dark += prof[static_cast<size_t>(i)], light += prof[prof.size() - 1 - static_cast<size_t>(i)];
+      for (int i = 0; i < e; ++i)
+        dark += prof[static_cast<size_t>(i)],
+            light += prof[prof.size() - 1 - static_cast<size_t>(i)];
       dark /= e, light /= e;
       if (light - dark < 0.05 || light < 2 * dark) continue;  // no clear black-to-paper step
       const double mid = 0.5 * (dark + light);
       double best = 1e9;
       for (size_t i = 0; i + 1 < prof.size(); ++i) {
         if ((prof[i] - mid) * (prof[i + 1] - mid) > 0 || prof[i] == prof[i + 1]) continue;
-        const double x = (static_cast<double>(i) + (mid - prof[i]) / (prof[i + 1] - prof[i]) - steps) * reach / steps;
+        const double x =
+            (static_cast<double>(i) + (mid - prof[i]) / (prof[i + 1] - prof[i]) - steps) * reach /
+            steps;
         if (std::abs(x) < std::abs(best)) best = x;
       }
       if (std::abs(best) > reach) continue;
@@ -188,15 +203,18 @@ bool RefineByEdges(const cv::Mat& lin, const CameraModel* cam, int cells, const 
   // Side k runs from corner k to corner k+1: corner k is where sides k-1 and k meet.
   std::array<Vector2d, 4> out;
   for (int k = 0; k < 4; ++k) {
-    std::optional<Vector2d> c = Meet(lines[static_cast<size_t>((k + 3) % 4)], lines[static_cast<size_t>(k)]);
+    std::optional<Vector2d> c =
+        Meet(lines[static_cast<size_t>((k + 3) % 4)], lines[static_cast<size_t>(k)]);
     if (!c) return false;
     Vector2d d = *c;
     if (cam) {
       double u = 0, v = 0;
-      if (!cam->Project({(c->x() - cam->cx) / cam->fx, (c->y() - cam->cy) / cam->fy, 1.0}, &u, &v)) return false;
+      if (!cam->Project({(c->x() - cam->cx) / cam->fx, (c->y() - cam->cy) / cam->fy, 1.0}, &u, &v))
+        return false;
       d = Vector2d(u, v);
     }
-    if ((d - q[static_cast<size_t>(k)]).norm() > 3.0) return false;  // not the same corner: keep OpenCV's
+    if ((d - q[static_cast<size_t>(k)]).norm() > 3.0)
+      return false;  // not the same corner: keep OpenCV's
     out[static_cast<size_t>(k)] = d;
   }
   *corners = out;
@@ -210,23 +228,25 @@ Result<cv::Ptr<cv::aruco::Dictionary>> ArucoDictionary(const std::string& name) 
     if (name == d.name) return cv::aruco::getPredefinedDictionary(d.id);
   }
   return MakeError(ErrorClass::kInvalidConfig,
-                   "\"" + name + "\" is not a known ArUco dictionary; use an OpenCV name such as "
-                   "DICT_4X4_50 or DICT_5X5_100");
+                   "\"" + name +
+                       "\" is not a known ArUco dictionary; use an OpenCV name such as "
+                       "DICT_4X4_50 or DICT_5X5_100");
 }
 
 Result<cv::Mat> DrawArucoSheet(const RigConfig& rig, int px_per_marker) {
   if (rig.aruco_markers.empty()) {
-    return MakeError(ErrorClass::kInvalidConfig,
-                     "no ArUco markers to draw: list them in [[rig.aruco_markers]] (id, x_mm, y_mm)");
+    return MakeError(
+        ErrorClass::kInvalidConfig,
+        "no ArUco markers to draw: list them in [[rig.aruco_markers]] (id, x_mm, y_mm)");
   }
   Result<cv::Ptr<cv::aruco::Dictionary>> dict = ArucoDictionary(rig.aruco_dictionary);
   if (!dict) return dict.error();
   const int cells = (*dict)->markerSize + 2;  // data bits plus the one-bit black border
   const int side = px_per_marker / cells * cells;
   if (side < cells * 4) {
-    return MakeError(ErrorClass::kInvalidArgument,
-                     "ArUco sheet: " + std::to_string(px_per_marker) +
-                         " px a marker is too coarse; use at least " + std::to_string(cells * 4));
+    return MakeError(ErrorClass::kInvalidArgument, "ArUco sheet: " + std::to_string(px_per_marker) +
+                                                       " px a marker is too coarse; use at least " +
+                                                       std::to_string(cells * 4));
   }
   const int n = static_cast<int>(rig.aruco_markers.size());
   cv::Mat sheet(side, side * n, CV_8UC1, cv::Scalar(255));
@@ -242,7 +262,8 @@ Result<cv::Mat> DrawArucoSheet(const RigConfig& rig, int px_per_marker) {
     try {
       (*dict)->drawMarker(id, side, img, 1);
     } catch (const cv::Exception& e) {
-      return MakeError(ErrorClass::kInternal, "cannot draw ArUco marker " + std::to_string(id), e.what());
+      return MakeError(ErrorClass::kInternal, "cannot draw ArUco marker " + std::to_string(id),
+                       e.what());
     }
     img.copyTo(sheet(cv::Rect(k * side, 0, side, side)));
   }
@@ -261,7 +282,8 @@ Status WriteArucoSheet(const RigConfig& rig, const std::string& path, double px_
   Result<cv::Mat> sheet = DrawArucoSheet(rig, static_cast<int>(std::lround(px)));
   if (!sheet) return sheet.error();
   std::string ext = std::filesystem::path(path).extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return std::tolower(c); });
   if (ext != ".png" && ext != ".pgm") {
     return MakeError(ErrorClass::kInvalidArgument,
                      "ArUco sheet: write a .png or a .pgm file, not " + path);
@@ -283,13 +305,15 @@ Vector3d ArucoCornerMm(const ArucoMarker& m, double size_mm, int k) {
   static constexpr double kX[4] = {-1, 1, 1, -1}, kY[4] = {1, 1, -1, -1};
   const double h = size_mm / 2, a = m.yaw_deg * M_PI / 180.0;
   const double x = kX[k] * h, y = kY[k] * h;
-  return {m.x_mm + x * std::cos(a) - y * std::sin(a), m.y_mm + x * std::sin(a) + y * std::cos(a), 0.0};
+  return {m.x_mm + x * std::cos(a) - y * std::sin(a), m.y_mm + x * std::sin(a) + y * std::cos(a),
+          0.0};
 }
 
 std::string ArucoDetectOptions::Check() const {
   if (rock_clearance_px < 0) return "rock_clearance_px must be >= 0";
   if (subpixel_window_px < 1) return "subpixel_window_px must be >= 1";
-  if (!(edge_end_margin >= 0 && edge_end_margin < 0.5)) return "edge_end_margin must be in [0, 0.5)";
+  if (!(edge_end_margin >= 0 && edge_end_margin < 0.5))
+    return "edge_end_margin must be in [0, 0.5)";
   if (min_edge_points < 2) return "min_edge_points must be >= 2";
   return {};
 }
@@ -362,7 +386,8 @@ Result<ArucoViewDetections> DetectArucoMarkers(const cv::Mat& image, const cv::M
     ArucoSighting s;
     s.id = ids[i];
     for (int k = 0; k < 4; ++k) s.corners_px[k] = Vector2d(corners[i][k].x, corners[i][k].y);
-    if (opts.edge_refine && RefineByEdges(lin, camera, cells, opts, &s.corners_px)) ++out.edge_refined;
+    if (opts.edge_refine && RefineByEdges(lin, camera, cells, opts, &s.corners_px))
+      ++out.edge_refined;
     out.markers.push_back(s);
   }
   return out;
@@ -392,7 +417,8 @@ Result<ArucoScale> LocateArucoMarkers(const std::vector<ArucoViewDetections>& vi
       for (const ArucoSighting& a : views[v].markers) {
         if (a.id != m.id) continue;
         for (int k = 0; k < 4; ++k) {
-          s[k].push_back(geom::MakeSighting(camera, cam_from_frame[v], a.corners_px[k], static_cast<int>(v)));
+          s[k].push_back(
+              geom::MakeSighting(camera, cam_from_frame[v], a.corners_px[k], static_cast<int>(v)));
         }
       }
     }
@@ -400,7 +426,8 @@ Result<ArucoScale> LocateArucoMarkers(const std::vector<ArucoViewDetections>& vi
     mp.views_used = mp.views_seen;
     double ss = 0;
     int n = 0;
-    static constexpr const char* kCorner[4] = {"top-left", "top-right", "bottom-right", "bottom-left"};
+    static constexpr const char* kCorner[4] = {"top-left", "top-right", "bottom-right",
+                                               "bottom-left"};
     for (int k = 0; k < 4 && mp.problem.empty(); ++k) {
       Result<geom::TriangulatedPoint> tp = geom::TriangulatePoint(s[k], opts.triangulation);
       if (!tp) {
@@ -408,7 +435,9 @@ Result<ArucoScale> LocateArucoMarkers(const std::vector<ArucoViewDetections>& vi
         break;
       }
       mp.corners[k] = tp->X;
-      for (int i : tp->inliers) ss += tp->residual_px[static_cast<size_t>(i)] * tp->residual_px[static_cast<size_t>(i)], ++n;
+      for (int i : tp->inliers)
+        ss += tp->residual_px[static_cast<size_t>(i)] * tp->residual_px[static_cast<size_t>(i)],
+            ++n;
       mp.max_px = std::max(mp.max_px, tp->max_px);
       mp.views_used = std::min(mp.views_used, static_cast<int>(tp->inliers.size()));
     }

@@ -60,12 +60,12 @@ struct ArucoDetectOptions {
   // A marker whose outline comes this close to the rock mask is dropped: the
   // rock may hide part of it, and the edge profiles reach up to 6 px out.
   int rock_clearance_px = 8;
-  bool subpixel_corners = true;  // OpenCV's CORNER_REFINE_SUBPIX (else the contour corners)
-  int subpixel_window_px = 5;   // half window of that refinement
-  bool edge_refine = true;      // corners from lines fitted to the outer edges (above)
-  bool srgb_photo = true;       // edge_refine: the photo is sRGB-encoded (JPEG); false = linear
+  bool subpixel_corners = true;   // OpenCV's CORNER_REFINE_SUBPIX (else the contour corners)
+  int subpixel_window_px = 5;     // half window of that refinement
+  bool edge_refine = true;        // corners from lines fitted to the outer edges (above)
+  bool srgb_photo = true;         // edge_refine: the photo is sRGB-encoded (JPEG); false = linear
   double edge_end_margin = 0.12;  // edge_refine: fraction of each side left out at both ends
-  int min_edge_points = 6;      // edge_refine: fewer on a side: OpenCV's corners are kept
+  int min_edge_points = 6;        // edge_refine: fewer on a side: OpenCV's corners are kept
 
   /// Empty when valid, else what is wrong.
   std::string Check() const;
@@ -96,17 +96,16 @@ Result<ArucoViewDetections> DetectArucoMarkers(const cv::Mat& image, const cv::M
                                                const ArucoDetectOptions& opts = {});
 
 struct ArucoLocateOptions {
-  geom::TriangulationOptions triangulation{.inlier_px = 1.5, .min_views = 2,
-                                           .min_angle_deg = 5.0};
+  geom::TriangulationOptions triangulation{.inlier_px = 1.5, .min_views = 2, .min_angle_deg = 5.0};
   int min_markers = 1;  // fewer located markers: no scale (one gives 6 lengths)
 };
 
 /// One ArUco marker's corners in 3D.
 struct ArucoMarkerPoint {
   int id = -1;
-  std::array<Eigen::Vector3d, 4> configured{};  // corners from rig.aruco_markers (table frame)
-  bool located = false;                         // all four corners triangulated
-  std::array<Eigen::Vector3d, 4> corners{};     // triangulated, in the poses' frame
+  std::array<Eigen::Vector3d, 4> configured{};       // corners from rig.aruco_markers (table frame)
+  bool located = false;                              // all four corners triangulated
+  std::array<Eigen::Vector3d, 4> corners{};          // triangulated, in the poses' frame
   Eigen::Vector3d center = Eigen::Vector3d::Zero();  // mean of the corners
   double rms_px = 0, max_px = 0;  // reprojection over the four corners' inlier views
   int views_seen = 0;             // views where the marker was detected
@@ -123,8 +122,8 @@ struct ArucoScale {
   /// Configured / reconstructed length, least squares over all lengths (the
   /// labels' convention, LabelScale::scale): ~1 on a calibrated rig.
   double scale = 1.0;
-  int lengths = 0;                  // sides + diagonals + centre pairs compared
-  double rms_mm = 0, max_mm = 0;    // |scale * d_rec - d_conf| over all lengths
+  int lengths = 0;                              // sides + diagonals + centre pairs compared
+  double rms_mm = 0, max_mm = 0;                // |scale * d_rec - d_conf| over all lengths
   double edge_rms_mm = 0, edge_max_mm = 0;      // over sides and diagonals only
   double centre_rms_mm = 0, centre_max_mm = 0;  // over centre-to-centre distances only
   int centre_pairs = 0;

@@ -29,12 +29,13 @@ using nlohmann::json;
 TEST(ArucoSample, CaptureAndReconstructRecordTheArucoScale) {
   test::TempDir tmp;
   const std::string cfg = tmp.path() + "/cfg.toml";
-  std::ofstream(cfg) << "[capture]\nprofile = \"custom\"\nsides = 1\nviews_per_side = 30\nstep_deg = 30\n"
-                        "[sim]\nrock_size_mm = 100.0\n"
-                        "[rig]\nmarkers = []\n"
-                        "aruco_markers = [{id = 1, x_mm = 80.0, y_mm = 80.0},\n"
-                        "  {id = 5, x_mm = -80.0, y_mm = 80.0, yaw_deg = 30.0},\n"
-                        "  {id = 9, x_mm = -80.0, y_mm = -80.0, yaw_deg = -60.0}]\n";
+  std::ofstream(cfg)
+      << "[capture]\nprofile = \"custom\"\nsides = 1\nviews_per_side = 30\nstep_deg = 30\n"
+         "[sim]\nrock_size_mm = 100.0\n"
+         "[rig]\nmarkers = []\n"
+         "aruco_markers = [{id = 1, x_mm = 80.0, y_mm = 80.0},\n"
+         "  {id = 5, x_mm = -80.0, y_mm = 80.0, yaw_deg = 30.0},\n"
+         "  {id = 9, x_mm = -80.0, y_mm = -80.0, yaw_deg = -60.0}]\n";
   SimCaptureOptions o;
   o.seed = 11;
   o.out = tmp.path() + "/sample";
@@ -51,7 +52,8 @@ TEST(ArucoSample, CaptureAndReconstructRecordTheArucoScale) {
   for (int v = 0; v < 30; ++v) {
     char name[32];
     std::snprintf(name, sizeof name, "view_%03d", v);
-    const cv::Mat m = cv::imread(o.out + "/truth/side1/" + name + "_mask.pgm", cv::IMREAD_GRAYSCALE);
+    const cv::Mat m =
+        cv::imread(o.out + "/truth/side1/" + name + "_mask.pgm", cv::IMREAD_GRAYSCALE);
     ASSERT_FALSE(m.empty());
     cv::imwrite(dst + "/" + name + ".png", m);
   }
@@ -64,8 +66,9 @@ TEST(ArucoSample, CaptureAndReconstructRecordTheArucoScale) {
   ASSERT_TRUE(text.ok()) << text.error().ToString();
   const json stitch = json::parse(*text);
   const json& aru = stitch["per_side"][0]["aruco_scale"];
-  std::printf("stitch.json aruco_scale: %s\nscale_residual_mm %s, scale_reference %s\n", aru.dump().c_str(),
-              stitch["scale_residual_mm"].dump().c_str(), stitch["scale_reference"].dump().c_str());
+  std::printf("stitch.json aruco_scale: %s\nscale_residual_mm %s, scale_reference %s\n",
+              aru.dump().c_str(), stitch["scale_residual_mm"].dump().c_str(),
+              stitch["scale_reference"].dump().c_str());
   ASSERT_TRUE(aru.value("ok", false)) << aru.dump();
   EXPECT_EQ(aru["markers_used"].get<int>(), 3);
   EXPECT_NEAR(aru["scale"].get<double>(), 1.0, 2e-4);  // measured 1.00000004
