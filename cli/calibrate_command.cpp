@@ -13,6 +13,7 @@
 #include "common/fsutil.h"
 #include "common/rig_calibration.h"
 #include "config/config.h"
+#include "pipeline/aruco_scale.h"
 #include "pipeline/calibrate.h"
 #include "store/layout.h"
 
@@ -102,6 +103,68 @@ int BoardCommand(const std::vector<std::string>& a, std::ostream& out, std::ostr
       << b.dictionary << ", " << F(dpi, 0) << " dpi, margin " << F(margin_mm, 1) << " mm\n"
       << "print it at 100 % (no fit-to-page), measure a square and write the true size into\n"
       << "[calibration] square_mm / marker_mm; lay it flat on the turntable.\n";
+  return 0;
+}
+
+// The ArUco scale markers of rig.aruco_markers side by side (the sim draws
+// them from this image; printed, cut apart and laid on the disc they are the
+// rig's markers).
+int ArucoCommand(const std::vector<std::string>& a, std::ostream& out, std::ostream& err) {
+  std::string path, config_path;
+  double dpi = 300;
+  for (size_t i = 1; i < a.size(); ++i) {
+    auto val = [&](const char* name, std::string* v) {
+      if (i + 1 >= a.size()) {
+        err << "aggscan calibrate aruco: " << name << " needs a value\n";
+        return false;
+      }
+      *v = a[++i];
+      return true;
+    };
+    std::string v;
+    if (a[i] == "--out") {
+      if (!val("--out", &path)) return 2;
+    } else if (a[i] == "--config") {
+      if (!val("--config", &config_path)) return 2;
+    } else if (a[i] == "--dpi") {
+      if (!val("--dpi", &v)) return 2;
+      if (!ParseNumber(v, &dpi) || dpi < 50 || dpi > 2400) {
+        err << "aggscan calibrate aruco: --dpi expects 50..2400, got '" << v << "'\n";
+        return 2;
+      }
+    } else {
+      err << "aggscan calibrate aruco: unknown argument '" << a[i] << "'\n";
+      return 2;
+    }
+  }
+  if (path.empty()) {
+    err << "aggscan calibrate aruco: --out FILE.pgm (or FILE.png) is required\n";
+    return 2;
+  }
+  if (config_path.empty()) {
+    err << "aggscan calibrate aruco: --config FILE is required: its [[rig.aruco_markers]] name the "
+           "markers to draw\n";
+    return 2;
+  }
+  Config config;
+  if (!LoadBoardConfig(config_path, &config, err)) return 78;
+  const RigConfig& rig = config.rig;
+  if (rig.aruco_markers.empty()) {
+    err << "aggscan calibrate aruco: " << config_path
+        << " lists no [[rig.aruco_markers]]; add them (id, x_mm, y_mm) first\n";
+    return 2;
+  }
+  if (Status s = WriteArucoSheet(rig, path, dpi / 25.4); !s) {
+    err << "aggscan calibrate aruco: " << s.error().ToString() << "\n";
+    return s.error().cls == ErrorClass::kInvalidArgument ? 2 : 1;
+  }
+  out << rig.aruco_markers.size() << " ArUco marker(s) of " << rig.aruco_dictionary << " written to "
+      << path << " side by side, ids";
+  for (const ArucoMarker& m : rig.aruco_markers) out << " " << m.id;
+  out << ", " << F(rig.aruco_size_mm, 1) << " mm each at " << F(dpi, 0) << " dpi\n"
+      << "name it in [sim] aruco_image for the sim camera; for the rig print it at 100 %, cut\n"
+      << "each marker out with a white margin of at least a quarter of its side, measure the\n"
+      << "black squares into rig.aruco_size_mm and lay them flat at the configured centres.\n";
   return 0;
 }
 
@@ -269,6 +332,7 @@ int SolveCommand(const std::vector<std::string>& a, std::ostream& out, std::ostr
 
 int RunCalibrateCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {
   if (!args.empty() && args[0] == "board") return BoardCommand(args, out, err);
+  if (!args.empty() && args[0] == "aruco") return ArucoCommand(args, out, err);
   return SolveCommand(args, out, err);
 }
 

@@ -23,6 +23,8 @@ void Usage(std::ostream& o) {
   o << "\nOffline commands:\n"
        "  aggscan calibrate board --out FILE.png|FILE.pgm [--dpi N] [--margin-mm M] [--config FILE]\n"
        "      the printable ChArUco board of [calibration] (default 7x5 squares of 30 mm)\n"
+       "  aggscan calibrate aruco --out FILE.pgm|FILE.png --config FILE [--dpi N]\n"
+       "      the ArUco scale markers of [[rig.aruco_markers]] side by side ([sim] aruco_image)\n"
        "  aggscan calibrate SAMPLE_DIR [--side N] [--state-dir DIR | --out FILE] [--config FILE]\n"
        "                    [--json]\n"
        "      rig calibration (lens, turntable axis, camera pose) from a side captured with the\n"

@@ -12,6 +12,7 @@
 #include "daemon/event_loop.h"
 #include "drivers/factory.h"
 #include "drivers/sim/truth.h"
+#include "pipeline/aruco_scale.h"
 #include "pipeline/calibrate.h"
 #include "store/layout.h"
 #include "store/sample_store.h"
@@ -60,6 +61,10 @@ int RunSimCapture(const SimCaptureOptions& opt, std::ostream& out, std::ostream&
     }
     if (config.sim.board_image.empty()) config.sim.board_image = board_pgm = staging + "/board.pgm";
   }
+  std::string aruco_pgm;  // drawn here for ArUco scale markers without sim.aruco_image
+  if (!config.rig.aruco_markers.empty() && config.sim.aruco_image.empty()) {
+    config.sim.aruco_image = aruco_pgm = staging + "/aruco.pgm";
+  }
   if (problems.empty()) {
     ApplyProfile(&config);
     ValidateConfig(config, opt.config_path.empty() ? "<command line>" : opt.config_path, &problems);
@@ -79,6 +84,14 @@ int RunSimCapture(const SimCaptureOptions& opt, std::ostream& out, std::ostream&
     if (s) s = WriteBoardImage(config.calibration, board_pgm, 10.0, 0.0);
     if (!s) {
       err << "aggscan sim capture: cannot draw the board: " << s.error().ToString() << "\n";
+      return 1;
+    }
+  }
+  if (!aruco_pgm.empty()) {
+    Status s = MakeDirsDurable(staging);
+    if (s) s = WriteArucoSheet(config.rig, aruco_pgm, 10.0);
+    if (!s) {
+      err << "aggscan sim capture: cannot draw the ArUco markers: " << s.error().ToString() << "\n";
       return 1;
     }
   }

@@ -10,6 +10,7 @@
 #include <toml++/toml.h>
 
 #include <algorithm>
+#include <array>
 #include <charconv>
 #include <cmath>
 #include <cstdio>
@@ -96,7 +97,7 @@ const std::vector<std::string>& MarkerColors() {
   return k;
 }
 // ArUco dictionaries by OpenCV name, with their marker counts (a board needs
-// one marker per white square).
+// one marker per white square; an ArUco scale marker's id must be below it).
 const std::vector<std::pair<std::string, int>>& BoardDictionaries() {
   static const std::vector<std::pair<std::string, int>> k = {
       {"DICT_4X4_50", 50},     {"DICT_4X4_100", 100},   {"DICT_4X4_250", 250},
@@ -209,9 +210,16 @@ const std::vector<Field<Config>>& Fields() {
       F(sim.board_y_mm, Range(-200, 200), "charuco: board centre on the disc, turntable frame, mm"),
       F(sim.board_yaw_deg, Range(-360, 360),
         "charuco: board x axis from the turntable x axis, counter-clockwise, degrees"),
+      F(sim.aruco_image, Any(),
+        "rig.aruco_markers: greyscale PGM of the markers side by side in list order, black "
+        "squares only (aggscan calibrate aruco --out FILE.pgm); the sim camera draws them from it"),
 
       F(rig.turntable_diameter_mm, Above(0, 5000), "turntable disc diameter, mm (the paper: 305)"),
       F(rig.marker_size_mm, Above(0, 1000), "side of each square colour label, mm"),
+      F(rig.aruco_dictionary, OneOf(BoardDictionaryNames()),
+        "ArUco dictionary of rig.aruco_markers (OpenCV name, e.g. DICT_4X4_50)"),
+      F(rig.aruco_size_mm, Above(0, 1000),
+        "side of each ArUco scale marker's black square as printed, mm (measure the print)"),
 
       F(calibration.dictionary, OneOf(BoardDictionaryNames()),
         "ArUco dictionary of the board's markers (OpenCV name, e.g. DICT_5X5_100)"),
@@ -255,6 +263,22 @@ const std::vector<Field<RigMarker>>& MarkerFields() {
       AGG_FIELD(RigMarker, x_mm, Range(-5000, 5000),
                 "centre in the turntable frame (z up, origin at the axis), mm"),
       AGG_FIELD(RigMarker, y_mm, Range(-5000, 5000), "centre in the turntable frame, mm"),
+  };
+  return k;
+}
+
+// [[rig.aruco_markers]] entries.
+constexpr const char* kArucoKey = "rig.aruco_markers";
+const std::vector<Field<ArucoMarker>>& ArucoFields() {
+  static const std::vector<Field<ArucoMarker>> k = {
+      AGG_FIELD(ArucoMarker, id, Range(0, 1'000'000),
+                "marker id in rig.aruco_dictionary, each at most once"),
+      AGG_FIELD(ArucoMarker, x_mm, Range(-5000, 5000),
+                "centre of the black square in the turntable frame (z up, origin at the axis), mm"),
+      AGG_FIELD(ArucoMarker, y_mm, Range(-5000, 5000), "centre in the turntable frame, mm"),
+      AGG_FIELD(ArucoMarker, yaw_deg, Range(-360, 360),
+                "marker x axis (printed columns) from the turntable x axis, counter-clockwise, "
+                "degrees"),
   };
   return k;
 }
@@ -649,6 +673,17 @@ class Validator {
             "colour \"" + m.color + "\" is used by another marker; each colour at most once");
       }
     }
+    for (size_t i = 0; i < c.rig.aruco_markers.size(); ++i) {
+      ArucoMarker& m = c.rig.aruco_markers[i];
+      std::string prefix = std::string(kArucoKey) + "[" + std::to_string(i) + "].";
+      for (const auto& f : ArucoFields()) {
+        std::string msg = CheckValue(f.ref(m), f.check);
+        if (std::string(f.key) == "id" && m.id == -1) {
+          msg = "missing; every ArUco marker needs its id in rig.aruco_dictionary";
+        }
+        if (!msg.empty()) Add(prefix + f.key, msg);
+      }
+    }
     CrossField(c);
   }
 
@@ -708,6 +743,7 @@ class Validator {
           "must be 0 (random) or at least 10 mm, got " + FormatDouble(c.sim.rock_size_mm));
     }
     CheckBoard(c);
+    CheckAruco(c);
     if (c.mask.method == "onnx" && c.mask.model.empty()) {
       Add("mask.model",
           "mask.method = \"onnx\" needs the network: name its .onnx file here, or set "
@@ -720,6 +756,100 @@ class Validator {
       Add("sim.camera_distance_mm", "camera must stand outside the turntable (radius " +
                                         FormatDouble(c.rig.turntable_diameter_mm / 2) + " mm)");
     }
+  }
+
+  // The ArUco scale markers: ids unique and in the dictionary, each marker
+  // with its paper on the disc and clear of the other markers and the colour
+  // labels (an overlapped marker is neither detected nor measured).
+  void CheckAruco(const Config& c) {
+    auto FormatDouble = [](double v) {  // "305", "22.5": no trailing ".0" in messages
+      std::string t = aggscan::FormatDouble(v);
+      if (t.size() > 2 && t.compare(t.size() - 2, 2, ".0") == 0) t.resize(t.size() - 2);
+      return t;
+    };
+    const RigConfig& rig = c.rig;
+    if (rig.aruco_markers.empty()) return;
+    int dict_size = 0;
+    for (const auto& [name, size] : BoardDictionaries()) {
+      if (name == rig.aruco_dictionary) dict_size = size;
+    }
+    // Outline of a square of side `side` centred at (x, y), turned by yaw.
+    using Quad = std::array<std::array<double, 2>, 4>;
+    auto square = [](double x, double y, double yaw_deg, double side) {
+      const double a = yaw_deg * M_PI / 180.0, h = side / 2;
+      Quad q;
+      const double cx[4] = {-h, h, h, -h}, cy[4] = {-h, -h, h, h};
+      for (int k = 0; k < 4; ++k) {
+        q[k] = {x + cx[k] * std::cos(a) - cy[k] * std::sin(a),
+                y + cx[k] * std::sin(a) + cy[k] * std::cos(a)};
+      }
+      return q;
+    };
+    // Separating-axis test of two convex quadrilaterals (touching is no overlap).
+    auto overlap = [](const Quad& p, const Quad& q) {
+      for (const Quad* s : {&p, &q}) {
+        for (int k = 0; k < 4; ++k) {
+          const double nx = (*s)[(k + 1) % 4][1] - (*s)[k][1];
+          const double ny = (*s)[k][0] - (*s)[(k + 1) % 4][0];
+          double p0 = 1e300, p1 = -1e300, q0 = 1e300, q1 = -1e300;
+          for (int j = 0; j < 4; ++j) {
+            const double a = nx * p[j][0] + ny * p[j][1], b = nx * q[j][0] + ny * q[j][1];
+            p0 = std::min(p0, a), p1 = std::max(p1, a), q0 = std::min(q0, b), q1 = std::max(q1, b);
+          }
+          if (p1 <= q0 + 1e-9 || q1 <= p0 + 1e-9) return false;
+        }
+      }
+      return true;
+    };
+    const double paper = rig.aruco_size_mm * (1 + 2 * kArucoPaperMarginFrac);
+    const double disc_r = rig.turntable_diameter_mm / 2;
+    std::map<int, size_t> first_with_id;
+    std::vector<Quad> papers;
+    for (size_t i = 0; i < rig.aruco_markers.size(); ++i) {
+      const ArucoMarker& m = rig.aruco_markers[i];
+      const std::string prefix = std::string(kArucoKey) + "[" + std::to_string(i) + "].";
+      if (m.id >= 0) {
+        auto [it, fresh] = first_with_id.emplace(m.id, i);
+        if (!fresh) {
+          Add(prefix + "id", "id " + std::to_string(m.id) + " is also used by " + kArucoKey + "[" +
+                                 std::to_string(it->second) +
+                                 "]; each marker needs its own id (print another one)");
+        }
+        if (dict_size > 0 && m.id >= dict_size) {
+          Add(prefix + "id", "id " + std::to_string(m.id) + " is not in " + rig.aruco_dictionary +
+                                 " (ids 0.." + std::to_string(dict_size - 1) +
+                                 "); use a smaller id or a larger rig.aruco_dictionary");
+        }
+      }
+      papers.push_back(square(m.x_mm, m.y_mm, m.yaw_deg, paper));
+      if (!(rig.aruco_size_mm > 0) || !(disc_r > 0)) continue;
+      double reach = 0;
+      for (const auto& p : papers.back()) reach = std::max(reach, std::hypot(p[0], p[1]));
+      if (reach > disc_r) {
+        Add(prefix + "x_mm",
+            "the marker at (" + FormatDouble(m.x_mm) + ", " + FormatDouble(m.y_mm) + ") mm, yaw " +
+                FormatDouble(m.yaw_deg) + " deg, with its paper (" + FormatDouble(paper) +
+                " mm square) reaches " + FormatDouble(std::round(reach * 10) / 10) +
+                " mm from the axis, beyond the disc edge (" + FormatDouble(disc_r) +
+                " mm); move it towards the axis or print it smaller (rig.aruco_size_mm)");
+        continue;
+      }
+      for (size_t j = 0; j + 1 < papers.size(); ++j) {
+        if (overlap(papers[j], papers.back())) {
+          Add(prefix + "x_mm", "the marker's paper overlaps that of " + std::string(kArucoKey) +
+                                   "[" + std::to_string(j) +
+                                   "]; place the markers further apart");
+        }
+      }
+      for (const RigMarker& l : rig.markers) {
+        if (overlap(square(l.x_mm, l.y_mm, 0, rig.marker_size_mm), papers.back())) {
+          Add(prefix + "x_mm", "the marker's paper covers the " + l.color +
+                                   " colour label (rig.markers); move one of them");
+        }
+      }
+    }
+    // No rule for sim.aruco_image here: `aggscan calibrate aruco` writes it from
+    // this very config; the sim world refuses to start without it and says so.
   }
 
   // The [calibration] board must be printable with its dictionary and lie
@@ -808,6 +938,11 @@ class Loader {
       } else if (key == kMarkersKey) {
         lines_[key] = line;
         LoadMarkers(v, c);
+      } else if (key == kArucoKey) {
+        lines_[key] = line;
+        c->rig.aruco_markers.clear();
+        LoadTables(v, kArucoKey, "{id, x_mm, y_mm, yaw_deg}", ArucoFields(), "id",
+                   &c->rig.aruco_markers);
       } else if (IsSection(key)) {
         if (const auto* sub = v.as_table()) {
           Walk(*sub, key, c);
@@ -843,6 +978,55 @@ class Loader {
   }
 
   const LineMap& lines() const { return lines_; }
+
+  // An array of tables (`[[key]]` or `key = [{...}, ...]`) into `out`, each
+  // table's keys from `fields`; a table without `required` is reported by the
+  // validator at the table's line.
+  template <class T>
+  void LoadTables(const toml::node& v, const char* array_key, const char* shape,
+                  const std::vector<Field<T>>& fields, const char* required, std::vector<T>* out) {
+    const auto* arr = v.as_array();
+    if (!arr) {
+      Add(static_cast<int>(v.source().begin.line), array_key,
+          std::string("expected an array of tables ([[") + array_key + "]]), got " + TypeName(v));
+      return;
+    }
+    for (size_t i = 0; i < arr->size(); ++i) {
+      const toml::node& el = *arr->get(i);
+      const int el_line = static_cast<int>(el.source().begin.line);
+      const auto* t = el.as_table();
+      if (!t) {
+        Add(el_line, std::string(array_key) + "[" + std::to_string(i) + "]",
+            std::string("expected a table ") + shape + ", got " + TypeName(el));
+        continue;
+      }
+      // Keys use the index in the loaded list, as ValidateConfig sees it.
+      const std::string prefix = std::string(array_key) + "[" + std::to_string(out->size()) + "]";
+      T item;
+      for (auto&& [k, mv] : *t) {
+        const std::string key = prefix + "." + std::string(k.str());
+        const int line = LineOf(mv, k);
+        if (const auto* f = FindField(fields, std::string(k.str()))) {
+          lines_[key] = line;
+          std::string err = Assign(mv, f->ref(item));
+          if (!err.empty()) Add(line, key, err);
+        } else {
+          std::string hint;
+          size_t best = 3;
+          for (const auto& f : fields) {
+            const size_t d = EditDistance(std::string(k.str()), f.key);
+            if (d < best) {
+              best = d;
+              hint = std::string("; did you mean ") + f.key + "?";
+            }
+          }
+          Add(line, key, "unknown key" + hint);
+        }
+      }
+      if (!t->contains(required)) lines_[prefix + "." + required] = el_line;
+      out->push_back(std::move(item));
+    }
+  }
 
  private:
   static int LineOf(const toml::node& v, const toml::key& k) {
@@ -905,6 +1089,7 @@ class Loader {
     for (const auto& f : Fields()) known.emplace_back(f.key);
     for (const auto& s : Sections()) known.emplace_back(s.name);
     known.emplace_back(kMarkersKey);
+    known.emplace_back(kArucoKey);
 
     const std::string parent = Parent(key), leaf = Leaf(key);
     size_t limit = leaf.size() <= 3 ? 1 : std::clamp<size_t>(leaf.size() / 3, 2, 3);
@@ -1054,10 +1239,18 @@ std::string ConfigToToml(const Config& config) {
       }
     }
     if (std::string(section.name) == "rig") {
+      // Plain keys before the first [[...]] table, which would take them.
+      if (c.rig.aruco_markers.empty()) out << "# ArUco scale markers (none)\naruco_markers = []\n";
       if (c.rig.markers.empty()) out << "markers = []\n";
       for (auto& m : c.rig.markers) {
         out << "\n[[" << kMarkersKey << "]]\n";
         for (const auto& f : MarkerFields()) {
+          out << "# " << f.comment << "\n" << f.key << " = " << *ToTomlValue(f.ref(m)) << "\n";
+        }
+      }
+      for (auto& m : c.rig.aruco_markers) {
+        out << "\n[[" << kArucoKey << "]]\n";
+        for (const auto& f : ArucoFields()) {
           out << "# " << f.comment << "\n" << f.key << " = " << *ToTomlValue(f.ref(m)) << "\n";
         }
       }

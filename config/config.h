@@ -126,6 +126,10 @@ struct SimConfig {
   double board_x_mm = 0.0;            // charuco: board centre on the disc (turntable frame), mm
   double board_y_mm = 0.0;
   double board_yaw_deg = 0.0;         // charuco: board x axis from the turntable x axis, ccw, degrees
+  std::string aruco_image;            // rig.aruco_markers: greyscale PGM (P5) of the markers side by
+                                      // side in list order, each its black square only, no margin
+                                      // (`aggscan calibrate aruco --out FILE.pgm`); needed by the sim
+                                      // camera when rig.aruco_markers is not empty
 
   bool operator==(const SimConfig&) const = default;
 };
@@ -153,11 +157,32 @@ struct RigMarker {
   bool operator==(const RigMarker&) const = default;
 };
 
+// An ArUco marker printed on white paper and laid flat on the disc: the
+// alternative scale reference to the colour labels. Marker frame as for the
+// [calibration] board: origin at the centre of the black square, x along the
+// printed image's columns, y towards its top row; turntable frame p =
+// Rz(yaw_deg) * p_marker + (x_mm, y_mm, 0).
+struct ArucoMarker {
+  int id = -1;           // marker id in rig.aruco_dictionary
+  double x_mm = 0.0;     // centre of the black square, turntable frame (z up, origin at the axis)
+  double y_mm = 0.0;
+  double yaw_deg = 0.0;  // marker x axis from the turntable x axis, counter-clockwise, degrees
+
+  bool operator==(const ArucoMarker&) const = default;
+};
+
+// White paper around each ArUco marker's black square, as a fraction of
+// rig.aruco_size_mm (the quiet zone a detector needs; the sim draws it).
+inline constexpr double kArucoPaperMarginFrac = 0.25;
+
 struct RigConfig {
   double turntable_diameter_mm = 305.0;   // 30.5 cm disc, as in the source study
   double marker_size_mm = 20.0;           // side of each square colour label
   std::vector<RigMarker> markers = {      // the study's four background labels
       {"red", 120.0, 0.0}, {"green", 0.0, 120.0}, {"blue", -120.0, 0.0}, {"yellow", 0.0, -120.0}};
+  std::string aruco_dictionary = "DICT_4X4_50";  // ArUco dictionary of aruco_markers (OpenCV name)
+  double aruco_size_mm = 30.0;            // side of each ArUco marker's black square, as printed
+  std::vector<ArucoMarker> aruco_markers;  // ArUco scale markers on the disc; empty = none (default)
 
   bool operator==(const RigConfig&) const = default;
 };

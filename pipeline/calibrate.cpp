@@ -17,6 +17,7 @@
 
 #include "common/clock.h"
 #include "common/fsutil.h"
+#include "pipeline/aruco_scale.h"
 #include "store/layout.h"
 
 namespace aggscan {
@@ -26,37 +27,18 @@ namespace {
 using nlohmann::json;
 constexpr double kDeg = M_PI / 180.0;
 
-struct DictName {
-  const char* name;
-  cv::aruco::PREDEFINED_DICTIONARY_NAME id;
-};
-// The names config.cpp accepts (its BoardDictionaries()).
-constexpr DictName kDictionaries[] = {
-    {"DICT_4X4_50", cv::aruco::DICT_4X4_50},     {"DICT_4X4_100", cv::aruco::DICT_4X4_100},
-    {"DICT_4X4_250", cv::aruco::DICT_4X4_250},   {"DICT_4X4_1000", cv::aruco::DICT_4X4_1000},
-    {"DICT_5X5_50", cv::aruco::DICT_5X5_50},     {"DICT_5X5_100", cv::aruco::DICT_5X5_100},
-    {"DICT_5X5_250", cv::aruco::DICT_5X5_250},   {"DICT_5X5_1000", cv::aruco::DICT_5X5_1000},
-    {"DICT_6X6_50", cv::aruco::DICT_6X6_50},     {"DICT_6X6_100", cv::aruco::DICT_6X6_100},
-    {"DICT_6X6_250", cv::aruco::DICT_6X6_250},   {"DICT_6X6_1000", cv::aruco::DICT_6X6_1000},
-    {"DICT_7X7_50", cv::aruco::DICT_7X7_50},     {"DICT_7X7_100", cv::aruco::DICT_7X7_100},
-    {"DICT_7X7_250", cv::aruco::DICT_7X7_250},   {"DICT_7X7_1000", cv::aruco::DICT_7X7_1000},
-    {"DICT_ARUCO_ORIGINAL", cv::aruco::DICT_ARUCO_ORIGINAL},
-};
-
 Result<cv::Ptr<cv::aruco::CharucoBoard>> MakeBoard(const CalibrationConfig& b) {
-  for (const DictName& d : kDictionaries) {
-    if (b.dictionary != d.name) continue;
-    try {
-      return cv::aruco::CharucoBoard::create(b.squares_x, b.squares_y, static_cast<float>(b.square_mm),
-                                             static_cast<float>(b.marker_mm),
-                                             cv::aruco::getPredefinedDictionary(d.id));
-    } catch (const cv::Exception& e) {
-      return MakeError(ErrorClass::kInvalidConfig, "cannot build the ChArUco board from [calibration]",
-                       e.what());
-    }
+  Result<cv::Ptr<cv::aruco::Dictionary>> dict = ArucoDictionary(b.dictionary);
+  if (!dict) {
+    return MakeError(ErrorClass::kInvalidConfig, "calibration.dictionary: " + dict.error().message);
   }
-  return MakeError(ErrorClass::kInvalidConfig,
-                   "calibration.dictionary \"" + b.dictionary + "\" is not a known ArUco dictionary");
+  try {
+    return cv::aruco::CharucoBoard::create(b.squares_x, b.squares_y, static_cast<float>(b.square_mm),
+                                           static_cast<float>(b.marker_mm), *dict);
+  } catch (const cv::Exception& e) {
+    return MakeError(ErrorClass::kInvalidConfig, "cannot build the ChArUco board from [calibration]",
+                     e.what());
+  }
 }
 
 std::string Fixed(double v, int digits) {

@@ -710,6 +710,7 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
                   {"stitch_max_mm", stitch->value("max_mm", json())},
                   {"stitch_silhouette_deficit", stitch->value("silhouette_deficit", json())},
                   {"scale_residual_mm", stitch->value("scale_residual_mm", json())},
+                  {"scale_reference", stitch->value("scale_reference", json())},
                   {"watertight", watertight.ok()}};
   timings["masks_and_2d_s"] = masks_s;
   timings["morphology_s"] = Seconds(t_m);

@@ -4,6 +4,8 @@
 
 #include <opencv2/imgcodecs.hpp>
 
+#include "common/clock.h"
+#include "pipeline/aruco_scale.h"
 #include "pipeline/geometry.h"
 #include "pipeline/markers.h"
 #include "pipeline/stitch.h"
@@ -82,6 +84,51 @@ json LabelsJson(const Result<LabelScale>& ls) {
           {"labels", labels}};
 }
 
+json ArucoJson(const Result<ArucoScale>& as, const RigConfig& rig, int detect_failures,
+               double detect_ms_per_view) {
+  json j = {{"configured", true},
+            {"dictionary", rig.aruco_dictionary},
+            {"size_mm", rig.aruco_size_mm},
+            {"markers_configured", rig.aruco_markers.size()},
+            {"detection_failures", detect_failures},
+            {"detect_ms_per_view", detect_ms_per_view}};
+  if (!as) {
+    j["ok"] = false;
+    j["problem"] = as.error().message;
+    return j;
+  }
+  json markers = json::array();
+  for (const ArucoMarkerPoint& m : as->markers) {
+    json jm = {{"id", m.id}, {"located", m.located}, {"views_seen", m.views_seen},
+               {"views_used", m.views_used}};
+    if (m.located) {
+      jm["center_mm"] = Vec(m.center);
+      jm["rms_px"] = m.rms_px;
+      jm["max_px"] = m.max_px;
+    } else {
+      jm["problem"] = m.problem;
+    }
+    markers.push_back(jm);
+  }
+  j["ok"] = true;
+  j["markers_used"] = as->markers_used;
+  j["views_with_markers"] = as->views_with_markers;
+  j["scale"] = as->scale;
+  j["measured_over_configured"] = as->scale > 0 ? 1.0 / as->scale : 0.0;
+  j["lengths"] = as->lengths;
+  j["rms_mm"] = as->rms_mm;
+  j["max_mm"] = as->max_mm;
+  j["edge_rms_mm"] = as->edge_rms_mm;
+  j["edge_max_mm"] = as->edge_max_mm;
+  j["centre_pairs"] = as->centre_pairs;
+  j["centre_rms_mm"] = as->centre_rms_mm;
+  j["centre_max_mm"] = as->centre_max_mm;
+  j["align_rms_mm"] = as->align_rms_mm;
+  j["align_max_mm"] = as->align_max_mm;
+  j["markers"] = markers;
+  return j;
+}
+
 // Everything one side contributes to the stitch.
 struct SideEvidence {
   SideMarkers markers;
@@ -105,6 +152,10 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side, const std:
   mopts.expected_label_side_px = ExpectedLabelSidePx(*in.calibration, in.rig);
   std::vector<ViewMarkers> vm(views.size());
   std::vector<ViewFeatures> vf(views.size());
+  const bool want_aruco = !in.rig.aruco_markers.empty();
+  std::vector<ArucoViewDetections> va(views.size());
+  int aruco_failures = 0;
+  TimeNs aruco_ns = 0;
   int detect_failures = 0;
   SilhouetteSideInput sil;
   for (size_t i = 0; i < views.size(); ++i) {
@@ -130,6 +181,16 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side, const std:
       sil.masks.push_back(mask);
       sil.cam_from_table.push_back(poses[i]);
     }
+    if (want_aruco) {
+      const TimeNs t0 = MonotonicNs();
+      Result<ArucoViewDetections> a = DetectArucoMarkers(bgr, mask, in.rig, &cam);
+      aruco_ns += MonotonicNs() - t0;
+      if (a) {
+        va[i] = std::move(*a);
+      } else {
+        ++aruco_failures;
+      }
+    }
   }
   SideEvidence ev;
   ev.silhouettes = std::move(sil);
@@ -141,6 +202,13 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side, const std:
                {"marker_detection_failures", detect_failures},
                {"object_markers", MarkersJson(ev.markers)},
                {"background_labels", LabelsJson(labels)}};
+  if (want_aruco) {
+    const double ms = views.empty() ? 0.0 : static_cast<double>(aruco_ns) / 1e6 / static_cast<double>(views.size());
+    ev.record["aruco_scale"] =
+        ArucoJson(LocateArucoMarkers(va, poses, cam, in.rig), in.rig, aruco_failures, ms);
+  } else {
+    ev.record["aruco_scale"] = {{"configured", false}, {"ok", false}};
+  }
   if (want_features) {
     ev.record["feature_cloud"] = {{"viewpoints", ev.cloud.views},
                                   {"view_pairs", ev.cloud.view_pairs},
@@ -160,22 +228,34 @@ Result<json> RunStitchStage(const StitchStageInput& in) {
   std::map<int, SideEvidence> sides;
   json side_records = json::array();
   std::vector<double> scale_residuals;
+  bool by_labels = false, by_aruco = false;
   for (const auto& [side, views] : in.views) {
     auto ev = GatherSide(in, side, views, several);
     if (!ev) return ev.error();
     const json& lab = ev->record["background_labels"];
-    if (lab.value("ok", false)) scale_residuals.push_back(lab.value("pair_rms_mm", 0.0));
+    if (lab.value("ok", false)) {
+      scale_residuals.push_back(lab.value("pair_rms_mm", 0.0));
+      by_labels = true;
+    }
+    const json& aru = ev->record["aruco_scale"];
+    if (aru.value("ok", false)) {
+      scale_residuals.push_back(aru.value("rms_mm", 0.0));
+      by_aruco = true;
+    }
     side_records.push_back(ev->record);
     sides.emplace(side, std::move(*ev));
   }
   json j = {{"per_side", side_records}};
-  // The scale check: worst side's RMS label-distance residual (the calibrated
-  // rig measures in mm; the labels confirm it). Null when no side located
-  // enough labels.
+  // The scale check: the worst RMS length residual over the sides and the
+  // references each located (colour label distances, ArUco marker sides,
+  // diagonals and centre distances); the calibrated rig measures in mm, the
+  // references confirm it. Null when no side located either.
   if (scale_residuals.empty()) {
     j["scale_residual_mm"] = nullptr;
+    j["scale_reference"] = nullptr;
   } else {
     j["scale_residual_mm"] = *std::max_element(scale_residuals.begin(), scale_residuals.end());
+    j["scale_reference"] = by_labels && by_aruco ? "labels+aruco" : (by_labels ? "labels" : "aruco");
   }
 
   const int ref = in.views.begin()->first;

@@ -6,7 +6,9 @@
 // Per side: every view's background labels and object markers are detected
 // (with its rock mask and the calibrated lens); the labels are triangulated
 // and their distances compared with the configured ones (the scale check of a
-// calibrated rig: its residual is the sample's scale residual); the object
+// calibrated rig: its residual is the sample's scale residual); so are the
+// ArUco scale markers when rig.aruco_markers lists any (aruco_scale.h: their
+// sides, diagonals and centre distances), the alternative reference; the object
 // markers' heads and tails are triangulated; SIFT features inside the masks of
 // the side's distinct viewpoints are matched and triangulated into a feature
 // cloud. Every further side is then stitched onto side 1 (StitchSides: markers
@@ -37,14 +39,16 @@ struct StitchViewInput {
 struct StitchStageInput {
   std::string sample_dir;
   const RigCalibration* calibration = nullptr;
-  RigConfig rig;                                      // background labels (the sample's config)
+  RigConfig rig;  // background labels and ArUco scale markers (the sample's config)
   std::vector<std::string> object_colors = {"purple", "red"};  // the study's object markers
   std::map<int, std::vector<StitchViewInput>> views;  // per side (1-based)
 };
 
 /// The stitch record: {"method", "sides": [{"side", "table_from_object_4x4"}],
-/// "rms_mm", "max_mm", "scale_residual_mm", per-side markers, labels and
-/// feature clouds, the two estimates and their cross-check, "stage_seconds"}.
+/// "rms_mm", "max_mm", "scale_residual_mm", "scale_reference" ("labels" |
+/// "aruco" | "labels+aruco": which references gave it), per-side markers,
+/// labels, ArUco scale markers ("aruco_scale") and feature clouds, the two
+/// estimates and their cross-check, "stage_seconds"}.
 /// With one side the object frame is that side's turntable frame (the labels
 /// are still located for the scale check). Errors say what was seen on each
 /// side and what to do.

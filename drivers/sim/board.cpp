@@ -106,4 +106,47 @@ Result<SimBoard> LoadSimBoard(const Config& config) {
   return board;
 }
 
+Result<std::vector<SimArucoMarker>> LoadSimArucoMarkers(const Config& config) {
+  const RigConfig& rig = config.rig;
+  std::vector<SimArucoMarker> out;
+  if (rig.aruco_markers.empty()) return out;
+  const std::string& path = config.sim.aruco_image;
+  if (path.empty()) {
+    return MakeError(ErrorClass::kInvalidConfig,
+                     "rig.aruco_markers needs sim.aruco_image for the sim camera to draw them; "
+                     "write one with `aggscan calibrate aruco --out FILE.pgm` from the same config");
+  }
+  Result<GrayImage> img = ReadPgm(path);
+  if (!img) {
+    return MakeError(ErrorClass::kInvalidConfig, "sim.aruco_image: cannot use " + path,
+                     img.error().ToString());
+  }
+  const int n = static_cast<int>(rig.aruco_markers.size());
+  const int side = img->height;
+  if (img->width != n * side) {
+    return MakeError(ErrorClass::kInvalidConfig,
+                     "sim.aruco_image " + path + " is " + std::to_string(img->width) + "x" +
+                         std::to_string(img->height) + " px, not the " + std::to_string(n) +
+                         " square markers of rig.aruco_markers side by side; write it with "
+                         "`aggscan calibrate aruco --out FILE.pgm` from the same config");
+  }
+  for (int k = 0; k < n; ++k) {
+    const ArucoMarker& m = rig.aruco_markers[static_cast<size_t>(k)];
+    SimArucoMarker s;
+    s.image.width = side;
+    s.image.height = side;
+    s.image.pixels.resize(static_cast<size_t>(side) * side);
+    for (int r = 0; r < side; ++r) {
+      const auto* row = &img->pixels[static_cast<size_t>(r) * img->width + static_cast<size_t>(k) * side];
+      std::copy(row, row + side, &s.image.pixels[static_cast<size_t>(r) * side]);
+    }
+    s.size_mm = rig.aruco_size_mm;
+    s.x_mm = m.x_mm;
+    s.y_mm = m.y_mm;
+    s.yaw_deg = m.yaw_deg;
+    out.push_back(std::move(s));
+  }
+  return out;
+}
+
 }  // namespace aggscan::sim

@@ -44,4 +44,19 @@ struct SimBoard {
 /// another board), with what to do.
 Result<SimBoard> LoadSimBoard(const Config& config);
 
+/// One ArUco scale marker of rig.aruco_markers as the sim draws it: its black
+/// square (the marker image, x along its columns, y towards its top row) on a
+/// white paper square kArucoPaperMarginFrac * size_mm wider on every side.
+struct SimArucoMarker {
+  GrayImage image;   // the black square only, no margin
+  double size_mm = 0;
+  double x_mm = 0, y_mm = 0, yaw_deg = 0;  // pose on the disc (turntable frame)
+};
+
+/// Loads sim.aruco_image (the markers side by side, in rig.aruco_markers
+/// order, each size x size pixels: `aggscan calibrate aruco --out FILE.pgm`)
+/// and cuts it into the markers; empty when rig.aruco_markers is. kInvalidConfig
+/// when the file is missing, unreadable or not N squares wide, with what to do.
+Result<std::vector<SimArucoMarker>> LoadSimArucoMarkers(const Config& config);
+
 }  // namespace aggscan::sim

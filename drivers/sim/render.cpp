@@ -113,6 +113,57 @@ struct Label {
   std::array<float, 3> albedo;
 };
 
+// An ArUco scale marker on its paper: albedo texture of the whole paper
+// square (marker and white margin), prefiltered, and its pose on the platter.
+struct ArucoPaper {
+  std::vector<float> tex;
+  int tw = 0;                     // texture side, texels
+  double x = 0, y = 0, c = 1, s = 0;  // centre (turntable frame, mm), cos/sin of the yaw
+  double half = 0;                // half side of the paper, mm
+  double tex_per_mm = 0;
+};
+
+// Bilinear sample of a W x H texture at texel coordinates (tu, tv), clamped.
+float Bilinear(const std::vector<float>& tex, int W, int H, double tu, double tv) {
+  const double cu = std::clamp(tu, 0.0, W - 1.001), cv = std::clamp(tv, 0.0, H - 1.001);
+  const int i = static_cast<int>(cu), j = static_cast<int>(cv);
+  const float fu = static_cast<float>(cu - i), fv = static_cast<float>(cv - j);
+  const int i1 = std::min(i + 1, W - 1), j1 = std::min(j + 1, H - 1);
+  const float* r0 = &tex[static_cast<size_t>(j) * W];
+  const float* r1 = &tex[static_cast<size_t>(j1) * W];
+  return (r0[i] * (1 - fu) + r0[i1] * fu) * (1 - fv) + (r1[i] * (1 - fu) + r1[i1] * fu) * fv;
+}
+
+// Separable Gaussian blur of a W x H texture (sigma in texels), clamped at the
+// edges: the lens and sensor blur of a sharp print, so that point-sampling it
+// once per pixel does not alias.
+void BlurTexture(std::vector<float>* tex, int W, int H, double sigma) {
+  if (sigma < 0.3) return;
+  const int r = static_cast<int>(std::ceil(3 * sigma));
+  std::vector<float> w(2 * r + 1);
+  float sum = 0;
+  for (int k = -r; k <= r; ++k) sum += w[k + r] = std::exp(-0.5f * k * k / static_cast<float>(sigma * sigma));
+  for (float& x : w) x /= sum;
+  std::vector<float> tmp(tex->size());
+  for (int y = 0; y < H; ++y) {
+    const float* src = &(*tex)[static_cast<size_t>(y) * W];
+    float* dst = &tmp[static_cast<size_t>(y) * W];
+    for (int x = 0; x < W; ++x) {
+      float acc = 0;
+      for (int k = -r; k <= r; ++k) acc += w[k + r] * src[std::clamp(x + k, 0, W - 1)];
+      dst[x] = acc;
+    }
+  }
+  for (int y = 0; y < H; ++y) {
+    float* dst = &(*tex)[static_cast<size_t>(y) * W];
+    for (int x = 0; x < W; ++x) {
+      float acc = 0;
+      for (int k = -r; k <= r; ++k) acc += w[k + r] * tmp[static_cast<size_t>(std::clamp(y + k, 0, H - 1)) * W + x];
+      dst[x] = acc;
+    }
+  }
+}
+
 // What one frame's per-pixel shading needs.
 struct FrameState {
   bool dynamic = true;           // false: static background only (no rock, rock shadow, labels)
@@ -171,6 +222,8 @@ struct Renderer::Impl {
   double board_x = 0, board_y = 0, board_cos = 1, board_sin = 0;
   double board_hw = 0, board_hh = 0;  // half width / height of the squares area, mm
   double board_tex_per_mm_x = 0, board_tex_per_mm_y = 0;
+  // ArUco scale markers (rig.aruco_markers), drawn in every scene.
+  std::vector<ArucoPaper> aruco;
 
   const SimWorld* world = nullptr;
   Intrinsics intr;
@@ -205,15 +258,8 @@ struct Renderer::Impl {
   }
   // Bilinear sample of the board texture at board-frame (x, y) mm (board.h).
   float BoardAlbedo(double x, double y) const {
-    const double tu = (x + board_hw) * board_tex_per_mm_x - 0.5;
-    const double tv = (board_hh - y) * board_tex_per_mm_y - 0.5;
-    const double cu = std::clamp(tu, 0.0, board_tw - 1.001), cv = std::clamp(tv, 0.0, board_th - 1.001);
-    const int i = static_cast<int>(cu), j = static_cast<int>(cv);
-    const float fu = static_cast<float>(cu - i), fv = static_cast<float>(cv - j);
-    const int i1 = std::min(i + 1, board_tw - 1), j1 = std::min(j + 1, board_th - 1);
-    const float* r0 = &board_tex[static_cast<size_t>(j) * board_tw];
-    const float* r1 = &board_tex[static_cast<size_t>(j1) * board_tw];
-    return (r0[i] * (1 - fu) + r0[i1] * fu) * (1 - fv) + (r1[i] * (1 - fu) + r1[i1] * fu) * fv;
+    return Bilinear(board_tex, board_tw, board_th, (x + board_hw) * board_tex_per_mm_x - 0.5,
+                    (board_hh - y) * board_tex_per_mm_y - 0.5);
   }
   // Fraction of the ground point's light ray that passes the rock.
   float GroundVis(const FrameState& fs, const Vec3& p) const {
@@ -296,6 +342,17 @@ bool Renderer::Impl::Shade(const FrameState& fs, int u, int v, float rgb[3], flo
         for (const Label& lb : labels) {
           if (qx >= lb.x0 && qx <= lb.x1 && qy >= lb.y0 && qy <= lb.y1) {
             albedo[0] = lb.albedo[0], albedo[1] = lb.albedo[1], albedo[2] = lb.albedo[2];
+            break;
+          }
+        }
+        for (const ArucoPaper& a : aruco) {
+          // The paper lies on top of the disc and its labels.
+          const double dx = q.x - a.x, dy = q.y - a.y;
+          const double bx = a.c * dx + a.s * dy, by = -a.s * dx + a.c * dy;
+          if (std::abs(bx) <= a.half && std::abs(by) <= a.half) {
+            const float al = Bilinear(a.tex, a.tw, a.tw, (bx + a.half) * a.tex_per_mm - 0.5,
+                                      (a.half - by) * a.tex_per_mm - 0.5);
+            albedo[0] = albedo[1] = albedo[2] = al;
             break;
           }
         }
@@ -427,6 +484,34 @@ Renderer::Renderer(const SimWorld& world, int width, int height)
     m.labels.push_back(lb);
   }
   if (const SimBoard* b = world.board()) BuildBoardTexture(*b);
+  for (const SimArucoMarker& a : world.aruco_markers()) BuildArucoTexture(a);
+}
+
+void Renderer::BuildArucoTexture(const SimArucoMarker& a) {
+  Impl& m = *impl_;
+  ArucoPaper p;
+  const int side = a.image.width;
+  const int margin = static_cast<int>(std::lround(kArucoPaperMarginFrac * side));
+  p.tw = side + 2 * margin;
+  p.tex_per_mm = side / a.size_mm;
+  p.half = 0.5 * p.tw / p.tex_per_mm;
+  p.x = a.x_mm;
+  p.y = a.y_mm;
+  p.c = std::cos(a.yaw_deg * M_PI / 180.0);
+  p.s = std::sin(a.yaw_deg * M_PI / 180.0);
+  p.tex.assign(static_cast<size_t>(p.tw) * p.tw, kPaperAlbedo);
+  for (int r = 0; r < side; ++r) {
+    for (int c = 0; c < side; ++c) {
+      p.tex[static_cast<size_t>(r + margin) * p.tw + c + margin] =
+          kInkAlbedo + (kPaperAlbedo - kInkAlbedo) * (a.image.pixels[static_cast<size_t>(r) * side + c] / 255.0f);
+    }
+  }
+  // The lens and sensor blur: half a pixel's footprint on the disc, which is
+  // longer along the viewing direction by 1 / sin(elevation).
+  const double mm_per_px = Norm(m.cam_to_world.t) / intr_.fx;
+  const double elev = std::clamp(world_.config().sim.camera_elevation_deg, 10.0, 90.0) * M_PI / 180.0;
+  BlurTexture(&p.tex, p.tw, p.tw, 0.5 * mm_per_px / std::sin(elev) * p.tex_per_mm);
+  m.aruco.push_back(std::move(p));
 }
 
 void Renderer::BuildBoardTexture(const SimBoard& b) {
@@ -449,34 +534,10 @@ void Renderer::BuildBoardTexture(const SimBoard& b) {
   }
   // Point-sampling a sharp print would alias; a real lens and sensor blur it
   // by about half a pixel. Gaussian prefilter of that footprint (mm per pixel
-  // at the disc centre), separable, clamped at the edges.
+  // at the disc centre).
   const double mm_per_px = Norm(m.cam_to_world.t) / intr_.fx;
-  const double sigma = 0.5 * mm_per_px * std::max(m.board_tex_per_mm_x, m.board_tex_per_mm_y);
-  if (sigma < 0.3) return;
-  const int r = static_cast<int>(std::ceil(3 * sigma));
-  std::vector<float> w(2 * r + 1);
-  float sum = 0;
-  for (int k = -r; k <= r; ++k) sum += w[k + r] = std::exp(-0.5f * k * k / static_cast<float>(sigma * sigma));
-  for (float& x : w) x /= sum;
-  std::vector<float> tmp(n);
-  const int W = m.board_tw, H = m.board_th;
-  for (int y = 0; y < H; ++y) {
-    const float* src = &m.board_tex[static_cast<size_t>(y) * W];
-    float* dst = &tmp[static_cast<size_t>(y) * W];
-    for (int x = 0; x < W; ++x) {
-      float acc = 0;
-      for (int k = -r; k <= r; ++k) acc += w[k + r] * src[std::clamp(x + k, 0, W - 1)];
-      dst[x] = acc;
-    }
-  }
-  for (int y = 0; y < H; ++y) {
-    float* dst = &m.board_tex[static_cast<size_t>(y) * W];
-    for (int x = 0; x < W; ++x) {
-      float acc = 0;
-      for (int k = -r; k <= r; ++k) acc += w[k + r] * tmp[static_cast<size_t>(std::clamp(y + k, 0, H - 1)) * W + x];
-      dst[x] = acc;
-    }
-  }
+  BlurTexture(&m.board_tex, m.board_tw, m.board_th,
+              0.5 * mm_per_px * std::max(m.board_tex_per_mm_x, m.board_tex_per_mm_y));
 }
 
 Renderer::~Renderer() = default;
@@ -670,6 +731,14 @@ void Renderer::RenderInto(int side, double platter_deg, const RenderOptions& opt
   for (const Label& lb : m.labels) {
     box_of_world_quad({platter.Apply({lb.x0, lb.y0, 0}), platter.Apply({lb.x1, lb.y0, 0}),
                        platter.Apply({lb.x1, lb.y1, 0}), platter.Apply({lb.x0, lb.y1, 0})});
+  }
+  for (const ArucoPaper& a : m.aruco) {
+    std::array<Vec3, 4> q;
+    const double cx[4] = {-a.half, a.half, a.half, -a.half}, cy[4] = {-a.half, -a.half, a.half, a.half};
+    for (int i = 0; i < 4; ++i) {
+      q[i] = platter.Apply({a.x + a.c * cx[i] - a.s * cy[i], a.y + a.s * cx[i] + a.c * cy[i], 0});
+    }
+    box_of_world_quad(q);
   }
   if (m.has_board) {
     // The paper sheet (squares area plus margin).

@@ -11,7 +11,7 @@
 //     (computed once per resolution) to its undistorted ray: rock pixels take
 //     the triangle from the visibility buffer and are shaded at the exact
 //     ray/triangle intersection with the procedural texture; other pixels are
-//     ray-cast against the disc (with its labels), its rim and the table.
+//     ray-cast against the disc (with its labels and ArUco markers), its rim and the table.
 //     Shading the distorted pixels directly is the same as rendering an
 //     undistorted image and remapping it, without the resampling blur.
 //  4. Exposure (exposure_us * gain relative to the reference), white balance,
@@ -69,6 +69,7 @@ class Renderer {
  private:
   struct Impl;
   void BuildBoardTexture(const SimBoard& board);
+  void BuildArucoTexture(const SimArucoMarker& marker);
 
   const SimWorld& world_;
   Intrinsics intr_;

@@ -576,6 +576,9 @@ SimWorld::SimWorld(const Config& config, const SimWorldOptions& options)
     if (!b) throw std::runtime_error(b.error().ToString());
     board_.push_back(std::move(b).value());
   }
+  Result<std::vector<SimArucoMarker>> aruco = LoadSimArucoMarkers(config);
+  if (!aruco) throw std::runtime_error(aruco.error().ToString());
+  aruco_ = std::move(aruco).value();
   BuildRock();
   ComputePoses();
   PlaceMarkers();

@@ -1,7 +1,7 @@
 // The simulated world shared by the sim camera and the sim turntable: the rock
 // (procedural from a seed, or a mesh file), its painted object markers, its
-// stable rest poses per side, the turntable with its four colour labels, the
-// white table, the light and the camera. Everything the renderer draws and
+// stable rest poses per side, the turntable with its four colour labels (and
+// the ArUco scale markers when configured), the white table, the light and the camera. Everything the renderer draws and
 // everything a test needs as ground truth lives here; nothing here changes
 // after construction, so one world is shared read-only between threads.
 //
@@ -189,6 +189,9 @@ class SimWorld {
   /// The calibration board lying on the disc in the "charuco" scene (no rock
   /// is drawn then); null in the "rock" scene.
   const SimBoard* board() const { return board_.empty() ? nullptr : &board_.front(); }
+  /// The ArUco scale markers of rig.aruco_markers lying on the disc (any
+  /// scene); empty when none are configured.
+  const std::vector<SimArucoMarker>& aruco_markers() const { return aruco_; }
 
   /// Reference exposure (exposure_us * gain of the configured default): a
   /// frame taken with this product has nominal brightness.
@@ -214,6 +217,7 @@ class SimWorld {
   uint32_t texture_seed_ = 0;
   std::array<float, 3> tint_{1, 1, 1};
   std::vector<SimBoard> board_;  // one in the "charuco" scene
+  std::vector<SimArucoMarker> aruco_;
 };
 
 }  // namespace aggscan::sim

@@ -249,6 +249,77 @@ TEST(Config, MarkerRules) {
   EXPECT_EQ(l.result->rig.markers[0], (RigMarker{"blue", 1.5, -2.0}));
 }
 
+// ArUco scale markers: a valid file, then each bad value alone.
+constexpr const char* kArucoHead =
+    "[sim]\n"                             // 1
+    "aruco_image = \"aruco.pgm\"\n"       // 2
+    "[rig]\n";                            // 3
+
+TEST(Config, ArucoMarkersLoad) {
+  EXPECT_TRUE(Config{}.rig.aruco_markers.empty());  // the colour labels stay the default
+  Loaded l = Load(std::string(kArucoHead) +
+                  "aruco_dictionary = \"DICT_5X5_100\"\n"
+                  "aruco_size_mm = 24.5\n"
+                  "[[rig.aruco_markers]]\nid = 3\nx_mm = 80.0\ny_mm = 80.0\n"
+                  "[[rig.aruco_markers]]\nid = 99\nx_mm = -80\ny_mm = -80\nyaw_deg = 45.0\n");
+  ASSERT_TRUE(l.result.ok()) << Dump(l.problems);
+  const RigConfig& rig = l.result->rig;
+  EXPECT_EQ(rig.aruco_dictionary, "DICT_5X5_100");
+  EXPECT_EQ(rig.aruco_size_mm, 24.5);
+  ASSERT_EQ(rig.aruco_markers.size(), 2u);
+  EXPECT_EQ(rig.aruco_markers[0], (ArucoMarker{3, 80.0, 80.0, 0.0}));
+  EXPECT_EQ(rig.aruco_markers[1], (ArucoMarker{99, -80.0, -80.0, 45.0}));
+  EXPECT_EQ(rig.markers.size(), 4u);  // the colour labels are kept beside them
+  // Inline array form, too.
+  Loaded m = Load(std::string(kArucoHead) + "aruco_markers = [{id = 0, x_mm = 70, y_mm = 70}]\n");
+  ASSERT_TRUE(m.result.ok()) << Dump(m.problems);
+  EXPECT_EQ(m.result->rig.aruco_markers.at(0), (ArucoMarker{0, 70.0, 70.0, 0.0}));
+}
+
+TEST(Config, ArucoMarkerRules) {
+  const std::string h = kArucoHead;
+  const std::string one = "[[rig.aruco_markers]]\nid = 3\nx_mm = 80.0\ny_mm = 80.0\n";  // lines 4-7
+  ExpectOneProblem(h + "aruco_dictionary = \"DICT_9X9_50\"\n" + one, 4, "rig.aruco_dictionary",
+                   "must be one of DICT_4X4_50");
+  ExpectOneProblem(h + "aruco_size_mm = 0\n" + one, 4, "rig.aruco_size_mm", "must be > 0");
+  ExpectOneProblem(h + "aruco_size_mm = -5\n" + one, 4, "rig.aruco_size_mm", "must be > 0");
+  // Duplicate id: reported on the second marker's id, naming the first.
+  ExpectOneProblem(h + one + "[[rig.aruco_markers]]\nid = 3\nx_mm = -80.0\ny_mm = -80.0\n", 9,
+                   "rig.aruco_markers[1].id", "id 3 is also used by rig.aruco_markers[0]");
+  // An id the dictionary does not have.
+  ExpectOneProblem(h + "[[rig.aruco_markers]]\nid = 50\nx_mm = 80.0\ny_mm = 80.0\n", 5,
+                   "rig.aruco_markers[0].id", "not in DICT_4X4_50 (ids 0..49)");
+  ExpectOneProblem(h + "aruco_dictionary = \"DICT_4X4_1000\"\n" +
+                       "[[rig.aruco_markers]]\nid = 1000\nx_mm = 80.0\ny_mm = 80.0\n",
+                   6, "rig.aruco_markers[0].id", "ids 0..999");
+  ExpectOneProblem(h + "[[rig.aruco_markers]]\nid = -4\nx_mm = 80.0\ny_mm = 80.0\n", 5,
+                   "rig.aruco_markers[0].id", "must be in 0..1000000, got -4");
+  ExpectOneProblem(h + "[[rig.aruco_markers]]\nx_mm = 80.0\ny_mm = 80.0\n", 4,
+                   "rig.aruco_markers[0].id", "missing");
+  // Off the disc (radius 152.5): the centre is on it, the paper is not.
+  ExpectOneProblem(h + "[[rig.aruco_markers]]\nid = 3\nx_mm = 135.0\ny_mm = 10.0\n", 6,
+                   "rig.aruco_markers[0].x_mm", "beyond the disc edge (152.5 mm)");
+  // A marker that fits square to the rim does not once turned 45 degrees.
+  const std::string rim = h + "markers = []\n[[rig.aruco_markers]]\nid = 3\nx_mm = 0.0\ny_mm = 125.0\n";
+  EXPECT_TRUE(Load(rim).result.ok()) << Dump(Load(rim).problems);
+  ExpectOneProblem(rim + "yaw_deg = 45\n", 7, "rig.aruco_markers[0].x_mm",
+                   "reaches 156.8 mm from the axis");
+  ExpectOneProblem(h + "[[rig.aruco_markers]]\nid = 3\nx_mm = 900.0\ny_mm = 10.0\n", 6,
+                   "rig.aruco_markers[0].x_mm", "move it towards the axis");
+  // Papers overlapping each other or a colour label.
+  ExpectOneProblem(h + one + "[[rig.aruco_markers]]\nid = 4\nx_mm = 100.0\ny_mm = 60.0\n", 10,
+                   "rig.aruco_markers[1].x_mm", "overlaps that of rig.aruco_markers[0]");
+  ExpectOneProblem(h + "[[rig.aruco_markers]]\nid = 4\nx_mm = 110.0\ny_mm = 0.0\n", 6,
+                   "rig.aruco_markers[0].x_mm", "covers the red colour label");
+  // Unknown key in a marker.
+  ExpectOneProblem(h + "[[rig.aruco_markers]]\nidd = 4\nid = 4\nx_mm = 80.0\ny_mm = 80.0\n", 5,
+                   "rig.aruco_markers[0].idd", "did you mean id?");
+  ExpectOneProblem(h + "aruco_markers = 7\n", 4, "rig.aruco_markers", "expected an array of tables");
+  // Without sim.aruco_image the config is still valid (`aggscan calibrate
+  // aruco` writes the image from it); the sim world refuses to start then.
+  EXPECT_TRUE(Load(one).result.ok()) << Dump(Load(one).problems);
+}
+
 TEST(Config, SeveralProblemsAllReported) {
   const std::string text =
       "[daemon]\n"                   // 1
@@ -533,6 +604,10 @@ TEST(ConfigToToml, RoundTripEveryFieldChanged) {
   c.rig.turntable_diameter_mm = 400.0;
   c.rig.marker_size_mm = 25.4;
   c.rig.markers = {{"yellow", -0.0, 4999.999}, {"green", 1e-3, -5000.0}};
+  c.rig.aruco_dictionary = "DICT_6X6_250";
+  c.rig.aruco_size_mm = 25.5;
+  c.rig.aruco_markers = {{249, 100.0, -50.0, -30.5}, {0, -120.0, 60.0, 359.0}};
+  c.sim.aruco_image = "markers/aruco \"6x6\".pgm";
   c.worker.poll_interval = 60 * kNsPerSec;
   c.worker.nice = 0;
   c.mask = {"onnx", "models/u2net \"rig\".onnx", 288, 4096, -0.5, 0.0, 1e-9, 0.1, 1.0 / 3, 10.0,
@@ -543,6 +618,11 @@ TEST(ConfigToToml, RoundTripEveryFieldChanged) {
   ExpectRoundTrip(c);
 
   c.rig.markers.clear();  // an empty list must survive too
+  ExpectRoundTrip(c);
+  c.rig.aruco_markers.clear();
+  ExpectRoundTrip(c);
+  c.rig.markers = {{"red", 1.0, 2.0}};  // ArUco markers after the labels' tables
+  c.rig.aruco_markers = {{7, 50.0, 50.0, 0.0}};
   ExpectRoundTrip(c);
 }
 
