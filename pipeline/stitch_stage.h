@@ -12,7 +12,8 @@
 // markers' heads and tails are triangulated; SIFT features inside the masks of
 // the side's distinct viewpoints are matched and triangulated into a feature
 // cloud. Every further side is then stitched onto side 1 (StitchSides: markers
-// and features, cross-checked).
+// and features, cross-checked, and the silhouettes of the distinct viewpoints
+// of both sides refining, checking or rescuing them: silhouette_stitch.h).
 #pragma once
 
 #include <map>
