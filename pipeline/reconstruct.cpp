@@ -384,9 +384,15 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
   double photo_s = 0;
   if (opts.photo_refine) {
     const auto tp = std::chrono::steady_clock::now();
+    // The photos are used at most photo_max_width wide: the NCC patch then
+    // covers the same part of the rock as at the resolution it was tuned on.
     // Decoding at half size is much faster than decoding and shrinking.
-    const bool half = opts.photo.image_scale <= 0.5;
+    const double scale =
+        std::min(opts.photo.image_scale,
+                 opts.photo_max_width > 0 ? static_cast<double>(opts.photo_max_width) / cal.camera.width : 1.0);
+    const bool half = scale <= 0.5;
     PhotoRefineOptions po = opts.photo;
+    po.image_scale = scale;
     std::vector<PhotoView> pv(views.size());
     std::vector<std::string> unreadable;
     auto load = [&](size_t begin, size_t step) {
@@ -399,7 +405,7 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
     std::thread lt(load, 1, 2);
     load(0, 2);
     lt.join();
-    if (half) po.image_scale = std::min(1.0, opts.photo.image_scale * 2);
+    if (half) po.image_scale = std::min(1.0, scale * 2);
     for (size_t i = 0; i < views.size(); ++i) {
       if (pv[i].image.empty()) {
         return MakeError(ErrorClass::kCorrupt, "surface stage: image " + views[i].image +
@@ -423,7 +429,7 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
                   {"fold_passes", refined->fold_passes},
                   {"refine_s", refined->seconds},
                   {"max_depth_mm", opts.photo.max_depth_mm},
-                  {"image_scale", opts.photo.image_scale}});
+                  {"image_scale", scale}});
   }
   const auto tc = std::chrono::steady_clock::now();
   auto colors = ColourVertices(hull->mesh, views, cam_from_object, masks, cal.camera);

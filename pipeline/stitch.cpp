@@ -457,13 +457,21 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
                   " after refinement); the marker estimate is kept";
       }
     } else if (out.source == "features") {
-      // The features are the more precise; the silhouettes only check them.
-      const double d = silhouettes->Deficit(f.T);
-      sr.tried = true;
-      sr.start = "features (check only)";
-      sr.deficit_start = sr.deficit = d;
-      if (d > opts.silhouette_accept) {
-        sr.note = "the feature estimate leaves " + std::to_string(d) +
+      // The feature fit is precise in rotation but carries its points' errors;
+      // the surface is carved from the silhouettes, so the motion that makes
+      // them coherent carves no rock away. Refined from the feature estimate
+      // with small steps; kept when it is clearly more coherent and stays
+      // within the agreement expected of two good estimates.
+      const SilhouetteFit fit = refine(f.T, 1.0);
+      record("features", f.T, fit);
+      if (opts.refine_features && fit.deficit <= opts.silhouette_accept &&
+          fit.deficit < 0.9 * fit.deficit_start && sr.moved_deg <= opts.agree_deg &&
+          sr.moved_mm <= opts.agree_mm) {
+        sr.used = true;
+        out.T = fit.T;
+        out.source = "features+silhouettes";
+      } else if (fit.deficit_start > opts.silhouette_accept) {
+        sr.note = "the feature estimate leaves " + std::to_string(fit.deficit_start) +
                   " of the silhouettes uncovered (more than " + std::to_string(opts.silhouette_accept) + ")";
       }
     } else {
