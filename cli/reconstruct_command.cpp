@@ -9,9 +9,16 @@
 namespace aggscan {
 
 int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {
-  std::string sample_dir, state_dir, config_path;
+  std::string sample_dir, state_dir, config_path, surface = "hull+photo";
   for (size_t i = 0; i < args.size(); ++i) {
-    if (args[i] == "--config") {
+    if (args[i] == "--surface") {
+      if (i + 1 >= args.size() || (args[i + 1] != "hull" && args[i + 1] != "hull+photo")) {
+        err << "aggscan reconstruct: --surface needs hull (visual hull only) or hull+photo (refined by "
+               "photo-consistency, the default)\n";
+        return 2;
+      }
+      surface = args[++i];
+    } else if (args[i] == "--config") {
       if (i + 1 >= args.size()) {
         err << "aggscan reconstruct: --config needs a file\n";
         return 2;
@@ -49,6 +56,7 @@ int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& ou
   }
   ReconstructOptions opts;
   opts.state_dir = state_dir;
+  opts.photo_refine = surface == "hull+photo";
   if (!config_path.empty()) {
     // Only the [mask] section matters here: an ONNX mask network, if configured.
     std::vector<ConfigProblem> problems;

@@ -691,6 +691,34 @@ OrientedBox MinVolumeBox(const std::vector<Vec3d>& points) {
   return best;
 }
 
+void TaubinSmooth(Mesh* mesh, int iterations, double lambda, double mu) {
+  const size_t nv = mesh->vertices.size();
+  std::vector<std::vector<int>> nb(nv);
+  for (const auto& f : mesh->faces) {
+    for (int k = 0; k < 3; ++k) {
+      nb[f[k]].push_back(f[(k + 1) % 3]);
+      nb[f[k]].push_back(f[(k + 2) % 3]);
+    }
+  }
+  for (auto& n : nb) {
+    std::sort(n.begin(), n.end());
+    n.erase(std::unique(n.begin(), n.end()), n.end());
+  }
+  std::vector<Vec3d> next(nv);
+  for (int it = 0; it < 2 * iterations; ++it) {
+    const double f = it % 2 == 0 ? lambda : mu;
+    for (size_t i = 0; i < nv; ++i) {
+      next[i] = mesh->vertices[i];
+      if (nb[i].empty()) continue;
+      Vec3d c{0, 0, 0};
+      for (int j : nb[i]) c = Add(c, mesh->vertices[j]);
+      const double inv = 1.0 / static_cast<double>(nb[i].size());
+      for (int k = 0; k < 3; ++k) next[i][k] += f * (c[k] * inv - mesh->vertices[i][k]);
+    }
+    mesh->vertices.swap(next);
+  }
+}
+
 MeshProps ComputeMeshProps(const Mesh& mesh) {
   MeshProps p;
   if (mesh.faces.empty() || mesh.vertices.empty()) return p;

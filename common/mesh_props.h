@@ -46,6 +46,12 @@ MeshProps ComputeMeshProps(const Mesh& mesh);
 /// spelling `aggscan morph --json` and results/morphology.json share.
 nlohmann::json MeshPropsJson(const MeshProps& p);
 
+/// Taubin's lambda|mu smoothing of the vertex positions (topology untouched):
+/// each pass pair moves every vertex by lambda, then mu (< -lambda), times the
+/// offset to its neighbours' mean, which removes ripples a few edges long
+/// without the shrinkage of plain Laplacian smoothing.
+void TaubinSmooth(Mesh* mesh, int iterations, double lambda = 0.5, double mu = -0.53);
+
 /// Signed volume (positive for outward-facing counter-clockwise faces).
 double SignedVolume(const Mesh& mesh);
 double SurfaceArea(const Mesh& mesh);

@@ -431,6 +431,9 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
                   {"max_depth_mm", opts.photo.max_depth_mm},
                   {"image_scale", scale}});
   }
+  // Ripples a pixel or two high (the silhouettes' pixel steps, the depth
+  // search's noise) inflate the area: a few Taubin passes remove them.
+  if (opts.surface_smooth_iterations > 0) TaubinSmooth(&hull->mesh, opts.surface_smooth_iterations);
   const auto tc = std::chrono::steady_clock::now();
   auto colors = ColourVertices(hull->mesh, views, cam_from_object, masks, cal.camera);
   if (!colors) return colors.error();

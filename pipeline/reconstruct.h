@@ -56,6 +56,10 @@ struct ReconstructOptions {
   /// carved too deep (validate, 2016 x 1512: volume -1.0 and -2.4 % on seeds
   /// 1 and 2 against +0.2 % at 1008 x 756 on seed 1).
   int photo_max_width = 1008;
+  /// Taubin passes over the final surface (0: none). Validate, 2016 x 1512,
+  /// seeds 1, 6, 9, 15: area error +2.92 -> +2.47 % (mean) with 10, volume
+  /// unchanged (0.02 %); 20 passes gain only 0.1 % more.
+  int surface_smooth_iterations = 10;
   std::string state_dir;       // for the library CSV and the fallback calibration; may be empty
   const std::atomic<bool>* cancel = nullptr;
 };

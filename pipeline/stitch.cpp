@@ -462,11 +462,15 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
       // them coherent carves no rock away. Refined from the feature estimate
       // with small steps; kept when it is clearly more coherent and stays
       // within the agreement expected of two good estimates.
-      const SilhouetteFit fit = refine(f.T, 1.0);
+      const SilhouetteFit fit = refine(f.T, 2.0);
       record("features", f.T, fit);
-      if (opts.refine_features && fit.deficit <= opts.silhouette_accept &&
-          fit.deficit < 0.9 * fit.deficit_start && sr.moved_deg <= opts.agree_deg &&
-          sr.moved_mm <= opts.agree_mm) {
+      // A feature fit the silhouettes contradict (more uncovered than
+      // silhouette_accept: few or clustered inliers) is replaced by its
+      // refinement when that is coherent.
+      const bool contradicted = fit.deficit_start > opts.silhouette_accept;
+      const bool small_move = sr.moved_deg <= opts.agree_deg && sr.moved_mm <= opts.agree_mm;
+      if ((contradicted || (opts.refine_features && small_move)) && fit.deficit <= opts.silhouette_accept &&
+          fit.deficit < 0.9 * fit.deficit_start) {
         sr.used = true;
         out.T = fit.T;
         out.source = "features+silhouettes";

@@ -109,9 +109,12 @@ struct StitchOptions {
   double agree_mm = 3.0;               // ... and this in displacement over the rock agree
   /// Silhouette coherence (silhouette_stitch.h): a stitch refined by the
   /// silhouettes is accepted when the mean fraction of rock pixels its model
-  /// leaves uncovered is at most this (sim, computed masks: 0.003 at the true
-  /// motion, 0.013-0.025 at 3 deg off, 0.05-0.09 at 8 deg off).
-  double silhouette_accept = 0.01;
+  /// leaves uncovered is at most this, and a feature fit leaving more is
+  /// replaced by its refinement. Sim, computed masks: 0.003 at the true motion
+  /// at 1008 x 756, 0.013-0.025 at 3 deg off, 0.05-0.09 at 8 deg off; at 2016
+  /// x 1512 a right feature fit left 0.0045-0.011 (83 inliers: 0.0109, its
+  /// refinement 0.0102) and a wrong one 0.0156 (12 inliers, volume -5.2 %).
+  double silhouette_accept = 0.0125;
   double sweep_deg = 15;               // 2 marker points: trial rotations about their axis this far apart
   /// A feature estimate refined by the silhouettes when clearly more coherent.
   /// Off: on the sim at 2016 x 1512 (seed 1) it moved a 0.3 deg feature fit by

@@ -10,6 +10,7 @@
 
 #include <opencv2/imgcodecs.hpp>
 
+#include "cli/reconstruct_command.h"
 #include "cli/sim_capture.h"
 #include "common/fsutil.h"
 #include "common/mesh.h"
@@ -221,6 +222,33 @@ TEST(Reconstruct, MissingCalibrationSaysWhatToDo) {
   ASSERT_FALSE(s);
   EXPECT_NE(s.error().message.find("aggscan calibrate"), std::string::npos) << s.error().message;
   EXPECT_FALSE(fs::exists(sample + "/results/morphology.json"));
+}
+
+}  // namespace
+}  // namespace aggscan
+
+namespace aggscan {
+namespace {
+
+// `aggscan reconstruct --surface hull` skips the photo refinement and says so
+// in surface.json; an unknown surface is a usage error naming the choices.
+TEST(ReconstructCommand, SurfaceOptionChoosesTheHullAlone) {
+  test::TempDir tmp;
+  const std::string sample = Capture(tmp.path(), 6, 1);
+  {
+    std::ostringstream out, err;
+    EXPECT_EQ(RunReconstructCommand({sample, "--surface", "mesh"}, out, err), 2);
+    EXPECT_NE(err.str().find("hull+photo"), std::string::npos) << err.str();
+  }
+  std::ostringstream out, err;
+  ASSERT_EQ(RunReconstructCommand({sample, "--state-dir", tmp.path(), "--surface", "hull"}, out, err), 0) << err.str();
+  auto text = ReadFile(sample + "/results/surface.json");
+  ASSERT_TRUE(text);
+  const json surface = json::parse(*text);
+  EXPECT_EQ(surface["method"], "visual-hull");
+  EXPECT_FALSE(surface["photo_refine"]["enabled"].get<bool>());
+  const json printed = json::parse(out.str());
+  EXPECT_EQ(printed["methods"]["surface"], "visual-hull");
 }
 
 }  // namespace
