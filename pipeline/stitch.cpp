@@ -457,26 +457,33 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
                   " after refinement); the marker estimate is kept";
       }
     } else if (out.source == "features") {
-      // The feature fit is precise in rotation but carries its points' errors;
-      // the surface is carved from the silhouettes, so the motion that makes
-      // them coherent carves no rock away. Refined from the feature estimate
-      // with small steps; kept when it is clearly more coherent and stays
-      // within the agreement expected of two good estimates.
-      const SilhouetteFit fit = refine(f.T, 2.0);
-      record("features", f.T, fit);
+      // The feature fit is the more precise when its inliers are many and
+      // spread; the silhouettes check it (one deficit evaluation).
+      const double d0 = silhouettes->Deficit(f.T);
+      ++sr.evaluations;
       // A feature fit the silhouettes contradict (more uncovered than
       // silhouette_accept: few or clustered inliers) is replaced by its
-      // refinement when that is coherent.
-      const bool contradicted = fit.deficit_start > opts.silhouette_accept;
-      const bool small_move = sr.moved_deg <= opts.agree_deg && sr.moved_mm <= opts.agree_mm;
-      if ((contradicted || (opts.refine_features && small_move)) && fit.deficit <= opts.silhouette_accept &&
-          fit.deficit < 0.9 * fit.deficit_start) {
-        sr.used = true;
-        out.T = fit.T;
-        out.source = "features+silhouettes";
-      } else if (fit.deficit_start > opts.silhouette_accept) {
-        sr.note = "the feature estimate leaves " + std::to_string(fit.deficit_start) +
-                  " of the silhouettes uncovered (more than " + std::to_string(opts.silhouette_accept) + ")";
+      // refinement when that is coherent; a coherent one is only checked
+      // (refined too with refine_features).
+      const bool contradicted = d0 > opts.silhouette_accept;
+      if (contradicted || opts.refine_features) {
+        const SilhouetteFit fit = refine(f.T, 2.0);
+        record("features", f.T, fit);
+        const bool small_move = sr.moved_deg <= opts.agree_deg && sr.moved_mm <= opts.agree_mm;
+        if ((contradicted || small_move) && fit.deficit <= opts.silhouette_accept &&
+            fit.deficit < 0.9 * fit.deficit_start) {
+          sr.used = true;
+          out.T = fit.T;
+          out.source = "features+silhouettes";
+        } else if (contradicted) {
+          sr.note = "the feature estimate leaves " + std::to_string(d0) +
+                    " of the silhouettes uncovered (more than " + std::to_string(opts.silhouette_accept) +
+                    ") and its refinement is no better; the feature estimate is kept";
+        }
+      } else {
+        sr.tried = true;
+        sr.start = "features (check only)";
+        sr.deficit_start = sr.deficit = d0;
       }
     } else {
       // Neither estimate alone: refine whatever partial evidence there is.
