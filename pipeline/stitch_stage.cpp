@@ -277,8 +277,10 @@ Result<json> RunStitchStage(const StitchStageInput& in) {
       const SideEvidence& r = sides.at(ref);
       // Silhouette coherence needs no markers or features: it refines and
       // checks their estimates, and rescues a stitch each is too weak for.
+      const auto ts = std::chrono::steady_clock::now();
       auto sil = SilhouetteStitcher::Create(r.silhouettes, ev.silhouettes, in.calibration->camera);
-      json sil_record = {{"available", sil.ok()}};
+      json sil_record = {{"available", sil.ok()},
+                         {"prepare_s", std::chrono::duration<double>(std::chrono::steady_clock::now() - ts).count()}};
       if (!sil) sil_record["problem"] = sil.error().message;
       auto st = StitchSides(r.markers, ev.markers, &r.cloud, &ev.cloud, so, sil ? &*sil : nullptr);
       if (!st) {
