@@ -52,13 +52,20 @@ bool LoadBoardConfig(const std::string& path, Config* config, std::ostream& err)
   return true;
 }
 
-int BoardCommand(const std::vector<std::string>& a, std::ostream& out, std::ostream& err) {
+// Options of the printable sheets (`calibrate board`, `calibrate aruco`):
+// --out, --config, --dpi, and --margin-mm where the sheet has one.
+struct SheetArgs {
   std::string path, config_path;
   double dpi = 300, margin_mm = 10;
+};
+
+// 0 when parsed, else the exit code (2, usage) after saying what is wrong.
+int ParseSheetArgs(const std::vector<std::string>& a, const std::string& cmd, bool margin, SheetArgs* o,
+                   std::ostream& err) {
   for (size_t i = 1; i < a.size(); ++i) {
     auto val = [&](const char* name, std::string* v) {
       if (i + 1 >= a.size()) {
-        err << "aggscan calibrate board: " << name << " needs a value\n";
+        err << "aggscan calibrate " << cmd << ": " << name << " needs a value\n";
         return false;
       }
       *v = a[++i];
@@ -66,26 +73,35 @@ int BoardCommand(const std::vector<std::string>& a, std::ostream& out, std::ostr
     };
     std::string v;
     if (a[i] == "--out") {
-      if (!val("--out", &path)) return 2;
+      if (!val("--out", &o->path)) return 2;
     } else if (a[i] == "--config") {
-      if (!val("--config", &config_path)) return 2;
+      if (!val("--config", &o->config_path)) return 2;
     } else if (a[i] == "--dpi") {
       if (!val("--dpi", &v)) return 2;
-      if (!ParseNumber(v, &dpi) || dpi < 50 || dpi > 2400) {
-        err << "aggscan calibrate board: --dpi expects 50..2400, got '" << v << "'\n";
+      if (!ParseNumber(v, &o->dpi) || o->dpi < 50 || o->dpi > 2400) {
+        err << "aggscan calibrate " << cmd << ": --dpi expects 50..2400, got '" << v << "'\n";
         return 2;
       }
-    } else if (a[i] == "--margin-mm") {
+    } else if (margin && a[i] == "--margin-mm") {
       if (!val("--margin-mm", &v)) return 2;
-      if (!ParseNumber(v, &margin_mm) || margin_mm < 0 || margin_mm > 200) {
-        err << "aggscan calibrate board: --margin-mm expects 0..200, got '" << v << "'\n";
+      if (!ParseNumber(v, &o->margin_mm) || o->margin_mm < 0 || o->margin_mm > 200) {
+        err << "aggscan calibrate " << cmd << ": --margin-mm expects 0..200, got '" << v << "'\n";
         return 2;
       }
     } else {
-      err << "aggscan calibrate board: unknown argument '" << a[i] << "'\n";
+      err << "aggscan calibrate " << cmd << ": unknown argument '" << a[i] << "'\n";
       return 2;
     }
   }
+  return 0;
+}
+
+int BoardCommand(const std::vector<std::string>& a, std::ostream& out, std::ostream& err) {
+  SheetArgs o;
+  if (int rc = ParseSheetArgs(a, "board", true, &o, err); rc != 0) return rc;
+  const std::string& path = o.path;
+  const std::string& config_path = o.config_path;
+  const double dpi = o.dpi, margin_mm = o.margin_mm;
   if (path.empty()) {
     err << "aggscan calibrate board: --out FILE.png (or FILE.pgm) is required\n";
     return 2;
@@ -110,33 +126,11 @@ int BoardCommand(const std::vector<std::string>& a, std::ostream& out, std::ostr
 // them from this image; printed, cut apart and laid on the disc they are the
 // rig's markers).
 int ArucoCommand(const std::vector<std::string>& a, std::ostream& out, std::ostream& err) {
-  std::string path, config_path;
-  double dpi = 300;
-  for (size_t i = 1; i < a.size(); ++i) {
-    auto val = [&](const char* name, std::string* v) {
-      if (i + 1 >= a.size()) {
-        err << "aggscan calibrate aruco: " << name << " needs a value\n";
-        return false;
-      }
-      *v = a[++i];
-      return true;
-    };
-    std::string v;
-    if (a[i] == "--out") {
-      if (!val("--out", &path)) return 2;
-    } else if (a[i] == "--config") {
-      if (!val("--config", &config_path)) return 2;
-    } else if (a[i] == "--dpi") {
-      if (!val("--dpi", &v)) return 2;
-      if (!ParseNumber(v, &dpi) || dpi < 50 || dpi > 2400) {
-        err << "aggscan calibrate aruco: --dpi expects 50..2400, got '" << v << "'\n";
-        return 2;
-      }
-    } else {
-      err << "aggscan calibrate aruco: unknown argument '" << a[i] << "'\n";
-      return 2;
-    }
-  }
+  SheetArgs o;
+  if (int rc = ParseSheetArgs(a, "aruco", false, &o, err); rc != 0) return rc;
+  const std::string& path = o.path;
+  const std::string& config_path = o.config_path;
+  const double dpi = o.dpi;
   if (path.empty()) {
     err << "aggscan calibrate aruco: --out FILE.pgm (or FILE.png) is required\n";
     return 2;

@@ -50,21 +50,6 @@ bool TouchesRock(const std::vector<cv::Point2f>& quad, const cv::Mat& rock, int 
 }
 
 // Least-squares scale s minimising sum (s * rec - conf)^2, and the residuals.
-struct LengthFit {
-  double rms = 0, max = 0;
-};
-LengthFit Residuals(double s, const std::vector<std::pair<double, double>>& rc) {
-  LengthFit f;
-  double ss = 0;
-  for (const auto& [r, c] : rc) {
-    const double e = s * r - c;
-    ss += e * e;
-    f.max = std::max(f.max, std::abs(e));
-  }
-  f.rms = rc.empty() ? 0.0 : std::sqrt(ss / static_cast<double>(rc.size()));
-  return f;
-}
-
 struct DictName {
   const char* name;
   cv::aruco::PREDEFINED_DICTIONARY_NAME id;
@@ -491,19 +476,16 @@ Result<ArucoScale> LocateArucoMarkers(const std::vector<ArucoViewDetections>& vi
                          "lit without glare, and that rig.aruco_dictionary, aruco_size_mm and "
                          "aruco_markers match the print");
   }
-  double num = 0, den = 0;
-  for (const auto* set : {&edges, &centres}) {
-    for (const auto& [r, c] : *set) num += r * c, den += r * r;
-  }
-  out.scale = den > 0 ? num / den : 1.0;
-  std::vector<std::pair<double, double>> all = edges;
+  std::vector<geom::LengthPair> all = edges;
   all.insert(all.end(), centres.begin(), centres.end());
   out.lengths = static_cast<int>(all.size());
-  const LengthFit fa = Residuals(out.scale, all), fe = Residuals(out.scale, edges),
-                  fc = Residuals(out.scale, centres);
-  out.rms_mm = fa.rms, out.max_mm = fa.max;
-  out.edge_rms_mm = fe.rms, out.edge_max_mm = fe.max;
-  out.centre_rms_mm = fc.rms, out.centre_max_mm = fc.max;
+  const geom::LengthScaleFit fa = geom::FitLengthScale(all);
+  out.scale = fa.scale;
+  const geom::LengthScaleFit fe = geom::LengthResiduals(out.scale, edges),
+                             fc = geom::LengthResiduals(out.scale, centres);
+  out.rms_mm = fa.rms_mm, out.max_mm = fa.max_mm;
+  out.edge_rms_mm = fe.rms_mm, out.edge_max_mm = fe.max_mm;
+  out.centre_rms_mm = fc.rms_mm, out.centre_max_mm = fc.max_mm;
   out.centre_pairs = static_cast<int>(centres.size());
   if (const std::optional<geom::Similarity3> T = geom::AlignPoints(rec, conf, true)) {
     out.frame_to_table = *T;

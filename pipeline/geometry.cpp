@@ -364,4 +364,23 @@ std::optional<RansacRigidResult> RansacRigid(const std::vector<Eigen::Vector3d>&
   return out;
 }
 
+LengthScaleFit LengthResiduals(double scale, const std::vector<LengthPair>& lengths) {
+  LengthScaleFit f;
+  f.scale = scale;
+  double ss = 0;
+  for (const auto& [r, c] : lengths) {
+    const double e = scale * r - c;
+    ss += e * e;
+    f.max_mm = std::max(f.max_mm, std::abs(e));
+  }
+  f.rms_mm = lengths.empty() ? 0.0 : std::sqrt(ss / static_cast<double>(lengths.size()));
+  return f;
+}
+
+LengthScaleFit FitLengthScale(const std::vector<LengthPair>& lengths) {
+  double num = 0, den = 0;
+  for (const auto& [r, c] : lengths) num += r * c, den += r * r;
+  return LengthResiduals(den > 0 ? num / den : 1.0, lengths);
+}
+
 }  // namespace aggscan::geom

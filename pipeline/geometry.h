@@ -12,6 +12,7 @@
 #include <array>
 #include <cstdint>
 #include <optional>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -112,6 +113,21 @@ Result<TriangulatedPoint> TriangulatePoint(const std::vector<Sighting>& sighting
 /// dst[i] (Umeyama 1991). Needs >= 3 non-collinear pairs; nullopt otherwise.
 std::optional<Similarity3> AlignPoints(const std::vector<Eigen::Vector3d>& src,
                                        const std::vector<Eigen::Vector3d>& dst, bool with_scale);
+
+/// A length reconstructed and the same length as configured (mm).
+using LengthPair = std::pair<double, double>;
+
+struct LengthScaleFit {
+  double scale = 1.0;            // s minimising sum (s * reconstructed - configured)^2
+  double rms_mm = 0, max_mm = 0; // of s * reconstructed - configured
+};
+
+/// Least-squares scale of reconstructed onto configured lengths (1 when there
+/// are none) and its residuals: the scale check of labels and ArUco markers.
+LengthScaleFit FitLengthScale(const std::vector<LengthPair>& lengths);
+
+/// Residuals of `lengths` under a given scale (scale field = that scale).
+LengthScaleFit LengthResiduals(double scale, const std::vector<LengthPair>& lengths);
 
 /// RMS and max of |T(src[i]) - dst[i]| (mm).
 void AlignmentResidual(const Similarity3& T, const std::vector<Eigen::Vector3d>& src,

@@ -417,24 +417,16 @@ Result<LabelScale> LocateLabels(const std::vector<ViewMarkers>& views,
                          "anything else, lit, and that rig.markers lists their colours and "
                          "positions");
   }
-  double num = 0, den = 0;
+  std::vector<geom::LengthPair> pairs;
   for (size_t i = 0; i < rec.size(); ++i) {
     for (size_t j = i + 1; j < rec.size(); ++j) {
-      const double dr = (rec[i] - rec[j]).norm(), dc = (conf[i] - conf[j]).norm();
-      num += dr * dc, den += dr * dr;
+      pairs.emplace_back((rec[i] - rec[j]).norm(), (conf[i] - conf[j]).norm());
     }
   }
-  out.scale = den > 0 ? num / den : 1.0;
-  double ss = 0;
-  int np = 0;
-  for (size_t i = 0; i < rec.size(); ++i) {
-    for (size_t j = i + 1; j < rec.size(); ++j) {
-      const double e = out.scale * (rec[i] - rec[j]).norm() - (conf[i] - conf[j]).norm();
-      ss += e * e, ++np;
-      out.pair_max_mm = std::max(out.pair_max_mm, std::abs(e));
-    }
-  }
-  out.pair_rms_mm = std::sqrt(ss / std::max(np, 1));
+  const geom::LengthScaleFit fit = geom::FitLengthScale(pairs);
+  out.scale = fit.scale;
+  out.pair_rms_mm = fit.rms_mm;
+  out.pair_max_mm = fit.max_mm;
   const std::optional<geom::Similarity3> T = geom::AlignPoints(rec, conf, true);
   if (!T) {
     return MakeError(ErrorClass::kInvalidArgument,

@@ -17,6 +17,7 @@ struct Rig {
   RigCalibration cal;
   std::array<testing::SideCapture, 2> sides;
   std::array<SilhouetteSideInput, 2> sil;
+  std::array<SideMarkers, 2> markers;  // object markers located per side
 };
 
 Rig Capture(uint64_t seed, int width, int height) {
@@ -34,6 +35,8 @@ Rig Capture(uint64_t seed, int width, int height) {
       rig.sil[side - 1].masks.push_back(ComputeForegroundMask(rig.sides[side - 1].views[i].bgr));
       rig.sil[side - 1].cam_from_table.push_back(rig.sides[side - 1].poses[i]);
     }
+    const testing::SideCapture& s = rig.sides[side - 1];
+    rig.markers[side - 1] = LocateObjectMarkers(s.markers, s.poses, rig.cal.camera, testing::ObjectColors());
   }
   return rig;
 }
@@ -91,11 +94,6 @@ TEST(SilhouetteStitchSim, RefinesPerturbedMotionsBackToTheTruth) {
   }
 }
 
-SideMarkers Locate(const Rig& rig, int side) {
-  const testing::SideCapture& s = rig.sides[static_cast<size_t>(side - 1)];
-  return LocateObjectMarkers(s.markers, s.poses, rig.cal.camera, testing::ObjectColors());
-}
-
 // Seed 2: the red marker lies under the rock on side 2, so only the purple
 // marker's head and tail are on both sides. Without features (as on a small
 // rock, whose few SIFT matches do not survive the flip) the two points and
@@ -103,7 +101,7 @@ SideMarkers Locate(const Rig& rig, int side) {
 // are tried, the most coherent refined.
 TEST(SilhouetteStitchSim, RescuesTwoMarkerPointsWithoutFeatures) {
   Rig rig = Capture(2, 1008, 756);
-  const SideMarkers m1 = Locate(rig, 1), m2 = Locate(rig, 2);
+  const SideMarkers &m1 = rig.markers[0], &m2 = rig.markers[1];
   auto sil = SilhouetteStitcher::Create(rig.sil[0], rig.sil[1], rig.cal.camera);
   ASSERT_TRUE(sil.ok()) << sil.error().ToString();
   // Without the silhouettes: the clear error.
@@ -125,7 +123,7 @@ TEST(SilhouetteStitchSim, RescuesTwoMarkerPointsWithoutFeatures) {
 // the line joining them is weak; the silhouettes refine it.
 TEST(SilhouetteStitchSim, RefinesAMarkerOnlyStitch) {
   Rig rig = Capture(6, 1008, 756);
-  const SideMarkers m1 = Locate(rig, 1), m2 = Locate(rig, 2);
+  const SideMarkers &m1 = rig.markers[0], &m2 = rig.markers[1];
   auto sil = SilhouetteStitcher::Create(rig.sil[0], rig.sil[1], rig.cal.camera);
   ASSERT_TRUE(sil.ok()) << sil.error().ToString();
   auto plain = StitchSides(m1, m2, nullptr, nullptr);
