@@ -436,8 +436,8 @@ void AttachPaintBlobs(const cv::Mat& paint, const cv::Mat& thick, const MaskOpti
 
 // Full-resolution band step around `coarse_full` (ROI-sized 0/255): each band
 // pixel goes to the nearer of the local rock and local background mean colours.
-cv::Mat BandRefine(const cv::Mat& bgr_roi, const cv::Mat& coarse_full, const cv::Mat& saturated,
-                   const MaskOptions& o) {
+cv::Mat BandRefine(const cv::Mat& bgr_roi, const cv::Mat& coarse_full, const cv::Mat& saturated, int inner_px,
+                   int outer_px, const MaskOptions& o) {
   cv::Mat lab = ToLab(bgr_roi, 1.0);
   {
     cv::Mat ch[3];
@@ -447,8 +447,8 @@ cv::Mat BandRefine(const cv::Mat& bgr_roi, const cv::Mat& coarse_full, const cv:
     cv::merge(ch, 3, lab);
   }
   cv::Mat sure_fg, grown;
-  cv::erode(coarse_full, sure_fg, Disk(o.band_inner_px));
-  cv::dilate(coarse_full, grown, Disk(o.band_outer_px));
+  cv::erode(coarse_full, sure_fg, Disk(inner_px));
+  cv::dilate(coarse_full, grown, Disk(outer_px));
   cv::Mat sure_bg = ~grown;
   const cv::Mat band_mask = grown & ~sure_fg;
   sure_fg &= ~saturated;
@@ -487,7 +487,10 @@ cv::Mat BandRefine(const cv::Mat& bgr_roi, const cv::Mat& coarse_full, const cv:
 }
 
 // Working-resolution mask -> full-resolution mask, refined as opts say.
-cv::Mat FinishMask(const cv::Mat& bgr, const Scene& s, cv::Mat work, const MaskOptions& o) {
+// `narrow`: the band after a graph cut seeded by our own coarse mask is
+// graphcut_band_px wide; a rough mask from elsewhere (a network's blurred
+// map) keeps the wide band of kBand.
+cv::Mat FinishMask(const cv::Mat& bgr, const Scene& s, cv::Mat work, const MaskOptions& o, bool narrow) {
   cv::Mat out = cv::Mat::zeros(bgr.size(), CV_8UC1);
   if (o.refine == MaskRefine::kGraphCut) work = GraphCutRefine(s, work, o);
   const cv::Rect wbox = cv::boundingRect(work);
@@ -519,7 +522,10 @@ cv::Mat FinishMask(const cv::Mat& bgr, const Scene& s, cv::Mat work, const MaskO
     saturated = PaintMap(AbOf(bgr(roi), 1.0), ColorDistanceMap(f, s.background, o), s.rock_ab, o);
   }
   const bool band = o.refine == MaskRefine::kBand || (o.refine == MaskRefine::kGraphCut && scale < 1.0);
-  cv::Mat refined = band ? BandRefine(bgr(roi), full, saturated, o) : full;
+  const bool after_cut = narrow && o.refine == MaskRefine::kGraphCut;
+  cv::Mat refined = band ? BandRefine(bgr(roi), full, saturated, after_cut ? o.graphcut_band_px : o.band_inner_px,
+                                      after_cut ? o.graphcut_band_px : o.band_outer_px, o)
+                         : full;
   refined &= ~saturated;
   cv::morphologyEx(refined, refined, cv::MORPH_OPEN, Disk(1));
   cv::morphologyEx(refined, refined, cv::MORPH_CLOSE, Disk(2));
@@ -574,7 +580,7 @@ cv::Mat ComputeForegroundMask(const cv::Mat& bgr, const MaskOptions& o) {
   CV_Assert(bgr.type() == CV_8UC3 && !bgr.empty());
   Scene s = PrepareScene(bgr, o);
   const cv::Mat coarse = CoarseMask(s, o);
-  return FinishMask(bgr, s, coarse, o);
+  return FinishMask(bgr, s, coarse, o, /*narrow=*/true);
 }
 
 cv::Mat RefineForegroundMask(const cv::Mat& bgr, const cv::Mat& rough, const MaskOptions& o) {
@@ -589,7 +595,7 @@ cv::Mat RefineForegroundMask(const cv::Mat& bgr, const cv::Mat& rough, const Mas
   }
   work = LargestComponentFilled(work);
   SetRockColor(s, work, o);
-  return FinishMask(bgr, s, work, o);
+  return FinishMask(bgr, s, work, o, /*narrow=*/false);
 }
 
 }  // namespace aggscan

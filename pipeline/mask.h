@@ -23,11 +23,12 @@
 //   4. Refinement (refine): kGrabCut runs cv::grabCut seeded with that mask
 //      (sure rock well inside, sure background well outside, the labels forced
 //      to background) on the rock's neighbourhood at refine_long_side; then,
-//      for images larger than the working resolution, the band step below.
-//      kBand: only the band step. The band step: at full resolution, in a band
-//      around the boundary, each pixel goes to the nearer of the local rock and
-//      local background mean colours (normalised convolution over the sure
-//      regions on both sides).
+//      for images larger than the working resolution, the band step below in
+//      a narrow band (graphcut_band_px). kBand: only the band step, in a wide
+//      band around the coarse mask. The band step: at full resolution, in a
+//      band around the boundary, each pixel goes to the nearer of the local
+//      rock and local background mean colours (normalised convolution over the
+//      sure regions on both sides).
 //   5. Thin saturated blobs touching the rock (a marker along or across the
 //      silhouette edge) join it; label-thick blobs (labels on the disc, even
 //      when the rock touches or partly hides them) do not.
@@ -69,11 +70,18 @@ struct MaskOptions {
   double label_thickness = 0.4;     // a paint blob this thick relative to the thickest one clear of the rock is a label
   int paint_fringe_px = 2;          // coarse px of mixed colour around paint, neutral in the graph cut too
   double graphcut_band = 0.06;      // uncertain band half-width around the seed mask, fraction of the rock's size
-  int band_inner_px = 14;           // full-res band reaches this far inside the boundary
-  int band_outer_px = 6;            // and this far outside
+  int band_inner_px = 14;           // kBand: the full-res band reaches this far inside the coarse boundary
+  int band_outer_px = 6;            //   and this far outside
+  int graphcut_band_px = 2;         // kGraphCut: the band reaches this far on both sides of the cut's boundary
+                                    // (when the cut was seeded by the coarse mask; after a network's seed the
+                                    // band is band_inner_px / band_outer_px wide).
+                                    // The cut is good to ~1.5 px; a wider band lets the local-mean rule take
+                                    // rock faces as bright as the table or as dark as the shadow (sim 2016 x 1512,
+                                    // 20 rocks: worst view 2.5 px of rock lost per px of outline at 14/6, 0.36 at 2)
   double local_sigma_px = 10.0;     // full-res Gaussian of the local mean colours
   double chroma_weight = 2.0;       // weight of a,b against L in the local colour distance
-  double marker_touch_fraction = 0.3;   // a thin paint blob (not label-thick) joins the rock if this much of its rim is rock
+  double marker_touch_fraction = 0.1;   // a thin paint blob (not label-thick) joins the rock if this much of its rim is rock
+                                        // (a marker along the silhouette has the background on most of its rim)
 };
 
 /// 0/255 CV_8UC1 mask of the rock in a CV_8UC3 BGR photo (same size). An

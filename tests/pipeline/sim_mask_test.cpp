@@ -17,6 +17,26 @@
 namespace aggscan {
 namespace {
 
+// One sim view at the rig's 2016 x 1512 through JPEG (quality 92), as the
+// capture stores it, with the renderer's ground-truth mask.
+struct RenderedView {
+  cv::Mat bgr, truth;
+};
+RenderedView RenderView(sim::Renderer& r, uint64_t seed, int side, double angle) {
+  sim::RenderOptions o;
+  o.want_mask = true;
+  o.noise_seed = seed * 100 + side;
+  const sim::RenderedImage img = r.Render(side, angle, o);
+  cv::Mat rgb(img.height, img.width, CV_8UC3, const_cast<uint8_t*>(img.rgb.data()));
+  RenderedView v;
+  cv::cvtColor(rgb, v.bgr, cv::COLOR_RGB2BGR);
+  std::vector<unsigned char> jpg;
+  cv::imencode(".jpg", v.bgr, jpg, {cv::IMWRITE_JPEG_QUALITY, 92});
+  v.bgr = cv::imdecode(jpg, cv::IMREAD_COLOR);
+  v.truth = cv::Mat(img.height, img.width, CV_8UC1, const_cast<uint8_t*>(img.mask.data())).clone();
+  return v;
+}
+
 // Issue 3 item 2: IoU >= 0.98 (measured 0.9816-0.9984). 18 views at the
 // rig's 2016 x 1512: ~25 s (the renderer is built with -O2
 // even in Debug builds).
@@ -30,17 +50,9 @@ TEST(SimMask, IoUOnRenderedViews) {
     sim::Renderer r(**world, 2016, 1512);
     for (int side : {1, 2}) {
       for (double angle : {0.0, 120.0, 240.0}) {
-        sim::RenderOptions o;
-        o.want_mask = true;
-        o.noise_seed = seed * 100 + side;
-        const sim::RenderedImage img = r.Render(side, angle, o);
-        cv::Mat rgb(img.height, img.width, CV_8UC3, const_cast<uint8_t*>(img.rgb.data()));
-        cv::Mat bgr;
-        cv::cvtColor(rgb, bgr, cv::COLOR_RGB2BGR);
-        std::vector<unsigned char> jpg;
-        cv::imencode(".jpg", bgr, jpg, {cv::IMWRITE_JPEG_QUALITY, 92});
-        bgr = cv::imdecode(jpg, cv::IMREAD_COLOR);
-        const cv::Mat truth(img.height, img.width, CV_8UC1, const_cast<uint8_t*>(img.mask.data()));
+        const RenderedView view = RenderView(r, seed, side, angle);
+        const cv::Mat& bgr = view.bgr;
+        const cv::Mat& truth = view.truth;
         const TimeNs t0 = MonotonicNs();
         const cv::Mat mask = ComputeForegroundMask(bgr);
         const double ms = static_cast<double>(MonotonicNs() - t0) / 1e6;
@@ -64,6 +76,49 @@ TEST(SimMask, IoUOnRenderedViews) {
     }
   }
   std::printf("sim worst IoU %.4f\n", worst);
+}
+
+// A visual hull is the intersection of the views' cones, so rock that one
+// mask leaves out is carved out of the model, whatever the other views say;
+// rock a mask adds is carved by the others. Lost rock is therefore measured
+// per view as the rock pixels missing from the mask per pixel of outline (a
+// mean inward offset of the outline, px). Seeds 9 and 15 had the worst views
+// of a 20-rock validation: a lit face as bright as the table and a shaded
+// underside beside the shadow, which a 14 px wide full-resolution band gave to
+// the background (up to 2.5 px), and an object marker along the silhouette,
+// which a 30 % rim-contact rule left out (1.9 px). Measured since: at most
+// 0.36 px lost and 0.94 px added over 160 views of 20 rocks.
+TEST(SimMask, NoViewLosesRockAtTheSilhouette) {
+  double worst_lost = 0, worst_added = 0;
+  for (uint64_t seed : {9, 15}) {
+    Config cfg;
+    cfg.sim.seed = seed;
+    auto world = sim::SimWorld::Create(cfg);
+    ASSERT_TRUE(world.ok()) << world.error().ToString();
+    sim::Renderer r(**world, 2016, 1512);
+    for (int side : {1, 2}) {
+      for (int k = 0; k < 12; ++k) {
+        const double angle = 30.0 * k;
+        const RenderedView v = RenderView(r, seed, side, angle);
+        const cv::Mat mask = ComputeForegroundMask(v.bgr) > 127;
+        const cv::Mat truth = v.truth > 127;
+        std::vector<std::vector<cv::Point>> outline;
+        cv::findContours(truth.clone(), outline, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_NONE);
+        double length = 0;
+        for (const auto& c : outline) length += cv::arcLength(c, true);
+        ASSERT_GT(length, 100.0);
+        const double lost = cv::countNonZero(truth & ~mask) / length;
+        const double added = cv::countNonZero(mask & ~truth) / length;
+        std::printf("sim seed %llu side %d angle %3.0f: rock lost %.2f px, added %.2f px\n",
+                    static_cast<unsigned long long>(seed), side, angle, lost, added);
+        EXPECT_LE(lost, 0.6) << "seed " << seed << " side " << side << " angle " << angle;
+        EXPECT_LE(added, 1.5) << "seed " << seed << " side " << side << " angle " << angle;
+        worst_lost = std::max(worst_lost, lost);
+        worst_added = std::max(worst_added, added);
+      }
+    }
+  }
+  std::printf("sim worst: rock lost %.2f px, added %.2f px per px of outline\n", worst_lost, worst_added);
 }
 
 }  // namespace
