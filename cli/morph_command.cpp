@@ -60,6 +60,12 @@ int RunMorphCommand(const std::string& path, const std::string& unit, bool json,
                 p.surface_area_mm2 / 100.0, p.surface_area_mm2, p.a_mm, p.b_mm, p.c_mm, p.fer_3d, p.c_over_b,
                 p.b_over_a, p.sphericity);
   out << buf;
+  if (BoxIllConditioned(p)) {
+    std::snprintf(buf, sizeof buf,
+                  "note: a, b, c are ill-conditioned: a box only %.2f %% larger measures %.3f / %.3f / %.3f mm\n",
+                  100 * (p.second_box_volume_ratio - 1), p.second_a_mm, p.second_b_mm, p.second_c_mm);
+    out << buf;
+  }
   if (topo.components > 1) out << "note: " << topo.components << " separate pieces\n";
   return 0;
 }

@@ -51,12 +51,25 @@ RockFigures FiguresFrom(const json& j) {
   f.b_mm = j.value("b_mm", 0.0);
   f.c_mm = j.value("c_mm", 0.0);
   f.sphericity = j.value("sphericity", 0.0);
+  if (const auto it = j.find("second_box"); it != j.end() && it->is_object()) {
+    f.second_box_ratio = it->value("volume_ratio", 0.0);
+    f.second_a_mm = it->value("a_mm", 0.0);
+    f.second_b_mm = it->value("b_mm", 0.0);
+    f.second_c_mm = it->value("c_mm", 0.0);
+  }
   return f;
 }
 
 json FiguresJson(const RockFigures& f) {
-  return {{"volume_mm3", f.volume_mm3}, {"surface_area_mm2", f.area_mm2}, {"a_mm", f.a_mm},
-          {"b_mm", f.b_mm},             {"c_mm", f.c_mm},                 {"sphericity", f.sphericity}};
+  json j = {{"volume_mm3", f.volume_mm3}, {"surface_area_mm2", f.area_mm2}, {"a_mm", f.a_mm},
+            {"b_mm", f.b_mm},             {"c_mm", f.c_mm},                 {"sphericity", f.sphericity}};
+  if (f.second_box_ratio > 0) {
+    j["second_box"] = {{"volume_ratio", f.second_box_ratio},
+                       {"a_mm", f.second_a_mm},
+                       {"b_mm", f.second_b_mm},
+                       {"c_mm", f.second_c_mm}};
+  }
+  return j;
 }
 
 // What the sim rig does to the photos and the turntable (config.h defaults):
@@ -272,6 +285,18 @@ bool ParseCount(const std::string& s, long long* v) {
 
 }  // namespace
 
+double DimErrors::MaxAbs() const { return std::max({std::fabs(a_pct), std::fabs(b_pct), std::fabs(c_pct)}); }
+
+DimErrors DimsAgainstTruth(const RockFigures& truth, const RockFigures& rec) {
+  DimErrors best{Pct(rec.a_mm, truth.a_mm), Pct(rec.b_mm, truth.b_mm), Pct(rec.c_mm, truth.c_mm), false};
+  if (truth.second_box_ratio > 0 && truth.second_box_ratio <= 1 + kBoxAmbiguousVolume) {
+    const DimErrors second{Pct(rec.a_mm, truth.second_a_mm), Pct(rec.b_mm, truth.second_b_mm),
+                           Pct(rec.c_mm, truth.second_c_mm), true};
+    if (second.MaxAbs() < best.MaxAbs()) return second;
+  }
+  return best;
+}
+
 ValidateSummary Summarize(const std::vector<ValidateRock>& rocks, const ValidateTargets& t) {
   ValidateSummary s;
   double sum = 0, sum_abs = 0, sum_area = 0;
@@ -285,9 +310,15 @@ ValidateSummary Summarize(const std::vector<ValidateRock>& rocks, const Validate
     sum_abs += std::fabs(e);
     s.volume_max_abs_pct = std::max(s.volume_max_abs_pct, std::fabs(e));
     sum_area += Pct(r.rec.area_mm2, r.truth.area_mm2);
-    s.a_max_abs_pct = std::max(s.a_max_abs_pct, std::fabs(Pct(r.rec.a_mm, r.truth.a_mm)));
-    s.b_max_abs_pct = std::max(s.b_max_abs_pct, std::fabs(Pct(r.rec.b_mm, r.truth.b_mm)));
-    s.c_max_abs_pct = std::max(s.c_max_abs_pct, std::fabs(Pct(r.rec.c_mm, r.truth.c_mm)));
+    const DimErrors d = DimsAgainstTruth(r.truth, r.rec);
+    s.a_max_abs_pct = std::max(s.a_max_abs_pct, std::fabs(d.a_pct));
+    s.b_max_abs_pct = std::max(s.b_max_abs_pct, std::fabs(d.b_pct));
+    s.c_max_abs_pct = std::max(s.c_max_abs_pct, std::fabs(d.c_pct));
+    if (d.MaxAbs() <= t.dims_pct) ++s.dims_within;
+    if (d.second_box) ++s.dims_second_box;
+    s.dims_raw_max_abs_pct =
+        std::max({s.dims_raw_max_abs_pct, std::fabs(Pct(r.rec.a_mm, r.truth.a_mm)),
+                  std::fabs(Pct(r.rec.b_mm, r.truth.b_mm)), std::fabs(Pct(r.rec.c_mm, r.truth.c_mm))});
     s.sphericity_max_abs = std::max(s.sphericity_max_abs, std::fabs(r.rec.sphericity - r.truth.sphericity));
   }
   if (s.rocks_ok > 0) {
@@ -409,6 +440,14 @@ void PrintValidateReport(const ValidateReport& r, std::ostream& out) {
                   k.rec.a_mm, k.truth.b_mm, k.rec.b_mm, k.truth.c_mm, k.rec.c_mm, k.truth.sphericity,
                   k.rec.sphericity);
     out << b;
+    if (const DimErrors d = DimsAgainstTruth(k.truth, k.rec); d.second_box) {
+      std::snprintf(b, sizeof b,
+                    "%-22s   a, b, c ill-conditioned: matched to the truth's second box %.1f / %.1f / %.1f mm "
+                    "(%+.2f %% volume), errors %+.1f / %+.1f / %+.1f %%\n",
+                    "", k.truth.second_a_mm, k.truth.second_b_mm, k.truth.second_c_mm,
+                    100 * (k.truth.second_box_ratio - 1), d.a_pct, d.b_pct, d.c_pct);
+      out << b;
+    }
   }
   const ValidateSummary& s = r.summary;
   const ValidateTargets& t = r.targets;
@@ -422,9 +461,17 @@ void PrintValidateReport(const ValidateReport& r, std::ostream& out) {
   std::snprintf(b, sizeof b, "volume MAPE       %7.2f %%   target <= %.1f %%         %s   (max |error| %.2f %%)\n",
                 s.volume_mape_pct, t.volume_mape_pct, verdict(s.volume_mape_pass), s.volume_max_abs_pct);
   out << b;
-  std::snprintf(b, sizeof b, "max |a|,|b|,|c| error %.2f / %.2f / %.2f %%   target <= %.1f %%   %s\n",
-                s.a_max_abs_pct, s.b_max_abs_pct, s.c_max_abs_pct, t.dims_pct, verdict(s.dims_pass));
+  std::snprintf(b, sizeof b, "max |a|,|b|,|c| error %.2f / %.2f / %.2f %%   target <= %.1f %%   %s   (%d of %d rocks within)\n",
+                s.a_max_abs_pct, s.b_max_abs_pct, s.c_max_abs_pct, t.dims_pct, verdict(s.dims_pass), s.dims_within,
+                s.rocks_ok);
   out << b;
+  if (s.dims_second_box > 0) {
+    std::snprintf(b, sizeof b,
+                  "  %d rock(s) matched to the truth's second box (a, b, c ill-conditioned: a second box within "
+                  "%.0f %% of the minimum volume); against the minimum box alone the max error is %.2f %%\n",
+                  s.dims_second_box, 100 * kBoxAmbiguousVolume, s.dims_raw_max_abs_pct);
+    out << b;
+  }
   std::snprintf(b, sizeof b, "max |sphericity error| %.4f   target <= %.2f   %s\n", s.sphericity_max_abs, t.sphericity,
                 verdict(s.sphericity_pass));
   out << b;
@@ -447,9 +494,11 @@ json ValidateReportToJson(const ValidateReport& r) {
       j["reconstructed"] = FiguresJson(k.rec);
       j["errors"] = {{"volume_pct", Pct(k.rec.volume_mm3, k.truth.volume_mm3)},
                      {"surface_area_pct", Pct(k.rec.area_mm2, k.truth.area_mm2)},
-                     {"a_pct", Pct(k.rec.a_mm, k.truth.a_mm)},
-                     {"b_pct", Pct(k.rec.b_mm, k.truth.b_mm)},
-                     {"c_pct", Pct(k.rec.c_mm, k.truth.c_mm)},
+                     {"a_pct", DimsAgainstTruth(k.truth, k.rec).a_pct},
+                     {"b_pct", DimsAgainstTruth(k.truth, k.rec).b_pct},
+                     {"c_pct", DimsAgainstTruth(k.truth, k.rec).c_pct},
+                     {"dims_against", DimsAgainstTruth(k.truth, k.rec).second_box ? "truth's second box"
+                                                                                   : "truth's minimum box"},
                      {"sphericity", k.rec.sphericity - k.truth.sphericity}};
     }
     if (k.seconds > 0) j["seconds"] = k.seconds;
@@ -471,6 +520,9 @@ json ValidateReportToJson(const ValidateReport& r) {
             {"a_max_abs_error_pct", s.a_max_abs_pct},
             {"b_max_abs_error_pct", s.b_max_abs_pct},
             {"c_max_abs_error_pct", s.c_max_abs_pct},
+            {"dims_within_target", s.dims_within},
+            {"dims_matched_to_second_box", s.dims_second_box},
+            {"dims_max_abs_error_against_minimum_box_pct", s.dims_raw_max_abs_pct},
             {"sphericity_max_abs_error", s.sphericity_max_abs}}},
           {"targets",
            {{"volume_abs_mpe_pct", t.volume_mpe_pct},

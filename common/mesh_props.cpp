@@ -563,9 +563,19 @@ OrientedBox Refine(const Vec3d& n0, HullEval& eval, double step_deg) {
   return best;
 }
 
-// The best of the candidate axes on `eval`, then refined: the `starts` best
-// distinct boxes, each from all three of its axes.
-OrientedBox SearchBox(HullEval& eval, const std::vector<Vec3d>& cand, int starts, double step_deg) {
+// The candidate axes scored on `eval`; the `starts` best distinct boxes are
+// each refined from all three of their axes. Returns the refined boxes,
+// smallest first, with duplicates (the same box reached twice) removed.
+bool SameBox(const OrientedBox& a, const OrientedBox& b) {
+  const double same_cos = std::cos(1.0 * std::numbers::pi / 180);
+  int same = 0;
+  for (const Vec3d& ax : a.axes)
+    for (const Vec3d& bx : b.axes)
+      if (std::fabs(Dot(ax, bx)) > same_cos) ++same;
+  return same >= 3;
+}
+
+std::vector<OrientedBox> SearchBoxes(HullEval& eval, const std::vector<Vec3d>& cand, int starts, double step_deg) {
   struct Scored {
     double volume;
     Vec3d axis;
@@ -575,33 +585,23 @@ OrientedBox SearchBox(HullEval& eval, const std::vector<Vec3d>& cand, int starts
   for (const Vec3d& n : cand) scored.push_back({eval.Box(n).Volume(), n});
   std::sort(scored.begin(), scored.end(),
             [](const Scored& a, const Scored& b) { return a.volume < b.volume; });
-  std::vector<OrientedBox> chosen;
-  OrientedBox best;
-  double best_volume = std::numeric_limits<double>::infinity();
-  const double same_cos = std::cos(1.0 * std::numbers::pi / 180);
+  std::vector<OrientedBox> chosen, refined;
   for (const Scored& s : scored) {
     if (static_cast<int>(chosen.size()) >= starts) break;
     const OrientedBox b = eval.Box(s.axis);
     // A box is the same whichever of its axes was the candidate.
-    bool dup = false;
-    for (const OrientedBox& o : chosen) {
-      int same = 0;
-      for (const Vec3d& ax : b.axes)
-        for (const Vec3d& ox : o.axes)
-          if (std::fabs(Dot(ax, ox)) > same_cos) ++same;
-      if (same >= 3) dup = true;
-    }
-    if (dup) continue;
+    if (std::any_of(chosen.begin(), chosen.end(), [&](const OrientedBox& o) { return SameBox(b, o); })) continue;
     chosen.push_back(b);
     for (const Vec3d& ax : b.axes) {
-      OrientedBox r = Refine(ax, eval, step_deg);
-      if (r.Volume() < best_volume) {
-        best_volume = r.Volume();
-        best = r;
+      const OrientedBox r = Refine(ax, eval, step_deg);
+      if (std::none_of(refined.begin(), refined.end(), [&](const OrientedBox& o) { return SameBox(r, o); })) {
+        refined.push_back(r);
       }
     }
   }
-  return best;
+  std::sort(refined.begin(), refined.end(),
+            [](const OrientedBox& a, const OrientedBox& b) { return a.Volume() < b.Volume(); });
+  return refined;
 }
 
 }  // namespace
@@ -640,12 +640,10 @@ double MinAreaRect(const std::vector<std::array<double, 2>>& points, std::array<
   return MinAreaRectOfHull(Hull2D(points), dir, w, h, lo);
 }
 
-OrientedBox MinVolumeBox(const std::vector<Vec3d>& points) {
+std::vector<OrientedBox> MinVolumeBoxes(const std::vector<Vec3d>& points, int starts) {
   Mesh hull;
   std::vector<Vec3d> hv;
-  if (ConvexHull(points, &hull)) {
-    hv = hull.vertices;
-  } else {
+  if (!ConvexHull(points, &hull)) {
     // Flat or degenerate: the principal axes of the points themselves; the
     // thinnest one is the normal of the plane the points lie in.
     OrientedBox best;
@@ -655,12 +653,13 @@ OrientedBox MinVolumeBox(const std::vector<Vec3d>& points) {
       if (first || b.size[2] < best.size[2]) best = b;
       first = false;
     }
-    return best;
+    return {best};
   }
+  hv = hull.vertices;
 
   HullEval full(hull);
   // Large hulls: search on the hull of a few hundred extreme points first,
-  // then refine the winner on the whole hull.
+  // then refine the winners on the whole hull.
   constexpr size_t kSmallHull = 500;
   Mesh coarse_hull;
   const bool two_stage = hv.size() > kSmallHull && ConvexHull(ExtremeSubset(hv, 600), &coarse_hull);
@@ -683,13 +682,24 @@ OrientedBox MinVolumeBox(const std::vector<Vec3d>& points) {
   cand.push_back({0, 1, 0});
   cand.push_back({0, 0, 1});
 
-  OrientedBox best = SearchBox(coarse, cand, 4, 2.0);
+  std::vector<OrientedBox> boxes = SearchBoxes(coarse, cand, std::max(1, starts), 2.0);
   if (two_stage) {
-    std::vector<Vec3d> axes(best.axes.begin(), best.axes.end());
-    best = SearchBox(full, axes, 1, 0.5);
+    std::vector<OrientedBox> fine;
+    for (const OrientedBox& b : boxes) {
+      std::vector<Vec3d> axes(b.axes.begin(), b.axes.end());
+      for (const OrientedBox& r : SearchBoxes(full, axes, 1, 0.5)) {
+        if (std::none_of(fine.begin(), fine.end(), [&](const OrientedBox& o) { return SameBox(r, o); })) {
+          fine.push_back(r);
+        }
+      }
+    }
+    std::sort(fine.begin(), fine.end(), [](const OrientedBox& a, const OrientedBox& b) { return a.Volume() < b.Volume(); });
+    boxes = std::move(fine);
   }
-  return best;
+  return boxes;
 }
+
+OrientedBox MinVolumeBox(const std::vector<Vec3d>& points) { return MinVolumeBoxes(points, 4).front(); }
 
 void TaubinSmooth(Mesh* mesh, int iterations, double lambda, double mu) {
   const size_t nv = mesh->vertices.size();
@@ -731,12 +741,28 @@ MeshProps ComputeMeshProps(const Mesh& mesh) {
   std::vector<Vec3d> pts;
   for (size_t i = 0; i < mesh.vertices.size(); ++i)
     if (used[i]) pts.push_back(mesh.vertices[i]);
-  const OrientedBox box = MinVolumeBox(pts);
-  std::array<double, 3> d = box.size;
-  std::sort(d.begin(), d.end());
+  const std::vector<OrientedBox> boxes = MinVolumeBoxes(pts, 8);
+  auto sorted_sides = [](const OrientedBox& b) {
+    std::array<double, 3> d = b.size;
+    std::sort(d.begin(), d.end());
+    return d;
+  };
+  const std::array<double, 3> d = sorted_sides(boxes.front());
   p.a_mm = d[0];
   p.b_mm = d[1];
   p.c_mm = d[2];
+  for (size_t i = 1; i < boxes.size(); ++i) {
+    const std::array<double, 3> e = sorted_sides(boxes[i]);
+    double differ = 0;
+    for (int k = 0; k < 3; ++k) differ = std::max(differ, std::fabs(e[k] / d[k] - 1));
+    if (differ > kBoxDistinct) {
+      p.second_box_volume_ratio = boxes[i].Volume() / boxes.front().Volume();
+      p.second_a_mm = e[0];
+      p.second_b_mm = e[1];
+      p.second_c_mm = e[2];
+      break;
+    }
+  }
   if (p.surface_area_mm2 > 0)
     p.sphericity =
         std::cbrt(36.0 * std::numbers::pi * p.volume_mm3 * p.volume_mm3) / p.surface_area_mm2;
@@ -751,7 +777,14 @@ nlohmann::json MeshPropsJson(const MeshProps& p) {
           {"a_mm", p.a_mm},             {"b_mm", p.b_mm},
           {"c_mm", p.c_mm},             {"fer_3d", p.fer_3d},
           {"ratio_c_b", p.c_over_b},    {"ratio_b_a", p.b_over_a},
-          {"sphericity", p.sphericity}};
+          {"sphericity", p.sphericity},
+          {"second_box", p.second_box_volume_ratio > 0
+                             ? nlohmann::json{{"volume_ratio", p.second_box_volume_ratio},
+                                              {"a_mm", p.second_a_mm},
+                                              {"b_mm", p.second_b_mm},
+                                              {"c_mm", p.second_c_mm}}
+                             : nlohmann::json()},
+          {"box_ill_conditioned", BoxIllConditioned(p)}};
 }
 
 }  // namespace aggscan

@@ -26,7 +26,23 @@ struct MeshProps {
   double fer_3d = 0.0;            // flat-and-elongated ratio c/a; 0 if a == 0
   double c_over_b = 0.0;          // elongation; 0 if b == 0
   double b_over_a = 0.0;          // flatness; 0 if a == 0
+  // The smallest other locally minimal box whose sorted sides differ from
+  // a, b, c by more than kBoxDistinct: a rounded rock may have two boxes of
+  // nearly the same volume and different shape, and which one is the
+  // minimum then turns on a fraction of a percent of the surface (a, b, c
+  // are ill-conditioned). Ratio 0: no such box found.
+  double second_box_volume_ratio = 0.0;  // its volume / the minimum's (>= 1)
+  double second_a_mm = 0.0, second_b_mm = 0.0, second_c_mm = 0.0;
 };
+
+/// Sides of two boxes differing by more than this (relative) make them distinct shapes.
+inline constexpr double kBoxDistinct = 0.02;
+/// A second box within this (relative) of the minimum's volume makes a, b, c
+/// ill-conditioned: a reconstruction good to 1 % in volume may pick either.
+inline constexpr double kBoxAmbiguousVolume = 0.01;
+inline bool BoxIllConditioned(const MeshProps& p) {
+  return p.second_box_volume_ratio > 0 && p.second_box_volume_ratio <= 1 + kBoxAmbiguousVolume;
+}
 
 /// An oriented box: centre, three orthonormal axes and the full side length
 /// along each axis (not sorted).
@@ -69,6 +85,11 @@ bool ConvexHull(const std::vector<Vec3d>& points, Mesh* hull);
 /// the axis direction. Large hulls are searched on a subset of extreme
 /// points first and refined on the whole hull.
 OrientedBox MinVolumeBox(const std::vector<Vec3d>& points);
+
+/// The distinct locally minimal boxes the same search reaches from its
+/// `starts` best candidate boxes, smallest volume first; front() is
+/// MinVolumeBox's box.
+std::vector<OrientedBox> MinVolumeBoxes(const std::vector<Vec3d>& points, int starts);
 
 /// Minimum-area rectangle enclosing 2D points (exact, rotating calipers on
 /// the convex hull). Returns the area; `dir` is the unit direction of one

@@ -61,6 +61,8 @@ json TruthRecorder::SampleTruth(const Config& config) const {
           {"c_mm", p.c_mm},
           {"sphericity", p.sphericity},
           {"fer_3d", p.fer_3d},
+          {"second_box", MeshPropsJson(p)["second_box"]},
+          {"box_ill_conditioned", BoxIllConditioned(p)},
           {"rock_faces", world_->rock().faces.size()},
           {"poses", poses},
           {"object_markers", markers},

@@ -48,6 +48,26 @@ TEST(ValidateSummary, MpeMapeAndVerdicts) {
   EXPECT_FALSE(s.dims_pass);
   EXPECT_NEAR(s.sphericity_max_abs, 0.03, 1e-9);
   EXPECT_FALSE(s.sphericity_pass);
+  // Ill-conditioned truth: a second box 0.2 % larger measures 45 x 80 x 112.
+  // A reconstruction that picked that box matches it; with the second box 5 %
+  // larger the same rock fails.
+  ValidateRock flipped = Row(1000, 1000, 100, 111);
+  flipped.rec.a_mm = 45.2;
+  flipped.truth.second_box_ratio = 1.002;
+  flipped.truth.second_a_mm = 45;
+  flipped.truth.second_b_mm = 80;
+  flipped.truth.second_c_mm = 112;
+  s = Summarize({Row(1000, 1000), flipped}, t);
+  EXPECT_TRUE(s.dims_pass);
+  EXPECT_EQ(s.dims_within, 2);
+  EXPECT_EQ(s.dims_second_box, 1);
+  EXPECT_NEAR(s.c_max_abs_pct, 100.0 * (111.0 / 112 - 1) * -1, 1e-9);
+  EXPECT_NEAR(s.dims_raw_max_abs_pct, 11.0, 1e-9);
+  flipped.truth.second_box_ratio = 1.05;
+  s = Summarize({Row(1000, 1000), flipped}, t);
+  EXPECT_FALSE(s.dims_pass);
+  EXPECT_EQ(s.dims_within, 1);
+  EXPECT_EQ(s.dims_second_box, 0);
   // A failed rock fails the run; a skipped one (unusable input) does not count.
   ValidateRock failed, skipped;
   failed.status = "failed";
