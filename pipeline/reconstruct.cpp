@@ -335,6 +335,32 @@ struct SurfaceOut {
   json record;
 };
 
+// When the hull fails: the views whose mask is far smaller than their side's
+// largest (a rock's outline changes by a factor of 2-3 with the angle, not
+// 7), where the segmentation most likely lost the rock: ashlar 923 scaled to
+// 220 mm reaches the top of the frame, and the mask of 21 of its side-2 views
+// became a colour label. Empty when no view stands out.
+std::string SuspectMasks(const std::vector<ViewInput>& views, const std::vector<cv::Mat>& masks) {
+  std::map<int, std::vector<double>> areas;
+  for (size_t i = 0; i < views.size(); ++i) areas[views[i].side].push_back(cv::countNonZero(masks[i]));
+  std::string out;
+  for (auto& [side, a] : areas) {
+    const double largest = *std::max_element(a.begin(), a.end());
+    std::string list;
+    size_t k = 0;
+    for (size_t i = 0; i < views.size(); ++i) {
+      if (views[i].side != side) continue;
+      if (a[k++] < 0.15 * largest) list += (list.empty() ? "" : ", ") + std::to_string(views[i].view);
+    }
+    if (!list.empty()) out += "; side " + std::to_string(side) + " view(s) " + list;
+  }
+  if (out.empty()) return out;
+  return ". The mask of" + out.substr(1) +
+         " covers under 15 % of the area of its side's largest mask: the segmentation lost the rock there (see "
+         "results/masks/). A rock that reaches the edge of the photo cannot be segmented: the whole rock must "
+         "stay inside the frame at every angle (move the camera back or use a wider lens)";
+}
+
 Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewInput>& views,
                           const std::map<int, Eigen::Isometry3d>& table_from_object,
                           const RigCalibration& cal, const ReconstructOptions& opts, const std::string& sample_id) {
@@ -376,7 +402,10 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
   // The search region: the side-1 disc, up to the largest riprap size above it.
   const Eigen::Vector3d lo(-260, -260, -5), hi(260, 260, 320);
   auto hull = CarveVisualHull(sv, floors, Eigen::AlignedBox3d(lo, hi), opts.hull);
-  if (!hull) return MakeError(hull.error().cls, "surface stage: " + hull.error().message, hull.error().detail);
+  if (!hull) {
+    return MakeError(hull.error().cls, "surface stage: " + hull.error().message + SuspectMasks(views, masks),
+                     hull.error().detail);
+  }
   const double carve_s = hull->seconds;
   // Photo-consistency: the hull is an upper bound; concavities are recovered
   // where the textured photos agree on a deeper surface.

@@ -158,7 +158,9 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side, const std:
   TimeNs aruco_ns = 0;
   int detect_failures = 0;
   SilhouetteSideInput sil;
+  TimeNs decode_ns = 0, markers_ns = 0, features_ns = 0;
   for (size_t i = 0; i < views.size(); ++i) {
+    const TimeNs t_decode = MonotonicNs();
     const cv::Mat bgr = cv::imread(views[i].image, cv::IMREAD_COLOR);
     if (bgr.empty()) {
       return MakeError(ErrorClass::kCorrupt, "stitch stage: image " + views[i].image +
@@ -170,14 +172,19 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side, const std:
                                                  " is missing, unreadable or not the photo's size; delete the "
                                                  "side's results to compute the masks again");
     }
+    const TimeNs t_markers = MonotonicNs();
+    decode_ns += t_markers - t_decode;
     auto m = DetectViewMarkers(bgr, mask, label_colors, in.object_colors, &cam, mopts);
+    markers_ns += MonotonicNs() - t_markers;
     if (m) {
       vm[i] = std::move(*m);
     } else {
       ++detect_failures;
     }
     if (is_distinct[i]) {
+      const TimeNs t_features = MonotonicNs();
       vf[i] = ExtractRockFeatures(bgr, mask);
+      features_ns += MonotonicNs() - t_features;
       sil.masks.push_back(mask);
       sil.cam_from_table.push_back(poses[i]);
     }
@@ -196,7 +203,9 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side, const std:
   ev.silhouettes = std::move(sil);
   ev.markers = LocateObjectMarkers(vm, poses, cam, in.object_colors);
   const Result<LabelScale> labels = LocateLabels(vm, poses, cam, in.rig);
+  const TimeNs t_cloud = MonotonicNs();
   if (want_features) ev.cloud = BuildFeatureCloud(vf, poses, cam);
+  const TimeNs cloud_ns = MonotonicNs() - t_cloud;
   ev.record = {{"side", side},
                {"views", views.size()},
                {"marker_detection_failures", detect_failures},
@@ -209,6 +218,11 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side, const std:
   } else {
     ev.record["aruco_scale"] = {{"configured", false}, {"ok", false}};
   }
+  ev.record["timings_s"] = {{"decode", static_cast<double>(decode_ns) / 1e9},
+                            {"markers", static_cast<double>(markers_ns) / 1e9},
+                            {"features", static_cast<double>(features_ns) / 1e9},
+                            {"feature_matching", static_cast<double>(cloud_ns) / 1e9},
+                            {"aruco", static_cast<double>(aruco_ns) / 1e9}};
   if (want_features) {
     ev.record["feature_cloud"] = {{"viewpoints", ev.cloud.views},
                                   {"view_pairs", ev.cloud.view_pairs},

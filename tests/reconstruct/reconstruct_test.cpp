@@ -212,6 +212,27 @@ TEST(Reconstruct, TwoSidesStitchedFromComputedMasks) { TwoSides(false, true); }
 TEST(Reconstruct, TwoSidesStitchedFromTruthMasks) { TwoSides(true, false); }
 TEST(Reconstruct, TwoSidesPhotoRefinedFromTruthMasks) { TwoSides(true, true); }
 
+// Masks that lost the rock (on a rock too large for the frame, a colour label
+// became the mask) leave no common volume; the error names the views whose
+// mask is far smaller than their side's largest, and the likely cause.
+TEST(Reconstruct, LostMasksAreNamedWhenTheHullFails) {
+  test::TempDir tmp;
+  const std::string sample = Capture(tmp.path(), 8, 1);
+  for (int v : {2, 3, 14}) {
+    char name[64];
+    std::snprintf(name, sizeof name, "/results/masks/side1/view_%03d.png", v);
+    cv::Mat m = cv::Mat::zeros(756, 1008, CV_8UC1);
+    m(cv::Rect(40, 680, 30, 30)).setTo(255);  // a label-sized blob in a corner
+    ASSERT_TRUE(cv::imwrite(sample + name, m));
+  }
+  auto st = ReconstructSample(sample, ReconstructOptions{});
+  ASSERT_FALSE(st);
+  const std::string msg = st.error().message;
+  EXPECT_NE(msg.find("no common volume"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("side 1 view(s) 2, 3, 14 "), std::string::npos) << msg;
+  EXPECT_NE(msg.find("inside the frame"), std::string::npos) << msg;
+}
+
 TEST(Reconstruct, MissingCalibrationSaysWhatToDo) {
   test::TempDir tmp;
   const std::string sample = Capture(tmp.path(), 8, 1);
