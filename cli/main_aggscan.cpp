@@ -30,6 +30,7 @@ void Usage(std::ostream& o) {
        "      rig calibration (lens, turntable axis, camera pose) from a side captured with the\n"
        "      board lying on the turntable; writes calibration.json, keeps the previous one\n"
        "  aggscan reconstruct SAMPLE_DIR [--state-dir DIR] [--config FILE] [--surface hull|hull+photo]\n"
+       "                      [--poses turntable|turntable+ba]\n"
        "      run the worker's stages on a sample now (masks, poses, stitching, surface,\n"
        "      morphology) and print results/morphology.json; resumes finished stages\n"
        "  aggscan morph MESH [--unit mm|cm|m] [--json]\n"

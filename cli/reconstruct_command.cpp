@@ -9,9 +9,16 @@
 namespace aggscan {
 
 int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {
-  std::string sample_dir, state_dir, config_path, surface = "hull+photo";
+  std::string sample_dir, state_dir, config_path, surface = "hull+photo", poses;
   for (size_t i = 0; i < args.size(); ++i) {
-    if (args[i] == "--surface") {
+    if (args[i] == "--poses") {
+      if (i + 1 >= args.size() || (args[i + 1] != "turntable" && args[i + 1] != "turntable+ba")) {
+        err << "aggscan reconstruct: --poses needs turntable (calibration and measured angles) or turntable+ba "
+               "(refined by bundle adjustment)\n";
+        return 2;
+      }
+      poses = args[++i];
+    } else if (args[i] == "--surface") {
       if (i + 1 >= args.size() || (args[i + 1] != "hull" && args[i + 1] != "hull+photo")) {
         err << "aggscan reconstruct: --surface needs hull (visual hull only) or hull+photo (refined by "
                "photo-consistency, the default)\n";
@@ -57,6 +64,7 @@ int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& ou
   ReconstructOptions opts;
   opts.state_dir = state_dir;
   opts.photo_refine = surface == "hull+photo";
+  if (!poses.empty()) opts.bundle_adjust = poses == "turntable+ba";
   if (!config_path.empty()) {
     // Only the [mask] section matters here: an ONNX mask network, if configured.
     std::vector<ConfigProblem> problems;
