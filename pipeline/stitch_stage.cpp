@@ -1,6 +1,9 @@
 #include "pipeline/stitch_stage.h"
 
+#include <atomic>
 #include <chrono>
+#include <optional>
+#include <thread>
 
 #include <opencv2/imgcodecs.hpp>
 
@@ -154,51 +157,81 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side, const std:
   std::vector<ViewFeatures> vf(views.size());
   const bool want_aruco = !in.rig.aruco_markers.empty();
   std::vector<ArucoViewDetections> va(views.size());
-  int aruco_failures = 0;
-  TimeNs aruco_ns = 0;
-  int detect_failures = 0;
-  SilhouetteSideInput sil;
-  TimeNs decode_ns = 0, markers_ns = 0, features_ns = 0;
-  for (size_t i = 0; i < views.size(); ++i) {
-    const TimeNs t_decode = MonotonicNs();
-    const cv::Mat bgr = cv::imread(views[i].image, cv::IMREAD_COLOR);
-    if (bgr.empty()) {
-      return MakeError(ErrorClass::kCorrupt, "stitch stage: image " + views[i].image +
-                                                 " cannot be decoded; the sample's photos must not change");
-    }
-    const cv::Mat mask = cv::imread(views[i].mask, cv::IMREAD_GRAYSCALE);
-    if (mask.empty() || mask.size() != bgr.size()) {
-      return MakeError(ErrorClass::kCorrupt, "stitch stage: mask " + views[i].mask +
-                                                 " is missing, unreadable or not the photo's size; delete the "
-                                                 "side's results to compute the masks again");
-    }
-    const TimeNs t_markers = MonotonicNs();
-    decode_ns += t_markers - t_decode;
-    auto m = DetectViewMarkers(bgr, mask, label_colors, in.object_colors, &cam, mopts);
-    markers_ns += MonotonicNs() - t_markers;
-    if (m) {
-      vm[i] = std::move(*m);
-    } else {
-      ++detect_failures;
-    }
-    if (is_distinct[i]) {
-      const TimeNs t_features = MonotonicNs();
-      vf[i] = ExtractRockFeatures(bgr, mask);
-      features_ns += MonotonicNs() - t_features;
-      sil.masks.push_back(mask);
-      sil.cam_from_table.push_back(poses[i]);
-    }
-    if (want_aruco) {
-      const TimeNs t0 = MonotonicNs();
-      Result<ArucoViewDetections> a = DetectArucoMarkers(bgr, mask, in.rig, &cam);
-      aruco_ns += MonotonicNs() - t0;
-      if (a) {
-        va[i] = std::move(*a);
+  // Views are independent: two threads (the rig's two cores) share them.
+  // Each view's outputs go to its own slot; sums are per thread.
+  struct ViewOut {
+    cv::Mat mask;  // kept for the silhouettes when the view is a distinct viewpoint
+    bool marker_failure = false, aruco_failure = false;
+    std::optional<Error> error;
+  };
+  std::vector<ViewOut> out(views.size());
+  struct Sums {
+    TimeNs decode = 0, markers = 0, features = 0, aruco = 0;
+  };
+  auto work = [&](std::atomic<size_t>* next, Sums* t) {
+    for (size_t i = (*next)++; i < views.size(); i = (*next)++) {
+      ViewOut& o = out[i];
+      const TimeNs t_decode = MonotonicNs();
+      const cv::Mat bgr = cv::imread(views[i].image, cv::IMREAD_COLOR);
+      if (bgr.empty()) {
+        o.error = MakeError(ErrorClass::kCorrupt, "stitch stage: image " + views[i].image +
+                                                      " cannot be decoded; the sample's photos must not change");
+        continue;
+      }
+      const cv::Mat mask = cv::imread(views[i].mask, cv::IMREAD_GRAYSCALE);
+      if (mask.empty() || mask.size() != bgr.size()) {
+        o.error = MakeError(ErrorClass::kCorrupt, "stitch stage: mask " + views[i].mask +
+                                                      " is missing, unreadable or not the photo's size; delete the "
+                                                      "side's results to compute the masks again");
+        continue;
+      }
+      const TimeNs t_markers = MonotonicNs();
+      t->decode += t_markers - t_decode;
+      auto m = DetectViewMarkers(bgr, mask, label_colors, in.object_colors, &cam, mopts);
+      t->markers += MonotonicNs() - t_markers;
+      if (m) {
+        vm[i] = std::move(*m);
       } else {
-        ++aruco_failures;
+        o.marker_failure = true;
+      }
+      if (is_distinct[i]) {
+        const TimeNs t_features = MonotonicNs();
+        vf[i] = ExtractRockFeatures(bgr, mask);
+        t->features += MonotonicNs() - t_features;
+        o.mask = mask;
+      }
+      if (want_aruco) {
+        const TimeNs t0 = MonotonicNs();
+        Result<ArucoViewDetections> a = DetectArucoMarkers(bgr, mask, in.rig, &cam);
+        t->aruco += MonotonicNs() - t0;
+        if (a) {
+          va[i] = std::move(*a);
+        } else {
+          o.aruco_failure = true;
+        }
       }
     }
+  };
+  std::atomic<size_t> next{0};
+  Sums sums[2];
+  {
+    std::thread helper(work, &next, &sums[1]);
+    work(&next, &sums[0]);
+    helper.join();
   }
+  int aruco_failures = 0, detect_failures = 0;
+  SilhouetteSideInput sil;
+  for (size_t i = 0; i < views.size(); ++i) {
+    if (out[i].error) return *out[i].error;
+    detect_failures += out[i].marker_failure ? 1 : 0;
+    aruco_failures += out[i].aruco_failure ? 1 : 0;
+    if (is_distinct[i]) {
+      sil.masks.push_back(out[i].mask);
+      sil.cam_from_table.push_back(poses[i]);
+    }
+  }
+  const TimeNs decode_ns = sums[0].decode + sums[1].decode, markers_ns = sums[0].markers + sums[1].markers,
+               features_ns = sums[0].features + sums[1].features, aruco_ns = sums[0].aruco + sums[1].aruco;
   SideEvidence ev;
   ev.silhouettes = std::move(sil);
   ev.markers = LocateObjectMarkers(vm, poses, cam, in.object_colors);
