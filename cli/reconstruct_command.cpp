@@ -10,21 +10,28 @@ namespace aggscan {
 
 int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {
   std::string sample_dir, state_dir, config_path, surface = "hull+photo", poses;
+  // An option taking one of two words; false (usage error said) otherwise.
+  auto choice = [&](size_t* i, const char* a, const char* b, const char* help, std::string* v) {
+    if (*i + 1 >= args.size() || (args[*i + 1] != a && args[*i + 1] != b)) {
+      err << "aggscan reconstruct: " << args[*i] << " needs " << help << "\n";
+      return false;
+    }
+    *v = args[++*i];
+    return true;
+  };
   for (size_t i = 0; i < args.size(); ++i) {
     if (args[i] == "--poses") {
-      if (i + 1 >= args.size() || (args[i + 1] != "turntable" && args[i + 1] != "turntable+ba")) {
-        err << "aggscan reconstruct: --poses needs turntable (calibration and measured angles) or turntable+ba "
-               "(refined by bundle adjustment)\n";
+      if (!choice(&i, "turntable", "turntable+ba",
+                  "turntable (calibration and measured angles) or turntable+ba (refined by bundle adjustment, "
+                  "the default)",
+                  &poses)) {
         return 2;
       }
-      poses = args[++i];
     } else if (args[i] == "--surface") {
-      if (i + 1 >= args.size() || (args[i + 1] != "hull" && args[i + 1] != "hull+photo")) {
-        err << "aggscan reconstruct: --surface needs hull (visual hull only) or hull+photo (refined by "
-               "photo-consistency, the default)\n";
+      if (!choice(&i, "hull", "hull+photo",
+                  "hull (visual hull only) or hull+photo (refined by photo-consistency, the default)", &surface)) {
         return 2;
       }
-      surface = args[++i];
     } else if (args[i] == "--config") {
       if (i + 1 >= args.size()) {
         err << "aggscan reconstruct: --config needs a file\n";

@@ -287,8 +287,12 @@ bool ParseCount(const std::string& s, long long* v) {
 
 double DimErrors::MaxAbs() const { return std::max({std::fabs(a_pct), std::fabs(b_pct), std::fabs(c_pct)}); }
 
+DimErrors DimsAgainstMinimumBox(const RockFigures& truth, const RockFigures& rec) {
+  return {Pct(rec.a_mm, truth.a_mm), Pct(rec.b_mm, truth.b_mm), Pct(rec.c_mm, truth.c_mm), false};
+}
+
 DimErrors DimsAgainstTruth(const RockFigures& truth, const RockFigures& rec) {
-  DimErrors best{Pct(rec.a_mm, truth.a_mm), Pct(rec.b_mm, truth.b_mm), Pct(rec.c_mm, truth.c_mm), false};
+  const DimErrors best = DimsAgainstMinimumBox(truth, rec);
   if (truth.second_box_ratio > 0 && truth.second_box_ratio <= 1 + kBoxAmbiguousVolume) {
     const DimErrors second{Pct(rec.a_mm, truth.second_a_mm), Pct(rec.b_mm, truth.second_b_mm),
                            Pct(rec.c_mm, truth.second_c_mm), true};
@@ -316,9 +320,7 @@ ValidateSummary Summarize(const std::vector<ValidateRock>& rocks, const Validate
     s.c_max_abs_pct = std::max(s.c_max_abs_pct, std::fabs(d.c_pct));
     if (d.MaxAbs() <= t.dims_pct) ++s.dims_within;
     if (d.second_box) ++s.dims_second_box;
-    s.dims_raw_max_abs_pct =
-        std::max({s.dims_raw_max_abs_pct, std::fabs(Pct(r.rec.a_mm, r.truth.a_mm)),
-                  std::fabs(Pct(r.rec.b_mm, r.truth.b_mm)), std::fabs(Pct(r.rec.c_mm, r.truth.c_mm))});
+    s.dims_raw_max_abs_pct = std::max(s.dims_raw_max_abs_pct, DimsAgainstMinimumBox(r.truth, r.rec).MaxAbs());
     s.sphericity_max_abs = std::max(s.sphericity_max_abs, std::fabs(r.rec.sphericity - r.truth.sphericity));
   }
   if (s.rocks_ok > 0) {
@@ -492,13 +494,13 @@ json ValidateReportToJson(const ValidateReport& r) {
     if (k.status == "ok") {
       j["truth"] = FiguresJson(k.truth);
       j["reconstructed"] = FiguresJson(k.rec);
+      const DimErrors d = DimsAgainstTruth(k.truth, k.rec);
       j["errors"] = {{"volume_pct", Pct(k.rec.volume_mm3, k.truth.volume_mm3)},
                      {"surface_area_pct", Pct(k.rec.area_mm2, k.truth.area_mm2)},
-                     {"a_pct", DimsAgainstTruth(k.truth, k.rec).a_pct},
-                     {"b_pct", DimsAgainstTruth(k.truth, k.rec).b_pct},
-                     {"c_pct", DimsAgainstTruth(k.truth, k.rec).c_pct},
-                     {"dims_against", DimsAgainstTruth(k.truth, k.rec).second_box ? "truth's second box"
-                                                                                   : "truth's minimum box"},
+                     {"a_pct", d.a_pct},
+                     {"b_pct", d.b_pct},
+                     {"c_pct", d.c_pct},
+                     {"dims_against", d.second_box ? "truth's second box" : "truth's minimum box"},
                      {"sphericity", k.rec.sphericity - k.truth.sphericity}};
     }
     if (k.seconds > 0) j["seconds"] = k.seconds;

@@ -61,6 +61,8 @@ struct DimErrors {
   double MaxAbs() const;
 };
 DimErrors DimsAgainstTruth(const RockFigures& truth, const RockFigures& rec);
+/// The same against the truth's minimum-volume box only.
+DimErrors DimsAgainstMinimumBox(const RockFigures& truth, const RockFigures& rec);
 
 struct ValidateRock {
   std::string id;        // "seed-7" or the mesh file's stem

@@ -563,9 +563,8 @@ OrientedBox Refine(const Vec3d& n0, HullEval& eval, double step_deg) {
   return best;
 }
 
-// The candidate axes scored on `eval`; the `starts` best distinct boxes are
-// each refined from all three of their axes. Returns the refined boxes,
-// smallest first, with duplicates (the same box reached twice) removed.
+// A box is the same whichever of its axes a search started from: all three
+// axes agree within a degree.
 bool SameBox(const OrientedBox& a, const OrientedBox& b) {
   const double same_cos = std::cos(1.0 * std::numbers::pi / 180);
   int same = 0;
@@ -575,6 +574,24 @@ bool SameBox(const OrientedBox& a, const OrientedBox& b) {
   return same >= 3;
 }
 
+// Boxes without repeats, smallest volume first once sorted.
+struct DistinctBoxes {
+  std::vector<OrientedBox> boxes;
+  bool Has(const OrientedBox& b) const {
+    return std::any_of(boxes.begin(), boxes.end(), [&](const OrientedBox& o) { return SameBox(b, o); });
+  }
+  void Add(const OrientedBox& b) {
+    if (!Has(b)) boxes.push_back(b);
+  }
+  std::vector<OrientedBox> Sorted() && {
+    std::sort(boxes.begin(), boxes.end(), [](const OrientedBox& a, const OrientedBox& b) { return a.Volume() < b.Volume(); });
+    return std::move(boxes);
+  }
+};
+
+// The candidate axes scored on `eval`; the `starts` best distinct boxes are
+// each refined from all three of their axes. Returns the distinct refined
+// boxes, smallest first.
 std::vector<OrientedBox> SearchBoxes(HullEval& eval, const std::vector<Vec3d>& cand, int starts, double step_deg) {
   struct Scored {
     double volume;
@@ -585,23 +602,15 @@ std::vector<OrientedBox> SearchBoxes(HullEval& eval, const std::vector<Vec3d>& c
   for (const Vec3d& n : cand) scored.push_back({eval.Box(n).Volume(), n});
   std::sort(scored.begin(), scored.end(),
             [](const Scored& a, const Scored& b) { return a.volume < b.volume; });
-  std::vector<OrientedBox> chosen, refined;
+  DistinctBoxes chosen, refined;
   for (const Scored& s : scored) {
-    if (static_cast<int>(chosen.size()) >= starts) break;
+    if (static_cast<int>(chosen.boxes.size()) >= starts) break;
     const OrientedBox b = eval.Box(s.axis);
-    // A box is the same whichever of its axes was the candidate.
-    if (std::any_of(chosen.begin(), chosen.end(), [&](const OrientedBox& o) { return SameBox(b, o); })) continue;
-    chosen.push_back(b);
-    for (const Vec3d& ax : b.axes) {
-      const OrientedBox r = Refine(ax, eval, step_deg);
-      if (std::none_of(refined.begin(), refined.end(), [&](const OrientedBox& o) { return SameBox(r, o); })) {
-        refined.push_back(r);
-      }
-    }
+    if (chosen.Has(b)) continue;
+    chosen.Add(b);
+    for (const Vec3d& ax : b.axes) refined.Add(Refine(ax, eval, step_deg));
   }
-  std::sort(refined.begin(), refined.end(),
-            [](const OrientedBox& a, const OrientedBox& b) { return a.Volume() < b.Volume(); });
-  return refined;
+  return std::move(refined).Sorted();
 }
 
 }  // namespace
@@ -684,17 +693,12 @@ std::vector<OrientedBox> MinVolumeBoxes(const std::vector<Vec3d>& points, int st
 
   std::vector<OrientedBox> boxes = SearchBoxes(coarse, cand, std::max(1, starts), 2.0);
   if (two_stage) {
-    std::vector<OrientedBox> fine;
+    DistinctBoxes fine;
     for (const OrientedBox& b : boxes) {
-      std::vector<Vec3d> axes(b.axes.begin(), b.axes.end());
-      for (const OrientedBox& r : SearchBoxes(full, axes, 1, 0.5)) {
-        if (std::none_of(fine.begin(), fine.end(), [&](const OrientedBox& o) { return SameBox(r, o); })) {
-          fine.push_back(r);
-        }
-      }
+      const std::vector<Vec3d> axes(b.axes.begin(), b.axes.end());
+      for (const OrientedBox& r : SearchBoxes(full, axes, 1, 0.5)) fine.Add(r);
     }
-    std::sort(fine.begin(), fine.end(), [](const OrientedBox& a, const OrientedBox& b) { return a.Volume() < b.Volume(); });
-    boxes = std::move(fine);
+    boxes = std::move(fine).Sorted();
   }
   return boxes;
 }

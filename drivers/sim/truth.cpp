@@ -51,32 +51,25 @@ json TruthRecorder::SampleTruth(const Config& config) const {
   }
   json labels = json::array();
   for (const auto& m : config.rig.markers) labels.push_back({{"color", m.color}, {"x_mm", m.x_mm}, {"y_mm", m.y_mm}});
-  return {{"units", "mm, degrees; matrices row-major 4x4"},
-          {"seed", config.sim.seed},
-          {"rock_mesh", config.sim.rock_mesh},
-          {"volume_mm3", p.volume_mm3},
-          {"surface_area_mm2", p.surface_area_mm2},
-          {"a_mm", p.a_mm},
-          {"b_mm", p.b_mm},
-          {"c_mm", p.c_mm},
-          {"sphericity", p.sphericity},
-          {"fer_3d", p.fer_3d},
-          {"second_box", MeshPropsJson(p)["second_box"]},
-          {"box_ill_conditioned", BoxIllConditioned(p)},
-          {"rock_faces", world_->rock().faces.size()},
-          {"poses", poses},
-          {"object_markers", markers},
-          {"background_markers", labels},
-          {"camera",
-           {{"width", in.width},
-            {"height", in.height},
-            {"fx", in.fx},
-            {"fy", in.fy},
-            {"cx", in.cx},
-            {"cy", in.cy},
-            {"k1", in.k1},
-            {"k2", in.k2},
-            {"world_to_camera_4x4", Mat(world_->world_to_camera().Matrix4())}}}};
+  json truth = {{"units", "mm, degrees; matrices row-major 4x4"},
+                {"seed", config.sim.seed},
+                {"rock_mesh", config.sim.rock_mesh},
+                {"rock_faces", world_->rock().faces.size()},
+                {"poses", poses},
+                {"object_markers", markers},
+                {"background_markers", labels},
+                {"camera",
+                 {{"width", in.width},
+                  {"height", in.height},
+                  {"fx", in.fx},
+                  {"fy", in.fy},
+                  {"cx", in.cx},
+                  {"cy", in.cy},
+                  {"k1", in.k1},
+                  {"k2", in.k2},
+                  {"world_to_camera_4x4", Mat(world_->world_to_camera().Matrix4())}}}};
+  truth.update(MeshPropsJson(p));  // the rock's morphology, in the fields morphology.json uses
+  return truth;
 }
 
 Status TruthRecorder::WriteTruthJson(const std::string& path, const Config& config) const {

@@ -20,9 +20,9 @@
 #include <opencv2/imgproc.hpp>
 
 #include "config/config.h"
-#include "drivers/sim/render.h"
 #include "pipeline/side_job.h"
 #include "store/layout.h"
+#include "sim_photos.h"
 #include "synth_scene.h"
 
 namespace aggscan {
@@ -68,31 +68,6 @@ class MaskNetTest : public ::testing::Test {
   std::filesystem::path dir_;
 };
 
-// A sim render at the rig's size, through a JPEG round trip like a capture.
-struct SimView {
-  cv::Mat bgr, truth;
-};
-SimView RenderSimView(uint64_t seed, int side, double angle) {
-  Config cfg;
-  cfg.sim.seed = seed;
-  auto world = sim::SimWorld::Create(cfg);
-  EXPECT_TRUE(world.ok());
-  if (!world.ok()) return {};
-  sim::Renderer r(**world, 2016, 1512);
-  sim::RenderOptions o;
-  o.want_mask = true;
-  o.noise_seed = seed * 100 + side;
-  const sim::RenderedImage img = r.Render(side, angle, o);
-  cv::Mat rgb(img.height, img.width, CV_8UC3, const_cast<uint8_t*>(img.rgb.data()));
-  SimView v;
-  cv::cvtColor(rgb, v.bgr, cv::COLOR_RGB2BGR);
-  std::vector<unsigned char> jpg;
-  cv::imencode(".jpg", v.bgr, jpg, {cv::IMWRITE_JPEG_QUALITY, 92});
-  v.bgr = cv::imdecode(jpg, cv::IMREAD_COLOR);
-  v.truth = cv::Mat(img.height, img.width, CV_8UC1, const_cast<uint8_t*>(img.mask.data())).clone();
-  return v;
-}
-
 // The test network is a texture detector, not a trained model: its raw map
 // also lights up the disc rim, the labels' edges and the image border, and the
 // rock's region is blurred. The refinement (largest region, graph cut, band)
@@ -107,7 +82,9 @@ TEST_F(MaskNetTest, SeedsTheRefinementOnSimRenders) {
   } views[] = {{1, 1, 0.0, 0.979}, {2, 2, 120.0, 0.987}};
   double worst = 1.0;
   for (const auto& view : views) {
-    const SimView v = RenderSimView(view.seed, view.side, view.angle);
+    auto photos = testing::SimPhotos::Create(view.seed);
+    ASSERT_TRUE(photos.ok()) << photos.error().ToString();
+    const testing::SimPhoto v = photos->Render(view.side, view.angle);
     ASSERT_FALSE(v.bgr.empty());
     for (bool logits : {true, false}) {
       MaskNetOptions o = Options(logits ? "texture.onnx" : "texture_prob.onnx", logits);

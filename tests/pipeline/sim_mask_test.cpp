@@ -9,33 +9,12 @@
 #include <opencv2/imgproc.hpp>
 
 #include "common/clock.h"
-#include "config/config.h"
-#include "drivers/sim/render.h"
 #include "pipeline/mask.h"
+#include "sim_photos.h"
 #include "synth_scene.h"
 
 namespace aggscan {
 namespace {
-
-// One sim view at the rig's 2016 x 1512 through JPEG (quality 92), as the
-// capture stores it, with the renderer's ground-truth mask.
-struct RenderedView {
-  cv::Mat bgr, truth;
-};
-RenderedView RenderView(sim::Renderer& r, uint64_t seed, int side, double angle) {
-  sim::RenderOptions o;
-  o.want_mask = true;
-  o.noise_seed = seed * 100 + side;
-  const sim::RenderedImage img = r.Render(side, angle, o);
-  cv::Mat rgb(img.height, img.width, CV_8UC3, const_cast<uint8_t*>(img.rgb.data()));
-  RenderedView v;
-  cv::cvtColor(rgb, v.bgr, cv::COLOR_RGB2BGR);
-  std::vector<unsigned char> jpg;
-  cv::imencode(".jpg", v.bgr, jpg, {cv::IMWRITE_JPEG_QUALITY, 92});
-  v.bgr = cv::imdecode(jpg, cv::IMREAD_COLOR);
-  v.truth = cv::Mat(img.height, img.width, CV_8UC1, const_cast<uint8_t*>(img.mask.data())).clone();
-  return v;
-}
 
 // Issue 3 item 2: IoU >= 0.98 (measured 0.9816-0.9984). 18 views at the
 // rig's 2016 x 1512: ~25 s (the renderer is built with -O2
@@ -43,14 +22,11 @@ RenderedView RenderView(sim::Renderer& r, uint64_t seed, int side, double angle)
 TEST(SimMask, IoUOnRenderedViews) {
   double worst = 1.0;
   for (uint64_t seed : {1, 2, 3}) {
-    Config cfg;
-    cfg.sim.seed = seed;
-    auto world = sim::SimWorld::Create(cfg);
-    ASSERT_TRUE(world.ok()) << world.error().ToString();
-    sim::Renderer r(**world, 2016, 1512);
+    auto photos = testing::SimPhotos::Create(seed);
+    ASSERT_TRUE(photos.ok()) << photos.error().ToString();
     for (int side : {1, 2}) {
       for (double angle : {0.0, 120.0, 240.0}) {
-        const RenderedView view = RenderView(r, seed, side, angle);
+        const testing::SimPhoto view = photos->Render(side, angle);
         const cv::Mat& bgr = view.bgr;
         const cv::Mat& truth = view.truth;
         const TimeNs t0 = MonotonicNs();
@@ -91,15 +67,12 @@ TEST(SimMask, IoUOnRenderedViews) {
 TEST(SimMask, NoViewLosesRockAtTheSilhouette) {
   double worst_lost = 0, worst_added = 0;
   for (uint64_t seed : {9, 15}) {
-    Config cfg;
-    cfg.sim.seed = seed;
-    auto world = sim::SimWorld::Create(cfg);
-    ASSERT_TRUE(world.ok()) << world.error().ToString();
-    sim::Renderer r(**world, 2016, 1512);
+    auto photos = testing::SimPhotos::Create(seed);
+    ASSERT_TRUE(photos.ok()) << photos.error().ToString();
     for (int side : {1, 2}) {
       for (int k = 0; k < 12; ++k) {
         const double angle = 30.0 * k;
-        const RenderedView v = RenderView(r, seed, side, angle);
+        const testing::SimPhoto v = photos->Render(side, angle);
         const cv::Mat mask = ComputeForegroundMask(v.bgr) > 127;
         const cv::Mat truth = v.truth > 127;
         std::vector<std::vector<cv::Point>> outline;

@@ -261,17 +261,30 @@ namespace aggscan {
 namespace {
 
 // `aggscan reconstruct --surface hull` skips the photo refinement and says so
-// in surface.json; an unknown surface is a usage error naming the choices.
-TEST(ReconstructCommand, SurfaceOptionChoosesTheHullAlone) {
+// in surface.json; `--poses turntable` keeps the measured angles (bundle
+// adjustment is the default); an unknown value is a usage error naming the
+// choices.
+TEST(ReconstructCommand, SurfaceAndPosesOptionsChooseTheMethods) {
   test::TempDir tmp;
   const std::string sample = Capture(tmp.path(), 6, 1);
-  {
+  for (const char* bad : {"--surface", "--poses"}) {
     std::ostringstream out, err;
-    EXPECT_EQ(RunReconstructCommand({sample, "--surface", "mesh"}, out, err), 2);
-    EXPECT_NE(err.str().find("hull+photo"), std::string::npos) << err.str();
+    EXPECT_EQ(RunReconstructCommand({sample, bad, "mesh"}, out, err), 2);
+    EXPECT_NE(err.str().find(std::string(bad) == "--surface" ? "hull+photo" : "turntable+ba"), std::string::npos)
+        << err.str();
   }
   std::ostringstream out, err;
-  ASSERT_EQ(RunReconstructCommand({sample, "--state-dir", tmp.path(), "--surface", "hull"}, out, err), 0) << err.str();
+  ASSERT_EQ(RunReconstructCommand({sample, "--state-dir", tmp.path(), "--surface", "hull", "--poses", "turntable"},
+                                  out, err),
+            0)
+      << err.str();
+  {
+    auto poses = ReadFile(sample + "/results/poses_side1.json");
+    ASSERT_TRUE(poses);
+    const json p = json::parse(*poses);
+    EXPECT_EQ(p["method"], "turntable");
+    EXPECT_EQ(p["bundle_adjustment"]["reason"], "bundle adjustment is turned off");
+  }
   auto text = ReadFile(sample + "/results/surface.json");
   ASSERT_TRUE(text);
   const json surface = json::parse(*text);
