@@ -7,6 +7,10 @@
 #include <numbers>
 #include <unordered_map>
 
+extern "C" {
+#include <libqhull_r/qhull_ra.h>
+}
+
 namespace aggscan {
 namespace {
 
@@ -29,240 +33,6 @@ void Basis(const Vec3d& n, Vec3d* u, Vec3d* v) {
   *u = Normalized(Cross(helper, n));
   *v = Cross(n, *u);
 }
-
-// ------------------------------------------------------------ quickhull
-
-struct HullFace {
-  std::array<int, 3> v{};
-  std::array<int, 3> adj{};  // neighbour across edge v[i] -> v[(i+1)%3]
-  Vec3d n{};
-  double d = 0.0;            // plane: dot(n, x) = d
-  std::vector<int> outside;  // points strictly outside, not yet on the hull
-  bool alive = true;
-  int visit = 0;
-};
-
-class QuickHull {
- public:
-  explicit QuickHull(const std::vector<Vec3d>& p) : p_(p) {}
-
-  bool Run(Mesh* out) {
-    out->vertices.clear();
-    out->faces.clear();
-    if (p_.size() < 4) return false;
-    // Tolerance from the coordinate magnitude: points within eps of a face
-    // plane count as on it (coplanar points of a cube face are dropped).
-    double mag = 0.0;
-    for (const auto& q : p_)
-      for (double c : q) mag = std::max(mag, std::fabs(c));
-    eps_ = std::max(mag, 1e-300) * 1e-11;
-    std::array<int, 4> s{};
-    if (!InitialSimplex(&s)) return false;
-    BuildSimplex(s);
-    std::vector<int> stack;
-    for (size_t f = 0; f < faces_.size(); ++f)
-      if (!faces_[f].outside.empty()) stack.push_back(static_cast<int>(f));
-    while (!stack.empty()) {
-      const int f = stack.back();
-      stack.pop_back();
-      if (!faces_[f].alive || faces_[f].outside.empty()) continue;
-      AddPoint(f, &stack);
-    }
-    std::unordered_map<int, int> remap;
-    for (const HullFace& f : faces_) {
-      if (!f.alive) continue;
-      std::array<int, 3> tri{};
-      for (int k = 0; k < 3; ++k) {
-        auto [it, inserted] = remap.try_emplace(f.v[k], static_cast<int>(out->vertices.size()));
-        if (inserted) out->vertices.push_back(p_[f.v[k]]);
-        tri[k] = it->second;
-      }
-      out->faces.push_back(tri);
-    }
-    return true;
-  }
-
- private:
-  double Dist(const HullFace& f, int i) const { return Dot(f.n, p_[i]) - f.d; }
-
-  bool InitialSimplex(std::array<int, 4>* s) {
-    // Extreme points along the axes; the farthest pair of them spans the base.
-    std::array<int, 6> ext{};
-    for (int a = 0; a < 3; ++a) {
-      int lo = 0, hi = 0;
-      for (size_t i = 0; i < p_.size(); ++i) {
-        if (p_[i][a] < p_[lo][a]) lo = static_cast<int>(i);
-        if (p_[i][a] > p_[hi][a]) hi = static_cast<int>(i);
-      }
-      ext[static_cast<size_t>(2 * a)] = lo;
-      ext[static_cast<size_t>(2 * a + 1)] = hi;
-    }
-    double best = -1;
-    for (int i = 0; i < 6; ++i)
-      for (int j = i + 1; j < 6; ++j) {
-        const double d = Norm(Sub(p_[ext[i]], p_[ext[j]]));
-        if (d > best) {
-          best = d;
-          (*s)[0] = ext[i];
-          (*s)[1] = ext[j];
-        }
-      }
-    if (best <= eps_) return false;
-    const Vec3d a = p_[(*s)[0]], ab = Normalized(Sub(p_[(*s)[1]], a));
-    best = -1;
-    for (size_t i = 0; i < p_.size(); ++i) {
-      const double d = Norm(Cross(ab, Sub(p_[i], a)));
-      if (d > best) {
-        best = d;
-        (*s)[2] = static_cast<int>(i);
-      }
-    }
-    if (best <= eps_) return false;
-    const Vec3d n = Normalized(Cross(Sub(p_[(*s)[1]], a), Sub(p_[(*s)[2]], a)));
-    best = -1;
-    for (size_t i = 0; i < p_.size(); ++i) {
-      const double d = std::fabs(Dot(n, Sub(p_[i], a)));
-      if (d > best) {
-        best = d;
-        (*s)[3] = static_cast<int>(i);
-      }
-    }
-    return best > eps_;
-  }
-
-  int MakeFace(int a, int b, int c) {
-    HullFace f;
-    f.v = {a, b, c};
-    f.n = Normalized(Cross(Sub(p_[b], p_[a]), Sub(p_[c], p_[a])));
-    f.d = Dot(f.n, p_[a]);
-    faces_.push_back(std::move(f));
-    return static_cast<int>(faces_.size()) - 1;
-  }
-
-  void BuildSimplex(const std::array<int, 4>& s) {
-    int a = s[0], b = s[1], c = s[2];
-    const int d = s[3];
-    // Orient the base so that d is behind it.
-    const Vec3d n = Cross(Sub(p_[b], p_[a]), Sub(p_[c], p_[a]));
-    if (Dot(n, Sub(p_[d], p_[a])) > 0) std::swap(b, c);
-    const int f0 = MakeFace(a, b, c);
-    const int f1 = MakeFace(a, d, b);
-    const int f2 = MakeFace(b, d, c);
-    const int f3 = MakeFace(c, d, a);
-    LinkAll({f0, f1, f2, f3});
-    std::vector<int> all;
-    all.reserve(p_.size());
-    for (size_t i = 0; i < p_.size(); ++i) {
-      const int ii = static_cast<int>(i);
-      if (ii == a || ii == b || ii == c || ii == d) continue;
-      all.push_back(ii);
-    }
-    Assign(all, {f0, f1, f2, f3});
-  }
-
-  // Sets adjacency among `fs` by matching opposite directed edges.
-  void LinkAll(const std::vector<int>& fs) {
-    std::unordered_map<uint64_t, std::pair<int, int>> edges;
-    auto key = [](int u, int v) {
-      return (static_cast<uint64_t>(static_cast<uint32_t>(u)) << 32) | static_cast<uint32_t>(v);
-    };
-    for (int f : fs)
-      for (int k = 0; k < 3; ++k) edges[key(faces_[f].v[k], faces_[f].v[(k + 1) % 3])] = {f, k};
-    for (int f : fs)
-      for (int k = 0; k < 3; ++k) {
-        auto it = edges.find(key(faces_[f].v[(k + 1) % 3], faces_[f].v[k]));
-        if (it != edges.end()) faces_[f].adj[k] = it->second.first;
-      }
-  }
-
-  // Gives each point to the first face it lies outside of; others are inside.
-  void Assign(const std::vector<int>& pts, const std::vector<int>& fs) {
-    for (int i : pts) {
-      for (int f : fs) {
-        if (Dist(faces_[f], i) > eps_) {
-          faces_[f].outside.push_back(i);
-          break;
-        }
-      }
-    }
-  }
-
-  void AddPoint(int f0, std::vector<int>* stack) {
-    // Eye: the farthest outside point of f0.
-    int eye = -1;
-    double best = -1;
-    for (int i : faces_[f0].outside) {
-      const double d = Dist(faces_[f0], i);
-      if (d > best) {
-        best = d;
-        eye = i;
-      }
-    }
-    // Visible faces: flood fill from f0 over faces that see the eye.
-    ++visit_;
-    std::vector<int> visible, todo = {f0};
-    faces_[f0].visit = visit_;
-    std::vector<std::pair<int, int>> horizon;  // (visible face, edge index)
-    while (!todo.empty()) {
-      const int f = todo.back();
-      todo.pop_back();
-      visible.push_back(f);
-      for (int k = 0; k < 3; ++k) {
-        const int g = faces_[f].adj[k];
-        if (faces_[g].visit == visit_) continue;
-        if (Dist(faces_[g], eye) > eps_) {
-          faces_[g].visit = visit_;
-          todo.push_back(g);
-        }
-      }
-    }
-    for (int f : visible) {
-      for (int k = 0; k < 3; ++k) {
-        const int g = faces_[f].adj[k];
-        if (faces_[g].visit != visit_) horizon.emplace_back(f, k);
-      }
-    }
-    // New faces fan from the eye to every horizon edge, keeping its direction.
-    std::vector<int> created;
-    for (auto [f, k] : horizon) {
-      const int u = faces_[f].v[k], w = faces_[f].v[(k + 1) % 3];
-      const int g = faces_[f].adj[k];
-      const int nf = MakeFace(u, w, eye);
-      faces_[nf].adj[0] = g;
-      HullFace& gf = faces_[g];
-      for (int q = 0; q < 3; ++q)
-        if (gf.v[q] == w && gf.v[(q + 1) % 3] == u) gf.adj[q] = nf;
-      created.push_back(nf);
-    }
-    // Link the new faces to each other (edges w->eye and eye->u).
-    std::unordered_map<int, int> by_start;  // u of face (u, w, eye) -> face
-    for (int nf : created) by_start[faces_[nf].v[0]] = nf;
-    for (int nf : created) {
-      HullFace& f = faces_[nf];
-      auto it = by_start.find(f.v[1]);  // face starting at w shares edge w-eye
-      if (it != by_start.end()) {
-        f.adj[1] = it->second;
-        faces_[it->second].adj[2] = nf;
-      }
-    }
-    std::vector<int> orphans;
-    for (int f : visible) {
-      faces_[f].alive = false;
-      for (int i : faces_[f].outside)
-        if (i != eye) orphans.push_back(i);
-      faces_[f].outside.clear();
-      faces_[f].outside.shrink_to_fit();
-    }
-    Assign(orphans, created);
-    for (int nf : created)
-      if (!faces_[nf].outside.empty()) stack->push_back(nf);
-  }
-
-  const std::vector<Vec3d>& p_;
-  std::vector<HullFace> faces_;
-  double eps_ = 0.0;
-  int visit_ = 0;
-};
 
 // ------------------------------------------------------------ 2D helpers
 
@@ -640,8 +410,60 @@ double SurfaceArea(const Mesh& mesh) {
 }
 
 bool ConvexHull(const std::vector<Vec3d>& points, Mesh* hull) {
-  QuickHull qh(points);
-  return qh.Run(hull);
+  // Qhull (reentrant libqhull_r): its merging of nearly coplanar facets keeps
+  // it exact on rounded input, such as the float vertices of a PLY file with
+  // a flat base, where a plain quickhull's horizon can pinch and never close.
+  hull->vertices.clear();
+  hull->faces.clear();
+  if (points.size() < 4) return false;
+  std::vector<coordT> coords(points.size() * 3);
+  for (size_t i = 0; i < points.size(); ++i)
+    for (int k = 0; k < 3; ++k) coords[3 * i + static_cast<size_t>(k)] = points[i][static_cast<size_t>(k)];
+  // Qhull reports problems (flat or too few distinct points) on a stream:
+  // here an in-memory one, discarded, since false already says "degenerate".
+  char* err_text = nullptr;
+  size_t err_size = 0;
+  FILE* err = open_memstream(&err_text, &err_size);
+  qhT qh_storage;
+  qhT* qh = &qh_storage;
+  qh_zero(qh, err);
+  char flags[] = "qhull Qt";  // triangulated output
+  const int code = qh_new_qhull(qh, 3, static_cast<int>(points.size()), coords.data(), False, flags, nullptr, err);
+  if (code == 0) {
+    std::unordered_map<int, int> remap;
+    facetT* facet = nullptr;
+    FORALLfacets {
+      std::array<int, 3> tri{};
+      int k = 0;
+      vertexT* vertex = nullptr;
+      vertexT** vertexp = nullptr;
+      FOREACHvertex_(facet->vertices) {
+        if (k == 3) break;
+        const int id = qh_pointid(qh, vertex->point);
+        auto [it, inserted] = remap.try_emplace(id, static_cast<int>(hull->vertices.size()));
+        if (inserted) hull->vertices.push_back(points[static_cast<size_t>(id)]);
+        tri[static_cast<size_t>(k++)] = it->second;
+      }
+      if (k != 3) continue;
+      // Counter-clockwise seen from outside: agree with Qhull's outward normal.
+      const Vec3d& a = hull->vertices[static_cast<size_t>(tri[0])];
+      const Vec3d n = Cross(Sub(hull->vertices[static_cast<size_t>(tri[1])], a),
+                            Sub(hull->vertices[static_cast<size_t>(tri[2])], a));
+      if (n[0] * facet->normal[0] + n[1] * facet->normal[1] + n[2] * facet->normal[2] < 0) std::swap(tri[1], tri[2]);
+      hull->faces.push_back(tri);
+    }
+  }
+  qh_freeqhull(qh, !qh_ALL);
+  int curlong = 0, totlong = 0;
+  qh_memfreeshort(qh, &curlong, &totlong);
+  std::fclose(err);
+  std::free(err_text);
+  if (code != 0 || hull->faces.size() < 4) {
+    hull->vertices.clear();
+    hull->faces.clear();
+    return false;
+  }
+  return true;
 }
 
 double MinAreaRect(const std::vector<std::array<double, 2>>& points, std::array<double, 2>* dir,

@@ -72,7 +72,7 @@ void TaubinSmooth(Mesh* mesh, int iterations, double lambda = 0.5, double mu = -
 double SignedVolume(const Mesh& mesh);
 double SurfaceArea(const Mesh& mesh);
 
-/// Convex hull of points (quickhull), faces outward. Returns false when the
+/// Convex hull of points (Qhull, triangulated), faces outward. Returns false when the
 /// points are degenerate (fewer than 4 not coplanar); `hull` is then empty.
 bool ConvexHull(const std::vector<Vec3d>& points, Mesh* hull);
 

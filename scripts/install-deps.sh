@@ -14,6 +14,8 @@ PACKAGES=(
   # common / config / daemon
   nlohmann-json3-dev libtomlplusplus-dev libcpp-httplib-dev
   libsystemd-dev libsqlite3-dev libturbojpeg0-dev
+  # convex hulls (minimum-volume box of a mesh)
+  libqhull-dev
   # pipeline (worker only): OpenCV (calib3d, features2d, aruco in contrib,
   # dnn), Eigen, Ceres; COLMAP as a subprocess for the SfM path
   libopencv-core-dev libopencv-imgproc-dev libopencv-imgcodecs-dev

@@ -143,7 +143,7 @@ std::vector<int> HullCandidates(const std::vector<Vec3>& pts) {
   return keep;
 }
 
-// Convex hull of `pts` as outward triangles indexed into `pts` (quickhull from
+// Convex hull of `pts` as outward triangles indexed into `pts` (Qhull through
 // common/mesh_props); empty for degenerate input (fewer than 4 non-coplanar points).
 std::vector<HullTri> ConvexHull(const std::vector<Vec3>& pts) {
   const std::vector<int> cand = HullCandidates(pts);
