@@ -60,11 +60,13 @@ int RunMorphCommand(const std::string& path, const std::string& unit, bool json,
                 p.surface_area_mm2 / 100.0, p.surface_area_mm2, p.a_mm, p.b_mm, p.c_mm, p.fer_3d, p.c_over_b,
                 p.b_over_a, p.sphericity);
   out << buf;
-  if (BoxIllConditioned(p)) {
-    std::snprintf(buf, sizeof buf,
-                  "note: a, b, c are ill-conditioned: a box only %.2f %% larger measures %.3f / %.3f / %.3f mm\n",
-                  100 * (p.second_box_volume_ratio - 1), p.second_a_mm, p.second_b_mm, p.second_c_mm);
+  for (size_t i = 0; i < p.near_boxes.size(); ++i) {
+    const MeshProps::NearBox& b = p.near_boxes[i];
+    std::snprintf(buf, sizeof buf, "%s%.3f / %.3f / %.3f mm (box %.2f %% larger)",
+                  i == 0 ? "note: a, b, c are ill-conditioned; boxes of nearly the same volume measure " : "; ",
+                  b.a_mm, b.b_mm, b.c_mm, 100 * (b.volume_ratio - 1));
     out << buf;
+    if (i + 1 == p.near_boxes.size()) out << "\n";
   }
   if (topo.components > 1) out << "note: " << topo.components << " separate pieces\n";
   return 0;

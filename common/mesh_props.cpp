@@ -512,7 +512,6 @@ std::vector<OrientedBox> MinVolumeBoxes(const std::vector<Vec3d>& points, int st
   cand.push_back({1, 0, 0});
   cand.push_back({0, 1, 0});
   cand.push_back({0, 0, 1});
-
   std::vector<OrientedBox> boxes = SearchBoxes(coarse, cand, std::max(1, starts), 2.0);
   if (two_stage) {
     DistinctBoxes fine;
@@ -521,6 +520,49 @@ std::vector<OrientedBox> MinVolumeBoxes(const std::vector<Vec3d>& points, int st
       for (const OrientedBox& r : SearchBoxes(full, axes, 1, 0.5)) fine.Add(r);
     }
     boxes = std::move(fine).Sorted();
+  }
+  // The best candidates above all lie in the deepest basins. A rounded rock
+  // may have other boxes within a fraction of a percent of the minimum's
+  // volume in basins no hull face points into (its a, b, c are then
+  // ill-conditioned, and a user is told so only if they are found): every
+  // local minimum over directions spread evenly on the half sphere (a
+  // Fibonacci lattice, about 2.6 deg apart) within 5 % of the minimum is
+  // refined as well, on the whole hull (a few hundred extreme points hide
+  // such basins).
+  {
+    constexpr int kSpread = 3000;
+    // Scored on at most a few thousand extreme points (a rock's whole hull).
+    Mesh spread_hull;
+    const bool subset = hv.size() > 3000 && ConvexHull(ExtremeSubset(hv, 3000), &spread_hull);
+    HullEval spread_eval(subset ? spread_hull : hull);
+    HullEval& spread = subset ? spread_eval : full;
+    std::vector<Vec3d> dirs(kSpread);
+    std::vector<double> vol(kSpread);
+    for (int i = 0; i < kSpread; ++i) {
+      const double z = 1.0 - (i + 0.5) / kSpread, r = std::sqrt(std::max(0.0, 1.0 - z * z));
+      const double phi = 2.399963229728653 * i;  // golden angle
+      dirs[static_cast<size_t>(i)] = {r * std::cos(phi), r * std::sin(phi), z};
+      vol[static_cast<size_t>(i)] = spread.Box(dirs[static_cast<size_t>(i)]).Volume();
+    }
+    const double limit = 1.05 * boxes.front().Volume();  // unrefined lattice boxes run high
+    const double near_cos = std::cos(4.7 * std::numbers::pi / 180);  // the lattice's nearest neighbours
+    std::vector<std::pair<double, size_t>> minima;
+    for (size_t i = 0; i < dirs.size(); ++i) {
+      if (vol[i] > limit) continue;
+      bool minimum = true;
+      for (size_t j = 0; j < dirs.size() && minimum; ++j)
+        if (j != i && std::fabs(Dot(dirs[i], dirs[j])) > near_cos && vol[j] < vol[i]) minimum = false;
+      if (minimum) minima.emplace_back(vol[i], i);
+    }
+    // A sphere is all minima: the 24 smallest are plenty for a rock.
+    std::sort(minima.begin(), minima.end());
+    if (minima.size() > 24) minima.resize(24);
+    DistinctBoxes all;
+    for (const OrientedBox& b : boxes) all.Add(b);
+    for (const auto& [v, i] : minima) {
+      for (const OrientedBox& r : SearchBoxes(full, {dirs[i]}, 1, 2.0)) all.Add(r);
+    }
+    boxes = std::move(all).Sorted();
   }
   return boxes;
 }
@@ -577,17 +619,26 @@ MeshProps ComputeMeshProps(const Mesh& mesh) {
   p.a_mm = d[0];
   p.b_mm = d[1];
   p.c_mm = d[2];
+  std::vector<std::array<double, 3>> kept = {d};
   for (size_t i = 1; i < boxes.size(); ++i) {
     const std::array<double, 3> e = sorted_sides(boxes[i]);
-    double differ = 0;
-    for (int k = 0; k < 3; ++k) differ = std::max(differ, std::fabs(e[k] / d[k] - 1));
-    if (differ > kBoxDistinct) {
-      p.second_box_volume_ratio = boxes[i].Volume() / boxes.front().Volume();
+    // Distinct from every box already kept (the minimum first).
+    bool distinct = true;
+    for (const auto& k : kept) {
+      double differ = 0;
+      for (size_t j = 0; j < 3; ++j) differ = std::max(differ, std::fabs(e[j] / k[j] - 1));
+      distinct = distinct && differ > kBoxDistinct;
+    }
+    if (!distinct) continue;
+    kept.push_back(e);
+    const double ratio = boxes[i].Volume() / boxes.front().Volume();
+    if (p.second_box_volume_ratio == 0) {
+      p.second_box_volume_ratio = ratio;
       p.second_a_mm = e[0];
       p.second_b_mm = e[1];
       p.second_c_mm = e[2];
-      break;
     }
+    if (ratio <= 1 + kBoxAmbiguousVolume) p.near_boxes.push_back({e[0], e[1], e[2], ratio});
   }
   if (p.surface_area_mm2 > 0)
     p.sphericity =
@@ -610,7 +661,13 @@ nlohmann::json MeshPropsJson(const MeshProps& p) {
                                               {"b_mm", p.second_b_mm},
                                               {"c_mm", p.second_c_mm}}
                              : nlohmann::json()},
-          {"box_ill_conditioned", BoxIllConditioned(p)}};
+          {"box_ill_conditioned", BoxIllConditioned(p)},
+          {"near_minimal_boxes", [&] {
+             nlohmann::json a = nlohmann::json::array();
+             for (const MeshProps::NearBox& b : p.near_boxes)
+               a.push_back({{"a_mm", b.a_mm}, {"b_mm", b.b_mm}, {"c_mm", b.c_mm}, {"volume_ratio", b.volume_ratio}});
+             return a;
+           }()}};
 }
 
 }  // namespace aggscan

@@ -33,6 +33,14 @@ struct MeshProps {
   // are ill-conditioned). Ratio 0: no such box found.
   double second_box_volume_ratio = 0.0;  // its volume / the minimum's (>= 1)
   double second_a_mm = 0.0, second_b_mm = 0.0, second_c_mm = 0.0;
+  // Every distinct box the search found within kBoxAmbiguousVolume of the
+  // minimum's volume (the second box among them when it is that near),
+  // smallest first: the a, b, c a reconstruction good to 1 % may report.
+  struct NearBox {
+    double a_mm = 0, b_mm = 0, c_mm = 0;
+    double volume_ratio = 0;  // its volume / the minimum's
+  };
+  std::vector<NearBox> near_boxes;
 };
 
 /// Sides of two boxes differing by more than this (relative) make them distinct shapes.

@@ -10,6 +10,7 @@
 
 #include "cli/morph_command.h"
 #include "common/mesh_check.h"
+#include "drivers/sim/world.h"
 
 namespace aggscan {
 namespace {
@@ -171,6 +172,26 @@ TEST(MorphCommand, ScannedStonesAreMeasured) {
     ++measured;
   }
   EXPECT_EQ(measured, 6);  // the 6 closed stones
+}
+
+// Procedural rock 17 has three boxes within 0.7 % of one volume (77.9 x
+// 108.4 x 155.4, 82.6 x 118.9 x 133.6, 77.8 x 126.4 x 134.2 mm): the text
+// says so and lists them, the JSON carries them.
+TEST(MorphCommand, IllConditionedBoxesAreListed) {
+  const std::string path = (fs::temp_directory_path() / "aggscan_morph_seed17.ply").string();
+  ASSERT_TRUE(SaveMeshPly(sim::MakeProceduralRock(17, 0, 20000), path).ok());
+  std::ostringstream text, text_err;
+  ASSERT_EQ(RunMorphCommand(path, "mm", false, text, text_err), 0) << text_err.str();
+  EXPECT_NE(text.str().find("ill-conditioned"), std::string::npos) << text.str();
+  EXPECT_NE(text.str().find("118.9"), std::string::npos) << text.str();
+  EXPECT_NE(text.str().find("126.4"), std::string::npos) << text.str();
+  std::ostringstream out, err;
+  ASSERT_EQ(RunMorphCommand(path, "mm", true, out, err), 0) << err.str();
+  const json j = json::parse(out.str());
+  EXPECT_TRUE(j["box_ill_conditioned"].get<bool>());
+  ASSERT_GE(j["near_minimal_boxes"].size(), 2u);
+  for (const json& b : j["near_minimal_boxes"]) EXPECT_LE(b["volume_ratio"].get<double>(), 1.01);
+  fs::remove(path);
 }
 
 TEST(MorphCommand, BadInputIsAClearError) {

@@ -23,8 +23,8 @@ ValidateRock Row(double v_true, double v_rec, double c_true = 100, double c_rec 
                  double s_rec = 0.8) {
   ValidateRock r;
   r.status = "ok";
-  r.truth = {v_true, 1, 50, 80, c_true, s_true};
-  r.rec = {v_rec, 1, 50, 80, c_rec, s_rec};
+  r.truth = {v_true, 1, 50, 80, c_true, s_true, {}};
+  r.rec = {v_rec, 1, 50, 80, c_rec, s_rec, {}};
   return r;
 }
 
@@ -48,26 +48,37 @@ TEST(ValidateSummary, MpeMapeAndVerdicts) {
   EXPECT_FALSE(s.dims_pass);
   EXPECT_NEAR(s.sphericity_max_abs, 0.03, 1e-9);
   EXPECT_FALSE(s.sphericity_pass);
-  // Ill-conditioned truth: a second box 0.2 % larger measures 45 x 80 x 112.
-  // A reconstruction that picked that box matches it; with the second box 5 %
-  // larger the same rock fails.
+  // Ill-conditioned truth: another box only 0.2 % larger measures 45 x 80 x
+  // 112. A reconstruction whose minimum is that box matches it.
   ValidateRock flipped = Row(1000, 1000, 100, 111);
   flipped.rec.a_mm = 45.2;
-  flipped.truth.second_box_ratio = 1.002;
-  flipped.truth.second_a_mm = 45;
-  flipped.truth.second_b_mm = 80;
-  flipped.truth.second_c_mm = 112;
+  flipped.truth.near_boxes = {{45, 80, 112, 1.002}};
   s = Summarize({Row(1000, 1000), flipped}, t);
   EXPECT_TRUE(s.dims_pass);
   EXPECT_EQ(s.dims_within, 2);
-  EXPECT_EQ(s.dims_second_box, 1);
+  EXPECT_EQ(s.dims_near_box, 1);
+  EXPECT_EQ(s.dims_raw_within, 1);
   EXPECT_NEAR(s.c_max_abs_pct, 100.0 * (111.0 / 112 - 1) * -1, 1e-9);
   EXPECT_NEAR(s.dims_raw_max_abs_pct, 11.0, 1e-9);
-  flipped.truth.second_box_ratio = 1.05;
+  DimErrors d = DimsAgainstTruth(flipped.truth, flipped.rec);
+  EXPECT_EQ(d.truth_box, 1);
+  EXPECT_EQ(d.rec_box, 0);
+  // The other way round: the reconstruction is the ill-conditioned one; its
+  // near-minimal box 50.5 x 80 x 100.5 is the truth's minimum box.
+  ValidateRock rec_side = Row(1000, 1000, 100, 111);
+  rec_side.rec.a_mm = 45.2;
+  rec_side.rec.near_boxes = {{60, 70, 95, 1.001}, {50.5, 80, 100.5, 1.004}};
+  d = DimsAgainstTruth(rec_side.truth, rec_side.rec);
+  EXPECT_EQ(d.truth_box, 0);
+  EXPECT_EQ(d.rec_box, 2);
+  EXPECT_NEAR(d.a_pct, 1.0, 1e-9);
+  EXPECT_NEAR(d.c_pct, 0.5, 1e-9);
+  // Without a near-minimal box on either side the same rock fails.
+  flipped.truth.near_boxes.clear();
   s = Summarize({Row(1000, 1000), flipped}, t);
   EXPECT_FALSE(s.dims_pass);
   EXPECT_EQ(s.dims_within, 1);
-  EXPECT_EQ(s.dims_second_box, 0);
+  EXPECT_EQ(s.dims_near_box, 0);
   // A failed rock fails the run; a skipped one (unusable input) does not count.
   ValidateRock failed, skipped;
   failed.status = "failed";
