@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 #include <numbers>
+#include <optional>
 #include <unordered_map>
 
 extern "C" {
@@ -279,11 +280,7 @@ std::array<Vec3d, 3> PrincipalAxes(const std::vector<Vec3d>& q) {
 std::vector<Vec3d> ExtremeSubset(const std::vector<Vec3d>& q, int directions) {
   std::vector<char> used(q.size(), 0);
   std::vector<Vec3d> out;
-  const double golden = std::numbers::pi * (3.0 - std::sqrt(5.0));
-  for (int k = 0; k < directions; ++k) {
-    const double z = 1.0 - (2.0 * k + 1.0) / directions;
-    const double r = std::sqrt(std::max(0.0, 1 - z * z));
-    const Vec3d d{r * std::cos(golden * k), r * std::sin(golden * k), z};
+  for (const Vec3d& d : FibonacciDirections(directions)) {
     size_t best = 0;
     double bd = -std::numeric_limits<double>::infinity();
     for (size_t i = 0; i < q.size(); ++i) {
@@ -407,6 +404,18 @@ double SurfaceArea(const Mesh& mesh) {
     a2 += Norm(Cross(Sub(mesh.vertices[f[1]], a), Sub(mesh.vertices[f[2]], a)));
   }
   return a2 / 2.0;
+}
+
+std::vector<Vec3d> FibonacciDirections(int n, bool half) {
+  std::vector<Vec3d> dirs;
+  dirs.reserve(static_cast<size_t>(std::max(0, n)));
+  const double golden = std::numbers::pi * (3.0 - std::sqrt(5.0));  // golden angle
+  const double span = half ? 1.0 : 2.0;                               // z from 1 down to 0 or -1
+  for (int k = 0; k < n; ++k) {
+    const double z = 1.0 - span * (k + 0.5) / n, r = std::sqrt(std::max(0.0, 1.0 - z * z));
+    dirs.push_back({r * std::cos(golden * k), r * std::sin(golden * k), z});
+  }
+  return dirs;
 }
 
 bool ConvexHull(const std::vector<Vec3d>& points, Mesh* hull) {
@@ -533,17 +542,12 @@ std::vector<OrientedBox> MinVolumeBoxes(const std::vector<Vec3d>& points, int st
     constexpr int kSpread = 3000;
     // Scored on at most a few thousand extreme points (a rock's whole hull).
     Mesh spread_hull;
-    const bool subset = hv.size() > 3000 && ConvexHull(ExtremeSubset(hv, 3000), &spread_hull);
-    HullEval spread_eval(subset ? spread_hull : hull);
-    HullEval& spread = subset ? spread_eval : full;
-    std::vector<Vec3d> dirs(kSpread);
-    std::vector<double> vol(kSpread);
-    for (int i = 0; i < kSpread; ++i) {
-      const double z = 1.0 - (i + 0.5) / kSpread, r = std::sqrt(std::max(0.0, 1.0 - z * z));
-      const double phi = 2.399963229728653 * i;  // golden angle
-      dirs[static_cast<size_t>(i)] = {r * std::cos(phi), r * std::sin(phi), z};
-      vol[static_cast<size_t>(i)] = spread.Box(dirs[static_cast<size_t>(i)]).Volume();
-    }
+    std::optional<HullEval> subset;
+    if (hv.size() > 3000 && ConvexHull(ExtremeSubset(hv, 3000), &spread_hull)) subset.emplace(spread_hull);
+    HullEval& spread = subset ? *subset : full;
+    const std::vector<Vec3d> dirs = FibonacciDirections(kSpread, /*half=*/true);
+    std::vector<double> vol(dirs.size());
+    for (size_t i = 0; i < dirs.size(); ++i) vol[i] = spread.Box(dirs[i]).Volume();
     const double limit = 1.05 * boxes.front().Volume();  // unrefined lattice boxes run high
     const double near_cos = std::cos(4.7 * std::numbers::pi / 180);  // the lattice's nearest neighbours
     std::vector<std::pair<double, size_t>> minima;

@@ -99,6 +99,10 @@ OrientedBox MinVolumeBox(const std::vector<Vec3d>& points);
 /// MinVolumeBox's box.
 std::vector<OrientedBox> MinVolumeBoxes(const std::vector<Vec3d>& points, int starts);
 
+/// `n` unit directions spread nearly evenly over the sphere, or over the half
+/// z >= 0 when `half` (a Fibonacci lattice: no randomness, same every call).
+std::vector<Vec3d> FibonacciDirections(int n, bool half = false);
+
 /// Minimum-area rectangle enclosing 2D points (exact, rotating calipers on
 /// the convex hull). Returns the area; `dir` is the unit direction of one
 /// side, `w` and `h` the side lengths along dir and its left normal, `lo`

@@ -95,11 +95,8 @@ std::vector<int> HullCandidates(const std::vector<Vec3>& pts) {
   if (n < 256) return all;
   constexpr int kDirs = 62;
   std::vector<int> ext;
-  for (int k = 0; k < kDirs; ++k) {
-    // Fibonacci sphere: near-uniform directions, no randomness.
-    const double z = 1.0 - (2.0 * k + 1.0) / kDirs, r = std::sqrt(1.0 - z * z);
-    const double phi = k * kPi * (3.0 - std::sqrt(5.0));
-    const Vec3 dir{r * std::cos(phi), r * std::sin(phi), z};
+  for (const Vec3d& d : aggscan::FibonacciDirections(kDirs)) {
+    const Vec3 dir{d[0], d[1], d[2]};
     int best = 0;
     double best_d = Dot(dir, pts[0]);
     for (int i = 1; i < n; ++i) {
