@@ -165,7 +165,7 @@ const std::vector<Field<Config>>& Fields() {
       F(camera.exposure.wb_blue, Above(0, 16), "white balance blue gain, locked like exposure"),
 
       F(turntable.backend, Backend("turntable"),
-        "turntable backend: sim (modbus-rtu, modbus-tcp, usb in a later issue)"),
+        "turntable backend: sim | modbus-tcp | modbus-rtu (usb in a later issue)"),
       F(turntable.max_speed_deg_s, Above(0, 3600), "trapezoidal profile speed limit, degrees/s"),
       F(turntable.accel_deg_s2, Above(0, 36000),
         "trapezoidal profile acceleration limit, degrees/s^2"),
@@ -183,6 +183,37 @@ const std::vector<Field<Config>>& Fields() {
       F(turntable.faults.timeout_every_n_moves, Range(0, 1'000'000),
         "every n-th move the controller stops answering (0 = never)"),
       D(turntable.faults.disconnect_after, Above(0), "device disappears this long after open"),
+      F(turntable.modbus.profile, NonEmpty(),
+        "register-map profile: a name in profile_dir (generic, leadshine-iem-rs) or a .toml path"),
+      F(turntable.modbus.profile_dir, Any(), "where profile names are looked up"),
+      F(turntable.modbus.unit_id, Range(0, 255), "Modbus unit (slave) id; RTU: 1..247"),
+      F(turntable.modbus.host, Any(), "modbus-tcp: controller or gateway address"),
+      F(turntable.modbus.port, Range(1, 65535), "modbus-tcp: port (502 is Modbus/TCP's)"),
+      F(turntable.modbus.device, Any(),
+        "modbus-rtu: serial device, e.g. /dev/ttyUSB0 or /dev/aggscan/turntable"),
+      F(turntable.modbus.baud, Range(300, 4'000'000), "modbus-rtu: line speed, bit/s"),
+      F(turntable.modbus.parity, OneOf({"none", "even", "odd"}), "modbus-rtu: none | even | odd"),
+      F(turntable.modbus.data_bits, Range(5, 8), "modbus-rtu: data bits, 5..8 (Modbus RTU: 8)"),
+      F(turntable.modbus.stop_bits, Range(1, 2), "modbus-rtu: stop bits, 1 | 2"),
+      F(turntable.modbus.rs485, Any(),
+        "modbus-rtu: switch the port to RS-485 mode (TIOCSRS485) where the adapter supports it"),
+      D(turntable.modbus.response_timeout, Above(0, 10 * kSec),
+        "one request must be answered within this"),
+      F(turntable.modbus.retries, Range(0, 10),
+        "a request without an answer is repeated this many times"),
+      F(turntable.modbus.motor_steps_per_rev, Range(1, 1'000'000),
+        "full steps (or encoder counts) per motor revolution"),
+      F(turntable.modbus.microsteps, Range(1, 100'000), "microstepping factor set on the drive"),
+      F(turntable.modbus.gear_ratio, Above(0, 10'000),
+        "motor revolutions per platter revolution (steps/rev = motor steps x microsteps x this)"),
+      F(turntable.modbus.shortest_path, Any(),
+        "go to the target's position modulo 360 the shorter way round (angles stay cumulative)"),
+      F(turntable.modbus.backlash_comp_deg, Range(0, 10),
+        "approach every target from one side, overshooting by this many degrees (0 = off)"),
+      F(turntable.modbus.backlash_approach, OneOf({"positive", "negative"}),
+        "positive | negative: the direction every target is finally approached in"),
+      F(turntable.modbus.in_position_window_deg, Above(0, 10),
+        "in-position also needs the measured angle this close to the target, degrees"),
 
       F(button.backend, Backend("button"),
         "button backend: sim (gpio, evdev, modbus in a later issue)"),
@@ -299,6 +330,8 @@ const std::vector<Section>& Sections() {
       {"camera.exposure", "Locked exposure: every view of a rock shares it."},
       {"turntable", "Turntable backend, motion limits and the sim platter model."},
       {"turntable.faults", "Sim turntable fault injection (tests); unset = no fault."},
+      {"turntable.modbus",
+       "Modbus turntable (backend modbus-tcp or modbus-rtu): link, register-map profile, scaling."},
       {"button", "Operator start button."},
       {"sim", "Simulated rig: rock, camera geometry and sensor."},
       {"rig", "Rig geometry: turntable and the background scale markers."},
@@ -744,6 +777,7 @@ class Validator {
     }
     CheckBoard(c);
     CheckAruco(c);
+    CheckModbus(c);
     if (c.mask.method == "onnx" && c.mask.model.empty()) {
       Add("mask.model",
           "mask.method = \"onnx\" needs the network: name its .onnx file here, or set "
@@ -755,6 +789,43 @@ class Validator {
     if (c.sim.camera_distance_mm <= c.rig.turntable_diameter_mm / 2) {
       Add("sim.camera_distance_mm", "camera must stand outside the turntable (radius " +
                                         FormatDouble(c.rig.turntable_diameter_mm / 2) + " mm)");
+    }
+  }
+
+  // The Modbus link named by the backend must be complete; the line settings
+  // must be ones a serial port can take.
+  void CheckModbus(const Config& c) {
+    const ModbusTurntableConfig& m = c.turntable.modbus;
+    if (c.turntable.backend == "modbus-tcp" && m.host.empty()) {
+      Add("turntable.modbus.host",
+          "turntable.backend = \"modbus-tcp\" needs the controller's address, e.g. "
+          "host = \"192.168.1.50\"");
+    }
+    if (c.turntable.backend == "modbus-rtu") {
+      if (m.device.empty()) {
+        Add("turntable.modbus.device",
+            "turntable.backend = \"modbus-rtu\" needs the serial device, e.g. "
+            "device = \"/dev/ttyUSB0\"");
+      }
+      if (m.unit_id < 1 || m.unit_id > 247) {
+        Add("turntable.modbus.unit_id", "a Modbus RTU unit id is 1..247 (0 is broadcast), got " +
+                                            std::to_string(m.unit_id));
+      }
+    }
+    static const int kBauds[] = {300,    600,    1200,   1800,   2400,    4800,    9600,
+                                 19200,  38400,  57600,  115200, 230400,  460800,  500000,
+                                 576000, 921600, 1000000, 1152000, 1500000, 2000000, 2500000,
+                                 3000000, 3500000, 4000000};
+    if (std::find(std::begin(kBauds), std::end(kBauds), m.baud) == std::end(kBauds)) {
+      Add("turntable.modbus.baud", std::to_string(m.baud) +
+                                       " is not a serial line speed; use one of 9600, 19200, "
+                                       "38400, 57600, 115200 (what the controller is set to)");
+    }
+    const double spr = m.steps_per_rev();
+    if (spr * 1000.0 > 2147483647.0) {
+      Add("turntable.modbus.microsteps",
+          "steps per revolution " + FormatDouble(spr) +
+              " leave fewer than 1000 turns in an int32 position; lower the microstepping");
     }
   }
 
@@ -1142,7 +1213,7 @@ const std::vector<std::string>& KnownBackends(const std::string& kind) {
   // Add a real backend's name here when its driver lands in the factory.
   static const std::map<std::string, std::vector<std::string>> kBackends = {
       {"camera", {"sim"}},
-      {"turntable", {"sim"}},
+      {"turntable", {"sim", "modbus-tcp", "modbus-rtu"}},
       {"button", {"sim"}},
   };
   static const std::vector<std::string> kNone;

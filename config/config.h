@@ -82,8 +82,41 @@ struct SimTurntableFaults {
   bool operator==(const SimTurntableFaults&) const = default;
 };
 
+// The Modbus turntable backends (drivers/modbus/): the link, the register map
+// (a profile file in config/turntables/) and the drive train's scaling.
+struct ModbusTurntableConfig {
+  std::string profile = "generic";    // profile name (PROFILE_DIR/NAME.toml) or a path to a .toml
+  std::string profile_dir = "/etc/aggscan/turntables";  // where profile names are looked up
+  int unit_id = 1;                    // Modbus unit (slave) id, 1..247
+  // modbus-tcp:
+  std::string host;                   // controller or gateway address
+  int port = 502;                     // Modbus/TCP port
+  // modbus-rtu:
+  std::string device;                 // serial device, e.g. /dev/ttyUSB0 or /dev/aggscan/turntable
+  int baud = 19200;                   // line speed, bit/s
+  std::string parity = "none";        // none | even | odd
+  int data_bits = 8;                  // 5..8
+  int stop_bits = 1;                  // 1 | 2
+  bool rs485 = false;                 // switch the port to RS-485 mode (TIOCSRS485) where it supports it
+  TimeNs response_timeout = 200 * kNsPerMs;  // one request must be answered within this
+  int retries = 2;                    // a request that got no answer is repeated this many times
+  // Scaling: steps per platter revolution = motor_steps_per_rev * microsteps * gear_ratio.
+  int motor_steps_per_rev = 200;      // full steps (or encoder counts) per motor revolution
+  int microsteps = 16;                // microstepping factor set on the drive
+  double gear_ratio = 1.0;            // motor revolutions per platter revolution
+  // Motion options:
+  bool shortest_path = false;         // go to the target's position modulo 360 the shorter way round
+  double backlash_comp_deg = 0.0;     // approach every target from one side, overshooting by this (0 = off)
+  std::string backlash_approach = "positive";  // positive | negative: the side targets are approached from
+  double in_position_window_deg = 0.05;  // in-position also needs the measured angle this close to the target
+
+  /// Steps per platter revolution.
+  double steps_per_rev() const { return motor_steps_per_rev * static_cast<double>(microsteps) * gear_ratio; }
+  bool operator==(const ModbusTurntableConfig&) const = default;
+};
+
 struct TurntableConfig {
-  std::string backend = "sim";        // sim (modbus-rtu, modbus-tcp, usb in a later issue)
+  std::string backend = "sim";        // sim | modbus-tcp | modbus-rtu (usb in a later issue)
   double max_speed_deg_s = 60.0;      // trapezoidal profile speed limit
   double accel_deg_s2 = 180.0;        // and acceleration limit
   // Sim model of a real platter:
@@ -94,6 +127,7 @@ struct TurntableConfig {
   double settle_frequency_hz = 6.0;   // its frequency
   TimeNs home_duration = 1500 * kNsPerMs;  // sim homing time
   SimTurntableFaults faults;
+  ModbusTurntableConfig modbus;       // modbus-tcp / modbus-rtu only
 
   bool operator==(const TurntableConfig&) const = default;
 };
