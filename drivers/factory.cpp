@@ -5,6 +5,8 @@
 #include <string>
 #include <vector>
 
+#include "config/turntable_profile.h"
+#include "drivers/modbus/modbus_turntable.h"
 #include "drivers/sim/sim_button.h"
 #include "drivers/sim/sim_camera.h"
 #include "drivers/sim/sim_turntable.h"
@@ -50,6 +52,22 @@ Result<std::unique_ptr<Turntable>> MakeSimTurntable(Context& ctx) {
   return std::unique_ptr<Turntable>(std::move(t));
 }
 
+// The register-map profile is loaded here, so a missing or contradictory
+// profile stops start-up with its file and field named.
+Result<std::unique_ptr<Turntable>> MakeModbusTurntable(Context& ctx, modbus::Transport transport) {
+  const ModbusTurntableConfig& m = ctx.config.turntable.modbus;
+  Result<TurntableProfile> profile = FindTurntableProfile(m.profile, m.profile_dir);
+  if (!profile) return profile.error();
+  return std::unique_ptr<Turntable>(std::make_unique<modbus::ModbusTurntable>(
+      transport, ctx.config.turntable, std::move(*profile)));
+}
+Result<std::unique_ptr<Turntable>> MakeModbusTcpTurntable(Context& ctx) {
+  return MakeModbusTurntable(ctx, modbus::Transport::kTcp);
+}
+Result<std::unique_ptr<Turntable>> MakeModbusRtuTurntable(Context& ctx) {
+  return MakeModbusTurntable(ctx, modbus::Transport::kRtu);
+}
+
 Result<std::unique_ptr<Camera>> MakeSimCamera(Context& ctx) {
   Status s = EnsureWorld(ctx);
   if (!s) return s.error();
@@ -64,7 +82,9 @@ Result<std::unique_ptr<Button>> MakeSimButton(Context& ctx) {
 }
 
 // Real backends (modbus-rtu, usb, v4l2, gpio, ...) join these tables.
-const Backend<Turntable> kTurntables[] = {{"sim", MakeSimTurntable}};
+const Backend<Turntable> kTurntables[] = {{"sim", MakeSimTurntable},
+                                          {"modbus-tcp", MakeModbusTcpTurntable},
+                                          {"modbus-rtu", MakeModbusRtuTurntable}};
 const Backend<Camera> kCameras[] = {{"sim", MakeSimCamera}};
 const Backend<Button> kButtons[] = {{"sim", MakeSimButton}};
 
