@@ -300,7 +300,8 @@ Status ModbusTurntable::MotionWrites(std::vector<RegisterWrite>* out) const {
     const double counts = std::round(physical / regs.scale);
     if (!(counts >= 1 && counts <= 65535)) {
       return MakeError(ErrorClass::kInvalidConfig,
-                       std::string("turntable.") + field + " gives " + std::to_string(counts) +
+                       std::string("turntable.") + field + " gives " +
+                           std::to_string(static_cast<long long>(counts)) +
                            " counts in the profile's register (1..65535 fit); change " + field +
                            " or the profile's scale");
     }

@@ -25,13 +25,43 @@ TEST(Factory, UnknownBackendNamesTheKeyAndTheKnownOnes) {
   EXPECT_EQ(r.error().message, "camera.backend \"foo\" is not known; available: sim");
 
   c = Config{};
-  c.turntable.backend = "modbus-rtu";
+  c.turntable.backend = "usb";
   c.button.backend = "gpio";
   r = CreateRig(c, clock);
   ASSERT_FALSE(r.ok());
   EXPECT_EQ(r.error().message,
-            "turntable.backend \"modbus-rtu\" is not known; available: sim; "
+            "turntable.backend \"usb\" is not known; available: sim, modbus-tcp, modbus-rtu; "
             "button.backend \"gpio\" is not known; available: sim");
+}
+
+TEST(Factory, ModbusTurntableFromConfigAndProfile) {
+  VirtualClock clock;
+  Config c;
+  const std::string rock = ::testing::TempDir() + "/factory_rock_mb.obj";
+  std::ofstream(rock) << "v 60 0 0\nv -60 0 0\nv 0 35 0\nv 0 -35 0\nv 0 0 25\nv 0 0 -25\n"
+                         "f 1 3 5\nf 3 2 5\nf 2 4 5\nf 4 1 5\nf 3 1 6\nf 2 3 6\nf 4 2 6\nf 1 4 6\n";
+  c.sim.rock_mesh = rock;
+  c.turntable.backend = "modbus-rtu";
+  c.turntable.modbus.device = "/dev/ttyUSB7";
+  c.turntable.modbus.profile_dir = std::string(AGGSCAN_SOURCE_DIR) + "/config/turntables";
+  c.turntable.modbus.profile = "leadshine-iem-rs";
+  auto r = CreateRig(c, clock);
+  ASSERT_TRUE(r.ok()) << r.error().ToString();
+  EXPECT_EQ(r->turntable->Info().backend, "modbus-rtu");
+  EXPECT_EQ(r->turntable->Info().id, "/dev/ttyUSB7/1");
+  EXPECT_NE(r->turntable->Info().model.find("Leadshine"), std::string::npos);
+  EXPECT_FALSE(r->turntable->is_open());  // created, not opened: no device needed yet
+
+  // A profile that is not there stops the rig with the file named.
+  c.turntable.backend = "modbus-tcp";
+  c.turntable.modbus.host = "127.0.0.1";
+  c.turntable.modbus.profile = "no-such-controller";
+  r = CreateRig(c, clock);
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().cls, ErrorClass::kInvalidConfig);
+  EXPECT_NE(r.error().message.find("config/turntables/no-such-controller.toml"), std::string::npos)
+      << r.error().message;
+  std::filesystem::remove(rock);
 }
 
 TEST(Factory, AllSimSharesOneWorld) {
