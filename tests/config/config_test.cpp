@@ -212,7 +212,8 @@ TEST(Config, OutOfRangeHasLine) {
       {"[sim]\nk1 = nan\n", "sim.k1", "got nan"},
       {"[camera]\nbackend = \"v4l9\"\n", "camera.backend",
        "unknown camera backend \"v4l9\"; known: sim"},
-      {"[turntable]\nbackend = \"modbus\"\n", "turntable.backend", "unknown turntable backend"},
+      {"[turntable]\nbackend = \"modbus\"\n", "turntable.backend",
+       "unknown turntable backend \"modbus\"; known: sim, modbus-tcp, modbus-rtu"},
       {"[button]\nbackend = \"gpio9\"\n", "button.backend", "unknown button backend"},
       {"[turntable.faults]\ndisconnect_after = \"0s\"\n", "turntable.faults.disconnect_after",
        "must be > 0s"},
@@ -225,6 +226,56 @@ TEST(Config, OutOfRangeHasLine) {
       {"[mask]\nthreshold = 1\n", "mask.threshold", "must be < 1"},
   };
   for (const auto& c : cases) ExpectOneProblem(c.toml, 2, c.key, c.text);
+}
+
+TEST(Config, ModbusTurntableValuesAreChecked) {
+  struct Case {
+    const char* toml;
+    const char* key;
+    const char* text;
+  };
+  const Case cases[] = {
+      {"[turntable.modbus]\nparity = \"mark\"\n", "turntable.modbus.parity",
+       "must be one of none | even | odd, got \"mark\""},
+      {"[turntable.modbus]\ndata_bits = 9\n", "turntable.modbus.data_bits", "5..8, got 9"},
+      {"[turntable.modbus]\nstop_bits = 3\n", "turntable.modbus.stop_bits", "1..2, got 3"},
+      {"[turntable.modbus]\nbaud = 12345\n", "turntable.modbus.baud",
+       "12345 is not a serial line speed; use one of 9600, 19200"},
+      {"[turntable.modbus]\nresponse_timeout = \"0s\"\n", "turntable.modbus.response_timeout",
+       "must be > 0s"},
+      {"[turntable.modbus]\nresponse_timeout = 200\n", "turntable.modbus.response_timeout",
+       "expected a duration string with a unit"},
+      {"[turntable.modbus]\nretries = 11\n", "turntable.modbus.retries", "0..10, got 11"},
+      {"[turntable.modbus]\ngear_ratio = 0\n", "turntable.modbus.gear_ratio", "must be > 0"},
+      {"[turntable.modbus]\nmicrosteps = 0\n", "turntable.modbus.microsteps", "1..100000"},
+      {"[turntable.modbus]\nbacklash_approach = \"up\"\n", "turntable.modbus.backlash_approach",
+       "positive | negative"},
+      {"[turntable.modbus]\nbacklash_comp_deg = -1\n", "turntable.modbus.backlash_comp_deg",
+       "0..10"},
+      {"[turntable.modbus]\nprofile = \"\"\n", "turntable.modbus.profile", "must not be empty"},
+      {"[turntable.modbus]\nunit_id = 256\n", "turntable.modbus.unit_id", "0..255"},
+      {"[turntable.modbus]\nprot = 502\n", "turntable.modbus.prot",
+       "unknown key; did you mean turntable.modbus.port?"},
+  };
+  for (const auto& c : cases) ExpectOneProblem(c.toml, 2, c.key, c.text);
+  // The link the backend needs must be given.
+  ExpectOneProblem("[turntable]\nbackend = \"modbus-tcp\"\n", 0, "turntable.modbus.host",
+                   "needs the controller's address, e.g. host = \"192.168.1.50\"");
+  ExpectOneProblem("[turntable]\nbackend = \"modbus-rtu\"\n", 0, "turntable.modbus.device",
+                   "needs the serial device, e.g. device = \"/dev/ttyUSB0\"");
+  ExpectOneProblem(
+      "[turntable]\nbackend = \"modbus-rtu\"\n[turntable.modbus]\ndevice = \"/dev/ttyUSB0\"\n"
+      "unit_id = 0\n",
+      5, "turntable.modbus.unit_id", "a Modbus RTU unit id is 1..247 (0 is broadcast)");
+  ExpectOneProblem("[turntable.modbus]\nmotor_steps_per_rev = 1000000\nmicrosteps = 256\n", 3,
+                   "turntable.modbus.microsteps", "fewer than 1000 turns in an int32 position");
+  Loaded ok = Load(
+      "[turntable]\nbackend = \"modbus-rtu\"\n[turntable.modbus]\ndevice = \"/dev/ttyUSB0\"\n"
+      "baud = 38400\nparity = \"even\"\nrs485 = true\nresponse_timeout = \"150ms\"\n");
+  ASSERT_TRUE(ok.result.ok()) << Dump(ok.problems);
+  EXPECT_EQ(ok.result->turntable.modbus.baud, 38400);
+  EXPECT_EQ(ok.result->turntable.modbus.response_timeout, 150 * kNsPerMs);
+  EXPECT_DOUBLE_EQ(ok.result->turntable.modbus.steps_per_rev(), 3200.0);
 }
 
 TEST(Config, OnnxMaskNeedsAModel) {
@@ -589,6 +640,24 @@ TEST(ConfigToToml, RoundTripEveryFieldChanged) {
   c.turntable.faults.stall_at_deg = -95.25;
   c.turntable.faults.timeout_every_n_moves = 3;
   c.turntable.faults.disconnect_after = 20 * kNsPerSec;
+  c.turntable.modbus.profile = "/etc/aggscan/turntables/my \"table\".toml";
+  c.turntable.modbus.unit_id = 247;
+  c.turntable.modbus.host = "10.0.0.5";
+  c.turntable.modbus.port = 5020;
+  c.turntable.modbus.device = "/dev/aggscan/turntable";
+  c.turntable.modbus.baud = 115200;
+  c.turntable.modbus.parity = "even";
+  c.turntable.modbus.data_bits = 7;
+  c.turntable.modbus.stop_bits = 2;
+  c.turntable.modbus.rs485 = true;
+  c.turntable.modbus.response_timeout = 1500 * kNsPerMs;
+  c.turntable.modbus.retries = 0;
+  c.turntable.modbus.microsteps = 32;
+  c.turntable.modbus.gear_ratio = 4.5;
+  c.turntable.modbus.shortest_path = true;
+  c.turntable.modbus.backlash_comp_deg = 0.25;
+  c.turntable.modbus.backlash_approach = "negative";
+  c.turntable.modbus.in_position_window_deg = 0.125;
   c.button.debounce = kNsPerSec;
   c.sim.seed = 9'223'372'036'854'775'807ULL;
   c.sim.rock_mesh = "rocks/r1.ply";
@@ -649,7 +718,8 @@ TEST(ConfigToToml, CommentsEveryFieldAndShowsUnsetOptionals) {
 
 TEST(Config, KnownBackends) {
   EXPECT_EQ(KnownBackends("camera"), std::vector<std::string>{"sim"});
-  EXPECT_EQ(KnownBackends("turntable"), std::vector<std::string>{"sim"});
+  EXPECT_EQ(KnownBackends("turntable"),
+            (std::vector<std::string>{"sim", "modbus-tcp", "modbus-rtu"}));
   EXPECT_EQ(KnownBackends("button"), std::vector<std::string>{"sim"});
   EXPECT_TRUE(KnownBackends("toaster").empty());
 }
