@@ -12,6 +12,7 @@
 #include "common/fsutil.h"
 #include "common/log.h"
 #include "config/config.h"
+#include "config/turntable_profile.h"
 #include "daemon/capture_service.h"
 #include "daemon/event_loop.h"
 #include "daemon/http_api.h"
@@ -113,6 +114,19 @@ int main(int argc, char** argv) {
     return 0;
   }
   if (check_only) {
+    // A Modbus turntable's register-map profile is a file of its own: check it too.
+    if (config.turntable.backend.rfind("modbus-", 0) == 0) {
+      Result<TurntableProfile> profile =
+          FindTurntableProfile(config.turntable.modbus.profile, config.turntable.modbus.profile_dir);
+      if (!profile) {
+        std::fprintf(stderr, "aggscand: invalid turntable profile:\n  %s\n",
+                     profile.error().message.c_str());
+        if (!profile.error().detail.empty() && profile.error().detail != profile.error().message) {
+          std::fprintf(stderr, "%s\n", profile.error().detail.c_str());
+        }
+        return kExitConfig;
+      }
+    }
     std::printf("%s: configuration is valid\n", config_path.empty() ? "<defaults>" : config_path.c_str());
     return 0;
   }

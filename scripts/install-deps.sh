@@ -16,6 +16,8 @@ PACKAGES=(
   libsystemd-dev libsqlite3-dev libturbojpeg0-dev
   # convex hulls (minimum-volume box of a mesh)
   libqhull-dev
+  # Modbus RTU/TCP turntable controllers (drivers/modbus/)
+  libmodbus-dev
   # pipeline (worker only): OpenCV (calib3d, features2d, aruco in contrib,
   # dnn), Eigen, Ceres; COLMAP as a subprocess for the SfM path
   libopencv-core-dev libopencv-imgproc-dev libopencv-imgcodecs-dev
@@ -25,6 +27,9 @@ PACKAGES=(
   systemd curl python3
   # tests only: writes the small ONNX networks of the mask-network test
   python3-onnx
+  # tests only: an independent Modbus implementation acting as the turntable
+  # controller in the interoperability test (skipped, 77, without it)
+  python3-pymodbus
 )
 
 missing=()
