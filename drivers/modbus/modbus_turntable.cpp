@@ -224,6 +224,7 @@ template <typename F>
 Status ModbusTurntable::Transact(const std::string& what, F&& request) {
   const int tries = 1 + config_.modbus.retries;
   int err = 0;
+  int sent = 0;
   bool reconnected = false;
   for (int attempt = 1; attempt <= tries; ++attempt) {
     if (!connected_) {
@@ -237,6 +238,7 @@ Status ModbusTurntable::Transact(const std::string& what, F&& request) {
       }
     }
     ++requests_;
+    ++sent;
     if (request(ctx_.get()) >= 0) {
       if (attempt > 1) AGG_LOGD(kLog, "%s: answered on try %d", what.c_str(), attempt);
       return OkStatus();
@@ -255,7 +257,7 @@ Status ModbusTurntable::Transact(const std::string& what, F&& request) {
     AGG_LOGD(kLog, "%s: %s (try %d of %d)", what.c_str(), modbus_strerror(err), attempt, tries);
     modbus_flush(ctx_.get());  // drop a late or partial answer before the next try
   }
-  return ClassifyFailure(err, what, tries);
+  return ClassifyFailure(err, what, sent);
 }
 
 Status ModbusTurntable::WriteRegisters(const std::vector<RegisterWrite>& writes,

@@ -28,8 +28,10 @@
 //    reported only after the second.
 //  - Homing is also the recovery step: StartHome() resets a pending alarm
 //    first (when the profile has a reset command).
-//  - Stall detection (moving, position not advancing) is the capture
-//    service's (capture.stall_timeout), not repeated here.
+//  - Commands return at once; the caller polls ReadStatus() and owns the
+//    deadlines (the capture service: capture.home_timeout, move_timeout).
+//    Stall detection (moving, position not advancing) is the capture
+//    service's too (capture.stall_timeout), not repeated here.
 #pragma once
 
 #include <memory>

@@ -109,6 +109,7 @@ TEST(ModbusTurntable, RetriesAreBounded) {
   ASSERT_TRUE(t->Open().ok());
   server->SetSilent(true);
   const int before = server->requests();
+  const int sent_before = t->requests_sent();
   const auto t0 = Clock::now();
   Result<TurntableStatus> st = t->ReadStatus();
   const double took = std::chrono::duration<double>(Clock::now() - t0).count();
@@ -116,6 +117,7 @@ TEST(ModbusTurntable, RetriesAreBounded) {
   EXPECT_EQ(st.error().cls, ErrorClass::kTimeout);
   // One status block on the generic map: 1 try + 3 retries, then give up.
   EXPECT_EQ(server->requests() - before, 4);
+  EXPECT_EQ(t->requests_sent() - sent_before, 4);
   EXPECT_THAT(st.error().detail, HasSubstr("4 tries"));
   EXPECT_GE(took, 0.35);
   EXPECT_LT(took, 2.0);
@@ -148,6 +150,7 @@ TEST(ModbusTurntable, ExceptionReplyIsNamedAndNotRetried) {
   EXPECT_THAT(s.error().message, HasSubstr("exception 2 (illegal data address)"));
   EXPECT_THAT(s.error().message, HasSubstr("profile \"generic\""));
   EXPECT_EQ(server->requests() - before, 2);  // the status read, then one write: no retry
+  EXPECT_THAT(s.error().detail, HasSubstr("(1 try,"));
 }
 
 TEST(ModbusTurntable, MissingDevicesAreClassified) {
@@ -385,6 +388,16 @@ TEST(ModbusTurntable, MotionLimitThatDoesNotFitARegisterIsRefused) {
   EXPECT_EQ(s.error().cls, ErrorClass::kInvalidConfig);
   EXPECT_THAT(s.error().message, HasSubstr("turntable.max_speed_deg_s gives 70000 counts"));
   EXPECT_EQ(server->requests(), 0);  // refused before talking
+}
+
+// A pty takes no TIOCSRS485: RS-485 mode is then a warning, not a failure
+// (USB adapters that switch direction themselves behave the same).
+TEST(ModbusTurntable, Rs485ModeIsOptionalWhereThePortLacksIt) {
+  auto server = ModbusTestServer::StartRtu({});
+  TurntableConfig c = testing::ModbusConfigFor(*server, false);
+  c.modbus.rs485 = true;
+  auto t = Make(c);
+  OpenHome(*t);
 }
 
 TEST(ModbusTurntable, InfoNamesBackendAndLink) {

@@ -77,7 +77,7 @@ TurntableHarness MakeModbus(bool tcp) {
   };
   // A real clock on a shared machine: the poll after the end can be late by
   // the request's round trip and the scheduler.
-  h.timing_slack = 40 * kNsPerMs;
+  h.timing_slack = 75 * kNsPerMs;
   h.keep_alive = server;
   return h;
 }
