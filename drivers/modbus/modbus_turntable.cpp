@@ -158,7 +158,8 @@ Status ModbusTurntable::Connect() {
   const ModbusTurntableConfig& m = config_.modbus;
   modbus_t* raw = nullptr;
   if (transport_ == Transport::kTcp) {
-    raw = modbus_new_tcp(m.host.c_str(), m.port);
+    // The protocol-independent variant: host names and IPv6 as well as IPv4.
+    raw = modbus_new_tcp_pi(m.host.c_str(), std::to_string(m.port).c_str());
   } else {
     const char parity = m.parity == "even" ? 'E' : m.parity == "odd" ? 'O' : 'N';
     raw = modbus_new_rtu(m.device.c_str(), m.baud, parity, m.data_bits, m.stop_bits);
