@@ -38,7 +38,8 @@ class ProfileParser {
   const std::string& first() const { return problems_.front(); }
 
   // Keys of `t` outside `known` are reported (a typo must not silently drop a field).
-  void OnlyKeys(const toml::table& t, const std::string& prefix, std::set<std::string> known) {
+  void OnlyKeys(const toml::table& t, const std::string& prefix,
+                const std::set<std::string>& known) {
     for (auto&& [k, v] : t) {
       (void)v;
       const std::string key(k.str());
@@ -143,8 +144,8 @@ class ProfileParser {
     StatusFlag s;
     bool a = Int(*f, field + ".", "address", 0, 65535, true, "the status register (0-based)",
                  &s.address);
-    bool b = Int(*f, field + ".", "bit", 0, 15, true, "the bit number, 0 = least significant",
-                 &s.bit);
+    bool b =
+        Int(*f, field + ".", "bit", 0, 15, true, "the bit number, 0 = least significant", &s.bit);
     if (const toml::node* al = f->get("active_low")) {
       if (const auto* bv = al->as_boolean()) {
         s.active_low = bv->get();
@@ -216,8 +217,10 @@ class ProfileParser {
     // Command registers may be shared by several commands (one command
     // register, different values) and status flags share status registers.
     std::map<int, std::map<int, std::string>> cmd_values;
-    for (auto [w, name] : {std::pair{&p.move, "commands.move"}, {&p.home, "commands.home"},
-                           {&p.stop, "commands.stop"}, {&p.reset_alarm, "commands.reset_alarm"}}) {
+    for (auto [w, name] : {std::pair{&p.move, "commands.move"},
+                           {&p.home, "commands.home"},
+                           {&p.stop, "commands.stop"},
+                           {&p.reset_alarm, "commands.reset_alarm"}}) {
       if (w->address < 0) continue;
       auto it = owner.find(w->address);
       if (it != owner.end() && it->second.rfind("commands.", 0) != 0) {
@@ -232,8 +235,10 @@ class ProfileParser {
       }
     }
     std::map<std::pair<int, int>, std::string> bits;
-    for (auto [f, name] : {std::pair{&p.enabled, "status.enabled"}, {&p.moving, "status.moving"},
-                           {&p.in_position, "status.in_position"}, {&p.homed, "status.homed"},
+    for (auto [f, name] : {std::pair{&p.enabled, "status.enabled"},
+                           {&p.moving, "status.moving"},
+                           {&p.in_position, "status.in_position"},
+                           {&p.homed, "status.homed"},
                            {&p.alarm, "status.alarm"}}) {
       if (!f->present()) continue;
       auto it = owner.find(f->address);
@@ -260,8 +265,8 @@ class ProfileParser {
                            ": TOML syntax error: " + std::string(e.description()) +
                            "; fix the turntable profile");
     }
-    OnlyKeys(root, "", {"profile", "position", "speed", "accel", "commands", "status", "alarm",
-                        "on_open"});
+    OnlyKeys(root, "",
+             {"profile", "position", "speed", "accel", "commands", "status", "alarm", "on_open"});
     TurntableProfile p;
     p.file = file_;
 
@@ -280,7 +285,8 @@ class ProfileParser {
         } else if (order == "low_first") {
           p.word_order = WordOrder::kLowFirst;
         } else {
-          Add("profile.word_order", "must be \"high_first\" or \"low_first\", got \"" + order + "\"");
+          Add("profile.word_order",
+              "must be \"high_first\" or \"low_first\", got \"" + order + "\"");
         }
       }
       Int(*t, "profile.", "read_max_gap", 0, 64, false, "", &p.read_max_gap);
@@ -345,8 +351,9 @@ class ProfileParser {
       }
     }
     if (!p.alarm.present() && p.alarm_code_address < 0 && root.contains("status")) {
-      Add("status.alarm", "missing, and there is no alarm.code either; give one of them so that "
-                          "alarms can be seen");
+      Add("status.alarm",
+          "missing, and there is no alarm.code either; give one of them so that "
+          "alarms can be seen");
     }
 
     if (const toml::node* n = root.get("on_open")) {

@@ -43,8 +43,8 @@ struct RegisterWrite {
 /// One status bit. Absent when address < 0.
 struct StatusFlag {
   int address = -1;
-  int bit = 0;               // 0..15, bit 0 = least significant
-  bool active_low = false;   // the condition holds when the bit is 0
+  int bit = 0;              // 0..15, bit 0 = least significant
+  bool active_low = false;  // the condition holds when the bit is 0
 
   bool present() const { return address >= 0; }
   bool operator==(const StatusFlag&) const = default;
@@ -68,10 +68,10 @@ struct ScaledRegisters {
 };
 
 struct TurntableProfile {
-  std::string file;         // where it was loaded from (messages)
-  std::string name;         // short name, e.g. "generic"
-  std::string model;        // controller product it describes
-  std::string source;       // manual and section the map follows
+  std::string file;    // where it was loaded from (messages)
+  std::string name;    // short name, e.g. "generic"
+  std::string model;   // controller product it describes
+  std::string source;  // manual and section the map follows
   WordOrder word_order = WordOrder::kHighFirst;
   int read_max_gap = 0;
 
@@ -94,7 +94,7 @@ struct TurntableProfile {
   StatusFlag homed;        // optional: absent = homed once a homing run completed since open
   StatusFlag alarm;        // optional: absent = alarm when the alarm code is not 0
 
-  int alarm_code_address = -1;            // optional uint16 alarm code
+  int alarm_code_address = -1;             // optional uint16 alarm code
   std::map<int, std::string> alarm_texts;  // alarm code -> operator text
 
   std::vector<RegisterWrite> on_open;  // fixed set-up writes after connecting

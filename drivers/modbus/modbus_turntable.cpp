@@ -26,17 +26,28 @@ std::string Hex(int v) {
 
 const char* ExceptionName(int code) {
   switch (code) {
-    case MODBUS_EXCEPTION_ILLEGAL_FUNCTION: return "illegal function";
-    case MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS: return "illegal data address";
-    case MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE: return "illegal data value";
-    case MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE: return "server device failure";
-    case MODBUS_EXCEPTION_ACKNOWLEDGE: return "acknowledge (still processing)";
-    case MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY: return "server device busy";
-    case MODBUS_EXCEPTION_NEGATIVE_ACKNOWLEDGE: return "negative acknowledge";
-    case MODBUS_EXCEPTION_MEMORY_PARITY: return "memory parity error";
-    case MODBUS_EXCEPTION_GATEWAY_PATH: return "gateway path unavailable";
-    case MODBUS_EXCEPTION_GATEWAY_TARGET: return "gateway target device failed to respond";
-    default: return "unknown exception";
+    case MODBUS_EXCEPTION_ILLEGAL_FUNCTION:
+      return "illegal function";
+    case MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS:
+      return "illegal data address";
+    case MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE:
+      return "illegal data value";
+    case MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE:
+      return "server device failure";
+    case MODBUS_EXCEPTION_ACKNOWLEDGE:
+      return "acknowledge (still processing)";
+    case MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY:
+      return "server device busy";
+    case MODBUS_EXCEPTION_NEGATIVE_ACKNOWLEDGE:
+      return "negative acknowledge";
+    case MODBUS_EXCEPTION_MEMORY_PARITY:
+      return "memory parity error";
+    case MODBUS_EXCEPTION_GATEWAY_PATH:
+      return "gateway path unavailable";
+    case MODBUS_EXCEPTION_GATEWAY_TARGET:
+      return "gateway target device failed to respond";
+    default:
+      return "unknown exception";
   }
 }
 
@@ -120,10 +131,9 @@ int ModbusTurntable::requests_sent() const {
 
 Error ModbusTurntable::ClassifyFailure(int err, const std::string& what, int attempts) const {
   const std::string link = LinkDescription();
-  const std::string detail = what + ": " + modbus_strerror(err) + " (" +
-                             std::to_string(attempts) + (attempts == 1 ? " try" : " tries") +
-                             ", response_timeout " + FormatDuration(config_.modbus.response_timeout) +
-                             ")";
+  const std::string detail = what + ": " + modbus_strerror(err) + " (" + std::to_string(attempts) +
+                             (attempts == 1 ? " try" : " tries") + ", response_timeout " +
+                             FormatDuration(config_.modbus.response_timeout) + ")";
   if (IsException(err)) {
     const int code = err - MODBUS_ENOBASE;
     return MakeError(ErrorClass::kDeviceFault,
@@ -141,11 +151,12 @@ Error ModbusTurntable::ClassifyFailure(int err, const std::string& what, int att
                      detail);
   }
   if (err == ETIMEDOUT) {
-    return MakeError(ErrorClass::kTimeout,
-                     "no answer from Modbus " + link +
-                         (transport_ == Transport::kTcp ? " — check the controller, the network and unit id"
-                                                        : " — check wiring and unit id"),
-                     detail);
+    return MakeError(
+        ErrorClass::kTimeout,
+        "no answer from Modbus " + link +
+            (transport_ == Transport::kTcp ? " — check the controller, the network and unit id"
+                                           : " — check wiring and unit id"),
+        detail);
   }
   // Garbled or mismatched answers that stayed so after every retry.
   return MakeError(ErrorClass::kTimeout,
@@ -211,8 +222,9 @@ Status ModbusTurntable::Connect() {
   if (transport_ == Transport::kRtu && m.rs485) {
     if (modbus_rtu_set_serial_mode(raw, MODBUS_RTU_RS485) != 0) {
       // USB adapters that switch direction by themselves do not take the ioctl.
-      AGG_LOGW(kLog, "%s does not support RS-485 mode (%s); fine for adapters that switch "
-                     "direction themselves",
+      AGG_LOGW(kLog,
+               "%s does not support RS-485 mode (%s); fine for adapters that switch "
+               "direction themselves",
                m.device.c_str(), modbus_strerror(errno));
     }
   }
@@ -276,23 +288,25 @@ Status ModbusTurntable::WriteRegisters(const std::vector<RegisterWrite>& writes,
       run.push_back(it->second);
       ++it;
     }
-    const std::string label = "writing " + what + " (register " + Hex(first) +
-                              (run.size() > 1 ? ".." + Hex(first + static_cast<int>(run.size()) - 1)
-                                              : std::string()) +
-                              ")";
-    Status s = run.size() == 1
-                   ? Transact(label, [&](modbus_t* c) { return modbus_write_register(c, first, run[0]); })
-                   : Transact(label, [&](modbus_t* c) {
-                       return modbus_write_registers(c, first, static_cast<int>(run.size()), run.data());
-                     });
+    const std::string label =
+        "writing " + what + " (register " + Hex(first) +
+        (run.size() > 1 ? ".." + Hex(first + static_cast<int>(run.size()) - 1) : std::string()) +
+        ")";
+    Status s =
+        run.size() == 1
+            ? Transact(label, [&](modbus_t* c) { return modbus_write_register(c, first, run[0]); })
+            : Transact(label, [&](modbus_t* c) {
+                return modbus_write_registers(c, first, static_cast<int>(run.size()), run.data());
+              });
     if (!s) return s;
   }
   return OkStatus();
 }
 
 Status ModbusTurntable::WriteCommand(const RegisterWrite& command, const std::string& what) {
-  return Transact("writing the " + what + " command (register " + Hex(command.address) + ")",
-                  [&](modbus_t* c) { return modbus_write_register(c, command.address, command.value); });
+  return Transact(
+      "writing the " + what + " command (register " + Hex(command.address) + ")",
+      [&](modbus_t* c) { return modbus_write_register(c, command.address, command.value); });
 }
 
 // Speed and acceleration registers from the motion limits, in the profile's
@@ -315,9 +329,15 @@ Status ModbusTurntable::MotionWrites(std::vector<RegisterWrite>* out) const {
     const double v = config_.max_speed_deg_s;
     double physical = v;
     switch (profile_.speed_unit) {
-      case SpeedUnit::kTableDegPerS: physical = v; break;
-      case SpeedUnit::kMotorRpm: physical = v / 6.0 * gear; break;
-      case SpeedUnit::kStepsPerS: physical = v * StepsPerDeg(); break;
+      case SpeedUnit::kTableDegPerS:
+        physical = v;
+        break;
+      case SpeedUnit::kMotorRpm:
+        physical = v / 6.0 * gear;
+        break;
+      case SpeedUnit::kStepsPerS:
+        physical = v * StepsPerDeg();
+        break;
     }
     Status s = put(profile_.speed, physical, "max_speed_deg_s");
     if (!s) return s;
@@ -326,9 +346,15 @@ Status ModbusTurntable::MotionWrites(std::vector<RegisterWrite>* out) const {
     const double a = config_.accel_deg_s2;
     double physical = a;
     switch (profile_.accel_unit) {
-      case AccelUnit::kTableDegPerS2: physical = a; break;
-      case AccelUnit::kStepsPerS2: physical = a * StepsPerDeg(); break;
-      case AccelUnit::kMsPer1000Rpm: physical = 1000.0 / (a / 6.0 * gear) * 1000.0; break;
+      case AccelUnit::kTableDegPerS2:
+        physical = a;
+        break;
+      case AccelUnit::kStepsPerS2:
+        physical = a * StepsPerDeg();
+        break;
+      case AccelUnit::kMsPer1000Rpm:
+        physical = 1000.0 / (a / 6.0 * gear) * 1000.0;
+        break;
     }
     Status s = put(profile_.accel, physical, "accel_deg_s2");
     if (!s) return s;
@@ -416,7 +442,8 @@ Status ModbusTurntable::StartLeg(int64_t target_steps) {
   if (!s) return s;
   const bool high_first = profile_.word_order == WordOrder::kHighFirst;
   writes.push_back({profile_.target_address, high_first ? High(target_steps) : Low(target_steps)});
-  writes.push_back({profile_.target_address + 1, high_first ? Low(target_steps) : High(target_steps)});
+  writes.push_back(
+      {profile_.target_address + 1, high_first ? Low(target_steps) : High(target_steps)});
   s = WriteRegisters(writes, "the target position");
   if (!s) return s;
   s = WriteCommand(profile_.move, "move");
@@ -467,12 +494,16 @@ Status ModbusTurntable::DoStartMoveTo(double angle_deg) {
   const double target = std::round(controller_deg * spd);
   const double comp = std::round(config_.modbus.backlash_comp_deg * spd);
   const int dir = config_.modbus.backlash_approach == "negative" ? -1 : 1;
-  const double first = (target - static_cast<double>(raw->steps)) * dir < 0 ? target - dir * comp : target;
-  constexpr double kMax = std::numeric_limits<int32_t>::max(), kMin = std::numeric_limits<int32_t>::min();
+  const double first =
+      (target - static_cast<double>(raw->steps)) * dir < 0 ? target - dir * comp : target;
+  constexpr double kMax = std::numeric_limits<int32_t>::max(),
+                   kMin = std::numeric_limits<int32_t>::min();
   if (target > kMax || target < kMin || first > kMax || first < kMin) {
     return MakeError(ErrorClass::kInvalidArgument,
-                     "target " + std::to_string(angle_deg) + " deg is beyond the controller's int32 "
-                     "step range at " + std::to_string(config_.modbus.steps_per_rev()) + " steps/rev");
+                     "target " + std::to_string(angle_deg) +
+                         " deg is beyond the controller's int32 "
+                         "step range at " +
+                         std::to_string(config_.modbus.steps_per_rev()) + " steps/rev");
   }
   Status s = StartLeg(static_cast<int64_t>(first));
   if (!s) return s;
@@ -493,9 +524,9 @@ Status ModbusTurntable::ResetAlarm() {
   if (!is_open()) return MakeError(ErrorClass::kInvalidState, "turntable is not open");
   std::lock_guard<std::mutex> l(mu_);
   if (profile_.reset_alarm.address < 0) {
-    return MakeError(ErrorClass::kInvalidState,
-                     "profile \"" + profile_.name + "\" has no reset command; reset the controller "
-                     "by hand (or power-cycle it)");
+    return MakeError(ErrorClass::kInvalidState, "profile \"" + profile_.name +
+                                                    "\" has no reset command; reset the controller "
+                                                    "by hand (or power-cycle it)");
   }
   return WriteCommand(profile_.reset_alarm, "reset alarm");
 }
@@ -507,7 +538,9 @@ Result<TurntableStatus> ModbusTurntable::DoReadStatus() {
   const Raw& raw = *r;
   const double spd = StepsPerDeg();
   const double window = std::max(1.0, config_.modbus.in_position_window_deg * spd);
-  auto near = [&](int64_t goal) { return std::fabs(static_cast<double>(raw.steps - goal)) <= window; };
+  auto near = [&](int64_t goal) {
+    return std::fabs(static_cast<double>(raw.steps - goal)) <= window;
+  };
   const bool settled = raw.in_position && !raw.moving && !raw.alarm;
 
   TurntableStatus st;
@@ -523,8 +556,12 @@ Result<TurntableStatus> ModbusTurntable::DoReadStatus() {
                               " (see the controller manual, profile \"" + profile_.name + "\")";
   }
   switch (phase_) {
-    case Phase::kNone: st.in_position = settled; break;
-    case Phase::kStopped: st.in_position = false; break;
+    case Phase::kNone:
+      st.in_position = settled;
+      break;
+    case Phase::kStopped:
+      st.in_position = false;
+      break;
     case Phase::kHoming:
       // Without a homed bit, a completed homing run is what makes it homed.
       st.in_position = settled && (!profile_.homed.present() || raw.homed) && near(0);
@@ -540,7 +577,9 @@ Result<TurntableStatus> ModbusTurntable::DoReadStatus() {
         st.moving = true;
       }
       break;
-    case Phase::kFinal: st.in_position = settled && near(final_steps_); break;
+    case Phase::kFinal:
+      st.in_position = settled && near(final_steps_);
+      break;
   }
   st.homed = profile_.homed.present() ? raw.homed : homed_since_open_;
   st.angle_deg = static_cast<double>(raw.steps) / spd + turn_offset_deg_;

@@ -106,8 +106,8 @@ class ModbusTurntable final : public Turntable {
   bool connected_ = false;
   int requests_ = 0;
   Phase phase_ = Phase::kNone;
-  int64_t leg_steps_ = 0;    // target of the leg in progress
-  int64_t final_steps_ = 0;  // target of the whole move
+  int64_t leg_steps_ = 0;         // target of the leg in progress
+  int64_t final_steps_ = 0;       // target of the whole move
   double turn_offset_deg_ = 0.0;  // reported angle = controller angle + this (multiples of 360)
   bool homed_since_open_ = false;
 };

@@ -3,8 +3,8 @@
 // generic register map (tests/drivers/pymodbus_turntable.py, started here as a
 // subprocess on a free loopback port). Exits 77 (skipped) when no python3 with
 // pymodbus is installed; never passes without having talked to it.
-#include <gmock/gmock.h>
 #include <fcntl.h>
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
 #include <netinet/in.h>
 #include <signal.h>
@@ -56,8 +56,9 @@ int Run(const std::vector<std::string>& argv, bool quiet) {
 class PyServer {
  public:
   PyServer(int port, const std::string& log) {
-    const std::string script = std::string(AGGSCAN_SOURCE_DIR) + "/tests/drivers/pymodbus_turntable.py";
-    std::vector<std::string> argv = {g_python, script, "--port", std::to_string(port),
+    const std::string script =
+        std::string(AGGSCAN_SOURCE_DIR) + "/tests/drivers/pymodbus_turntable.py";
+    std::vector<std::string> argv = {g_python,          script, "--port", std::to_string(port),
                                      "--steps-per-rev", "32000"};
     std::vector<char*> args;
     for (auto& a : argv) args.push_back(a.data());
@@ -197,7 +198,8 @@ int main(int argc, char** argv) {
     }
   }
   if (aggscan::g_python.empty()) {
-    std::fprintf(stderr, "SKIP: no python3 with pymodbus (Debian: apt-get install python3-pymodbus)\n");
+    std::fprintf(stderr,
+                 "SKIP: no python3 with pymodbus (Debian: apt-get install python3-pymodbus)\n");
     return 77;
   }
   return RUN_ALL_TESTS();

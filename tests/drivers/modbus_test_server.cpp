@@ -31,12 +31,12 @@ constexpr int kTarget = 0, kCommand = 2, kStatus = 3, kActual = 4, kAlarm = 6, k
 constexpr int kFirst = 0, kCount = 16;
 }  // namespace generic
 namespace leadshine {
-constexpr int kMotionStatus = 0x1003;    // bit 2 running, bit 4 command completed, bit 6 homed
-constexpr int kFeedbackPos = 0x1014;     // high, low
-constexpr int kControlWord = 0x1801;     // 0x1111: reset current alarm
+constexpr int kMotionStatus = 0x1003;  // bit 2 running, bit 4 command completed, bit 6 homed
+constexpr int kFeedbackPos = 0x1014;   // high, low
+constexpr int kControlWord = 0x1801;   // 0x1111: reset current alarm
 constexpr int kCurrentAlarm = 0x2203;
-constexpr int kTrigger = 0x6002;         // Pr8.02: 0x10 PR0, 0x20 home, 0x40 quick stop
-constexpr int kPr0 = 0x6200;             // mode, pos hi, pos lo, rpm, acc ms, dec ms, delay, trigger
+constexpr int kTrigger = 0x6002;  // Pr8.02: 0x10 PR0, 0x20 home, 0x40 quick stop
+constexpr int kPr0 = 0x6200;      // mode, pos hi, pos lo, rpm, acc ms, dec ms, delay, trigger
 constexpr int kFirst = 0x1000, kCount = 0x6210 - 0x1000;
 }  // namespace leadshine
 
@@ -162,7 +162,8 @@ void ModbusTestServer::Handle(const uint8_t* req, int len) {
   if (silent_) return;
   const int function = req[hl];
   const int address = (req[hl + 1] << 8) | req[hl + 2];
-  const int count = function == MODBUS_FC_WRITE_SINGLE_REGISTER ? 1 : (req[hl + 3] << 8) | req[hl + 4];
+  const int count =
+      function == MODBUS_FC_WRITE_SINGLE_REGISTER ? 1 : (req[hl + 3] << 8) | req[hl + 4];
   for (int r : rejected_) {
     if (r >= address && r < address + count) {
       modbus_reply_exception(ctx_, req, MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
@@ -212,16 +213,23 @@ void ModbusTestServer::Advance(int64_t now) {
   if (d >= v_ * v_ / a_) {
     const double ta = v_ / a_, da = 0.5 * v_ * v_ / a_;
     total = d / v_ + ta;
-    if (t < ta) s = 0.5 * a_ * t * t;
-    else if (t < total - ta) s = da + v_ * (t - ta);
-    else if (t < total) s = d - 0.5 * a_ * (total - t) * (total - t);
-    else s = d;
+    if (t < ta)
+      s = 0.5 * a_ * t * t;
+    else if (t < total - ta)
+      s = da + v_ * (t - ta);
+    else if (t < total)
+      s = d - 0.5 * a_ * (total - t) * (total - t);
+    else
+      s = d;
   } else {
     const double ta = std::sqrt(d / a_);
     total = 2 * ta;
-    if (t < ta) s = 0.5 * a_ * t * t;
-    else if (t < total) s = d - 0.5 * a_ * (total - t) * (total - t);
-    else s = d;
+    if (t < ta)
+      s = 0.5 * a_ * t * t;
+    else if (t < total)
+      s = d - 0.5 * a_ * (total - t) * (total - t);
+    else
+      s = d;
   }
   const double next = start_pos_ + sign * s;
   if (stall_at_) {
@@ -250,9 +258,9 @@ void ModbusTestServer::UpdateRegisters(int64_t now) {
   const auto u = static_cast<uint32_t>(steps);
   const uint16_t hi = static_cast<uint16_t>(u >> 16), lo = static_cast<uint16_t>(u & 0xFFFF);
   if (opt_.map == ServerMap::kGeneric) {
-    map_->at(generic::kStatus) = static_cast<uint16_t>(1 | (moving_ || homing_ ? 2 : 0) |
-                                                       (in_position_ ? 4 : 0) | (homed_ ? 8 : 0) |
-                                                       (alarm_ ? 16 : 0));
+    map_->at(generic::kStatus) =
+        static_cast<uint16_t>(1 | (moving_ || homing_ ? 2 : 0) | (in_position_ ? 4 : 0) |
+                              (homed_ ? 8 : 0) | (alarm_ ? 16 : 0));
     map_->at(generic::kActual) = opt_.low_word_first ? lo : hi;
     map_->at(generic::kActual + 1) = opt_.low_word_first ? hi : lo;
     map_->at(generic::kAlarm) = static_cast<uint16_t>(alarm_code_);
@@ -272,9 +280,7 @@ void ModbusTestServer::ApplyCommands(int64_t now) {
     homing_ = true;
     moving_ = homed_ = in_position_ = stalled_ = false;
   };
-  auto stop = [&] {
-    moving_ = homing_ = in_position_ = stalled_ = false;
-  };
+  auto stop = [&] { moving_ = homing_ = in_position_ = stalled_ = false; };
   auto reset = [&] {
     alarm_ = false;
     alarm_code_ = 0;
@@ -284,8 +290,9 @@ void ModbusTestServer::ApplyCommands(int64_t now) {
     if (cmd == 0) return;
     map_->at(generic::kCommand) = 0;
     const uint16_t w0 = map_->at(generic::kTarget), w1 = map_->at(generic::kTarget + 1);
-    const auto target = static_cast<int32_t>(
-        opt_.low_word_first ? (static_cast<uint32_t>(w1) << 16) | w0 : (static_cast<uint32_t>(w0) << 16) | w1);
+    const auto target =
+        static_cast<int32_t>(opt_.low_word_first ? (static_cast<uint32_t>(w1) << 16) | w0
+                                                 : (static_cast<uint32_t>(w0) << 16) | w1);
     const double per_deg = opt_.steps_per_rev / 360.0;
     const double v = map_->at(generic::kSpeed) * 0.1 * per_deg;
     const double a = map_->at(generic::kAccel) * 0.1 * per_deg;
@@ -296,9 +303,14 @@ void ModbusTestServer::ApplyCommands(int64_t now) {
       case 2:
         if (!alarm_) home();
         break;
-      case 3: stop(); break;
-      case 4: reset(); break;
-      default: break;
+      case 3:
+        stop();
+        break;
+      case 4:
+        reset();
+        break;
+      default:
+        break;
     }
     return;
   }
@@ -312,12 +324,14 @@ void ModbusTestServer::ApplyCommands(int64_t now) {
   if (trig == 0x10) {
     const int mode = map_->at(leadshine::kPr0);
     if ((mode & 0xF) != 1 || alarm_) return;  // only position moves are modelled
-    const auto target = static_cast<int32_t>((static_cast<uint32_t>(map_->at(leadshine::kPr0 + 1)) << 16) |
-                                             map_->at(leadshine::kPr0 + 2));
+    const auto target =
+        static_cast<int32_t>((static_cast<uint32_t>(map_->at(leadshine::kPr0 + 1)) << 16) |
+                             map_->at(leadshine::kPr0 + 2));
     const double rpm = map_->at(leadshine::kPr0 + 3);
     const double acc_ms = map_->at(leadshine::kPr0 + 4);
     const double v = rpm * opt_.motor_steps_per_rev / 60.0;
-    const double a = acc_ms > 0 ? (1000.0 * opt_.motor_steps_per_rev / 60.0) / (acc_ms / 1000.0) : 0;
+    const double a =
+        acc_ms > 0 ? (1000.0 * opt_.motor_steps_per_rev / 60.0) / (acc_ms / 1000.0) : 0;
     const double goal = (mode & 0x40) ? pos_ + target : target;
     if (v > 0 && a > 0) StartMotion(now, goal, v, a);
   } else if (trig == 0x20) {

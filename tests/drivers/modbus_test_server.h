@@ -33,11 +33,11 @@ enum class ServerMap { kGeneric, kLeadshine };
 
 struct ModbusServerOptions {
   ServerMap map = ServerMap::kGeneric;
-  bool low_word_first = false;  // kGeneric: int32 values low word first
-  int unit_id = 1;              // answers only requests to this unit
-  double steps_per_rev = 32000; // kGeneric: steps per platter turn (speed registers are deg/s)
+  bool low_word_first = false;   // kGeneric: int32 values low word first
+  int unit_id = 1;               // answers only requests to this unit
+  double steps_per_rev = 32000;  // kGeneric: steps per platter turn (speed registers are deg/s)
   double motor_steps_per_rev = 10000;  // kLeadshine: pulses per motor turn (speed is motor rpm)
-  double home_seconds = 0.3;    // homing run duration (position ramps to 0)
+  double home_seconds = 0.3;           // homing run duration (position ramps to 0)
 };
 
 class ModbusTestServer {
@@ -48,24 +48,24 @@ class ModbusTestServer {
   ModbusTestServer(const ModbusTestServer&) = delete;
   ModbusTestServer& operator=(const ModbusTestServer&) = delete;
 
-  int port() const { return port_; }                // TCP
+  int port() const { return port_; }                     // TCP
   const std::string& device() const { return device_; }  // RTU: the pty the backend opens
 
   // Fault injection.
-  void SetSilent(bool silent);                  // requests are read and never answered
+  void SetSilent(bool silent);                         // requests are read and never answered
   void SetStallAtSteps(std::optional<int64_t> steps);  // motion stops there, still "moving"
-  void RaiseAlarm(int code);                    // stops motion, alarm bit and code set
-  void RejectRegister(int address);             // requests touching it get exception 2
-  void DropClient();                            // TCP: closes the connection
+  void RaiseAlarm(int code);                           // stops motion, alarm bit and code set
+  void RejectRegister(int address);                    // requests touching it get exception 2
+  void DropClient();                                   // TCP: closes the connection
 
   // Observations.
   int64_t position_steps();
   bool homed();
-  int requests();                               // requests received (answered or not)
-  std::vector<int64_t> move_targets();          // targets of accepted move commands, in order
-  int64_t min_steps_since_last_move();          // lowest position since the last move command
+  int requests();                       // requests received (answered or not)
+  std::vector<int64_t> move_targets();  // targets of accepted move commands, in order
+  int64_t min_steps_since_last_move();  // lowest position since the last move command
   int64_t max_steps_since_last_move();
-  uint16_t reg(int address);                    // a holding register as the backend left it
+  uint16_t reg(int address);  // a holding register as the backend left it
 
  private:
   explicit ModbusTestServer(const ModbusServerOptions& options);

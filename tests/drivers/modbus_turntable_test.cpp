@@ -96,8 +96,8 @@ TEST(ModbusTurntable, TcpTimeoutNamesHostAndPort) {
   Status s = t->StartHome();
   ASSERT_FALSE(s.ok());
   EXPECT_EQ(s.error().cls, ErrorClass::kTimeout);
-  EXPECT_THAT(s.error().message,
-              HasSubstr("no answer from Modbus unit 1 at 127.0.0.1:" + std::to_string(server->port())));
+  EXPECT_THAT(s.error().message, HasSubstr("no answer from Modbus unit 1 at 127.0.0.1:" +
+                                           std::to_string(server->port())));
 }
 
 TEST(ModbusTurntable, RetriesAreBounded) {
@@ -180,7 +180,8 @@ TEST(ModbusTurntable, MissingDevicesAreClassified) {
   s = tcp->Open();
   ASSERT_FALSE(s.ok());
   EXPECT_EQ(s.error().cls, ErrorClass::kDeviceMissing);
-  EXPECT_THAT(s.error().message, HasSubstr("cannot connect to the Modbus controller at 127.0.0.1:"));
+  EXPECT_THAT(s.error().message,
+              HasSubstr("cannot connect to the Modbus controller at 127.0.0.1:"));
 }
 
 TEST(ModbusTurntable, LostConnectionIsReopenedOrReportedDisconnected) {
@@ -226,7 +227,8 @@ TEST(ModbusTurntable, AlarmIsReportedAndHomingResetsIt) {
 }
 
 // A profile text with one line replaced (the shipped file stays the source).
-std::string WriteVariant(const std::string& from, const std::string& what, const std::string& with) {
+std::string WriteVariant(const std::string& from, const std::string& what,
+                         const std::string& with) {
   Result<std::string> text = ReadFile(kProfiles + from);
   EXPECT_TRUE(text.ok());
   std::string s = *text;
@@ -356,7 +358,8 @@ TEST(ModbusTurntable, BacklashCompensationApproachesFromOneSide) {
   EXPECT_NEAR(st.angle_deg, 30.0, kStepDeg);
   targets = server->move_targets();
   ASSERT_GE(targets.size(), 2u);
-  EXPECT_EQ(targets[targets.size() - 2], std::llround(30.0 / kStepDeg) + std::llround(2.0 / kStepDeg));
+  EXPECT_EQ(targets[targets.size() - 2],
+            std::llround(30.0 / kStepDeg) + std::llround(2.0 / kStepDeg));
   EXPECT_EQ(targets.back(), std::llround(30.0 / kStepDeg));
 }
 

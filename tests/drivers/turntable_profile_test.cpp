@@ -140,18 +140,20 @@ TEST(TurntableProfile, ContradictionsAreRefused) {
 }
 
 TEST(TurntableProfile, BadValuesAreRefused) {
-  ExpectRefused("\"low_first\"", "\"middle_first\"",
-                {"profile.word_order: must be \"high_first\" or \"low_first\", got \"middle_first\""});
+  ExpectRefused(
+      "\"low_first\"", "\"middle_first\"",
+      {"profile.word_order: must be \"high_first\" or \"low_first\", got \"middle_first\""});
   ExpectRefused("bit = 2 }", "bit = 16 }", {"status.alarm.bit: must be in 0..15, got 16"});
   ExpectRefused("target = 10", "target = -1", {"position.target: must be in 0..65534"});
   ExpectRefused("[status]", "[speed]\naddresses = [30]\nunit = \"furlongs\"\n[status]",
                 {"speed.unit: must be one of table_deg_per_s | motor_rpm | steps_per_s"});
-  ExpectRefused("[status]", "[accel]\naddresses = [30]\nunit = \"steps_per_s2\"\nscale = 0\n[status]",
+  ExpectRefused("[status]",
+                "[accel]\naddresses = [30]\nunit = \"steps_per_s2\"\nscale = 0\n[status]",
                 {"accel.scale: must be a number > 0"});
   ExpectRefused("[status]", "[speed]\nunit = \"motor_rpm\"\n[status]",
                 {"speed.addresses: must be a non-empty array"});
-  ExpectRefused("[position]", "[postion]", {"bad.toml: postion: unknown key",
-                                            "position: missing table"});
+  ExpectRefused("[position]", "[postion]",
+                {"bad.toml: postion: unknown key", "position: missing table"});
   ExpectRefused("moving = { address = 21, bit = 0 }", "moving = { adress = 21, bit = 0 }",
                 {"status.moving.adress: unknown key; known here: active_low, address, bit"});
   Result<TurntableProfile> p = ParseTurntableProfile("[profile\n", "syntax.toml");
