@@ -200,6 +200,19 @@ TEST(ModbusTurntable, LostConnectionIsReopenedOrReportedDisconnected) {
   EXPECT_EQ(st.error().cls, ErrorClass::kDisconnected) << st.error().ToString();
 }
 
+// A USB-serial adapter pulled out: the pty pair goes away under the backend.
+TEST(ModbusTurntable, UnpluggedSerialDeviceIsDisconnected) {
+  auto server = ModbusTestServer::StartRtu({});
+  const std::string device = server->device();
+  auto t = Make(testing::ModbusConfigFor(*server, false));
+  OpenHome(*t);
+  server.reset();
+  Result<TurntableStatus> st = t->ReadStatus();
+  ASSERT_FALSE(st.ok());
+  EXPECT_EQ(st.error().cls, ErrorClass::kDisconnected) << st.error().ToString();
+  EXPECT_THAT(st.error().message, HasSubstr(device)) << st.error().ToString();
+}
+
 TEST(ModbusTurntable, AlarmIsReportedAndHomingResetsIt) {
   auto server = ModbusTestServer::StartRtu({});
   auto t = Make(testing::ModbusConfigFor(*server, false));
