@@ -318,7 +318,12 @@ void ModbusTestServer::ApplyCommands(int64_t now) {
     map_->at(leadshine::kControlWord) = 0;
     reset();
   }
-  const int trig = map_->at(leadshine::kTrigger);
+  // Pr9.07 (the last register of the PR0 block) is mapped to Pr8.02.
+  int trig = map_->at(leadshine::kTrigger);
+  if (map_->at(leadshine::kPr0 + 7) != 0) {
+    trig = map_->at(leadshine::kPr0 + 7);
+    map_->at(leadshine::kPr0 + 7) = 0;
+  }
   if (trig == 0) return;
   map_->at(leadshine::kTrigger) = 0;
   if (trig == 0x10) {

@@ -60,7 +60,8 @@ TEST(TurntableProfile, EveryShippedProfileLoadsAndNamesItsSource) {
 TEST(TurntableProfile, LeadshineUsesTriggerRegisterAndSeparateReset) {
   Result<TurntableProfile> p = FindTurntableProfile("leadshine-iem-rs", kDir);
   ASSERT_TRUE(p.ok()) << p.error().ToString() << "\n" << p.error().detail;
-  EXPECT_EQ(p->move, (RegisterWrite{0x6002, 0x10}));
+  EXPECT_EQ(p->move, (RegisterWrite{0x6207, 0x10}));
+  EXPECT_EQ(p->home, (RegisterWrite{0x6002, 0x20}));
   EXPECT_EQ(p->reset_alarm, (RegisterWrite{0x1801, 0x1111}));
   EXPECT_EQ(p->actual_address, 0x1014);
   EXPECT_EQ(p->alarm_code_address, 0x2203);
