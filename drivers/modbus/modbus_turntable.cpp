@@ -220,7 +220,8 @@ Status ModbusTurntable::Connect() {
                      detail);
   }
   if (transport_ == Transport::kRtu && m.rs485) {
-    if (modbus_rtu_set_serial_mode(raw, MODBUS_RTU_RS485) != 0) {
+    if (modbus_rtu_set_serial_mode(raw, MODBUS_RTU_RS485) != 0 && !rs485_warned_) {
+      rs485_warned_ = true;  // once, not at every reconnect
       // USB adapters that switch direction by themselves do not take the ioctl.
       AGG_LOGW(kLog,
                "%s does not support RS-485 mode (%s); fine for adapters that switch "

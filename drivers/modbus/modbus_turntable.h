@@ -110,6 +110,7 @@ class ModbusTurntable final : public Turntable {
   int64_t final_steps_ = 0;       // target of the whole move
   double turn_offset_deg_ = 0.0;  // reported angle = controller angle + this (multiples of 360)
   bool homed_since_open_ = false;
+  bool rs485_warned_ = false;
 };
 
 }  // namespace aggscan::modbus
