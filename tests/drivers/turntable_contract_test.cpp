@@ -76,8 +76,10 @@ TurntableHarness MakeModbus(bool tcp) {
     if (d > 0) std::this_thread::sleep_for(std::chrono::nanoseconds(d));
   };
   // A real clock on a shared machine: the poll after the end can be late by
-  // the request's round trip and the scheduler.
-  h.timing_slack = 75 * kNsPerMs;
+  // the request's round trip and the scheduler, which under CI's parallel
+  // load (2 cores, reconstructions beside it) can take a few hundred ms.
+  // Early in-position stays an error: the lower bound keeps its 5 ms.
+  h.timing_slack = 300 * kNsPerMs;
   h.keep_alive = server;
   return h;
 }
