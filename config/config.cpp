@@ -151,10 +151,10 @@ const std::vector<Field<Config>>& Fields() {
       F(capture.comm_retries, Range(0, 10), "turntable communication retries before a fault"),
 
       F(camera.backend, Backend("camera"),
-        "camera backend: sim (v4l2, libcamera in a later issue)"),
+        "camera backend: sim | v4l2 (libcamera in a later issue)"),
       F(camera.id, NonEmpty(), "camera id recorded in every sidecar"),
       F(camera.device, Any(),
-        "device path or udev name for real backends, e.g. /dev/aggscan/camera"),
+        "device path or udev name for real backends, e.g. /dev/aggscan/camera or a /dev/v4l/by-id name"),
       F(camera.width, Range(16, 16384), "still width, pixels"),
       F(camera.height, Range(16, 16384), "still height, pixels"),
       F(camera.jpeg_quality, Range(1, 100), "1..100, when the driver encodes JPEG itself"),
@@ -163,6 +163,19 @@ const std::vector<Field<Config>>& Fields() {
       F(camera.exposure.gain, Range(1, 64), "analogue gain (1.0 = base ISO)"),
       F(camera.exposure.wb_red, Above(0, 16), "white balance red gain, locked like exposure"),
       F(camera.exposure.wb_blue, Above(0, 16), "white balance blue gain, locked like exposure"),
+      F(camera.v4l2.pixel_format,
+        OneOf({"auto", "mjpeg", "yuyv", "uyvy", "nv12", "rgb24", "bgr24", "grey"}),
+        "auto (MJPEG if offered, else a raw format encoded to JPEG) | mjpeg | yuyv | uyvy | nv12 | "
+        "rgb24 | bgr24 | grey"),
+      F(camera.v4l2.buffers, Range(2, 32), "mmap buffers requested from the driver"),
+      D(camera.v4l2.frame_timeout, Above(0, 600 * kSec),
+        "no frame this long after a still request = camera timeout"),
+      F(camera.v4l2.gain_unit, Range(0, 1'000'000),
+        "device gain value meaning gain 1.0 (0 = the gain control's default value)"),
+      F(camera.v4l2.focus, Range(-1, 1'000'000),
+        "manual focus position in device units (FOCUS_ABSOLUTE); -1 = leave focus alone"),
+      F(camera.v4l2.strict_controls, Any(),
+        "refuse to configure when the device lacks a control for a locked setting"),
 
       F(turntable.backend, Backend("turntable"),
         "turntable backend: sim | modbus-tcp | modbus-rtu (usb in a later issue)"),
@@ -328,6 +341,7 @@ const std::vector<Section>& Sections() {
       {"capture", "Capture schedule and device deadlines."},
       {"camera", "Camera backend and still format."},
       {"camera.exposure", "Locked exposure: every view of a rock shares it."},
+      {"camera.v4l2", "V4L2 camera (backend v4l2): pixel format, buffers, timeout, control mapping."},
       {"turntable", "Turntable backend, motion limits and the sim platter model."},
       {"turntable.faults", "Sim turntable fault injection (tests); unset = no fault."},
       {"turntable.modbus",
@@ -1212,7 +1226,7 @@ Error ProblemsError(const std::string& file, const std::vector<ConfigProblem>& p
 const std::vector<std::string>& KnownBackends(const std::string& kind) {
   // Add a real backend's name here when its driver lands in the factory.
   static const std::map<std::string, std::vector<std::string>> kBackends = {
-      {"camera", {"sim"}},
+      {"camera", {"sim", "v4l2"}},
       {"turntable", {"sim", "modbus-tcp", "modbus-rtu"}},
       {"button", {"sim"}},
   };

@@ -62,14 +62,31 @@ struct ExposureConfig {
   bool operator==(const ExposureConfig&) const = default;
 };
 
+// The V4L2 camera backend (drivers/v4l2/): pixel format, buffers, timeout and
+// how the locked settings map onto the device's controls.
+struct V4l2CameraConfig {
+  std::string pixel_format = "auto";  // auto (MJPEG if offered, else raw) | mjpeg | yuyv | uyvy | nv12 | rgb24 | bgr24 | grey
+  int buffers = 3;                    // mmap buffers requested from the driver, 2..32
+  TimeNs frame_timeout = 2 * kNsPerSec;  // no frame this long after a still request = timeout
+  // Gain and red/blue balance controls are unitless on most devices: the device
+  // value is round(factor x reference), the reference being the control's own
+  // default value unless gain_unit is set (> 0).
+  int gain_unit = 0;                  // device gain value that means gain 1.0 (0 = the control's default)
+  int focus = -1;                     // manual focus position in device units (FOCUS_ABSOLUTE); -1 = leave focus alone
+  bool strict_controls = true;        // refuse to configure when a locked setting has no control on the device
+
+  bool operator==(const V4l2CameraConfig&) const = default;
+};
+
 struct CameraConfig {
-  std::string backend = "sim";   // sim (v4l2, libcamera in a later issue)
+  std::string backend = "sim";   // sim | v4l2 (libcamera in a later issue)
   std::string id = "sim-cam0";   // camera id recorded in every sidecar
   std::string device;            // device path or udev name for real backends
   int width = 2016;              // still resolution, pixels
   int height = 1512;
   int jpeg_quality = 92;         // 1..100, when the driver encodes JPEG itself
   ExposureConfig exposure;
+  V4l2CameraConfig v4l2;
 
   bool operator==(const CameraConfig&) const = default;
 };

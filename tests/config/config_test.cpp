@@ -186,6 +186,26 @@ struct RangeCase {
   std::string text;
 };
 
+TEST(Config, V4l2CameraSection) {
+  Result<Config> c = LoadConfigString(
+      "[camera]\nbackend = \"v4l2\"\ndevice = \"usb-Acme_Cam-video-index0\"\n"
+      "[camera.v4l2]\npixel_format = \"yuyv\"\nbuffers = 5\nframe_timeout = \"750ms\"\n"
+      "gain_unit = 16\nfocus = 120\nstrict_controls = false\n",
+      "t.toml", nullptr);
+  ASSERT_TRUE(c.ok()) << c.error().ToString();
+  EXPECT_EQ(c->camera.backend, "v4l2");
+  EXPECT_EQ(c->camera.v4l2.pixel_format, "yuyv");
+  EXPECT_EQ(c->camera.v4l2.buffers, 5);
+  EXPECT_EQ(c->camera.v4l2.frame_timeout, 750 * kNsPerMs);
+  EXPECT_EQ(c->camera.v4l2.gain_unit, 16);
+  EXPECT_EQ(c->camera.v4l2.focus, 120);
+  EXPECT_FALSE(c->camera.v4l2.strict_controls);
+  // Defaults: MJPEG when offered, strict locking.
+  EXPECT_EQ(Config{}.camera.v4l2.pixel_format, "auto");
+  EXPECT_TRUE(Config{}.camera.v4l2.strict_controls);
+  ExpectOneProblem("[camera.v4l2]\nbufers = 4\n", 2, "camera.v4l2.bufers", "did you mean camera.v4l2.buffers?");
+}
+
 TEST(Config, OutOfRangeHasLine) {
   const RangeCase cases[] = {
       {"[capture]\nviews_per_side = 0\nprofile = \"custom\"\n", "capture.views_per_side",
@@ -211,7 +231,14 @@ TEST(Config, OutOfRangeHasLine) {
       {"[sim]\nrock_unit = \"inch\"\n", "sim.rock_unit", "mm | cm | m"},
       {"[sim]\nk1 = nan\n", "sim.k1", "got nan"},
       {"[camera]\nbackend = \"v4l9\"\n", "camera.backend",
-       "unknown camera backend \"v4l9\"; known: sim"},
+       "unknown camera backend \"v4l9\"; known: sim, v4l2"},
+      {"[camera.v4l2]\npixel_format = \"h264\"\n", "camera.v4l2.pixel_format",
+       "auto | mjpeg | yuyv | uyvy | nv12 | rgb24 | bgr24 | grey"},
+      {"[camera.v4l2]\nbuffers = 1\n", "camera.v4l2.buffers", "2..32"},
+      {"[camera.v4l2]\nbuffers = 33\n", "camera.v4l2.buffers", "2..32"},
+      {"[camera.v4l2]\nframe_timeout = \"0s\"\n", "camera.v4l2.frame_timeout", "must be > 0s"},
+      {"[camera.v4l2]\nfocus = -2\n", "camera.v4l2.focus", "-1..1000000"},
+      {"[camera.v4l2]\ngain_unit = -1\n", "camera.v4l2.gain_unit", "0..1000000"},
       {"[turntable]\nbackend = \"modbus\"\n", "turntable.backend",
        "unknown turntable backend \"modbus\"; known: sim, modbus-tcp, modbus-rtu"},
       {"[button]\nbackend = \"gpio9\"\n", "button.backend", "unknown button backend"},
@@ -629,6 +656,7 @@ TEST(ConfigToToml, RoundTripEveryFieldChanged) {
   c.camera.height = 16;
   c.camera.jpeg_quality = 1;
   c.camera.exposure = {false, 0.1, 63.999999999, 1e-7, 15.5};
+  c.camera.v4l2 = {"nv12", 32, 123 * kNsPerMs, 1000000, 0, false};
   c.turntable.max_speed_deg_s = 720.0;
   c.turntable.accel_deg_s2 = 35999.5;
   c.turntable.repeatability_deg = 0.0;
@@ -717,7 +745,7 @@ TEST(ConfigToToml, CommentsEveryFieldAndShowsUnsetOptionals) {
 }
 
 TEST(Config, KnownBackends) {
-  EXPECT_EQ(KnownBackends("camera"), std::vector<std::string>{"sim"});
+  EXPECT_EQ(KnownBackends("camera"), (std::vector<std::string>{"sim", "v4l2"}));
   EXPECT_EQ(KnownBackends("turntable"),
             (std::vector<std::string>{"sim", "modbus-tcp", "modbus-rtu"}));
   EXPECT_EQ(KnownBackends("button"), std::vector<std::string>{"sim"});
