@@ -62,6 +62,10 @@ struct Frame {
   double gain = 0.0;
   double wb_red = 1.0;
   double wb_blue = 1.0;
+  // Locked settings the device has no control for (e.g. "exposure" on a
+  // camera without V4L2_CID_EXPOSURE_ABSOLUTE): their values above are not
+  // the device's. Empty when every setting was applied and read back.
+  std::vector<std::string> missing_controls;
 };
 using FramePtr = std::shared_ptr<const Frame>;
 using FrameCallback = std::function<void(Result<FramePtr>)>;
