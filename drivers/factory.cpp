@@ -11,6 +11,7 @@
 #include "drivers/sim/sim_camera.h"
 #include "drivers/sim/sim_turntable.h"
 #include "drivers/sim/world.h"
+#include "drivers/v4l2/v4l2_camera.h"
 
 namespace aggscan {
 namespace {
@@ -75,6 +76,12 @@ Result<std::unique_ptr<Camera>> MakeSimCamera(Context& ctx) {
       ctx.rig->world, ctx.clock, ctx.config.camera, ctx.platter_angle_at));
 }
 
+// Nothing is opened here: a missing camera is reported by Open(), so the
+// daemon can start and say what to check.
+Result<std::unique_ptr<Camera>> MakeV4l2Camera(Context& ctx) {
+  return std::unique_ptr<Camera>(std::make_unique<v4l2::V4l2Camera>(ctx.clock, ctx.config.camera));
+}
+
 Result<std::unique_ptr<Button>> MakeSimButton(Context& ctx) {
   Status s = EnsureWorld(ctx);  // RigDevices promises a world whenever any backend is sim
   if (!s) return s.error();
@@ -85,7 +92,7 @@ Result<std::unique_ptr<Button>> MakeSimButton(Context& ctx) {
 const Backend<Turntable> kTurntables[] = {{"sim", MakeSimTurntable},
                                           {"modbus-tcp", MakeModbusTcpTurntable},
                                           {"modbus-rtu", MakeModbusRtuTurntable}};
-const Backend<Camera> kCameras[] = {{"sim", MakeSimCamera}};
+const Backend<Camera> kCameras[] = {{"sim", MakeSimCamera}, {"v4l2", MakeV4l2Camera}};
 const Backend<Button> kButtons[] = {{"sim", MakeSimButton}};
 
 template <typename Device, size_t N>

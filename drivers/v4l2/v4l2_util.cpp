@@ -1,0 +1,245 @@
+#include "drivers/v4l2/v4l2_util.h"
+
+#include <linux/videodev2.h>
+#include <sys/stat.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <utility>
+
+namespace aggscan::v4l2 {
+namespace {
+
+struct NamedFormat {
+  const char* name;
+  uint32_t fourcc;
+};
+// Config names; also the "auto" preference among raw formats (after MJPEG).
+constexpr NamedFormat kFormats[] = {
+    {"mjpeg", V4L2_PIX_FMT_MJPEG}, {"yuyv", V4L2_PIX_FMT_YUYV},   {"uyvy", V4L2_PIX_FMT_UYVY},
+    {"nv12", V4L2_PIX_FMT_NV12},   {"rgb24", V4L2_PIX_FMT_RGB24}, {"bgr24", V4L2_PIX_FMT_BGR24},
+    {"grey", V4L2_PIX_FMT_GREY},
+};
+
+uint8_t Clamp8(int v) { return static_cast<uint8_t>(std::clamp(v, 0, 255)); }
+
+// BT.601 limited range (what UVC cameras and vivid's default colorspace send
+// for YUV): 16..235 luma, 16..240 chroma; fixed point with 8 fractional bits.
+void YuvToRgb(int y, int u, int v, uint8_t* out) {
+  const int c = (y - 16) * 298;
+  const int d = u - 128;
+  const int e = v - 128;
+  out[0] = Clamp8((c + 409 * e + 128) >> 8);
+  out[1] = Clamp8((c - 100 * d - 208 * e + 128) >> 8);
+  out[2] = Clamp8((c + 516 * d + 128) >> 8);
+}
+
+}  // namespace
+
+std::string FourCcName(uint32_t fourcc) {
+  std::string s(4, '?');
+  for (int i = 0; i < 4; ++i) {
+    const char ch = static_cast<char>((fourcc >> (8 * i)) & 0xff);
+    if (ch >= 0x20 && ch < 0x7f) s[i] = ch;
+  }
+  return s;
+}
+
+std::optional<uint32_t> FormatFromName(const std::string& name) {
+  for (const auto& f : kFormats)
+    if (name == f.name) return f.fourcc;
+  return std::nullopt;
+}
+
+bool IsSupportedFormat(uint32_t fourcc) {
+  for (const auto& f : kFormats)
+    if (fourcc == f.fourcc) return true;
+  // Some UVC cameras announce their motion-JPEG stream as JPEG.
+  return fourcc == V4L2_PIX_FMT_JPEG;
+}
+
+Result<uint32_t> ChooseFormat(const std::vector<uint32_t>& offered, const std::string& wanted) {
+  auto has = [&](uint32_t f) { return std::find(offered.begin(), offered.end(), f) != offered.end(); };
+  std::string list;
+  for (uint32_t f : offered) list += (list.empty() ? "" : ", ") + FourCcName(f);
+  if (list.empty()) list = "none";
+  if (wanted != "auto") {
+    std::optional<uint32_t> f = FormatFromName(wanted);
+    if (!f) return MakeError(ErrorClass::kInvalidConfig, "camera.v4l2.pixel_format \"" + wanted + "\" is not known");
+    if (has(*f)) return *f;
+    if (*f == V4L2_PIX_FMT_MJPEG && has(V4L2_PIX_FMT_JPEG)) return static_cast<uint32_t>(V4L2_PIX_FMT_JPEG);
+    return MakeError(ErrorClass::kInvalidConfig,
+                     "the camera does not offer pixel format " + wanted + " (offers: " + list +
+                         "); set camera.v4l2.pixel_format to one of them or \"auto\"");
+  }
+  if (has(V4L2_PIX_FMT_MJPEG)) return static_cast<uint32_t>(V4L2_PIX_FMT_MJPEG);
+  if (has(V4L2_PIX_FMT_JPEG)) return static_cast<uint32_t>(V4L2_PIX_FMT_JPEG);
+  for (const auto& f : kFormats)
+    if (has(f.fourcc)) return f.fourcc;
+  return MakeError(ErrorClass::kDeviceFault,
+                   "the camera offers no pixel format this backend can use (offers: " + list +
+                       "; usable: MJPEG, YUYV, UYVY, NV12, RGB3, BGR3, GREY)");
+}
+
+Result<std::vector<uint8_t>> ToRgb(uint32_t fourcc, std::span<const uint8_t> data, int width,
+                                   int height, int stride) {
+  if (width <= 0 || height <= 0 || (width % 2) != 0)
+    return MakeError(ErrorClass::kInvalidArgument, "frame size " + std::to_string(width) + "x" +
+                                                       std::to_string(height) + " cannot be converted");
+  const size_t w = static_cast<size_t>(width);
+  const size_t h = static_cast<size_t>(height);
+  size_t bpp_num = 0;  // bytes per pixel of the first plane
+  switch (fourcc) {
+    case V4L2_PIX_FMT_YUYV:
+    case V4L2_PIX_FMT_UYVY: bpp_num = 2; break;
+    case V4L2_PIX_FMT_RGB24:
+    case V4L2_PIX_FMT_BGR24: bpp_num = 3; break;
+    case V4L2_PIX_FMT_GREY:
+    case V4L2_PIX_FMT_NV12: bpp_num = 1; break;
+    default:
+      return MakeError(ErrorClass::kInvalidArgument, "no conversion from " + FourCcName(fourcc));
+  }
+  const size_t line = stride > 0 ? static_cast<size_t>(stride) : w * bpp_num;
+  if (line < w * bpp_num)
+    return MakeError(ErrorClass::kDeviceFault, "bytesperline " + std::to_string(line) + " is shorter than a row");
+  size_t need = line * (h - 1) + w * bpp_num;
+  if (fourcc == V4L2_PIX_FMT_NV12) need = line * h + line * (h / 2 - 1) + w;  // Y plane + interleaved UV, half height
+  if (data.size() < need)
+    return MakeError(ErrorClass::kDeviceFault, "short frame: " + std::to_string(data.size()) + " bytes of " +
+                                                   std::to_string(need) + " for " + FourCcName(fourcc) + " " +
+                                                   std::to_string(width) + "x" + std::to_string(height));
+  std::vector<uint8_t> rgb(w * h * 3);
+  for (size_t y = 0; y < h; ++y) {
+    const uint8_t* row = data.data() + y * line;
+    uint8_t* out = rgb.data() + y * w * 3;
+    switch (fourcc) {
+      case V4L2_PIX_FMT_YUYV:
+        for (size_t x = 0; x < w; x += 2, row += 4) {
+          YuvToRgb(row[0], row[1], row[3], out + x * 3);
+          YuvToRgb(row[2], row[1], row[3], out + x * 3 + 3);
+        }
+        break;
+      case V4L2_PIX_FMT_UYVY:
+        for (size_t x = 0; x < w; x += 2, row += 4) {
+          YuvToRgb(row[1], row[0], row[2], out + x * 3);
+          YuvToRgb(row[3], row[0], row[2], out + x * 3 + 3);
+        }
+        break;
+      case V4L2_PIX_FMT_NV12: {
+        const uint8_t* uv = data.data() + line * h + (y / 2) * line;
+        for (size_t x = 0; x < w; ++x) YuvToRgb(row[x], uv[x & ~size_t{1}], uv[(x & ~size_t{1}) + 1], out + x * 3);
+        break;
+      }
+      case V4L2_PIX_FMT_RGB24: std::memcpy(out, row, w * 3); break;
+      case V4L2_PIX_FMT_BGR24:
+        for (size_t x = 0; x < w; ++x) {
+          out[x * 3] = row[x * 3 + 2];
+          out[x * 3 + 1] = row[x * 3 + 1];
+          out[x * 3 + 2] = row[x * 3];
+        }
+        break;
+      case V4L2_PIX_FMT_GREY:
+        for (size_t x = 0; x < w; ++x) out[x * 3] = out[x * 3 + 1] = out[x * 3 + 2] = row[x];
+        break;
+    }
+  }
+  return rgb;
+}
+
+Result<int64_t> QuantizeControl(const ControlRange& r, double value, const std::string& what) {
+  const int64_t step = r.step > 0 ? r.step : 1;
+  const double steps = std::round((value - static_cast<double>(r.minimum)) / static_cast<double>(step));
+  const double v = static_cast<double>(r.minimum) + steps * static_cast<double>(step);
+  if (!std::isfinite(v) || v < static_cast<double>(r.minimum) || v > static_cast<double>(r.maximum)) {
+    return MakeError(ErrorClass::kInvalidConfig,
+                     what + ": device value " + std::to_string(static_cast<long long>(std::llround(value))) +
+                         " is outside the control's range " + std::to_string(r.minimum) + ".." +
+                         std::to_string(r.maximum));
+  }
+  return static_cast<int64_t>(v);
+}
+
+// V4L2_CID_EXPOSURE_ABSOLUTE counts 100 microsecond units (V4L2 spec, camera
+// control reference).
+double ExposureUsToV4l2(double exposure_us) { return exposure_us / 100.0; }
+double V4l2ToExposureUs(int64_t value) { return static_cast<double>(value) * 100.0; }
+
+Result<double> UnitlessToDevice(const ControlRange& r, double factor, int unit, const std::string& what) {
+  const double reference = unit > 0 ? unit : static_cast<double>(r.default_value);
+  if (reference <= 0) {
+    return MakeError(ErrorClass::kInvalidConfig,
+                     what + ": the control's default value is " + std::to_string(r.default_value) +
+                         ", so a factor cannot be mapped onto it; set camera.v4l2.gain_unit");
+  }
+  return factor * reference;
+}
+
+Result<std::string> ResolveDevice(const std::string& configured, const std::vector<std::string>& by_dirs) {
+  namespace fs = std::filesystem;
+  if (configured.empty())
+    return MakeError(ErrorClass::kInvalidConfig, "camera.device is empty; set a /dev/videoN path or a /dev/v4l/by-id name");
+  std::vector<std::string> candidates;
+  if (configured.find('/') != std::string::npos) {
+    candidates.push_back(configured);
+  } else {
+    for (const auto& d : by_dirs) candidates.push_back(d + "/" + configured);
+  }
+  std::string tried;
+  for (const auto& c : candidates) {
+    std::error_code ec;
+    fs::path real = fs::canonical(c, ec);  // follows udev's by-id / by-path symlinks
+    if (!ec) {
+      struct stat st {};
+      if (::stat(real.c_str(), &st) == 0 && !S_ISCHR(st.st_mode)) {
+        return MakeError(ErrorClass::kDeviceMissing, c + " (" + real.string() + ") is not a device node");
+      }
+      return real.string();
+    }
+    tried += (tried.empty() ? "" : ", ") + c;
+  }
+  return MakeError(ErrorClass::kDeviceMissing,
+                   "camera " + configured + " not found (looked at " + tried + ") — check the cable and camera.device");
+}
+
+ErrorClass ClassifyErrno(int err, bool streaming) {
+  switch (err) {
+    case ENOENT:
+    case ENXIO:
+      return streaming ? ErrorClass::kDisconnected : ErrorClass::kDeviceMissing;
+    case ENODEV:  // the node stays but the device is gone (USB unplug, vivid's "Disconnect")
+    case EPIPE:
+      return streaming ? ErrorClass::kDisconnected : ErrorClass::kDeviceMissing;
+    case ETIMEDOUT:
+    case EAGAIN:
+      return ErrorClass::kTimeout;
+    case EINVAL:
+    case ENOTTY:
+      return ErrorClass::kDeviceFault;  // the device refused a request it should support
+    case ENOMEM:
+    case EBUSY:
+    case EIO:
+      return ErrorClass::kDeviceFault;
+    default:
+      return ErrorClass::kIo;
+  }
+}
+
+Error V4l2Error(const std::string& device, const std::string& what, int err, bool streaming) {
+  const ErrorClass cls = ClassifyErrno(err, streaming);
+  std::string hint;
+  switch (cls) {
+    case ErrorClass::kDeviceMissing: hint = " — check the cable and camera.device"; break;
+    case ErrorClass::kDisconnected: hint = " — the camera went away; check the cable, it is reopened on reset"; break;
+    case ErrorClass::kTimeout: hint = " — the camera sends no frames"; break;
+    case ErrorClass::kDeviceFault:
+      if (err == EBUSY) hint = " — another program is using the camera";
+      break;
+    default: break;
+  }
+  return MakeError(cls, "camera " + device + ": " + what + " failed" + hint, std::strerror(err));
+}
+
+}  // namespace aggscan::v4l2
