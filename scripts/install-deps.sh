@@ -30,6 +30,11 @@ PACKAGES=(
   # tests only: an independent Modbus implementation acting as the turntable
   # controller in the interoperability test (skipped, 77, without it)
   python3-pymodbus
+  # tests only: the kernel-test-driver VM lane (tests/vm/run-in-vm.sh): QEMU
+  # (TCG), Debian's kernel and modules (vivid for the V4L2 camera test; it is
+  # booted in the VM, never loaded on this machine), a static busybox and cpio
+  # for the initramfs, kmod for modprobe inside the guest. Skipped (77) without.
+  qemu-system-x86 linux-image-amd64 busybox-static cpio kmod
 )
 
 missing=()
