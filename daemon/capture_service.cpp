@@ -358,6 +358,9 @@ void CaptureService::Execute(const cs::Effect& eff) {
                       {"height", f->height},
                       {"frame_sequence", f->sequence},
                       {"time_scale", clock.Scale()}};
+          // A real camera without a control for a locked setting (V4L2
+          // strict_controls = false): say so rather than let its value pass as measured.
+          if (!f->missing_controls.empty()) car["missing_controls"] = f->missing_controls;
           Status s = store_.WriteView(id, e.side, e.view, f->data, car);
           if (!s) {
             pending_events_.push_back(cs::StoreFailed{s.error().cls, "cannot store view: " + s.error().ToString()});
