@@ -75,7 +75,8 @@ std::string V4l2Camera::device_path() const { return path_; }
 V4l2Negotiated V4l2Camera::negotiated() const { return neg_; }
 
 Error V4l2Camera::Fail(const std::string& what, int err) const {
-  return V4l2Error(path_.empty() ? config_.device : path_, what, err, streaming_ || !model_.empty());
+  return V4l2Error(path_.empty() ? config_.device : path_, what, err,
+                   streaming_ || !model_.empty());
 }
 
 Status V4l2Camera::DoOpen() {
@@ -95,7 +96,8 @@ Status V4l2Camera::DoOpen() {
       return MakeError(ErrorClass::kInvalidConfig, "camera " + path_ + " is not a V4L2 device");
     return V4l2Error(path_, "VIDIOC_QUERYCAP", err, false);
   }
-  const uint32_t caps = (cap.capabilities & V4L2_CAP_DEVICE_CAPS) ? cap.device_caps : cap.capabilities;
+  const uint32_t caps =
+      (cap.capabilities & V4L2_CAP_DEVICE_CAPS) ? cap.device_caps : cap.capabilities;
   if (!(caps & V4L2_CAP_VIDEO_CAPTURE) || !(caps & V4L2_CAP_STREAMING)) {
     char hex[16];
     std::snprintf(hex, sizeof hex, "0x%08x", caps);
@@ -105,7 +107,8 @@ Status V4l2Camera::DoOpen() {
                          "); pick its capture node, e.g. with v4l2-ctl --list-devices");
   }
   model_ = std::string(reinterpret_cast<const char*>(cap.card)) + " (" +
-           reinterpret_cast<const char*>(cap.driver) + ", " + reinterpret_cast<const char*>(cap.bus_info) + ")";
+           reinterpret_cast<const char*>(cap.driver) + ", " +
+           reinterpret_cast<const char*>(cap.bus_info) + ")";
   fd_ = std::move(owned);
   {
     std::lock_guard<std::mutex> l(mu_);
@@ -140,10 +143,10 @@ Status V4l2Camera::SetAndVerify(uint32_t id, const char* what, int64_t value) {
   Result<int64_t> back = Get(id);
   if (!back) return back.error();
   if (*back != value) {
-    return MakeError(ErrorClass::kDeviceFault,
-                     "camera " + path_ + " did not keep " + what + ": set " + std::to_string(value) +
-                         ", reads back " + std::to_string(*back) +
-                         " (an automatic mode may still be on)");
+    return MakeError(ErrorClass::kDeviceFault, "camera " + path_ + " did not keep " + what +
+                                                   ": set " + std::to_string(value) +
+                                                   ", reads back " + std::to_string(*back) +
+                                                   " (an automatic mode may still be on)");
   }
   return OkStatus();
 }
@@ -159,10 +162,15 @@ Status V4l2Camera::ApplyControls(const CameraSettings& s, std::vector<std::strin
     return SetAndVerify(id, what, v);
   };
   if (s.manual_exposure) {
-    if (Status st = set_if_present(V4L2_CID_EXPOSURE_AUTO, "auto exposure mode (manual)", V4L2_EXPOSURE_MANUAL); !st)
+    if (Status st = set_if_present(V4L2_CID_EXPOSURE_AUTO, "auto exposure mode (manual)",
+                                   V4L2_EXPOSURE_MANUAL);
+        !st)
       return st;
     // UVC: do not let the camera stretch the exposure by lowering the frame rate.
-    if (Status st = set_if_present(V4L2_CID_EXPOSURE_AUTO_PRIORITY, "exposure auto priority (off)", 0); !st) return st;
+    if (Status st =
+            set_if_present(V4L2_CID_EXPOSURE_AUTO_PRIORITY, "exposure auto priority (off)", 0);
+        !st)
+      return st;
     if (auto r = Query(V4L2_CID_EXPOSURE_ABSOLUTE)) {
       Result<int64_t> v = QuantizeControl(*r, ExposureUsToV4l2(s.exposure_us), "exposure");
       if (!v) return v.error();
@@ -171,7 +179,8 @@ Status V4l2Camera::ApplyControls(const CameraSettings& s, std::vector<std::strin
       missing->push_back("exposure");
     }
     if (Status st = set_if_present(V4L2_CID_AUTOGAIN, "auto gain (off)", 0); !st) return st;
-    for (uint32_t id : {static_cast<uint32_t>(V4L2_CID_GAIN), static_cast<uint32_t>(V4L2_CID_ANALOGUE_GAIN)}) {
+    for (uint32_t id :
+         {static_cast<uint32_t>(V4L2_CID_GAIN), static_cast<uint32_t>(V4L2_CID_ANALOGUE_GAIN)}) {
       if (auto r = Query(id)) {
         gain_range_ = r;
         gain_id_ = id;
@@ -187,7 +196,8 @@ Status V4l2Camera::ApplyControls(const CameraSettings& s, std::vector<std::strin
     } else {
       missing->push_back("gain");
     }
-    if (Status st = set_if_present(V4L2_CID_AUTO_WHITE_BALANCE, "auto white balance (off)", 0); !st) return st;
+    if (Status st = set_if_present(V4L2_CID_AUTO_WHITE_BALANCE, "auto white balance (off)", 0); !st)
+      return st;
     struct Wb {
       uint32_t id;
       double factor;
@@ -216,7 +226,8 @@ Status V4l2Camera::ApplyControls(const CameraSettings& s, std::vector<std::strin
       (void)SetAndVerify(V4L2_CID_EXPOSURE_AUTO, "auto exposure", V4L2_EXPOSURE_APERTURE_PRIORITY);
     }
     if (Status st = set_if_present(V4L2_CID_AUTOGAIN, "auto gain (on)", 1); !st) return st;
-    if (Status st = set_if_present(V4L2_CID_AUTO_WHITE_BALANCE, "auto white balance (on)", 1); !st) return st;
+    if (Status st = set_if_present(V4L2_CID_AUTO_WHITE_BALANCE, "auto white balance (on)", 1); !st)
+      return st;
   }
   if (config_.v4l2.focus >= 0) {
     if (Status st = set_if_present(V4L2_CID_FOCUS_AUTO, "autofocus (off)", 0); !st) return st;
@@ -232,12 +243,14 @@ Status V4l2Camera::ApplyControls(const CameraSettings& s, std::vector<std::strin
     std::string list;
     for (const auto& m : *missing) list += (list.empty() ? "" : ", ") + m;
     if (config_.v4l2.strict_controls) {
-      return MakeError(ErrorClass::kInvalidConfig,
-                       "camera " + path_ + " (" + model_ + ") has no control for " + list +
-                           ", so those settings cannot be locked; use a camera that has them or set "
-                           "camera.v4l2.strict_controls = false to shoot with the device's own values");
+      return MakeError(
+          ErrorClass::kInvalidConfig,
+          "camera " + path_ + " (" + model_ + ") has no control for " + list +
+              ", so those settings cannot be locked; use a camera that has them or set "
+              "camera.v4l2.strict_controls = false to shoot with the device's own values");
     }
-    AGG_LOGW(kLog, "%s has no control for %s; frames report these as missing", path_.c_str(), list.c_str());
+    AGG_LOGW(kLog, "%s has no control for %s; frames report these as missing", path_.c_str(),
+             list.c_str());
   }
   return OkStatus();
 }
@@ -296,12 +309,15 @@ Status V4l2Camera::DoConfigure(const CameraSettings& settings) {
     return MakeError(ErrorClass::kInvalidConfig,
                      "camera " + path_ + " cannot deliver " + FourCcName(*fourcc) + " " +
                          std::to_string(settings.width) + "x" + std::to_string(settings.height) +
-                         "; it offers " + FourCcName(neg.fourcc) + " " + std::to_string(neg.width) + "x" +
-                         std::to_string(neg.height) + " instead: set camera.width/height to a size it has "
+                         "; it offers " + FourCcName(neg.fourcc) + " " + std::to_string(neg.width) +
+                         "x" + std::to_string(neg.height) +
+                         " instead: set camera.width/height to a size it has "
                          "(v4l2-ctl --list-formats-ext)");
   }
   if (g.fmt.pix.field != V4L2_FIELD_NONE && g.fmt.pix.field != V4L2_FIELD_ANY) {
-    return MakeError(ErrorClass::kInvalidConfig, "camera " + path_ + " delivers interlaced fields; a progressive camera is needed");
+    return MakeError(
+        ErrorClass::kInvalidConfig,
+        "camera " + path_ + " delivers interlaced fields; a progressive camera is needed");
   }
 
   Status ctl = ApplyControls(settings, &neg.missing_controls);
@@ -310,17 +326,19 @@ Status V4l2Camera::DoConfigure(const CameraSettings& settings) {
   frame_period_ns_ = 0;
   v4l2_streamparm parm{};
   parm.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
-  if (Xioctl(fd_.get(), VIDIOC_G_PARM, &parm) == 0 && parm.parm.capture.timeperframe.denominator > 0) {
-    frame_period_ns_ = static_cast<int64_t>(parm.parm.capture.timeperframe.numerator) * 1'000'000'000 /
-                       parm.parm.capture.timeperframe.denominator;
+  if (Xioctl(fd_.get(), VIDIOC_G_PARM, &parm) == 0 &&
+      parm.parm.capture.timeperframe.denominator > 0) {
+    frame_period_ns_ = static_cast<int64_t>(parm.parm.capture.timeperframe.numerator) *
+                       1'000'000'000 / parm.parm.capture.timeperframe.denominator;
   }
 
   active_ = settings;
   neg_ = neg;
   Status st = StartStreaming();
   if (!st) return st;
-  AGG_LOGI(kLog, "%s: %s %dx%d (bytesperline %d), %zu buffers", path_.c_str(), FourCcName(neg_.fourcc).c_str(),
-           neg_.width, neg_.height, neg_.bytes_per_line, buffers_.size());
+  AGG_LOGI(kLog, "%s: %s %dx%d (bytesperline %d), %zu buffers", path_.c_str(),
+           FourCcName(neg_.fourcc).c_str(), neg_.width, neg_.height, neg_.bytes_per_line,
+           buffers_.size());
   return OkStatus();
 }
 
@@ -332,7 +350,8 @@ Status V4l2Camera::StartStreaming() {
   if (Xioctl(fd_.get(), VIDIOC_REQBUFS, &rb) < 0) return Fail("VIDIOC_REQBUFS", errno);
   if (rb.count < 2) {
     StopStreaming();
-    return MakeError(ErrorClass::kDeviceFault, "camera " + path_ + " granted only " + std::to_string(rb.count) + " buffer(s)");
+    return MakeError(ErrorClass::kDeviceFault, "camera " + path_ + " granted only " +
+                                                   std::to_string(rb.count) + " buffer(s)");
   }
   for (uint32_t i = 0; i < rb.count; ++i) {
     v4l2_buffer b{};
@@ -424,8 +443,9 @@ void V4l2Camera::WorkerLoop() {
       job_.reset();
     }
     Result<FramePtr> r = Capture(job);
-    if (!r) AGG_LOGW(kLog, "%s: still %llu: %s", path_.c_str(), static_cast<unsigned long long>(job.req.request_id),
-                     r.error().ToString().c_str());
+    if (!r)
+      AGG_LOGW(kLog, "%s: still %llu: %s", path_.c_str(),
+               static_cast<unsigned long long>(job.req.request_id), r.error().ToString().c_str());
     job.done(std::move(r));
   }
 }
@@ -439,13 +459,15 @@ Result<FramePtr> V4l2Camera::Capture(const Job& job) {
   for (;;) {
     {
       std::lock_guard<std::mutex> l(mu_);
-      if (stop_) return MakeError(ErrorClass::kInvalidState, "camera closed while a still was pending");
+      if (stop_)
+        return MakeError(ErrorClass::kInvalidState, "camera closed while a still was pending");
     }
     const int64_t now = MonotonicNs();
     if (now >= deadline) {
-      return MakeError(ErrorClass::kTimeout, "camera " + path_ + ": no frame within " +
-                                                 Seconds(config_.v4l2.frame_timeout) +
-                                                 " of the still request — check the camera and its cable");
+      return MakeError(ErrorClass::kTimeout,
+                       "camera " + path_ + ": no frame within " +
+                           Seconds(config_.v4l2.frame_timeout) +
+                           " of the still request — check the camera and its cable");
     }
     // Short slices so Close() is never kept waiting for long.
     const int wait_ms = static_cast<int>(std::min<int64_t>((deadline - now) / 1'000'000 + 1, 50));
@@ -464,44 +486,50 @@ Result<FramePtr> V4l2Camera::Capture(const Job& job) {
       if (err == EAGAIN) {
         // POLLERR without a buffer: the queue is in an error state (device
         // gone or the driver flagged a fatal error).
-        if (p.revents & (POLLERR | POLLHUP)) return Fail("streaming (poll reported an error)", ENODEV);
+        if (p.revents & (POLLERR | POLLHUP))
+          return Fail("streaming (poll reported an error)", ENODEV);
         continue;
       }
       return Fail("VIDIOC_DQBUF", err);
     }
-    if (b.index >= buffers_.size()) return MakeError(ErrorClass::kInternal, "driver returned an unknown buffer index");
+    if (b.index >= buffers_.size())
+      return MakeError(ErrorClass::kInternal, "driver returned an unknown buffer index");
     const bool mono = (b.flags & V4L2_BUF_FLAG_TIMESTAMP_MASK) == V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC;
-    int64_t ts = static_cast<int64_t>(b.timestamp.tv_sec) * 1'000'000'000 + b.timestamp.tv_usec * 1000;
+    int64_t ts =
+        static_cast<int64_t>(b.timestamp.tv_sec) * 1'000'000'000 + b.timestamp.tv_usec * 1000;
     // Most drivers stamp the end of the frame: its start is one frame period
     // earlier (the best estimate V4L2 gives).
-    if ((b.flags & V4L2_BUF_FLAG_TSTAMP_SRC_MASK) == V4L2_BUF_FLAG_TSTAMP_SRC_EOF) ts -= frame_period_ns_;
+    if ((b.flags & V4L2_BUF_FLAG_TSTAMP_SRC_MASK) == V4L2_BUF_FLAG_TSTAMP_SRC_EOF)
+      ts -= frame_period_ns_;
     // A corrupted frame, or one whose exposure started before the request
     // (stale in the queue): hand the buffer back and wait for the next.
     if ((b.flags & V4L2_BUF_FLAG_ERROR) || (mono && ts < job.requested_mono_ns)) {
       if (Status s = requeue(b); !s) return s.error();
       continue;
     }
-    Result<FramePtr> frame =
-        MakeFrame(job, buffers_[b.index].data(), std::min<size_t>(b.bytesused, buffers_[b.index].length()),
-                  mono ? ts : MonotonicNs(), b.sequence);
+    Result<FramePtr> frame = MakeFrame(job, buffers_[b.index].data(),
+                                       std::min<size_t>(b.bytesused, buffers_[b.index].length()),
+                                       mono ? ts : MonotonicNs(), b.sequence);
     if (Status s = requeue(b); !s) return s.error();
     return frame;
   }
 }
 
-Result<FramePtr> V4l2Camera::MakeFrame(const Job& job, const uint8_t* data, size_t bytes, int64_t ts_mono_ns,
-                                       uint64_t sequence) {
+Result<FramePtr> V4l2Camera::MakeFrame(const Job& job, const uint8_t* data, size_t bytes,
+                                       int64_t ts_mono_ns, uint64_t sequence) {
   auto frame = std::make_shared<Frame>();
   if (neg_.fourcc == V4L2_PIX_FMT_MJPEG || neg_.fourcc == V4L2_PIX_FMT_JPEG) {
     // The camera's own JPEG is the still: no decode, no second compression.
     if (bytes < 4 || data[0] != 0xFF || data[1] != 0xD8)
-      return MakeError(ErrorClass::kDeviceFault, "camera " + path_ + " sent an MJPEG frame that is not a JPEG");
+      return MakeError(ErrorClass::kDeviceFault,
+                       "camera " + path_ + " sent an MJPEG frame that is not a JPEG");
     frame->data.assign(data, data + bytes);
   } else {
-    Result<std::vector<uint8_t>> rgb =
-        ToRgb(neg_.fourcc, std::span<const uint8_t>(data, bytes), neg_.width, neg_.height, neg_.bytes_per_line);
+    Result<std::vector<uint8_t>> rgb = ToRgb(neg_.fourcc, std::span<const uint8_t>(data, bytes),
+                                             neg_.width, neg_.height, neg_.bytes_per_line);
     if (!rgb) return rgb.error();
-    Result<std::vector<unsigned char>> jpeg = sim::EncodeJpeg(rgb->data(), neg_.width, neg_.height, active_.jpeg_quality);
+    Result<std::vector<unsigned char>> jpeg =
+        sim::EncodeJpeg(rgb->data(), neg_.width, neg_.height, active_.jpeg_quality);
     if (!jpeg) return jpeg.error();
     frame->data = std::move(*jpeg);
   }
@@ -511,7 +539,8 @@ Result<FramePtr> V4l2Camera::MakeFrame(const Job& job, const uint8_t* data, size
   frame->width = neg_.width;
   frame->height = neg_.height;
   frame->encoding = "jpeg";
-  frame->exposure_start = clock_.Now() - static_cast<TimeNs>(age * (clock_.IsVirtual() ? 0.0 : clock_.Scale()));
+  frame->exposure_start =
+      clock_.Now() - static_cast<TimeNs>(age * (clock_.IsVirtual() ? 0.0 : clock_.Scale()));
   frame->utc_ns = clock_.UtcNs() - age;
   const ReadBack rb = ReadControls();
   frame->exposure_us = rb.exposure_us;

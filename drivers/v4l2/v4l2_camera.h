@@ -53,7 +53,9 @@ class MappedBuffer {
  public:
   MappedBuffer(void* addr, size_t length) : addr_(addr), length_(length) {}
   ~MappedBuffer();
-  MappedBuffer(MappedBuffer&& o) noexcept : addr_(o.addr_), length_(o.length_) { o.addr_ = nullptr; }
+  MappedBuffer(MappedBuffer&& o) noexcept : addr_(o.addr_), length_(o.length_) {
+    o.addr_ = nullptr;
+  }
   MappedBuffer& operator=(MappedBuffer&&) = delete;
   const uint8_t* data() const { return static_cast<const uint8_t*>(addr_); }
   size_t length() const { return length_; }

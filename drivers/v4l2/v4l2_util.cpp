@@ -62,15 +62,20 @@ bool IsSupportedFormat(uint32_t fourcc) {
 }
 
 Result<uint32_t> ChooseFormat(const std::vector<uint32_t>& offered, const std::string& wanted) {
-  auto has = [&](uint32_t f) { return std::find(offered.begin(), offered.end(), f) != offered.end(); };
+  auto has = [&](uint32_t f) {
+    return std::find(offered.begin(), offered.end(), f) != offered.end();
+  };
   std::string list;
   for (uint32_t f : offered) list += (list.empty() ? "" : ", ") + FourCcName(f);
   if (list.empty()) list = "none";
   if (wanted != "auto") {
     std::optional<uint32_t> f = FormatFromName(wanted);
-    if (!f) return MakeError(ErrorClass::kInvalidConfig, "camera.v4l2.pixel_format \"" + wanted + "\" is not known");
+    if (!f)
+      return MakeError(ErrorClass::kInvalidConfig,
+                       "camera.v4l2.pixel_format \"" + wanted + "\" is not known");
     if (has(*f)) return *f;
-    if (*f == V4L2_PIX_FMT_MJPEG && has(V4L2_PIX_FMT_JPEG)) return static_cast<uint32_t>(V4L2_PIX_FMT_JPEG);
+    if (*f == V4L2_PIX_FMT_MJPEG && has(V4L2_PIX_FMT_JPEG))
+      return static_cast<uint32_t>(V4L2_PIX_FMT_JPEG);
     return MakeError(ErrorClass::kInvalidConfig,
                      "the camera does not offer pixel format " + wanted + " (offers: " + list +
                          "); set camera.v4l2.pixel_format to one of them or \"auto\"");
@@ -88,29 +93,39 @@ Result<std::vector<uint8_t>> ToRgb(uint32_t fourcc, std::span<const uint8_t> dat
                                    int height, int stride) {
   if (width <= 0 || height <= 0 || (width % 2) != 0)
     return MakeError(ErrorClass::kInvalidArgument, "frame size " + std::to_string(width) + "x" +
-                                                       std::to_string(height) + " cannot be converted");
+                                                       std::to_string(height) +
+                                                       " cannot be converted");
   const size_t w = static_cast<size_t>(width);
   const size_t h = static_cast<size_t>(height);
   size_t bpp_num = 0;  // bytes per pixel of the first plane
   switch (fourcc) {
     case V4L2_PIX_FMT_YUYV:
-    case V4L2_PIX_FMT_UYVY: bpp_num = 2; break;
+    case V4L2_PIX_FMT_UYVY:
+      bpp_num = 2;
+      break;
     case V4L2_PIX_FMT_RGB24:
-    case V4L2_PIX_FMT_BGR24: bpp_num = 3; break;
+    case V4L2_PIX_FMT_BGR24:
+      bpp_num = 3;
+      break;
     case V4L2_PIX_FMT_GREY:
-    case V4L2_PIX_FMT_NV12: bpp_num = 1; break;
+    case V4L2_PIX_FMT_NV12:
+      bpp_num = 1;
+      break;
     default:
       return MakeError(ErrorClass::kInvalidArgument, "no conversion from " + FourCcName(fourcc));
   }
   const size_t line = stride > 0 ? static_cast<size_t>(stride) : w * bpp_num;
   if (line < w * bpp_num)
-    return MakeError(ErrorClass::kDeviceFault, "bytesperline " + std::to_string(line) + " is shorter than a row");
+    return MakeError(ErrorClass::kDeviceFault,
+                     "bytesperline " + std::to_string(line) + " is shorter than a row");
   size_t need = line * (h - 1) + w * bpp_num;
-  if (fourcc == V4L2_PIX_FMT_NV12) need = line * h + line * (h / 2 - 1) + w;  // Y plane + interleaved UV, half height
+  if (fourcc == V4L2_PIX_FMT_NV12)
+    need = line * h + line * (h / 2 - 1) + w;  // Y plane + interleaved UV, half height
   if (data.size() < need)
-    return MakeError(ErrorClass::kDeviceFault, "short frame: " + std::to_string(data.size()) + " bytes of " +
-                                                   std::to_string(need) + " for " + FourCcName(fourcc) + " " +
-                                                   std::to_string(width) + "x" + std::to_string(height));
+    return MakeError(ErrorClass::kDeviceFault,
+                     "short frame: " + std::to_string(data.size()) + " bytes of " +
+                         std::to_string(need) + " for " + FourCcName(fourcc) + " " +
+                         std::to_string(width) + "x" + std::to_string(height));
   std::vector<uint8_t> rgb(w * h * 3);
   for (size_t y = 0; y < h; ++y) {
     const uint8_t* row = data.data() + y * line;
@@ -130,10 +145,13 @@ Result<std::vector<uint8_t>> ToRgb(uint32_t fourcc, std::span<const uint8_t> dat
         break;
       case V4L2_PIX_FMT_NV12: {
         const uint8_t* uv = data.data() + line * h + (y / 2) * line;
-        for (size_t x = 0; x < w; ++x) YuvToRgb(row[x], uv[x & ~size_t{1}], uv[(x & ~size_t{1}) + 1], out + x * 3);
+        for (size_t x = 0; x < w; ++x)
+          YuvToRgb(row[x], uv[x & ~size_t{1}], uv[(x & ~size_t{1}) + 1], out + x * 3);
         break;
       }
-      case V4L2_PIX_FMT_RGB24: std::memcpy(out, row, w * 3); break;
+      case V4L2_PIX_FMT_RGB24:
+        std::memcpy(out, row, w * 3);
+        break;
       case V4L2_PIX_FMT_BGR24:
         for (size_t x = 0; x < w; ++x) {
           out[x * 3] = row[x * 3 + 2];
@@ -151,11 +169,14 @@ Result<std::vector<uint8_t>> ToRgb(uint32_t fourcc, std::span<const uint8_t> dat
 
 Result<int64_t> QuantizeControl(const ControlRange& r, double value, const std::string& what) {
   const int64_t step = r.step > 0 ? r.step : 1;
-  const double steps = std::round((value - static_cast<double>(r.minimum)) / static_cast<double>(step));
+  const double steps =
+      std::round((value - static_cast<double>(r.minimum)) / static_cast<double>(step));
   const double v = static_cast<double>(r.minimum) + steps * static_cast<double>(step);
-  if (!std::isfinite(v) || v < static_cast<double>(r.minimum) || v > static_cast<double>(r.maximum)) {
+  if (!std::isfinite(v) || v < static_cast<double>(r.minimum) ||
+      v > static_cast<double>(r.maximum)) {
     return MakeError(ErrorClass::kInvalidConfig,
-                     what + ": device value " + std::to_string(static_cast<long long>(std::llround(value))) +
+                     what + ": device value " +
+                         std::to_string(static_cast<long long>(std::llround(value))) +
                          " is outside the control's range " + std::to_string(r.minimum) + ".." +
                          std::to_string(r.maximum));
   }
@@ -167,7 +188,8 @@ Result<int64_t> QuantizeControl(const ControlRange& r, double value, const std::
 double ExposureUsToV4l2(double exposure_us) { return exposure_us / 100.0; }
 double V4l2ToExposureUs(int64_t value) { return static_cast<double>(value) * 100.0; }
 
-Result<double> UnitlessToDevice(const ControlRange& r, double factor, int unit, const std::string& what) {
+Result<double> UnitlessToDevice(const ControlRange& r, double factor, int unit,
+                                const std::string& what) {
   const double reference = unit > 0 ? unit : static_cast<double>(r.default_value);
   if (reference <= 0) {
     return MakeError(ErrorClass::kInvalidConfig,
@@ -177,10 +199,12 @@ Result<double> UnitlessToDevice(const ControlRange& r, double factor, int unit, 
   return factor * reference;
 }
 
-Result<std::string> ResolveDevice(const std::string& configured, const std::vector<std::string>& by_dirs) {
+Result<std::string> ResolveDevice(const std::string& configured,
+                                  const std::vector<std::string>& by_dirs) {
   namespace fs = std::filesystem;
   if (configured.empty())
-    return MakeError(ErrorClass::kInvalidConfig, "camera.device is empty; set a /dev/videoN path or a /dev/v4l/by-id name");
+    return MakeError(ErrorClass::kInvalidConfig,
+                     "camera.device is empty; set a /dev/videoN path or a /dev/v4l/by-id name");
   std::vector<std::string> candidates;
   if (configured.find('/') != std::string::npos) {
     candidates.push_back(configured);
@@ -194,14 +218,15 @@ Result<std::string> ResolveDevice(const std::string& configured, const std::vect
     if (!ec) {
       struct stat st {};
       if (::stat(real.c_str(), &st) == 0 && !S_ISCHR(st.st_mode)) {
-        return MakeError(ErrorClass::kDeviceMissing, c + " (" + real.string() + ") is not a device node");
+        return MakeError(ErrorClass::kDeviceMissing,
+                         c + " (" + real.string() + ") is not a device node");
       }
       return real.string();
     }
     tried += (tried.empty() ? "" : ", ") + c;
   }
-  return MakeError(ErrorClass::kDeviceMissing,
-                   "camera " + configured + " not found (looked at " + tried + ") — check the cable and camera.device");
+  return MakeError(ErrorClass::kDeviceMissing, "camera " + configured + " not found (looked at " +
+                                                   tried + ") — check the cable and camera.device");
 }
 
 ErrorClass ClassifyErrno(int err, bool streaming) {
@@ -231,13 +256,20 @@ Error V4l2Error(const std::string& device, const std::string& what, int err, boo
   const ErrorClass cls = ClassifyErrno(err, streaming);
   std::string hint;
   switch (cls) {
-    case ErrorClass::kDeviceMissing: hint = " — check the cable and camera.device"; break;
-    case ErrorClass::kDisconnected: hint = " — the camera went away; check the cable, it is reopened on reset"; break;
-    case ErrorClass::kTimeout: hint = " — the camera sends no frames"; break;
+    case ErrorClass::kDeviceMissing:
+      hint = " — check the cable and camera.device";
+      break;
+    case ErrorClass::kDisconnected:
+      hint = " — the camera went away; check the cable, it is reopened on reset";
+      break;
+    case ErrorClass::kTimeout:
+      hint = " — the camera sends no frames";
+      break;
     case ErrorClass::kDeviceFault:
       if (err == EBUSY) hint = " — another program is using the camera";
       break;
-    default: break;
+    default:
+      break;
   }
   return MakeError(cls, "camera " + device + ": " + what + " failed" + hint, std::strerror(err));
 }

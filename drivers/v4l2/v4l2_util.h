@@ -62,8 +62,8 @@ Result<double> UnitlessToDevice(const ControlRange& r, double factor, int unit,
 /// `by_dirs` (default /dev/v4l/by-id and /dev/v4l/by-path). Missing ->
 /// kDeviceMissing naming every place looked at.
 Result<std::string> ResolveDevice(const std::string& configured,
-                                  const std::vector<std::string>& by_dirs = {
-                                      "/dev/v4l/by-id", "/dev/v4l/by-path"});
+                                  const std::vector<std::string>& by_dirs = {"/dev/v4l/by-id",
+                                                                             "/dev/v4l/by-path"});
 
 /// Error class of a failed system call on the camera. `streaming` tells
 /// whether the device had been working (then a vanished device is

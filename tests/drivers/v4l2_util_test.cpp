@@ -1,6 +1,8 @@
 // V4L2 backend pieces that need no device: format choice, raw conversion,
 // control mapping, device-name resolution and error classification; and the
 // backend through the factory on a path where no camera is.
+#include "drivers/v4l2/v4l2_util.h"
+
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 #include <linux/videodev2.h>
@@ -13,7 +15,6 @@
 #include "common/clock.h"
 #include "config/config.h"
 #include "drivers/factory.h"
-#include "drivers/v4l2/v4l2_util.h"
 
 namespace aggscan::v4l2 {
 namespace {
@@ -84,7 +85,8 @@ TEST(V4l2Convert, StrideAndPlanesAreHonoured) {
     EXPECT_NEAR((*n)[i * 3 + 1], 0, 2);
   }
   const std::vector<uint8_t> grey = {7, 200};
-  EXPECT_EQ(*ToRgb(V4L2_PIX_FMT_GREY, grey, 2, 1, 0), (std::vector<uint8_t>{7, 7, 7, 200, 200, 200}));
+  EXPECT_EQ(*ToRgb(V4L2_PIX_FMT_GREY, grey, 2, 1, 0),
+            (std::vector<uint8_t>{7, 7, 7, 200, 200, 200}));
 }
 
 TEST(V4l2Convert, ShortFramesAndUnknownFormatsAreRefused) {
@@ -94,7 +96,8 @@ TEST(V4l2Convert, ShortFramesAndUnknownFormatsAreRefused) {
   EXPECT_EQ(r.error().cls, ErrorClass::kDeviceFault);
   EXPECT_THAT(r.error().message, HasSubstr("short frame"));
   EXPECT_FALSE(ToRgb(V4L2_PIX_FMT_SRGGB8, half, 640, 480, 0).ok());
-  EXPECT_FALSE(ToRgb(V4L2_PIX_FMT_YUYV, half, 640, 480, 100).ok()) << "bytesperline shorter than a row";
+  EXPECT_FALSE(ToRgb(V4L2_PIX_FMT_YUYV, half, 640, 480, 100).ok())
+      << "bytesperline shorter than a row";
 }
 
 TEST(V4l2Controls, QuantizeToTheStepGridWithinRange) {
@@ -106,7 +109,8 @@ TEST(V4l2Controls, QuantizeToTheStepGridWithinRange) {
   Result<int64_t> high = QuantizeControl(r, 300, "gain");
   ASSERT_FALSE(high.ok());
   EXPECT_EQ(high.error().cls, ErrorClass::kInvalidConfig);
-  EXPECT_THAT(high.error().message, HasSubstr("gain: device value 300 is outside the control's range 0..255"));
+  EXPECT_THAT(high.error().message,
+              HasSubstr("gain: device value 300 is outside the control's range 0..255"));
   EXPECT_FALSE(QuantizeControl(stepped, 1.0, "exposure").ok());
 }
 
@@ -129,11 +133,12 @@ TEST(V4l2Device, MissingPathsAreDeviceMissing) {
   ASSERT_FALSE(r.ok());
   EXPECT_EQ(r.error().cls, ErrorClass::kDeviceMissing);
   EXPECT_THAT(r.error().message, HasSubstr("/dev/aggscan-no-such-camera"));
-  Result<std::string> name = ResolveDevice("usb-Acme_Cam-video-index0", {"/nonexistent/by-id", "/nonexistent/by-path"});
+  Result<std::string> name =
+      ResolveDevice("usb-Acme_Cam-video-index0", {"/nonexistent/by-id", "/nonexistent/by-path"});
   ASSERT_FALSE(name.ok());
   EXPECT_EQ(name.error().cls, ErrorClass::kDeviceMissing);
-  EXPECT_THAT(name.error().message,
-              HasSubstr("/nonexistent/by-id/usb-Acme_Cam-video-index0, /nonexistent/by-path/usb-Acme_Cam-video-index0"));
+  EXPECT_THAT(name.error().message, HasSubstr("/nonexistent/by-id/usb-Acme_Cam-video-index0, "
+                                              "/nonexistent/by-path/usb-Acme_Cam-video-index0"));
   EXPECT_EQ(ResolveDevice("").error().cls, ErrorClass::kInvalidConfig);
 }
 
@@ -145,7 +150,8 @@ TEST(V4l2Device, UdevNamesAreFollowedToTheNode) {
   fs::create_symlink("/dev/null", dir / "by-id" / "usb-Acme_Cam-video-index0");
   fs::create_symlink(dir / "by-id" / "usb-Acme_Cam-video-index0", dir / "chained");
   std::ofstream(dir / "plain-file") << "x";
-  EXPECT_EQ(*ResolveDevice("usb-Acme_Cam-video-index0", {(dir / "by-path").string(), (dir / "by-id").string()}),
+  EXPECT_EQ(*ResolveDevice("usb-Acme_Cam-video-index0",
+                           {(dir / "by-path").string(), (dir / "by-id").string()}),
             "/dev/null");
   EXPECT_EQ(*ResolveDevice((dir / "chained").string()), "/dev/null");
   Result<std::string> file = ResolveDevice((dir / "plain-file").string());

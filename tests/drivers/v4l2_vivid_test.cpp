@@ -107,10 +107,11 @@ CameraSettings Settings(const CameraConfig& c, double gain = 1.5) {
 Result<FramePtr> TakeStill(Camera& cam, uint64_t id, std::thread::id* on = nullptr) {
   auto prom = std::make_shared<std::promise<Result<FramePtr>>>();
   auto fut = prom->get_future();
-  Status s = cam.RequestStill({id, "vivid", 1, static_cast<int>(id)}, [prom, on](Result<FramePtr> r) {
-    if (on) *on = std::this_thread::get_id();
-    prom->set_value(std::move(r));
-  });
+  Status s =
+      cam.RequestStill({id, "vivid", 1, static_cast<int>(id)}, [prom, on](Result<FramePtr> r) {
+        if (on) *on = std::this_thread::get_id();
+        prom->set_value(std::move(r));
+      });
   if (!s) return s.error();
   if (fut.wait_for(std::chrono::seconds(60)) != std::future_status::ready)
     return MakeError(ErrorClass::kInternal, "callback never came");
@@ -168,11 +169,13 @@ TEST_F(Vivid, StillsAreFreshOnTheDriverThreadWithTheGainReadBack) {
   ASSERT_TRUE(cam.Configure(Settings(c)));
   // vivid offers no MJPEG, so "auto" picks YUYV.
   EXPECT_EQ(cam.negotiated().fourcc, static_cast<uint32_t>(V4L2_PIX_FMT_YUYV));
-  EXPECT_EQ(MappedVideoBuffers(), c.v4l2.buffers) << "one mapping per driver buffer while streaming";
+  EXPECT_EQ(MappedVideoBuffers(), c.v4l2.buffers)
+      << "one mapping per driver buffer while streaming";
   Side side;
   EXPECT_EQ(side.Get(V4L2_CID_AUTOGAIN), 0) << "auto gain must be off";
   EXPECT_EQ(side.Get(V4L2_CID_GAIN), 150) << "gain 1.5 x the control's default 100";
-  std::this_thread::sleep_for(std::chrono::milliseconds(400));  // let every buffer fill with stale frames
+  std::this_thread::sleep_for(
+      std::chrono::milliseconds(400));  // let every buffer fill with stale frames
   uint64_t last_seq = 0;
   for (uint64_t v = 0; v < 3; ++v) {
     const TimeNs asked = clock_.Now();
@@ -182,7 +185,8 @@ TEST_F(Vivid, StillsAreFreshOnTheDriverThreadWithTheGainReadBack) {
     const Frame& fr = **f;
     EXPECT_NE(on, std::this_thread::get_id());
     EXPECT_EQ(fr.request_id, v);
-    EXPECT_GE(fr.exposure_start, asked) << "a frame queued before the request must not be the still";
+    EXPECT_GE(fr.exposure_start, asked)
+        << "a frame queued before the request must not be the still";
     if (v > 0) {
       EXPECT_GT(fr.sequence, last_seq);
     }
@@ -283,7 +287,8 @@ TEST_F(Vivid, NoFrameInTimeIsATimeoutAndTheCameraRecovers) {
   ASSERT_TRUE(side.Set("Percentage of Dropped Buffers", 100));
   const auto t0 = std::chrono::steady_clock::now();
   Result<FramePtr> f = TakeStill(cam, 1);
-  const double waited = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const double waited =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   ASSERT_FALSE(f.ok());
   EXPECT_EQ(f.error().cls, ErrorClass::kTimeout) << f.error().ToString();
   EXPECT_GE(waited, 0.55);
@@ -336,7 +341,8 @@ TEST_F(Vivid, CloseWithAStillInFlightDeliversExactlyOnce) {
     if (!r) cls = r.error().cls;
     ++calls;
   }));
-  EXPECT_EQ(cam.RequestStill({2, "c", 1, 1}, [](Result<FramePtr>) {}).error().cls, ErrorClass::kInvalidState);
+  EXPECT_EQ(cam.RequestStill({2, "c", 1, 1}, [](Result<FramePtr>) {}).error().cls,
+            ErrorClass::kInvalidState);
   cam.Close();
   EXPECT_EQ(calls.load(), 1);
   EXPECT_EQ(cls, ErrorClass::kInvalidState);
@@ -359,7 +365,8 @@ TEST_F(Vivid, FullResolutionStill) {
         h = static_cast<int>(fs.stepwise.max_height);
         break;
       }
-      if (static_cast<int64_t>(fs.discrete.width) * fs.discrete.height > static_cast<int64_t>(w) * h) {
+      if (static_cast<int64_t>(fs.discrete.width) * fs.discrete.height >
+          static_cast<int64_t>(w) * h) {
         w = static_cast<int>(fs.discrete.width);
         h = static_cast<int>(fs.discrete.height);
       }
@@ -413,7 +420,8 @@ TEST_F(Vivid, ZzUnplugIsDisconnectedThenMissingThenRecovers) {
     ASSERT_TRUE(side.Set("Percentage of Dropped Buffers", 100));
     std::promise<Result<FramePtr>> p;
     auto fut = p.get_future();
-    ASSERT_TRUE(cam.RequestStill({2, "c", 1, 1}, [&](Result<FramePtr> r) { p.set_value(std::move(r)); }));
+    ASSERT_TRUE(
+        cam.RequestStill({2, "c", 1, 1}, [&](Result<FramePtr> r) { p.set_value(std::move(r)); }));
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
     ASSERT_TRUE(side.Set("Disconnect", 0));
     ASSERT_EQ(fut.wait_for(std::chrono::seconds(10)), std::future_status::ready);
@@ -441,8 +449,10 @@ int main(int argc, char** argv) {
   ::testing::InitGoogleTest(&argc, argv);
   aggscan::v4l2::g_vivid = aggscan::v4l2::FindVivid();
   if (aggscan::v4l2::g_vivid.empty()) {
-    std::fprintf(stderr, "v4l2_vivid_test: SKIP: no vivid capture node (modprobe vivid n_devs=1 node_types=0x1; "
-                         "tests/vm/run-in-vm.sh does this in a VM)\n");
+    std::fprintf(
+        stderr,
+        "v4l2_vivid_test: SKIP: no vivid capture node (modprobe vivid n_devs=1 node_types=0x1; "
+        "tests/vm/run-in-vm.sh does this in a VM)\n");
     return 77;
   }
   std::fprintf(stderr, "v4l2_vivid_test: vivid at %s\n", aggscan::v4l2::g_vivid.c_str());
