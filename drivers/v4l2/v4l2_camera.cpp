@@ -15,7 +15,6 @@
 #include <utility>
 
 #include "common/log.h"
-#include "drivers/sim/jpeg.h"
 
 namespace aggscan::v4l2 {
 namespace {
@@ -517,22 +516,17 @@ Result<FramePtr> V4l2Camera::Capture(const Job& job) {
 
 Result<FramePtr> V4l2Camera::MakeFrame(const Job& job, const uint8_t* data, size_t bytes,
                                        int64_t ts_mono_ns, uint64_t sequence) {
-  auto frame = std::make_shared<Frame>();
-  if (neg_.fourcc == V4L2_PIX_FMT_MJPEG || neg_.fourcc == V4L2_PIX_FMT_JPEG) {
-    // The camera's own JPEG is the still: no decode, no second compression.
-    if (bytes < 4 || data[0] != 0xFF || data[1] != 0xD8)
-      return MakeError(ErrorClass::kDeviceFault,
-                       "camera " + path_ + " sent an MJPEG frame that is not a JPEG");
-    frame->data.assign(data, data + bytes);
-  } else {
-    Result<std::vector<uint8_t>> rgb = ToRgb(neg_.fourcc, std::span<const uint8_t>(data, bytes),
-                                             neg_.width, neg_.height, neg_.bytes_per_line);
-    if (!rgb) return rgb.error();
-    Result<std::vector<unsigned char>> jpeg =
-        sim::EncodeJpeg(rgb->data(), neg_.width, neg_.height, active_.jpeg_quality);
-    if (!jpeg) return jpeg.error();
-    frame->data = std::move(*jpeg);
+  // MJPEG: the camera's own JPEG is the still, no decode and no second compression.
+  Result<std::vector<unsigned char>> still =
+      EncodeStill(neg_.fourcc, std::span<const uint8_t>(data, bytes), neg_.width, neg_.height,
+                  neg_.bytes_per_line, active_.jpeg_quality);
+  if (!still) {
+    Error e = still.error();
+    e.message = "camera " + path_ + ": " + e.message;
+    return e;
   }
+  auto frame = std::make_shared<Frame>();
+  frame->data = std::move(*still);
   const int64_t age = std::max<int64_t>(0, MonotonicNs() - ts_mono_ns);
   frame->request_id = job.req.request_id;
   frame->sequence = sequence;

@@ -38,6 +38,17 @@ Result<uint32_t> ChooseFormat(const std::vector<uint32_t>& offered, const std::s
 Result<std::vector<uint8_t>> ToRgb(uint32_t fourcc, std::span<const uint8_t> data, int width,
                                    int height, int stride);
 
+/// The still for one captured buffer: an MJPEG/JPEG frame is passed through
+/// (the Huffman tables many UVC cameras leave out are inserted, so any JPEG
+/// reader takes it); a raw frame is converted and encoded at `quality`.
+/// A buffer that is not what the format says is a kDeviceFault.
+Result<std::vector<unsigned char>> EncodeStill(uint32_t fourcc, std::span<const uint8_t> data,
+                                               int width, int height, int stride, int quality);
+/// Inserts the standard Huffman tables (JPEG spec, Annex K.3) before the
+/// first SOS of a JPEG that defines none (motion-JPEG as UVC cameras send
+/// it); a JPEG with tables is returned unchanged.
+Result<std::vector<unsigned char>> CompleteMjpeg(std::span<const uint8_t> jpeg);
+
 /// Range and default of an integer control, as VIDIOC_QUERYCTRL reports it.
 struct ControlRange {
   int64_t minimum = 0;

@@ -11,10 +11,12 @@
 #include <cerrno>
 #include <filesystem>
 #include <fstream>
+#include <map>
 
 #include "common/clock.h"
 #include "config/config.h"
 #include "drivers/factory.h"
+#include "drivers/sim/jpeg.h"
 
 namespace aggscan::v4l2 {
 namespace {
@@ -98,6 +100,101 @@ TEST(V4l2Convert, ShortFramesAndUnknownFormatsAreRefused) {
   EXPECT_FALSE(ToRgb(V4L2_PIX_FMT_SRGGB8, half, 640, 480, 0).ok());
   EXPECT_FALSE(ToRgb(V4L2_PIX_FMT_YUYV, half, 640, 480, 100).ok())
       << "bytesperline shorter than a row";
+}
+
+// A 64x48 test card encoded by libturbojpeg (which writes the standard
+// Huffman tables of Annex K.3 unless told to optimise them).
+std::vector<unsigned char> TestJpeg() {
+  std::vector<uint8_t> rgb(64 * 48 * 3);
+  for (int y = 0; y < 48; ++y)
+    for (int x = 0; x < 64; ++x) {
+      uint8_t* p = &rgb[(y * 64 + x) * 3];
+      p[0] = static_cast<uint8_t>(x * 4);
+      p[1] = static_cast<uint8_t>(y * 5);
+      p[2] = static_cast<uint8_t>((x + y) % 2 ? 200 : 30);
+    }
+  return *sim::EncodeJpeg(rgb.data(), 64, 48, 90);
+}
+
+// Splits a JPEG's header into segments: (marker, whole segment bytes).
+std::vector<std::pair<uint8_t, std::vector<unsigned char>>> Segments(
+    const std::vector<unsigned char>& j) {
+  std::vector<std::pair<uint8_t, std::vector<unsigned char>>> out;
+  size_t pos = 2;
+  while (pos + 4 <= j.size() && j[pos + 1] != 0xDA) {
+    const size_t len = (static_cast<size_t>(j[pos + 2]) << 8) | j[pos + 3];
+    out.emplace_back(j[pos + 1],
+                     std::vector<unsigned char>(j.begin() + pos, j.begin() + pos + 2 + len));
+    pos += 2 + len;
+  }
+  return out;
+}
+
+// Every Huffman table as class/id byte -> its counts and values.
+std::map<int, std::vector<unsigned char>> HuffmanTables(const std::vector<unsigned char>& j) {
+  std::map<int, std::vector<unsigned char>> t;
+  for (const auto& [m, seg] : Segments(j)) {
+    if (m != 0xC4) continue;
+    size_t p = 4;
+    while (p < seg.size()) {
+      size_t n = 0;
+      for (int i = 0; i < 16; ++i) n += seg[p + 1 + i];
+      t[seg[p]] = std::vector<unsigned char>(seg.begin() + p + 1, seg.begin() + p + 17 + n);
+      p += 17 + n;
+    }
+  }
+  return t;
+}
+
+TEST(V4l2Mjpeg, PassedThroughUnchangedWhenComplete) {
+  const std::vector<unsigned char> jpeg = TestJpeg();
+  Result<std::vector<unsigned char>> still = EncodeStill(V4L2_PIX_FMT_MJPEG, jpeg, 64, 48, 0, 10);
+  ASSERT_TRUE(still.ok());
+  EXPECT_EQ(*still, jpeg) << "the camera's JPEG is stored as is, not re-encoded at quality 10";
+}
+
+TEST(V4l2Mjpeg, MissingHuffmanTablesAreTheStandardOnes) {
+  const std::vector<unsigned char> jpeg = TestJpeg();
+  const auto reference = HuffmanTables(jpeg);
+  ASSERT_EQ(reference.size(), 4u);
+  // Motion-JPEG as UVC cameras send it: the same stream without DHT segments.
+  std::vector<unsigned char> bare(jpeg.begin(), jpeg.begin() + 2);
+  size_t pos = 2;
+  for (const auto& [m, seg] : Segments(jpeg)) {
+    if (m != 0xC4) bare.insert(bare.end(), seg.begin(), seg.end());
+    pos += seg.size();
+  }
+  bare.insert(bare.end(), jpeg.begin() + pos, jpeg.end());
+  ASSERT_TRUE(HuffmanTables(bare).empty());
+  Result<std::vector<unsigned char>> fixed = EncodeStill(V4L2_PIX_FMT_MJPEG, bare, 64, 48, 0, 90);
+  ASSERT_TRUE(fixed.ok()) << fixed.error().ToString();
+  EXPECT_EQ(HuffmanTables(*fixed), reference);
+  Result<sim::RgbImage> a = sim::DecodeJpeg(jpeg);
+  Result<sim::RgbImage> b = sim::DecodeJpeg(*fixed);
+  ASSERT_TRUE(a.ok() && b.ok());
+  EXPECT_EQ(a->rgb, b->rgb);
+}
+
+TEST(V4l2Mjpeg, GarbageIsADeviceFault) {
+  const std::vector<uint8_t> junk = {0x00, 0x11, 0x22, 0x33, 0x44};
+  Result<std::vector<unsigned char>> r = EncodeStill(V4L2_PIX_FMT_MJPEG, junk, 64, 48, 0, 90);
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().cls, ErrorClass::kDeviceFault);
+  std::vector<unsigned char> cut = TestJpeg();
+  cut.resize(40);  // header cut before any scan
+  EXPECT_FALSE(EncodeStill(V4L2_PIX_FMT_JPEG, cut, 64, 48, 0, 90).ok());
+}
+
+TEST(V4l2Mjpeg, RawFramesAreEncoded) {
+  std::vector<uint8_t> yuyv;
+  for (int i = 0; i < 16 * 16 / 2; ++i) yuyv.insert(yuyv.end(), {81, 90, 81, 240});  // red
+  Result<std::vector<unsigned char>> r = EncodeStill(V4L2_PIX_FMT_YUYV, yuyv, 16, 16, 32, 95);
+  ASSERT_TRUE(r.ok());
+  Result<sim::RgbImage> img = sim::DecodeJpeg(*r);
+  ASSERT_TRUE(img.ok());
+  EXPECT_EQ(img->width, 16);
+  EXPECT_NEAR(img->rgb[0], 254, 6);
+  EXPECT_NEAR(img->rgb[1], 0, 6);
 }
 
 TEST(V4l2Controls, QuantizeToTheStepGridWithinRange) {
