@@ -483,10 +483,13 @@ Result<FramePtr> V4l2Camera::Capture(const Job& job) {
     if (Xioctl(fd_.get(), VIDIOC_DQBUF, &b) < 0) {
       const int err = errno;
       if (err == EAGAIN) {
-        // POLLERR without a buffer: the queue is in an error state (device
-        // gone or the driver flagged a fatal error).
+        // POLLERR without a buffer: the driver put the queue in an error
+        // state (a vanished device answers DQBUF with ENODEV instead).
         if (p.revents & (POLLERR | POLLHUP))
-          return Fail("streaming (poll reported an error)", ENODEV);
+          return MakeError(ErrorClass::kDeviceFault,
+                           "camera " + path_ +
+                               ": the driver stopped the stream with an error — "
+                               "the camera is reconfigured on reset");
         continue;
       }
       return Fail("VIDIOC_DQBUF", err);

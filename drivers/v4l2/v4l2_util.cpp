@@ -743,6 +743,8 @@ Error V4l2Error(const std::string& device, const std::string& what, int err, boo
       break;
     case ErrorClass::kDeviceFault:
       if (err == EBUSY) hint = " — another program is using the camera";
+      if (err == EIO)
+        hint = " — the driver reports an I/O error; the camera is reconfigured on reset";
       break;
     default:
       break;

@@ -313,6 +313,25 @@ TEST_F(Vivid, AFrameFlaggedAsErroneousIsNotDelivered) {
   cam.Close();
 }
 
+// vivid's fatal streaming error puts the queue in its error state (what a
+// driver does when the hardware stops mid-stream): the still fails as a
+// device fault, and configuring again restarts the stream.
+TEST_F(Vivid, AFatalStreamingErrorIsADeviceFaultUntilReconfigured) {
+  CameraConfig c = BaseConfig();
+  V4l2Camera cam(clock_, c);
+  ASSERT_TRUE(cam.Open());
+  ASSERT_TRUE(cam.Configure(Settings(c)));
+  ASSERT_TRUE(Side().Set("Inject Fatal Streaming Error", 0));
+  Result<FramePtr> f = TakeStill(cam, 1);
+  ASSERT_FALSE(f.ok());
+  EXPECT_EQ(f.error().cls, ErrorClass::kDeviceFault) << f.error().ToString();
+  ASSERT_TRUE(cam.Configure(Settings(c)));
+  Result<FramePtr> again = TakeStill(cam, 2);
+  EXPECT_TRUE(again.ok()) << again.error().ToString();
+  cam.Close();
+  EXPECT_EQ(MappedVideoBuffers(), 0);
+}
+
 TEST_F(Vivid, AStreamOnFailureIsReportedAndBuffersReleased) {
   CameraConfig c = BaseConfig();
   V4l2Camera cam(clock_, c);
