@@ -155,6 +155,19 @@ Status V4l2Camera::ApplyControls(const CameraSettings& s, std::vector<std::strin
   red_range_.reset();
   blue_range_.reset();
   gain_id_ = 0;
+  // Found in either mode, so frames report the gain and balance in effect.
+  for (uint32_t id :
+       {static_cast<uint32_t>(V4L2_CID_GAIN), static_cast<uint32_t>(V4L2_CID_ANALOGUE_GAIN)}) {
+    if (auto r = Query(id)) {
+      gain_range_ = r;
+      gain_id_ = id;
+      break;
+    }
+  }
+  if (!s.manual_exposure) {
+    red_range_ = Query(V4L2_CID_RED_BALANCE);
+    blue_range_ = Query(V4L2_CID_BLUE_BALANCE);
+  }
   // Automatic modes off first: their values are volatile while they run.
   auto set_if_present = [&](uint32_t id, const char* what, int64_t v) -> Status {
     if (!Query(id)) return OkStatus();
@@ -178,14 +191,6 @@ Status V4l2Camera::ApplyControls(const CameraSettings& s, std::vector<std::strin
       missing->push_back("exposure");
     }
     if (Status st = set_if_present(V4L2_CID_AUTOGAIN, "auto gain (off)", 0); !st) return st;
-    for (uint32_t id :
-         {static_cast<uint32_t>(V4L2_CID_GAIN), static_cast<uint32_t>(V4L2_CID_ANALOGUE_GAIN)}) {
-      if (auto r = Query(id)) {
-        gain_range_ = r;
-        gain_id_ = id;
-        break;
-      }
-    }
     if (gain_range_) {
       Result<double> dv = UnitlessToDevice(*gain_range_, s.gain, config_.v4l2.gain_unit, "gain");
       if (!dv) return dv.error();
@@ -256,7 +261,6 @@ Status V4l2Camera::ApplyControls(const CameraSettings& s, std::vector<std::strin
 
 V4l2Camera::ReadBack V4l2Camera::ReadControls() const {
   ReadBack rb;
-  if (!active_.manual_exposure) return rb;
   if (Query(V4L2_CID_EXPOSURE_ABSOLUTE)) {
     if (auto v = Get(V4L2_CID_EXPOSURE_ABSOLUTE)) rb.exposure_us = V4l2ToExposureUs(*v);
   }

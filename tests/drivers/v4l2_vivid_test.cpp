@@ -203,15 +203,34 @@ TEST_F(Vivid, StillsAreFreshOnTheDriverThreadWithTheGainReadBack) {
 TEST_F(Vivid, StrictControlsRefuseADeviceWithoutExposure) {
   CameraConfig c = BaseConfig();
   c.v4l2.strict_controls = true;
+  c.v4l2.focus = 50;  // vivid has no focus either
   V4l2Camera cam(clock_, c);
   ASSERT_TRUE(cam.Open());
   Status s = cam.Configure(Settings(c));
   ASSERT_FALSE(s.ok());
   EXPECT_EQ(s.error().cls, ErrorClass::kInvalidConfig);
-  EXPECT_THAT(s.error().message, HasSubstr("no control for exposure, wb_red, wb_blue"));
+  EXPECT_THAT(s.error().message, HasSubstr("no control for exposure, wb_red, wb_blue, focus"));
   EXPECT_EQ(cam.state(), Camera::State::kOpened);
   EXPECT_EQ(MappedVideoBuffers(), 0);
+  // Automatic exposure locks nothing, so a strict camera configures, with
+  // vivid's automatic gain switched back on.
+  CameraSettings automatic = Settings(c);
+  automatic.manual_exposure = false;
+  c.v4l2.focus = -1;
+  V4l2Camera autocam(clock_, c);
   cam.Close();
+  ASSERT_TRUE(autocam.Open());
+  Status a = autocam.Configure(automatic);
+  ASSERT_TRUE(a.ok()) << a.error().ToString();
+  EXPECT_EQ(Side().Get(V4L2_CID_AUTOGAIN), 1);
+  Result<FramePtr> f = TakeStill(autocam, 1);
+  ASSERT_TRUE(f.ok()) << f.error().ToString();
+  EXPECT_TRUE((*f)->missing_controls.empty());
+  // What vivid's automatic gain chose, read back in units of its default
+  // (100). vivid's automatic gain steps by one a second, hence the tolerance.
+  EXPECT_NEAR((*f)->gain, Side().Get(V4L2_CID_GAIN) / 100.0, 0.015);
+  EXPECT_LE((*f)->gain, 2.55);
+  autocam.Close();
 }
 
 TEST_F(Vivid, GainOutsideTheControlRangeIsRefusedAndGainUnitApplies) {
