@@ -541,7 +541,8 @@ Result<FramePtr> V4l2Camera::MakeFrame(const Job& job, const uint8_t* data, size
   frame->height = neg_.height;
   frame->encoding = "jpeg";
   frame->exposure_start =
-      clock_.Now() - static_cast<TimeNs>(age * (clock_.IsVirtual() ? 0.0 : clock_.Scale()));
+      clock_.Now() -
+      static_cast<TimeNs>(static_cast<double>(age) * (clock_.IsVirtual() ? 0.0 : clock_.Scale()));
   frame->utc_ns = clock_.UtcNs() - age;
   const ReadBack rb = ReadControls();
   frame->exposure_us = rb.exposure_us;
