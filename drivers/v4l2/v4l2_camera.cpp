@@ -510,6 +510,7 @@ Result<FramePtr> V4l2Camera::Capture(const Job& job) {
     // A corrupted frame, or one whose exposure started before the request
     // (stale in the queue): hand the buffer back and wait for the next.
     if ((b.flags & V4L2_BUF_FLAG_ERROR) || (mono && ts < job.requested_mono_ns)) {
+      ++((b.flags & V4L2_BUF_FLAG_ERROR) ? corrupt_frames_ : stale_frames_);
       if (Status s = requeue(b); !s) return s.error();
       continue;
     }

@@ -17,6 +17,7 @@
 // closed and opened again (that is the recovery path).
 #pragma once
 
+#include <atomic>
 #include <condition_variable>
 #include <cstdint>
 #include <mutex>
@@ -86,6 +87,10 @@ class V4l2Camera final : public Camera {
   std::string device_path() const;
   /// Result of the last successful Configure().
   V4l2Negotiated negotiated() const;
+  /// Frames skipped because the driver flagged them corrupt (V4L2_BUF_FLAG_ERROR).
+  uint64_t corrupt_frames() const { return corrupt_frames_.load(); }
+  /// Frames skipped because their exposure began before the still request.
+  uint64_t stale_frames() const { return stale_frames_.load(); }
 
  protected:
   Status DoOpen() override;
@@ -131,6 +136,9 @@ class V4l2Camera final : public Camera {
   std::optional<ControlRange> gain_range_, red_range_, blue_range_;
   uint32_t gain_id_ = 0;
   int64_t frame_period_ns_ = 0;  // from VIDIOC_G_PARM; 0 when the driver does not say
+
+  std::atomic<uint64_t> corrupt_frames_{0};
+  std::atomic<uint64_t> stale_frames_{0};
 
   mutable std::mutex mu_;  // guards the job slot and stop_
   std::condition_variable cv_;

@@ -196,6 +196,7 @@ TEST_F(Vivid, StillsAreFreshOnTheDriverThreadWithTheGainReadBack) {
     EXPECT_THAT(fr.missing_controls, ElementsAre("exposure", "wb_red", "wb_blue"));
     EXPECT_EQ(cam.state(), Camera::State::kReady);
   }
+  EXPECT_GE(cam.stale_frames(), 1u) << "the buffers filled during the pause were skipped";
   cam.Close();
   EXPECT_EQ(MappedVideoBuffers(), 0) << "Close must unmap every buffer";
 }
@@ -325,10 +326,13 @@ TEST_F(Vivid, AFrameFlaggedAsErroneousIsNotDelivered) {
   ASSERT_TRUE(cam.Open());
   ASSERT_TRUE(cam.Configure(Settings(c)));
   Side side;
+  ASSERT_TRUE(TakeStill(cam, 1).ok());
+  EXPECT_EQ(cam.corrupt_frames(), 0u);
   ASSERT_TRUE(side.Set("Inject V4L2_BUF_FLAG_ERROR", 0));
-  Result<FramePtr> f = TakeStill(cam, 1);
+  Result<FramePtr> f = TakeStill(cam, 2);
   ASSERT_TRUE(f.ok()) << f.error().ToString();
   EXPECT_FALSE((*f)->data.empty());
+  EXPECT_EQ(cam.corrupt_frames(), 1u) << "the flagged frame was skipped, the next one delivered";
   cam.Close();
 }
 
