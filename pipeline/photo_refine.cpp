@@ -27,6 +27,9 @@ std::vector<std::string> PhotoRefineOptions::Check() const {
   if (!(depth_tolerance_mm > 0)) p.push_back("depth_tolerance_mm must be > 0");
   if (!(min_ncc > -1 && min_ncc < 1)) p.push_back("min_ncc must be in (-1, 1)");
   if (min_gain < 0) p.push_back("min_gain must be >= 0");
+  if (!(near_hull_mm >= 0 && near_hull_mm <= max_depth_mm)) p.push_back("near_hull_mm must be in [0, max_depth_mm]");
+  if (!(outside_mm >= 0 && outside_mm <= 5)) p.push_back("outside_mm must be in [0, 5]");
+  if (untangle_passes < 0) p.push_back("untangle_passes must be >= 0");
   if (sample_rings < 0 || sample_rings > 3) p.push_back("sample_rings must be in 0..3");
   if (smooth_iterations < 0) p.push_back("smooth_iterations must be >= 0");
   if (!(smooth_lambda > 0)) p.push_back("smooth_lambda must be > 0");
@@ -354,9 +357,12 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
     const double s = opts.patch_spacing_px * zref / ref.cam.fx;
     const int nvw = static_cast<int>(cand.size());
     std::vector<float> samples(static_cast<size_t>(nvw) * ns);
-    std::vector<double> score(nd, -2.0);
-    for (int di = 0; di < nd; ++di) {
-      const Vec3 c = p - (di * opts.step_mm) * n;
+    // Hypothesis k lies at depth (k - kOut) * step: kOut steps outside the
+    // hull too, so that a peak at the hull itself gets its sub-step position.
+    const int kOut = static_cast<int>(std::lround(opts.outside_mm / opts.step_mm));
+    std::vector<double> score(nd + kOut, -2.0);
+    for (int k = 0; k < nd + kOut; ++k) {
+      const Vec3 c = p - ((k - kOut) * opts.step_mm) * n;
       bool ok_ref = true;
       std::vector<char> ok(nvw, 1);
       for (int w = 0; w < nvw; ++w) {
@@ -387,30 +393,32 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
         sum += r;
         ++cnt;
       }
-      if (cnt > 0) score[di] = sum / cnt;
+      if (cnt > 0) score[k] = sum / cnt;
     }
+    const int nk = nd + kOut;
     int bi = 0;
-    for (int di = 1; di < nd; ++di) {
-      if (score[di] > score[bi]) bi = di;
+    for (int k = 1; k < nk; ++k) {
+      if (score[k] > score[bi]) bi = k;
     }
     if (score[bi] < opts.min_ncc) return;  // no clear photo-consistent depth
-    double d = bi * opts.step_mm;
-    if (bi > 0 && bi + 1 < nd && score[bi - 1] > -2 && score[bi + 1] > -2) {
+    double d = (bi - kOut) * opts.step_mm;
+    if (bi > 0 && bi + 1 < nk && score[bi - 1] > -2 && score[bi + 1] > -2) {
       // Parabola through the peak and its neighbours: sub-step depth.
       const double l = score[bi - 1], m = score[bi], r = score[bi + 1];
       const double den = l - 2 * m + r;
       if (den < 0) d += std::clamp(0.5 * (l - r) / den, -0.5, 0.5) * opts.step_mm;
     }
-    if (bi > 0 && score[bi] - score[0] < opts.min_gain) {
-      // The hull is about as consistent as the peak: not confident that the
-      // surface lies deeper. Data only if the hull itself is consistent.
-      if (score[0] >= opts.min_ncc) {
+    const double hull_score = score[kOut];
+    if (d > opts.near_hull_mm && score[bi] - hull_score < opts.min_gain) {
+      // A deep peak hardly better than the hull: not confident that the
+      // surface lies that deep. Data only if the hull itself is consistent.
+      if (hull_score >= opts.min_ncc) {
         best_d[i] = 0;
         weight[i] = 1;
       }
       return;
     }
-    best_d[i] = std::max(0.0, d);
+    best_d[i] = opts.outside_mm > 0 ? d : std::max(0.0, d);
     weight[i] = 1;
   });
 
@@ -437,50 +445,48 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
   }
   const double cos_turn = std::cos(opts.max_face_turn_deg * M_PI / 180);
   std::vector<Vec3> W(nv);
-  for (int pass = 0;; ++pass) {
-    for (size_t i = 0; i < nv; ++i) W[i] = V[i] - field[i] * N[i];
-    std::vector<char> bad(nv, 0);
+  auto find_bad = [&](const std::vector<Vec3>& X, std::vector<char>* bad) {
+    bad->assign(nv, 0);
     int nbad = 0;
     for (size_t f = 0; f < F.size(); ++f) {
-      const Vec3 c = (W[F[f][1]] - W[F[f][0]]).cross(W[F[f][2]] - W[F[f][0]]);
+      const Vec3 c = (X[F[f][1]] - X[F[f][0]]).cross(X[F[f][2]] - X[F[f][0]]);
       const double l = c.norm();
       if (l > 1e-12 && c.dot(fn0[f]) / l >= cos_turn) continue;
       ++nbad;
-      for (int k = 0; k < 3; ++k) bad[F[f][k]] = 1;
+      for (int k = 0; k < 3; ++k) (*bad)[F[f][k]] = 1;
     }
+    return nbad;
+  };
+  // Undo folds where they are: a folding vertex moves to the centroid of its
+  // neighbours' moved positions (never outward of the hull), which keeps the
+  // region's depth. What that cannot undo is pulled back towards the hull,
+  // where no face is folded: halving, then all the way.
+  for (size_t i = 0; i < nv; ++i) W[i] = V[i] - field[i] * N[i];
+  std::vector<char> bad;
+  for (int pass = 0;; ++pass) {
+    const int nbad = find_bad(W, &bad);
     if (pass == 0) res.faces_folded = nbad;
     if (nbad == 0) break;
-    if (pass >= 60) break;  // cannot happen: all-zero moves restore the hull
-    res.fold_passes = pass + 1;
-    if (pass < 20) {
-      // First smooth the field where it inverts faces (it changes faster
-      // there than the surface allows): halving alone would leave pits.
-      std::vector<char> zone = bad;
+    if (pass < opts.untangle_passes) {
+      res.untangle_passes = pass + 1;
+      std::vector<Vec3> next = W;
       for (size_t i = 0; i < nv; ++i) {
-        if (bad[i]) {
-          for (int j : nb[i]) zone[j] = 1;
-        }
+        if (!bad[i] || nb[i].empty()) continue;
+        Vec3 c = Vec3::Zero();
+        for (int j : nb[i]) c += W[j];
+        next[i] = c / nb[i].size();
+        const double out = (next[i] - V[i]).dot(N[i]);
+        if (out > 0) next[i] -= out * N[i];
       }
-      std::vector<double> next = field;
-      for (size_t i = 0; i < nv; ++i) {
-        if (!zone[i] || nb[i].empty()) continue;
-        double s = field[i];
-        for (int j : nb[i]) s += field[j];
-        next[i] = s / (nb[i].size() + 1);
-      }
-      field.swap(next);
+      W.swap(next);
       continue;
     }
-    if (pass >= 32) {
-      // Give up moving the folding vertices at all.
-      for (size_t i = 0; i < nv; ++i) {
-        if (bad[i]) field[i] = 0;
-      }
-      continue;
-    }
+    const int halving = pass - opts.untangle_passes;
+    res.fold_passes = halving + 1;
     for (size_t i = 0; i < nv; ++i) {
-      if (bad[i]) field[i] *= 0.5;
+      if (bad[i]) W[i] = halving < 12 ? V[i] + 0.5 * (W[i] - V[i]) : V[i];
     }
+    if (halving > 12) break;  // cannot happen: the hull itself has no folds
   }
 
   // Taubin smoothing (lambda|mu, no shrinkage) of the moved region's
@@ -505,17 +511,15 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
       const double out = (X[i] - V[i]).dot(N[i]);
       if (out > 0) X[i] -= out * N[i];
     }
-    // Keep the smoothing only where it inverts no face.
-    std::vector<char> bad(nv, 0);
-    for (size_t f = 0; f < F.size(); ++f) {
-      const Vec3 c = (X[F[f][1]] - X[F[f][0]]).cross(X[F[f][2]] - X[F[f][0]]);
-      const double l = c.norm();
-      if (l > 1e-12 && c.dot(fn0[f]) / l >= cos_turn) continue;
-      for (int k = 0; k < 3; ++k) bad[F[f][k]] = 1;
+    // Keep the smoothing only where it inverts no face: vertices of folded
+    // faces go back to their unsmoothed place, until the mix (which can fold
+    // faces of its own at the seams) has none; all back is W, which has none.
+    while (find_bad(X, &bad) > 0) {
+      for (size_t i = 0; i < nv; ++i) {
+        if (bad[i]) X[i] = W[i];
+      }
     }
-    for (size_t i = 0; i < nv; ++i) {
-      if (!bad[i]) W[i] = X[i];
-    }
+    W.swap(X);
   }
 
   res.mesh.faces = F;

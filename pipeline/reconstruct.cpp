@@ -456,6 +456,7 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
                   {"mean_displacement_mm", refined->mean_displacement_mm},
                   {"max_displacement_mm", refined->max_displacement_mm},
                   {"fold_passes", refined->fold_passes},
+                  {"untangle_passes", refined->untangle_passes},
                   {"refine_s", refined->seconds},
                   {"max_depth_mm", opts.photo.max_depth_mm},
                   {"image_scale", scale}});
