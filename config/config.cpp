@@ -134,6 +134,9 @@ const std::vector<Field<Config>>& Fields() {
         "first retry of a device that failed to open (real time); doubles per failure"),
       D(daemon.reopen_backoff_max, Range(10 * kMs, 3600 * kSec),
         "longest wait between retries of an unhealthy device; reset when it opens"),
+      D(daemon.health_probe_interval, Range(0, 3600 * kSec),
+        "read the turntable's status this often while no side runs, so health notices a lost "
+        "controller before a capture does (0 = off)"),
 
       F(capture.profile, OneOf(Profiles()),
         "paper (fixes sides 2, views_per_side 30, step_deg 30, interval 2s) | "

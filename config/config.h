@@ -24,6 +24,7 @@ struct DaemonConfig {
   double time_scale = 1.0;  // sim rig only: clock runs this many times faster than real time (>= 1)
   TimeNs reopen_backoff_min = 1 * kNsPerSec;   // first retry of a device that failed to open (real time)
   TimeNs reopen_backoff_max = 30 * kNsPerSec;  // retries double up to this; reset when the device opens
+  TimeNs health_probe_interval = 5 * kNsPerSec;  // turntable status read while no side runs (0 = off)
 
   bool operator==(const DaemonConfig&) const = default;
 };

@@ -101,7 +101,33 @@ auto CaptureService::OnLoop(F fn) -> decltype(fn()) {
 
 void CaptureService::Start() {
   OpenDevices();
+  if (config_.daemon.health_probe_interval > 0) {
+    loop_.AddRealTimer(MonotonicNs() + config_.daemon.health_probe_interval, [this] { ProbeDevices(); });
+  }
   NotifyStatus();
+}
+
+bool CaptureService::SideRunning() const {
+  return state_.Active() && state_.phase != cs::Phase::kArmed && state_.phase != cs::Phase::kAwaitingPose;
+}
+
+void CaptureService::ProbeDevices() {
+  DeviceHealth& h = health_["turntable"];
+  if (dev_.turntable && h.healthy && !SideRunning() && dev_.turntable->is_open()) {
+    Result<TurntableStatus> st = dev_.turntable->ReadStatus();
+    if (st) {
+      probe_failures_ = 0;
+      h.last_ok_utc_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(
+                             std::chrono::system_clock::now().time_since_epoch())
+                             .count();
+    } else if (++probe_failures_ > config_.capture.comm_retries || st.error().cls == ErrorClass::kDisconnected) {
+      probe_failures_ = 0;
+      MarkUnhealthy("turntable", st.error().cls, "turntable: " + st.error().ToString());
+      ScheduleReopen("turntable");
+      NotifyStatus();
+    }
+  }
+  loop_.AddRealTimer(MonotonicNs() + config_.daemon.health_probe_interval, [this] { ProbeDevices(); });
 }
 
 void CaptureService::OpenDevices() {
@@ -219,8 +245,8 @@ void CaptureService::ScheduleReopen(const std::string& name) {
     d.retry_timer = 0;
     d.next_retry_real = 0;
     if (d.healthy) return;
-    if (state_.Active()) {
-      // Never reopen a device under a running capture; try again later.
+    if (SideRunning()) {
+      // Never reopen a device under a running side; try again later.
       ScheduleReopen(name);
     } else {
       TryOpen(name);

@@ -118,6 +118,12 @@ class CaptureService final : public DaemonControl {
   /// Records the failure; logs it once per device and error class.
   void MarkUnhealthy(const std::string& name, ErrorClass cls, const std::string& message);
   void ScheduleReopen(const std::string& name);
+  /// Reads the turntable's status every daemon.health_probe_interval while no
+  /// side runs; comm_retries consecutive failures make it unhealthy.
+  void ProbeDevices();
+  /// True while a side is being shot (homing .. storing): devices are not
+  /// reopened or probed then.
+  bool SideRunning() const;
   /// kDeviceMissing/... naming the first unhealthy device of `names`, for refusing a capture.
   Status CheckDevicesHealthy(std::initializer_list<const char*> names) const;
   void NotifyStatus();
@@ -140,7 +146,8 @@ class CaptureService final : public DaemonControl {
   bool holding_ = false;
   TimeNs side_t0_ = 0;
   std::map<std::string, DeviceHealth> health_;
-  RateLimitedLog device_log_{"devices"};  // keys "device/class": one line per class until recovery
+  RateLimitedLog device_log_{"devices"};
+  int probe_failures_ = 0;  // consecutive failed turntable status reads of the idle probe  // keys "device/class": one line per class until recovery
   TimeNs started_real_ = 0;
   std::string last_status_;
   nlohmann::json calibration_;  // CheckRigCalibration() result; null = never checked
