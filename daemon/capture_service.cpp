@@ -140,17 +140,8 @@ Status CaptureService::OpenDevice(const std::string& name) {
   if (name == "camera") {
     if (!dev_.camera) return MakeError(ErrorClass::kInvalidConfig, "camera: none configured; check [camera]");
     if (dev_.camera->state() != Camera::State::kClosed) dev_.camera->Close();
-    CameraSettings cs;
-    cs.width = config_.camera.width;
-    cs.height = config_.camera.height;
-    cs.jpeg_quality = config_.camera.jpeg_quality;
-    cs.manual_exposure = config_.camera.exposure.manual;
-    cs.exposure_us = config_.camera.exposure.exposure_us;
-    cs.gain = config_.camera.exposure.gain;
-    cs.wb_red = config_.camera.exposure.wb_red;
-    cs.wb_blue = config_.camera.exposure.wb_blue;
     Status s = dev_.camera->Open();
-    if (s) s = dev_.camera->Configure(cs);
+    if (s) s = dev_.camera->Configure(CameraSettingsFor(config_));
     if (!s) dev_.camera->Close();
     return s;
   }
