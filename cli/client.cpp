@@ -257,6 +257,8 @@ void PrintStatus(const json& st, std::ostream& out) {
       if (dev.is_object()) {
         if (dev.contains("healthy") && dev["healthy"].is_boolean()) {
           text = dev["healthy"].get<bool>() ? "ok" : "UNHEALTHY";
+          if (!dev["healthy"].get<bool>() && HasText(dev, "state"))
+            text += " " + Clean(dev["state"].get<std::string>());
         } else {
           text = dev.contains("state") ? FieldText(dev, "state") : FieldText(dev, "status");
         }

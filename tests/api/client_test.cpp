@@ -175,6 +175,18 @@ TEST_F(ClientTest, UnreachableDaemonExits3) {
   EXPECT_TRUE(out_.str().empty());
 }
 
+TEST_F(ClientTest, StatusNamesTheStateOfAnUnhealthyDevice) {
+  fake_.status["devices"] = {{"turntable",
+                              {{"healthy", false},
+                               {"state", "timeout"},
+                               {"message", "turntable: no answer from Modbus unit 1"}}}};
+  ASSERT_EQ(Run({"status"}), kClientExitOk) << err_.str();
+  EXPECT_NE(
+      out_.str().find("turntable: UNHEALTHY timeout (turntable: no answer from Modbus unit 1)"),
+      std::string::npos)
+      << out_.str();
+}
+
 TEST_F(ClientTest, SelftestWithoutDaemonSaysHowToStartIt) {
   const std::string dead = "http://127.0.0.1:" + std::to_string(UnusedPort());
   EXPECT_EQ(RunBare({"--url", dead, "selftest"}), kClientExitUnreachable);
