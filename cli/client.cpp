@@ -257,6 +257,8 @@ void PrintStatus(const json& st, std::ostream& out) {
       if (dev.is_object()) {
         if (dev.contains("healthy") && dev["healthy"].is_boolean()) {
           text = dev["healthy"].get<bool>() ? "ok" : "UNHEALTHY";
+          if (!dev["healthy"].get<bool>() && HasText(dev, "state"))
+            text += " " + Clean(dev["state"].get<std::string>());
         } else {
           text = dev.contains("state") ? FieldText(dev, "state") : FieldText(dev, "status");
         }
@@ -279,6 +281,46 @@ void PrintStatus(const json& st, std::ostream& out) {
   }
   if (HasNumber(st, "uptime_s"))
     out << "uptime: " << Duration(st["uptime_s"].get<double>()) << "\n";
+}
+
+// `selftest`: one block per device from GET /api/v1/health; returns the
+// number of unhealthy devices.
+int PrintHealth(const json& h, std::ostream& out) {
+  int bad = 0, total = 0;
+  if (h.is_object() && h.contains("devices") && h["devices"].is_object()) {
+    for (const auto& [name, dev] : h["devices"].items()) {
+      ++total;
+      const bool ok = dev.is_object() && dev.value("healthy", false);
+      if (!ok) ++bad;
+      std::string line = Clean(name) + ": " + (ok ? "ok" : "FAIL " + FieldText(dev, "state"));
+      if (HasText(dev, "backend")) {
+        line += " [" + Clean(dev["backend"].get<std::string>());
+        if (HasText(dev, "id")) line += " " + Clean(dev["id"].get<std::string>());
+        line += "]";
+      }
+      out << line << "\n";
+      if (!ok) {
+        out << "    " << FieldText(dev, "message") << "\n";
+        std::string retry = "    failed attempts: " + FieldText(dev, "retries");
+        if (HasNumber(dev, "next_retry_in_s")) {
+          char b[32];
+          std::snprintf(b, sizeof b, "%.1f", dev["next_retry_in_s"].get<double>());
+          retry += std::string(", next retry in ") + b + " s";
+        }
+        retry +=
+            ", last ok: " + (HasText(dev, "last_ok_utc") ? FieldText(dev, "last_ok_utc") : "never");
+        out << retry << "\n";
+      }
+    }
+  }
+  if (total == 0) {
+    out << "no device health in the answer\n";
+    return 1;
+  }
+  out << (bad == 0 ? "all " + std::to_string(total) + " devices ok"
+                   : std::to_string(bad) + " of " + std::to_string(total) + " devices unhealthy")
+      << "\n";
+  return bad;
 }
 
 void PrintSamples(const json& answer, std::ostream& out) {
@@ -385,8 +427,8 @@ struct Command {
 }  // namespace
 
 bool IsClientCommand(const std::string& word) {
-  static const char* const kCommands[] = {"status", "arm",     "press", "abort",
-                                          "reset",  "samples", "show"};
+  static const char* const kCommands[] = {"status", "selftest", "arm",     "press",
+                                          "abort",  "reset",    "samples", "show"};
   return std::any_of(std::begin(kCommands), std::end(kCommands),
                      [&](const char* c) { return word == c; });
 }
@@ -394,6 +436,8 @@ bool IsClientCommand(const std::string& word) {
 void PrintClientUsage(std::ostream& out) {
   out << "daemon commands (talk to a running aggscand):\n"
          "  aggscan [--url URL] [--json] status     state, current sample, fault, devices\n"
+         "  aggscan [--url URL] [--json] selftest   each device's health and what to check\n"
+         "                                         (exit 0 all ok, 4 a device is unhealthy)\n"
          "  aggscan [--url URL] [--json] arm ID     arm a new sample (or resume one) named ID\n"
          "  aggscan [--url URL] [--json] press      same as pressing the start button\n"
          "  aggscan [--url URL] [--json] abort      abort the running capture\n"
@@ -405,7 +449,8 @@ void PrintClientUsage(std::ostream& out) {
       << kDefaultDaemonUrl
       << ")\n"
          "  --json      print the daemon's JSON answer unchanged\n"
-         "exit codes: 0 ok, 1 the daemon reported an error, 2 usage error, 3 daemon unreachable\n";
+         "exit codes: 0 ok, 1 the daemon reported an error, 2 usage error, 3 daemon unreachable,\n"
+         "            4 selftest: a device is unhealthy\n";
 }
 
 int RunClientCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {
@@ -466,6 +511,7 @@ int RunClientCommand(const std::vector<std::string>& args, std::ostream& out, st
   if (name == "abort") cmd = {name, "POST", "/abort", "{}"};
   if (name == "reset") cmd = {name, "POST", "/reset", "{}"};
   if (name == "samples") cmd = {name, "GET", "/samples", {}};
+  if (name == "selftest") cmd = {name, "GET", "/health", {}};
   if (name == "show") cmd = {name, "GET", "/samples/" + id, {}};
 
   httplib::Client client(target->origin);
@@ -478,6 +524,10 @@ int RunClientCommand(const std::vector<std::string>& args, std::ostream& out, st
       cmd.method == "GET" ? client.Get(path) : client.Post(path, cmd.body, "application/json");
   if (!res) {
     err << "aggscan: " << TransportError(*target, res.error()) << "\n";
+    if (name == "selftest") {
+      err << "aggscan: selftest asks the running daemon; start it (systemctl start aggscand, or "
+             "aggscand --config FILE) or point at it with --url URL / $AGGSCAN_URL\n";
+    }
     return kClientExitUnreachable;
   }
 
@@ -491,6 +541,13 @@ int RunClientCommand(const std::vector<std::string>& args, std::ostream& out, st
   if (json_out) {
     out << res->body;
     if (res->body.empty() || res->body.back() != '\n') out << "\n";
+  }
+  // The health endpoint answers 503 with the full report when a device is
+  // unhealthy: that is a result, not a failed request.
+  if (name == "selftest" && answer.is_object() && answer.contains("devices")) {
+    const bool healthy = ok && answer.value("status", "") == "ok";
+    if (!json_out) PrintHealth(answer, out);
+    return healthy ? kClientExitOk : kClientExitUnhealthy;
   }
   if (!ok) {
     std::string message = "HTTP " + std::to_string(res->status);

@@ -1,7 +1,8 @@
 // The `aggscan` subcommands that talk to a running aggscand over its HTTP API
 // (daemon/http_api.h):
 //
-//   aggscan [--url URL] [--json] status | arm ID | press | abort | reset | samples | show ID
+//   aggscan [--url URL] [--json] status | selftest | arm ID | press | abort | reset | samples |
+//   show ID
 //
 // The daemon URL comes from --url, else $AGGSCAN_URL, else kDefaultDaemonUrl.
 // --json prints the daemon's JSON answer unchanged (errors too) for scripts.
@@ -20,6 +21,8 @@ inline constexpr int kClientExitOk = 0;
 inline constexpr int kClientExitDaemonError = 1;  // the daemon answered with an error
 inline constexpr int kClientExitUsage = 2;        // bad command line
 inline constexpr int kClientExitUnreachable = 3;  // no answer from the daemon
+inline constexpr int kClientExitUnhealthy =
+    4;  // selftest: the daemon answered, a device is unhealthy
 
 /// True for the subcommands RunClientCommand handles ("status", "arm", ...).
 bool IsClientCommand(const std::string& word);

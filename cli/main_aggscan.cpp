@@ -10,6 +10,7 @@
 #include "cli/client.h"
 #include "cli/morph_command.h"
 #include "cli/reconstruct_command.h"
+#include "cli/selftest_command.h"
 #include "cli/sim_capture.h"
 #include "cli/validate_command.h"
 #include "pipeline/morph2d_cli.h"
@@ -21,6 +22,9 @@ void Usage(std::ostream& o) {
        "Daemon commands (talk to aggscand over its HTTP API):\n";
   aggscan::PrintClientUsage(o);
   o << "\nOffline commands:\n"
+       "  aggscan selftest --config FILE [--json]\n"
+       "      open each device of FILE, exercise it briefly (camera: open+configure, turntable:\n"
+       "      read status, button: open), report and close; stop aggscand first (it holds them)\n"
        "  aggscan calibrate board --out FILE.png|FILE.pgm [--dpi N] [--margin-mm M] [--config FILE]\n"
        "      the printable ChArUco board of [calibration] (default 7x5 squares of 30 mm)\n"
        "  aggscan calibrate aruco --out FILE.pgm|FILE.png --config FILE [--dpi N]\n"
@@ -119,6 +123,9 @@ int main(int argc, char** argv) {
   if (cmd.empty() || cmd == "help" || args[0] == "-h" || args[0] == "--help") {
     Usage(cmd.empty() && args.empty() ? std::cerr : std::cout);
     return args.empty() ? 2 : 0;
+  }
+  if (cmd == "selftest" && aggscan::IsOfflineSelftest(args)) {
+    return aggscan::RunOfflineSelftest(args, std::cout, std::cerr);
   }
   if (aggscan::IsClientCommand(cmd)) return aggscan::RunClientCommand(args, std::cout, std::cerr);
   if (cmd == "morph2d") {

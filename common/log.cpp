@@ -82,4 +82,17 @@ void RateLimitedLog::Clear(const std::string& key, const std::string& recovered_
   suppressed_.erase(it);
 }
 
+void RateLimitedLog::ClearPrefix(const std::string& prefix, const std::string& recovered_text) {
+  std::lock_guard<std::mutex> lock(mu_);
+  long total = 0;
+  bool any = false;
+  for (auto it = suppressed_.lower_bound(prefix); it != suppressed_.end() && it->first.rfind(prefix, 0) == 0;) {
+    any = true;
+    total += it->second;
+    it = suppressed_.erase(it);
+  }
+  if (!any) return;
+  LogLine(LogLevel::kNotice, category_, {}, recovered_text + " (" + std::to_string(total) + " repeats suppressed)");
+}
+
 }  // namespace aggscan

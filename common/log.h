@@ -41,6 +41,9 @@ class RateLimitedLog {
   bool Error(const std::string& key, const std::string& text);
   /// Marks key as recovered; prints how many repeats were suppressed.
   void Clear(const std::string& key, const std::string& recovered_text);
+  /// Clears every key starting with `prefix` (a device's error classes) and,
+  /// if any was logged, prints `recovered_text` once with the total suppressed.
+  void ClearPrefix(const std::string& prefix, const std::string& recovered_text);
 
  private:
   const char* category_;

@@ -130,6 +130,13 @@ const std::vector<Field<Config>>& Fields() {
       F(daemon.log_level, OneOf(LogLevels()), "error | warning | notice | info | debug"),
       F(daemon.time_scale, Range(1, 1000),
         "sim rig only: clock runs this many times faster than real time (1..1000)"),
+      D(daemon.reopen_backoff_min, Range(10 * kMs, 600 * kSec),
+        "first retry of a device that failed to open (real time); doubles per failure"),
+      D(daemon.reopen_backoff_max, Range(10 * kMs, 3600 * kSec),
+        "longest wait between retries of an unhealthy device; reset when it opens"),
+      D(daemon.health_probe_interval, Range(0, 3600 * kSec),
+        "read the turntable's status this often while no side runs, so health notices a lost "
+        "controller before a capture does (0 = off)"),
 
       F(capture.profile, OneOf(Profiles()),
         "paper (fixes sides 2, views_per_side 30, step_deg 30, interval 2s) | "
@@ -736,6 +743,11 @@ class Validator {
 
  private:
   void CrossField(const Config& c) {
+    if (c.daemon.reopen_backoff_max < c.daemon.reopen_backoff_min) {
+      Add("daemon.reopen_backoff_max", FormatDuration(c.daemon.reopen_backoff_max) +
+                                           " is shorter than daemon.reopen_backoff_min (" +
+                                           FormatDuration(c.daemon.reopen_backoff_min) + ")");
+    }
     const CaptureConfig& cap = c.capture;
     if (cap.profile == "paper") {
       // Only reachable for a struct that skipped ApplyProfile; files are fixed up.

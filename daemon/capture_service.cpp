@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <chrono>
 #include <future>
 #include <sstream>
 
@@ -49,9 +50,9 @@ CaptureService::CaptureService(EventLoop& loop, Config config, std::string effec
       store_(store),
       queue_(queue) {
   started_real_ = MonotonicNs();
-  health_["camera"] = {false, "not opened yet", ErrorClass::kDeviceMissing};
-  health_["turntable"] = {false, "not opened yet", ErrorClass::kDeviceMissing};
-  health_["button"] = {false, "not opened yet", ErrorClass::kDeviceMissing};
+  for (const char* name : {"camera", "turntable", "button"}) {
+    health_[name].message = std::string(name) + ": not opened yet";
+  }
 }
 
 CaptureService::~CaptureService() {
@@ -100,88 +101,156 @@ auto CaptureService::OnLoop(F fn) -> decltype(fn()) {
 
 void CaptureService::Start() {
   OpenDevices();
+  if (config_.daemon.health_probe_interval > 0) {
+    loop_.AddRealTimer(MonotonicNs() + config_.daemon.health_probe_interval, [this] { ProbeDevices(); });
+  }
   NotifyStatus();
 }
 
+bool CaptureService::SideRunning() const {
+  return state_.Active() && state_.phase != cs::Phase::kArmed && state_.phase != cs::Phase::kAwaitingPose;
+}
+
+void CaptureService::ProbeDevices() {
+  DeviceHealth& h = health_["turntable"];
+  if (dev_.turntable && h.healthy && !SideRunning() && dev_.turntable->is_open()) {
+    Result<TurntableStatus> st = dev_.turntable->ReadStatus();
+    if (st) {
+      probe_failures_ = 0;
+      h.last_ok_utc_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(
+                             std::chrono::system_clock::now().time_since_epoch())
+                             .count();
+    } else if (++probe_failures_ > config_.capture.comm_retries || st.error().cls == ErrorClass::kDisconnected) {
+      probe_failures_ = 0;
+      MarkUnhealthy("turntable", st.error().cls, "turntable: " + st.error().ToString());
+      ScheduleReopen("turntable");
+      NotifyStatus();
+    }
+  }
+  loop_.AddRealTimer(MonotonicNs() + config_.daemon.health_probe_interval, [this] { ProbeDevices(); });
+}
+
 void CaptureService::OpenDevices() {
-  static RateLimitedLog rl("devices");
-  bool all_ok = true;
-  if (dev_.camera && !health_["camera"].healthy) {
-    if (dev_.camera->state() != Camera::State::kClosed) dev_.camera->Close();
-    CameraSettings cs;
-    cs.width = config_.camera.width;
-    cs.height = config_.camera.height;
-    cs.jpeg_quality = config_.camera.jpeg_quality;
-    cs.manual_exposure = config_.camera.exposure.manual;
-    cs.exposure_us = config_.camera.exposure.exposure_us;
-    cs.gain = config_.camera.exposure.gain;
-    cs.wb_red = config_.camera.exposure.wb_red;
-    cs.wb_blue = config_.camera.exposure.wb_blue;
-    Status s = dev_.camera->Open();
-    if (s) s = dev_.camera->Configure(cs);
-    if (s) {
-      health_["camera"] = {true, "ok", ErrorClass::kInternal};
-      rl.Clear("camera", "camera: available again");
-    } else {
-      health_["camera"] = {false, "camera: " + s.error().ToString(), s.error().cls};
-      rl.Error("camera", "camera: " + s.error().ToString());
-      dev_.camera->Close();
-      all_ok = false;
-    }
-  }
-  if (dev_.turntable && !health_["turntable"].healthy) {
-    dev_.turntable->Close();
-    Status s = dev_.turntable->Open();
-    if (s) {
-      health_["turntable"] = {true, "ok", ErrorClass::kInternal};
-      rl.Clear("turntable", "turntable: available again");
-    } else {
-      health_["turntable"] = {false, "turntable: " + s.error().ToString(), s.error().cls};
-      rl.Error("turntable", "turntable: " + s.error().ToString());
-      all_ok = false;
-    }
-  }
-  if (dev_.button && !health_["button"].healthy) {
-    Status s = dev_.button->Start([this](const ButtonPress& p) {
-      const std::string src = p.source;
-      loop_.Post([this, src] {
-        LogLine(LogLevel::kInfo, "capture", state_.sample_id, "start button pressed (" + src + ")");
-        Dispatch(cs::ButtonPressed{});
-      });
-    });
-    if (s) {
-      health_["button"] = {true, "ok", ErrorClass::kInternal};
-    } else {
-      health_["button"] = {false, "button: " + s.error().ToString(), s.error().cls};
-      rl.Error("button", "button: " + s.error().ToString());
-      all_ok = false;
-    }
-  }
-  if (all_ok) {
-    reopen_attempt_ = 0;
-  } else {
-    ScheduleReopen();
+  for (const char* name : {"camera", "turntable", "button"}) {
+    if (!health_[name].healthy) TryOpen(name);
   }
 }
 
-void CaptureService::ScheduleReopen() {
-  if (reopen_scheduled_) return;
-  reopen_scheduled_ = true;
-  // Backoff in real time: 1, 2, 4 ... 30 s.
-  const TimeNs delay = std::min<TimeNs>(30 * kNsPerSec, kNsPerSec << std::min(reopen_attempt_, 5));
-  ++reopen_attempt_;
-  loop_.AddRealTimer(MonotonicNs() + delay, [this] {
-    reopen_scheduled_ = false;
-    if (!state_.Active()) OpenDevices();
-    else ScheduleReopen();
+Status CaptureService::OpenDevice(const std::string& name) {
+  if (name == "camera") {
+    if (!dev_.camera) return MakeError(ErrorClass::kInvalidConfig, "camera: none configured; check [camera]");
+    if (dev_.camera->state() != Camera::State::kClosed) dev_.camera->Close();
+    Status s = dev_.camera->Open();
+    if (s) s = dev_.camera->Configure(CameraSettingsFor(config_));
+    if (!s) dev_.camera->Close();
+    return s;
+  }
+  if (name == "turntable") {
+    if (!dev_.turntable) return MakeError(ErrorClass::kInvalidConfig, "turntable: none configured; check [turntable]");
+    dev_.turntable->Close();
+    return dev_.turntable->Open();
+  }
+  if (!dev_.button) return MakeError(ErrorClass::kInvalidConfig, "button: none configured; check [button]");
+  return dev_.button->Start([this](const ButtonPress& p) {
+    const std::string src = p.source;
+    loop_.Post([this, src] {
+      LogLine(LogLevel::kInfo, "capture", state_.sample_id, "start button pressed (" + src + ")");
+      // A side must not start with a device it needs unhealthy: it would fault
+      // at once, or worse, half-way. The API's press is refused the same way.
+      if (state_.phase == cs::Phase::kArmed || state_.phase == cs::Phase::kAwaitingPose) {
+        if (Status ok = CheckDevicesHealthy({"camera", "turntable"}); !ok) {
+          LogLine(LogLevel::kWarning, "capture", state_.sample_id, ok.error().message);
+          return;
+        }
+      }
+      Dispatch(cs::ButtonPressed{});
+    });
+  });
+}
+
+void CaptureService::TryOpen(const std::string& name) {
+  DeviceHealth& h = health_[name];
+  if (h.retry_timer != 0) {
+    loop_.CancelTimer(h.retry_timer);
+    h.retry_timer = 0;
+    h.next_retry_real = 0;
+  }
+  Status s = OpenDevice(name);
+  h.tried = true;
+  if (s) {
+    MarkHealthy(name);
+    return;
+  }
+  MarkUnhealthy(name, s.error().cls, name + ": " + s.error().ToString());
+  ++h.retries;
+  ScheduleReopen(name);
+}
+
+void CaptureService::MarkHealthy(const std::string& name) {
+  DeviceHealth& h = health_[name];
+  const int64_t now = std::chrono::duration_cast<std::chrono::nanoseconds>(
+                          std::chrono::system_clock::now().time_since_epoch())
+                          .count();
+  if (!h.healthy) {
+    h.since_utc_ns = now;
+    device_log_.ClearPrefix(name + "/", name + ": ok again after " + std::to_string(h.retries) +
+                                            " failed open attempt" + (h.retries == 1 ? "" : "s"));
+  }
+  h.healthy = true;
+  h.message = "ok";
+  h.last_ok_utc_ns = now;
+  h.retries = 0;
+  if (h.retry_timer != 0) loop_.CancelTimer(h.retry_timer);
+  h.retry_timer = 0;
+  h.next_retry_real = 0;
+}
+
+void CaptureService::MarkUnhealthy(const std::string& name, ErrorClass cls, const std::string& message) {
+  DeviceHealth& h = health_[name];
+  if (h.healthy || h.cls != cls || h.since_utc_ns == 0) {
+    h.since_utc_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(
+                         std::chrono::system_clock::now().time_since_epoch())
+                         .count();
+  }
+  h.healthy = false;
+  h.cls = cls;
+  h.message = message;
+  // Once per device and class: a missing turntable retried every 30 s for a
+  // night must not fill the journal; a change of class (missing -> timeout)
+  // is news and is logged.
+  device_log_.Error(name + "/" + ErrorClassName(cls), message + " [" + ErrorClassName(cls) + "]");
+}
+
+void CaptureService::ScheduleReopen(const std::string& name) {
+  DeviceHealth& h = health_[name];
+  if (h.retry_timer != 0) return;
+  // Backoff in real time, doubling from reopen_backoff_min to reopen_backoff_max.
+  const TimeNs lo = config_.daemon.reopen_backoff_min;
+  const TimeNs hi = std::max(lo, config_.daemon.reopen_backoff_max);
+  TimeNs delay = lo;
+  for (int i = 1; i < h.retries && delay < hi; ++i) delay *= 2;
+  delay = std::min(delay, hi);
+  h.next_retry_real = MonotonicNs() + delay;
+  h.retry_timer = loop_.AddRealTimer(h.next_retry_real, [this, name] {
+    DeviceHealth& d = health_[name];
+    d.retry_timer = 0;
+    d.next_retry_real = 0;
+    if (d.healthy) return;
+    if (SideRunning()) {
+      // Never reopen a device under a running side; try again later.
+      ScheduleReopen(name);
+    } else {
+      TryOpen(name);
+    }
     NotifyStatus();
   });
 }
 
-Status CaptureService::CheckDevicesHealthy() const {
-  for (const auto& [name, h] : health_) {
-    if (!h.healthy) {
-      return MakeError(h.cls, "cannot start a capture: " + h.message);
+Status CaptureService::CheckDevicesHealthy(std::initializer_list<const char*> names) const {
+  for (const char* name : names) {
+    auto it = health_.find(name);
+    if (it != health_.end() && !it->second.healthy) {
+      return MakeError(it->second.cls, "cannot start a capture: " + it->second.message);
     }
   }
   return OkStatus();
@@ -367,6 +436,15 @@ void CaptureService::Execute(const cs::Effect& eff) {
             return;
           }
           ++views_captured_;
+          {
+            // A stored view proves both devices work: the health API's last_ok.
+            const int64_t now_utc = std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                        std::chrono::system_clock::now().time_since_epoch())
+                                        .count();
+            for (const char* name : {"camera", "turntable"}) {
+              if (health_[name].healthy) health_[name].last_ok_utc_ns = now_utc;
+            }
+          }
           if (overrun) {
             ++overruns_;
             LogLine(LogLevel::kWarning, "capture", id,
@@ -428,8 +506,12 @@ void CaptureService::Execute(const cs::Effect& eff) {
           if (e.cls == ErrorClass::kDisconnected || e.cls == ErrorClass::kDeviceMissing ||
               e.cls == ErrorClass::kTimeout) {
             // The device that failed is re-opened on reset.
-            if (e.message.rfind("turntable", 0) == 0) health_["turntable"] = {false, e.message, e.cls};
-            if (e.message.rfind("camera", 0) == 0) health_["camera"] = {false, e.message, e.cls};
+            // Retried in the background too, so health shows when it is back.
+            for (const char* name : {"turntable", "camera"}) {
+              if (e.message.rfind(name, 0) != 0) continue;
+              MarkUnhealthy(name, e.cls, e.message);
+              ScheduleReopen(name);
+            }
           }
         } else if constexpr (std::is_same_v<T, cs::ClearFault>) {
           LogLine(LogLevel::kNotice, "capture", id, "fault cleared");
@@ -516,10 +598,70 @@ void CaptureService::NotifyStatus() {
   }
 }
 
+namespace {
+// "ok", the error class name ("device_missing", "timeout", ...), or "opening"
+// before the first attempt.
+std::string HealthState(const DeviceHealth& h) {
+  if (h.healthy) return "ok";
+  if (!h.tried) return "opening";
+  return ErrorClassName(h.cls);
+}
+}  // namespace
+
+json CaptureService::HealthOnLoop() const {
+  json devices = json::object();
+  bool all_ok = true;
+  const TimeNs now_real = MonotonicNs();
+  const int64_t now_utc = std::chrono::duration_cast<std::chrono::nanoseconds>(
+                              std::chrono::system_clock::now().time_since_epoch())
+                              .count();
+  for (const auto& [name, h] : health_) {
+    all_ok = all_ok && h.healthy;
+    json d = {{"state", HealthState(h)},
+              {"healthy", h.healthy},
+              {"message", h.message},
+              {"since_utc", h.since_utc_ns ? json(FormatUtc(h.since_utc_ns)) : json(nullptr)},
+              {"last_ok_utc", h.last_ok_utc_ns ? json(FormatUtc(h.last_ok_utc_ns)) : json(nullptr)},
+              {"retries", h.retries},
+              {"next_retry_utc", nullptr},
+              {"next_retry_in_s", nullptr}};
+    if (h.next_retry_real != 0) {
+      const TimeNs in = std::max<TimeNs>(0, h.next_retry_real - now_real);
+      d["next_retry_utc"] = FormatUtc(now_utc + in);
+      d["next_retry_in_s"] = static_cast<double>(in) / 1e9;
+    }
+    if (name == "camera" && dev_.camera) {
+      const CameraInfo info = dev_.camera->Info();
+      d["backend"] = info.backend;
+      d["id"] = info.id;
+    } else if (name == "turntable" && dev_.turntable) {
+      const TurntableInfo info = dev_.turntable->Info();
+      d["backend"] = info.backend;
+      d["id"] = info.id;
+    } else if (name == "button" && dev_.button) {
+      d["backend"] = config_.button.backend;
+      d["id"] = dev_.button->Describe();
+    }
+    devices[name] = std::move(d);
+  }
+  json fault = nullptr;
+  if (state_.phase == cs::Phase::kFaulted) {
+    fault = {{"class", ErrorClassName(state_.fault_class)}, {"message", state_.fault_message}};
+  }
+  return {{"status", all_ok ? "ok" : "unhealthy"},
+          {"state", cs::PhaseName(state_.phase)},
+          {"fault", fault},
+          {"devices", devices},
+          {"checked_utc", FormatUtc(now_utc)},
+          {"reopen_backoff_s",
+           {{"min", static_cast<double>(config_.daemon.reopen_backoff_min) / 1e9},
+            {"max", static_cast<double>(config_.daemon.reopen_backoff_max) / 1e9}}}};
+}
+
 json CaptureService::StatusOnLoop() const {
   json devices = json::object();
   for (const auto& [name, h] : health_) {
-    devices[name] = {{"healthy", h.healthy}, {"message", h.message}};
+    devices[name] = {{"healthy", h.healthy}, {"state", HealthState(h)}, {"message", h.message}};
   }
   if (dev_.camera) devices["camera"]["backend"] = dev_.camera->Info().backend;
   if (dev_.turntable) devices["turntable"]["backend"] = dev_.turntable->Info().backend;
@@ -560,7 +702,7 @@ Result<json> CaptureService::ArmOnLoop(const std::string& sample_id) {
                      std::string("cannot arm while ") + cs::PhaseName(state_.phase) +
                          (state_.phase == cs::Phase::kFaulted ? ": reset the fault first" : ": abort the current sample first"));
   }
-  Status healthy = CheckDevicesHealthy();
+  Status healthy = CheckDevicesHealthy({"camera", "turntable", "button"});
   if (!healthy) return healthy.error();
   // The store copies the calibration into the sample: show what it copies.
   if (!calibration_.is_null()) RefreshCalibration();
@@ -611,6 +753,10 @@ json CaptureService::GetStatus() {
   return OnLoop([this] { return StatusOnLoop(); });
 }
 
+json CaptureService::GetHealth() {
+  return OnLoop([this] { return HealthOnLoop(); });
+}
+
 Result<json> CaptureService::Arm(const std::string& sample_id) {
   return OnLoop([this, sample_id] { return ArmOnLoop(sample_id); });
 }
@@ -623,8 +769,9 @@ Result<json> CaptureService::PressOnLoop(const std::string& source) {
                          (state_.phase == cs::Phase::kIdle ? ": arm a sample first" : ""));
   }
   if (!dev_.button || !health_["button"].healthy) {
-    return MakeError(ErrorClass::kDeviceMissing, "button input is not available");
+    return MakeError(ErrorClass::kDeviceMissing, "button input is not available: " + health_["button"].message);
   }
+  if (Status ok = CheckDevicesHealthy({"camera", "turntable"}); !ok) return ok.error();
   dev_.button->InjectPress(source);
   json out = StatusOnLoop();
   out["pressed"] = true;

@@ -7,11 +7,13 @@
 
 #include <deque>
 #include <functional>
+#include <initializer_list>
 #include <map>
 #include <memory>
 #include <optional>
 #include <string>
 
+#include "common/log.h"
 #include "config/config.h"
 #include "daemon/control.h"
 #include "daemon/event_loop.h"
@@ -22,11 +24,17 @@
 
 namespace aggscan {
 
-/// Health of one device, as shown by the status API.
+/// Health of one device, as shown by GET /api/v1/status and /api/v1/health.
 struct DeviceHealth {
   bool healthy = false;
-  std::string message;  // actionable when unhealthy
-  ErrorClass cls = ErrorClass::kDeviceMissing;
+  std::string message;  // "ok", or what is wrong with the device, its link and what to check
+  ErrorClass cls = ErrorClass::kDeviceMissing;  // meaningful when unhealthy
+  bool tried = false;        // an open was attempted (false: "not opened yet")
+  int64_t since_utc_ns = 0;  // real wall time the current state (ok or this class) began
+  int64_t last_ok_utc_ns = 0;  // real wall time it last opened or worked; 0 = never
+  int retries = 0;           // failed open attempts since it was last ok
+  TimeNs next_retry_real = 0;  // MonotonicNs() of the next open attempt; 0 = none scheduled
+  uint64_t retry_timer = 0;    // EventLoop timer of that attempt; 0 = none
 };
 
 class CaptureService final : public DaemonControl {
@@ -49,6 +57,7 @@ class CaptureService final : public DaemonControl {
 
   // DaemonControl (any thread).
   nlohmann::json GetStatus() override;
+  nlohmann::json GetHealth() override;
   Result<nlohmann::json> Arm(const std::string& sample_id) override;
   Result<nlohmann::json> Press(const std::string& source) override;
   Result<nlohmann::json> Abort() override;
@@ -64,6 +73,9 @@ class CaptureService final : public DaemonControl {
   Result<nlohmann::json> AbortOnLoop();
   Result<nlohmann::json> ResetOnLoop();
   nlohmann::json StatusOnLoop() const;
+  /// Each device's health (state, message, last ok, retries, next retry) and
+  /// "status": "ok" when every device is healthy, else "unhealthy".
+  nlohmann::json HealthOnLoop() const;
   const capture::State& state() const { return state_; }
   std::string StatusLine() const;
   /// Loop thread (or before the loop runs): checks state_dir/calibration.json
@@ -96,9 +108,24 @@ class CaptureService final : public DaemonControl {
   void Execute(const capture::Effect& eff);
   void PollMotion(uint64_t epoch);
   void Fault(ErrorClass cls, const std::string& message);
+  /// Opens every device that is not healthy (the healthy ones are left alone).
   void OpenDevices();
-  void ScheduleReopen();
-  Status CheckDevicesHealthy() const;
+  /// One open attempt of one device ("camera", "turntable", "button"); on
+  /// failure the next attempt is scheduled with exponential backoff.
+  void TryOpen(const std::string& name);
+  Status OpenDevice(const std::string& name);
+  void MarkHealthy(const std::string& name);
+  /// Records the failure; logs it once per device and error class.
+  void MarkUnhealthy(const std::string& name, ErrorClass cls, const std::string& message);
+  void ScheduleReopen(const std::string& name);
+  /// Reads the turntable's status every daemon.health_probe_interval while no
+  /// side runs; comm_retries consecutive failures make it unhealthy.
+  void ProbeDevices();
+  /// True while a side is being shot (homing .. storing): devices are not
+  /// reopened or probed then.
+  bool SideRunning() const;
+  /// kDeviceMissing/... naming the first unhealthy device of `names`, for refusing a capture.
+  Status CheckDevicesHealthy(std::initializer_list<const char*> names) const;
   void NotifyStatus();
   uint64_t AddEpochTimer(TimeNs at, std::function<void()> fn);
 
@@ -119,8 +146,8 @@ class CaptureService final : public DaemonControl {
   bool holding_ = false;
   TimeNs side_t0_ = 0;
   std::map<std::string, DeviceHealth> health_;
-  int reopen_attempt_ = 0;
-  bool reopen_scheduled_ = false;
+  RateLimitedLog device_log_{"devices"};
+  int probe_failures_ = 0;  // consecutive failed turntable status reads of the idle probe  // keys "device/class": one line per class until recovery
   TimeNs started_real_ = 0;
   std::string last_status_;
   nlohmann::json calibration_;  // CheckRigCalibration() result; null = never checked

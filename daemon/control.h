@@ -26,6 +26,10 @@ class DaemonControl {
   ///  "sides", "fault": {"class","message"} | null, "status_line", "devices": {...},
   ///  "queue_depth", "uptime_s"}
   virtual nlohmann::json GetStatus() = 0;
+  /// {"status": "ok|unhealthy", "state", "fault", "devices": {"camera"|"turntable"|"button":
+  ///  {"backend", "id", "state": "ok|opening|<ErrorClassName>", "healthy", "message", "since_utc",
+  ///   "last_ok_utc", "retries", "next_retry_utc", "next_retry_in_s"}}, "checked_utc"}
+  virtual nlohmann::json GetHealth() = 0;
   /// Arms a new sample (or resumes an unfinished one with that id).
   virtual Result<nlohmann::json> Arm(const std::string& sample_id) = 0;
   /// Same as pressing the physical start button. `source` e.g. "api".

@@ -78,12 +78,13 @@ std::string Printable(std::string_view s, size_t max_len = 200) {
   return out;
 }
 
-enum class Endpoint { kNone, kStatus, kSamples, kSample, kSampleFile, kButton, kAbort, kReset, kMetrics };
+enum class Endpoint { kNone, kStatus, kHealth, kSamples, kSample, kSampleFile, kButton, kAbort, kReset, kMetrics };
 
 // Methods each endpoint accepts (HEAD is answered wherever GET is).
 const char* AllowedMethods(Endpoint ep) {
   switch (ep) {
     case Endpoint::kStatus:
+    case Endpoint::kHealth:
     case Endpoint::kSample:
     case Endpoint::kSampleFile:
     case Endpoint::kMetrics:
@@ -117,6 +118,7 @@ bool MethodAllowed(Endpoint ep, const std::string& method) {
 // that ("results" or a mesh file name).
 Endpoint Match(const std::string& path, std::string* id, std::string* file) {
   if (path == "/api/v1/status") return Endpoint::kStatus;
+  if (path == "/api/v1/health") return Endpoint::kHealth;
   if (path == "/api/v1/samples") return Endpoint::kSamples;
   if (path == "/api/v1/button") return Endpoint::kButton;
   if (path == "/api/v1/abort") return Endpoint::kAbort;
@@ -292,6 +294,15 @@ struct HttpApi::Impl {
       case Endpoint::kStatus:
         SetJson(res, 200, control.GetStatus());
         return;
+      case Endpoint::kHealth: {
+        // 200 only when every device is healthy, else 503 with the same body:
+        // a monitor or `curl -f` needs only the code, an operator reads the
+        // body (which device, what to check, when the next retry is).
+        const json h = control.GetHealth();
+        const bool ok = h.is_object() && h.value("status", "") == "ok";
+        SetJson(res, ok ? 200 : 503, h);
+        return;
+      }
       case Endpoint::kSamples:
         if (get) {
           Reply(res, control.ListSamples());

@@ -4,6 +4,7 @@
 // threads.
 //
 //   GET  /api/v1/status          → DaemonControl::GetStatus()
+//   GET  /api/v1/health          → GetHealth(): 200 when every device is ok, else 503 (same body)
 //   POST /api/v1/samples         {"id": "..."} → Arm(id)
 //   GET  /api/v1/samples         → ListSamples()
 //   GET  /api/v1/samples/{id}    → GetSample(id)

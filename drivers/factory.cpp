@@ -143,4 +143,17 @@ Result<RigDevices> CreateRig(const Config& config, Clock& clock) {
   return rig;
 }
 
+CameraSettings CameraSettingsFor(const Config& config) {
+  CameraSettings cs;
+  cs.width = config.camera.width;
+  cs.height = config.camera.height;
+  cs.jpeg_quality = config.camera.jpeg_quality;
+  cs.manual_exposure = config.camera.exposure.manual;
+  cs.exposure_us = config.camera.exposure.exposure_us;
+  cs.gain = config.camera.exposure.gain;
+  cs.wb_red = config.camera.exposure.wb_red;
+  cs.wb_blue = config.camera.exposure.wb_blue;
+  return cs;
+}
+
 }  // namespace aggscan

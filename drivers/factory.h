@@ -27,4 +27,8 @@ struct RigDevices {
 /// names are a kInvalidConfig error listing the known ones.
 Result<RigDevices> CreateRig(const Config& config, Clock& clock);
 
+/// The camera settings of [camera] (size, JPEG quality, locked exposure, gain
+/// and white balance), as the daemon configures the camera at open.
+CameraSettings CameraSettingsFor(const Config& config);
+
 }  // namespace aggscan

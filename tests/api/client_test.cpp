@@ -175,6 +175,28 @@ TEST_F(ClientTest, UnreachableDaemonExits3) {
   EXPECT_TRUE(out_.str().empty());
 }
 
+TEST_F(ClientTest, StatusNamesTheStateOfAnUnhealthyDevice) {
+  fake_.status["devices"] = {{"turntable",
+                              {{"healthy", false},
+                               {"state", "timeout"},
+                               {"message", "turntable: no answer from Modbus unit 1"}}}};
+  ASSERT_EQ(Run({"status"}), kClientExitOk) << err_.str();
+  EXPECT_NE(
+      out_.str().find("turntable: UNHEALTHY timeout (turntable: no answer from Modbus unit 1)"),
+      std::string::npos)
+      << out_.str();
+}
+
+TEST_F(ClientTest, SelftestWithoutDaemonSaysHowToStartIt) {
+  const std::string dead = "http://127.0.0.1:" + std::to_string(UnusedPort());
+  EXPECT_EQ(RunBare({"--url", dead, "selftest"}), kClientExitUnreachable);
+  EXPECT_NE(err_.str().find("cannot reach aggscand at " + dead + ": connection refused"),
+            std::string::npos)
+      << err_.str();
+  EXPECT_NE(err_.str().find("start it (systemctl start aggscand"), std::string::npos) << err_.str();
+  EXPECT_TRUE(out_.str().empty());
+}
+
 TEST_F(ClientTest, EnvironmentUrlHonouredAndFlagWins) {
   ::setenv("AGGSCAN_URL", url_.c_str(), 1);
   EXPECT_EQ(RunBare({"status"}), kClientExitOk) << err_.str();
@@ -201,6 +223,35 @@ TEST(ClientCommands, IsClientCommandAndUsage) {
        {"status", "arm ID", "press", "abort", "reset", "samples", "show ID", "--url", "--json"}) {
     EXPECT_NE(usage.str().find(w), std::string::npos) << w;
   }
+}
+
+TEST_F(ClientTest, SelftestExitCodeFollowsDeviceHealth) {
+  ASSERT_EQ(Run({"selftest"}), kClientExitOk) << err_.str();
+  EXPECT_NE(out_.str().find("camera: ok"), std::string::npos) << out_.str();
+  EXPECT_NE(out_.str().find("all 1 devices ok"), std::string::npos) << out_.str();
+  fake_.health = {
+      {"status", "unhealthy"},
+      {"devices",
+       {{"camera", {{"state", "ok"}, {"healthy", true}, {"message", "ok"}}},
+        {"turntable",
+         {{"state", "device_missing"},
+          {"healthy", false},
+          {"backend", "modbus-rtu"},
+          {"message", "turntable: serial device /dev/ttyUSB0 not found — check the adapter"},
+          {"retries", 3},
+          {"next_retry_in_s", 4.0},
+          {"last_ok_utc", nullptr}}}}}};
+  out_.str("");
+  ASSERT_EQ(Run({"selftest"}), kClientExitUnhealthy) << err_.str();
+  const std::string o = out_.str();
+  EXPECT_NE(o.find("turntable: FAIL device_missing [modbus-rtu]"), std::string::npos) << o;
+  EXPECT_NE(o.find("/dev/ttyUSB0 not found"), std::string::npos) << o;
+  EXPECT_NE(o.find("failed attempts: 3, next retry in 4.0 s, last ok: never"), std::string::npos)
+      << o;
+  EXPECT_NE(o.find("1 of 2 devices unhealthy"), std::string::npos) << o;
+  out_.str("");
+  ASSERT_EQ(Run({"--json", "selftest"}), kClientExitUnhealthy) << err_.str();
+  EXPECT_EQ(json::parse(out_.str())["devices"]["turntable"]["state"], "device_missing");
 }
 
 }  // namespace

@@ -55,6 +55,15 @@ class FakeControl : public DaemonControl {
     return calls_.size();
   }
 
+  nlohmann::json health = {{"status", "ok"},
+                           {"state", "idle"},
+                           {"devices", {{"camera", {{"state", "ok"}, {"healthy", true}, {"message", "ok"}}}}}};
+  nlohmann::json GetHealth() override {
+    Record("health");
+    if (throw_all) throw std::runtime_error("fake failure");
+    return health;
+  }
+
   nlohmann::json GetStatus() override {
     Record("status");
     return status;

@@ -541,5 +541,27 @@ TEST(HttpApiLifecycle, StartStopRepeatedly) {
   EXPECT_EQ(r->status, 200);
 }
 
+// The health endpoint: 200 only when the daemon says every device is ok, else
+// 503 with the same report, so monitors need only the code.
+TEST_F(HttpApiTest, HealthIs200WhenOkAnd503WithTheReportWhenNot) {
+  auto r = client_->Get("/api/v1/health");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 200);
+  EXPECT_EQ(Body(r)["status"], "ok");
+  fake_.health = {{"status", "unhealthy"},
+                  {"devices",
+                   {{"turntable",
+                     {{"state", "timeout"},
+                      {"healthy", false},
+                      {"message", "turntable: no answer from Modbus unit 1 — check wiring"}}}}}};
+  r = client_->Get("/api/v1/health");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 503);
+  EXPECT_EQ(Body(r)["devices"]["turntable"]["state"], "timeout");
+  r = client_->Post("/api/v1/health", "{}", "application/json");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 405);
+}
+
 }  // namespace
 }  // namespace aggscan

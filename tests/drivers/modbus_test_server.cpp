@@ -61,7 +61,7 @@ ModbusTestServer::ModbusTestServer(const ModbusServerOptions& options)
 
 std::unique_ptr<ModbusTestServer> ModbusTestServer::StartTcp(const ModbusServerOptions& options) {
   std::unique_ptr<ModbusTestServer> s(new ModbusTestServer(options));
-  s->ctx_ = modbus_new_tcp("127.0.0.1", 0);  // port 0: the kernel picks a free one
+  s->ctx_ = modbus_new_tcp("127.0.0.1", options.tcp_port);  // port 0: the kernel picks a free one
   if (!s->ctx_) throw std::runtime_error("modbus_new_tcp failed");
   s->listen_fd_ = modbus_tcp_listen(s->ctx_, 1);
   if (s->listen_fd_ < 0) throw std::runtime_error("modbus_tcp_listen failed");

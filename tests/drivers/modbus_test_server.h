@@ -38,6 +38,7 @@ struct ModbusServerOptions {
   double steps_per_rev = 32000;  // kGeneric: steps per platter turn (speed registers are deg/s)
   double motor_steps_per_rev = 10000;  // kLeadshine: pulses per motor turn (speed is motor rpm)
   double home_seconds = 0.3;           // homing run duration (position ramps to 0)
+  int tcp_port = 0;                    // TCP: listen here (0 = a free port the kernel picks)
 };
 
 class ModbusTestServer {
