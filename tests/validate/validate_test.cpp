@@ -5,6 +5,7 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -172,12 +173,10 @@ TEST(ValidateRun, OneRockTwoSidesReducedResolution) {
   EXPECT_EQ(j["pass"].get<bool>(), rep->summary.pass);
   const double ev = (r.rec.volume_mm3 - r.truth.volume_mm3) / r.truth.volume_mm3 * 100;
   // Measured (seed 1, two sides of 12 views at 1008x756, computed masks):
-  // V +4.2 %, a +1.0 %, b +0.3 %, c -1.3 %, sphericity +0.011. The volume is
-  // outside the target (|MPE| <= 1 %, MAPE <= 2 %): a visual hull cannot see
-  // concavities and over-estimates, never under. Dimensions and sphericity
-  // are held to the targets.
-  EXPECT_GT(ev, 0.0);
-  EXPECT_LT(ev, 7.0);
+  // V -0.52 %, a -0.6 %, b -0.3 %, c -1.3 %, sphericity +0.007 (before the
+  // photo refinement counted peaks near the hull: V +4.2 %). Held to the
+  // targets: volume within MAPE's 2 %, dimensions 2 %, sphericity 0.02.
+  EXPECT_LT(std::abs(ev), 2.0);
   EXPECT_NEAR(r.rec.a_mm, r.truth.a_mm, 0.02 * r.truth.a_mm);
   EXPECT_NEAR(r.rec.b_mm, r.truth.b_mm, 0.02 * r.truth.b_mm);
   EXPECT_NEAR(r.rec.c_mm, r.truth.c_mm, 0.02 * r.truth.c_mm);
