@@ -373,12 +373,7 @@ Status V4l2Camera::StartStreaming() {
       return e;
     }
     buffers_.emplace_back(p, b.length);
-  }
-  for (uint32_t i = 0; i < rb.count; ++i) {
-    v4l2_buffer b{};
-    b.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
-    b.memory = V4L2_MEMORY_MMAP;
-    b.index = i;
+    // Queued as soon as it is mapped: the driver fills it once streaming.
     if (Xioctl(fd_.get(), VIDIOC_QBUF, &b) < 0) {
       Error e = Fail("VIDIOC_QBUF", errno);
       StopStreaming();

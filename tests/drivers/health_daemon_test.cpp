@@ -73,6 +73,20 @@ size_t CountLines(const std::string& text, const std::string& needle) {
   return n;
 }
 
+// Presses start and waits for the config's one 4-view side to be stored.
+void PressAndCaptureOneSide(Daemon& d) {
+  int code = 0;
+  d.Post("/api/v1/button", "{}", &code);
+  ASSERT_EQ(code, 200) << ReadAll(d.log());
+  json last;
+  ASSERT_TRUE(d.WaitFor(
+      [](const json& st) {
+        return st.value("state", "") == "idle" && st.value("views_captured", 0) == 4;
+      },
+      30, &last))
+      << last.dump() << ReadAll(d.log());
+}
+
 TEST(HealthDaemon, MissingTurntableRefusesCaptureAndRecoversByItself) {
   // A free port: a peer's, closed again, so nothing listens there yet.
   auto probe = testing::ModbusTestServer::StartTcp({});
@@ -153,15 +167,7 @@ TEST(HealthDaemon, MissingTurntableRefusesCaptureAndRecoversByItself) {
   // And a capture runs on the recovered turntable.
   d.Post("/api/v1/samples", R"({"id": "rock-h"})", &code);
   ASSERT_EQ(code, 200) << ReadAll(d.log());
-  d.Post("/api/v1/button", "{}", &code);
-  ASSERT_EQ(code, 200) << ReadAll(d.log());
-  json last;
-  ASSERT_TRUE(d.WaitFor(
-      [](const json& st) {
-        return st.value("state", "") == "idle" && st.value("views_captured", 0) == 4;
-      },
-      30, &last))
-      << last.dump() << ReadAll(d.log());
+  ASSERT_NO_FATAL_FAILURE(PressAndCaptureOneSide(d));
   EXPECT_EQ(server->position_steps(), 3 * 8000);
 }
 
@@ -210,15 +216,7 @@ TEST(HealthDaemon, PeerSilentWhileArmedIsSeenByTheProbeAndThePressRefused) {
   ASSERT_TRUE(WaitForHealth(
       d, [](const json& j) { return j.value("status", "") == "ok"; }, 10, &h, &c))
       << h.dump() << ReadAll(d.log());
-  d.Post("/api/v1/button", "{}", &code);
-  ASSERT_EQ(code, 200) << ReadAll(d.log());
-  json last;
-  ASSERT_TRUE(d.WaitFor(
-      [](const json& st) {
-        return st.value("state", "") == "idle" && st.value("views_captured", 0) == 4;
-      },
-      30, &last))
-      << last.dump() << ReadAll(d.log());
+  ASSERT_NO_FATAL_FAILURE(PressAndCaptureOneSide(d));
   const std::string log = ReadAll(d.log());
   EXPECT_EQ(CountLines(log, "[timeout] (further errors"), 1u) << log;
   EXPECT_EQ(CountLines(log, "devices: turntable: ok again after "), 1u) << log;

@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "config/turntable_profile.h"
+#include "tests/drivers/modbus_test_server.h"
 #include "drivers/modbus/modbus_turntable.h"
 
 extern char** environ;
@@ -99,15 +100,6 @@ int FreePort() {
   return ntohs(a.sin_port);
 }
 
-Result<TurntableStatus> WaitInPosition(Turntable& t) {
-  const auto deadline = Clock::now() + std::chrono::seconds(10);
-  while (true) {
-    Result<TurntableStatus> st = t.ReadStatus();
-    if (!st || st->in_position || Clock::now() > deadline) return st;
-    std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  }
-}
-
 TEST(ModbusPymodbus, HomesMovesAndReadsAnglesBack) {
   const int port = FreePort();
   const std::string log = ::testing::TempDir() + "/pymodbus_turntable.log";
@@ -146,7 +138,7 @@ TEST(ModbusPymodbus, HomesMovesAndReadsAnglesBack) {
   EXPECT_EQ(t.StartMoveTo(10).error().cls, ErrorClass::kInvalidState);  // home first
 
   ASSERT_TRUE(t.StartHome().ok());
-  st = WaitInPosition(t);
+  st = testing::WaitInPosition(t);
   ASSERT_TRUE(st.ok()) << st.error().ToString();
   ASSERT_TRUE(st->in_position);
   EXPECT_TRUE(st->homed);
@@ -158,7 +150,7 @@ TEST(ModbusPymodbus, HomesMovesAndReadsAnglesBack) {
     Result<TurntableStatus> moving = t.ReadStatus();
     ASSERT_TRUE(moving.ok());
     EXPECT_FALSE(moving->in_position) << target;
-    st = WaitInPosition(t);
+    st = testing::WaitInPosition(t);
     ASSERT_TRUE(st.ok()) << st.error().ToString();
     ASSERT_TRUE(st->in_position) << target;
     EXPECT_FALSE(st->moving);

@@ -12,6 +12,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <stdexcept>
 
@@ -434,6 +435,15 @@ TurntableConfig ModbusConfigFor(const ModbusTestServer& server, bool tcp) {
   m.microsteps = 16;
   m.gear_ratio = 10.0;
   return c;
+}
+
+Result<TurntableStatus> WaitInPosition(Turntable& t) {
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+  while (true) {
+    Result<TurntableStatus> st = t.ReadStatus();
+    if (!st || st->in_position || std::chrono::steady_clock::now() > deadline) return st;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
 }
 
 }  // namespace aggscan::testing

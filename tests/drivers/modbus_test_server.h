@@ -24,6 +24,7 @@
 #include <vector>
 
 #include "config/config.h"
+#include "drivers/turntable.h"
 
 struct _modbus;
 
@@ -110,5 +111,8 @@ class ModbusTestServer {
 /// the source tree: 360 deg/s, 1440 deg/s^2 (fast, so the contract suite runs
 /// in seconds of real time), 200 x 16 x 10 = 32000 steps per turn.
 TurntableConfig ModbusConfigFor(const ModbusTestServer& server, bool tcp);
+
+/// Polls `t` every 20 ms on the real clock until in_position, an error, or 10 s.
+Result<TurntableStatus> WaitInPosition(Turntable& t);
 
 }  // namespace aggscan::testing

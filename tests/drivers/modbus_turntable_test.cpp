@@ -40,21 +40,11 @@ std::unique_ptr<modbus::ModbusTurntable> Make(const TurntableConfig& c) {
       std::move(*p));
 }
 
-// Polls every 20 ms until in_position (or an error, or 10 s).
-Result<TurntableStatus> WaitInPosition(Turntable& t) {
-  const auto deadline = Clock::now() + std::chrono::seconds(10);
-  while (true) {
-    Result<TurntableStatus> st = t.ReadStatus();
-    if (!st || st->in_position || Clock::now() > deadline) return st;
-    std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  }
-}
-
 void OpenHome(Turntable& t) {
   Status s = t.Open();
   ASSERT_TRUE(s.ok()) << s.error().ToString();
   ASSERT_TRUE(t.StartHome().ok());
-  auto st = WaitInPosition(t);
+  auto st = testing::WaitInPosition(t);
   ASSERT_TRUE(st.ok()) << st.error().ToString();
   ASSERT_TRUE(st->in_position && st->homed);
 }
@@ -62,7 +52,7 @@ void OpenHome(Turntable& t) {
 void MoveTo(Turntable& t, double deg, TurntableStatus* out) {
   Status s = t.StartMoveTo(deg);
   ASSERT_TRUE(s.ok()) << s.error().ToString();
-  auto st = WaitInPosition(t);
+  auto st = testing::WaitInPosition(t);
   ASSERT_TRUE(st.ok()) << st.error().ToString();
   ASSERT_TRUE(st->in_position) << "move to " << deg << " did not finish";
   *out = *st;
@@ -232,7 +222,7 @@ TEST(ModbusTurntable, AlarmIsReportedAndHomingResetsIt) {
   EXPECT_EQ(s.error().cls, ErrorClass::kDeviceFault);
   EXPECT_THAT(s.error().message, HasSubstr("in alarm (code 7)"));
   ASSERT_TRUE(t->StartHome().ok());
-  st = WaitInPosition(*t);
+  st = testing::WaitInPosition(*t);
   ASSERT_TRUE(st.ok());
   EXPECT_FALSE(st->alarm);
   EXPECT_EQ(st->alarm_code, 0);
