@@ -35,6 +35,14 @@ PACKAGES=(
   # booted in the VM, never loaded on this machine), a static busybox and cpio
   # for the initramfs, kmod for modprobe inside the guest. Skipped (77) without.
   qemu-system-x86 linux-image-amd64 busybox-static cpio kmod
+  # tests only: the test drivers Debian's kernel lacks (vimc, gpio-sim,
+  # raw_gadget) are built for the VM's kernel from Debian's kernel source
+  # (tests/vm/build-test-modules.sh); the headers of that exact kernel are
+  # installed below
+  linux-source-6.1 bc
+  # USB turntable controllers (libusb), start buttons (libgpiod v1, evdev),
+  # the libcamera camera backend (and its IPA modules, which vimc needs)
+  libusb-1.0-0-dev libgpiod-dev libevdev-dev libcamera-dev libcamera-ipa
 )
 
 missing=()
@@ -42,10 +50,25 @@ for p in "${PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
 
+updated=0
 if [ "${#missing[@]}" -eq 0 ]; then
   echo "install-deps: all ${#PACKAGES[@]} packages already installed"
-  exit 0
+else
+  echo "install-deps: installing ${missing[*]}"
+  $SUDO apt-get update -q
+  updated=1
+  $SUDO apt-get install -y -q --no-install-recommends "${missing[@]}"
 fi
-echo "install-deps: installing ${missing[*]}"
-$SUDO apt-get update -q
-$SUDO apt-get install -y -q --no-install-recommends "${missing[@]}"
+
+# The headers of the kernel the test VM boots (the newest installed Debian
+# kernel with modules), which may differ from linux-headers-amd64's. Where
+# Debian no longer has them, the VM tests that need out-of-tree drivers skip.
+kver=""
+for k in $(ls -1 /boot/vmlinuz-* 2>/dev/null | sed 's#^/boot/vmlinuz-##' | sort -V -r); do
+  if [ -d "/lib/modules/$k/kernel" ]; then kver=$k; break; fi
+done
+if [ -n "$kver" ] && ! dpkg-query -W -f='${Status}' "linux-headers-$kver" 2>/dev/null | grep -q "install ok installed"; then
+  [ "$updated" -eq 1 ] || $SUDO apt-get update -q
+  $SUDO apt-get install -y -q --no-install-recommends "linux-headers-$kver" ||
+    echo "install-deps: linux-headers-$kver is not available; the VM tests with out-of-tree drivers will be skipped" >&2
+fi

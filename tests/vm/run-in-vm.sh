@@ -3,7 +3,11 @@
 # kernel, with kernel test drivers loaded, and returns its exit status and
 # output to the host.
 #
-#   tests/vm/run-in-vm.sh [--modprobe "vivid n_devs=1 node_types=0x1"]... [--timeout S] -- CMD [ARG]...
+#   tests/vm/run-in-vm.sh [--modprobe "vivid n_devs=1 node_types=0x1"]... [--modules DIR] [--timeout S] -- CMD [ARG]...
+#
+# --modules DIR: a private module tree from tests/vm/build-test-modules.sh
+# (out-of-tree vimc, gpio-sim, irq_sim, raw_gadget beside the installed
+# modules); the guest's modprobe then runs as `modprobe -d DIR`.
 #
 # The guest's root is this machine's / shared read-only over 9p (so CMD, its
 # libraries and the build tree are seen at the same paths); a second, writable
@@ -18,16 +22,18 @@ set -eu
 
 modprobes=""
 timeout_s=120
+moddir_extra=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --modprobe) modprobes="$modprobes$2
 "; shift 2 ;;
     --timeout) timeout_s=$2; shift 2 ;;
+    --modules) moddir_extra=$2; shift 2 ;;
     --) shift; break ;;
     *) break ;;
   esac
 done
-[ $# -gt 0 ] || { echo "usage: $0 [--modprobe 'MOD ARGS']... [--timeout S] -- CMD [ARG]..." >&2; exit 2; }
+[ $# -gt 0 ] || { echo "usage: $0 [--modprobe 'MOD ARGS']... [--modules DIR] [--timeout S] -- CMD [ARG]..." >&2; exit 2; }
 
 skip() { echo "run-in-vm: SKIP: $*" >&2; exit 77; }
 
@@ -47,8 +53,19 @@ done
 [ -n "$kver" ] || skip "no readable /boot/vmlinuz-* with /lib/modules (apt-get install linux-image-amd64)"
 moddir=/lib/modules/$kver
 
+if [ -n "$moddir_extra" ]; then
+  moddir_extra=$(cd "$moddir_extra" 2>/dev/null && pwd) || skip "no module tree $moddir_extra (tests/vm/build-test-modules.sh builds it)"
+  [ -f "$moddir_extra/lib/modules/$kver/modules.dep" ] ||
+    skip "module tree $moddir_extra has no modules for kernel $kver (tests/vm/build-test-modules.sh builds it)"
+  case "$moddir_extra/" in
+    /tmp/*|/run/*|/var/tmp/*|/root/*)
+      echo "run-in-vm: --modules $moddir_extra: the guest mounts fresh tmpfs on /tmp, /run, /var/tmp and /root, so it cannot see it; build the tree elsewhere (the build directory)" >&2; exit 2 ;;
+  esac
+fi
+
 find_mod() {  # prints the module file for a name, empty if none (maybe built in)
-  find "$moddir/kernel" -name "$1.ko" -o -name "$1.ko.xz" -o -name "$1.ko.zst" -o -name "$1.ko.gz" 2>/dev/null | head -n 1
+  { find "$moddir/kernel" -name "$1.ko" -o -name "$1.ko.xz" -o -name "$1.ko.zst" -o -name "$1.ko.gz" 2>/dev/null
+    [ -z "$moddir_extra" ] || find "$moddir_extra/lib/modules/$kver/extra" -name "$1.ko" 2>/dev/null; } | head -n 1
 }
 printf '%s' "$modprobes" | while read -r m _; do
   [ -z "$m" ] || [ -n "$(find_mod "$m")" ] || grep -q "/$m.ko" "$moddir/modules.builtin" 2>/dev/null ||
@@ -92,6 +109,8 @@ INIT
 chmod +x "$work/initrd/init"
 
 # Stage 2, in the shared root: load the drivers, run the command, report.
+mpopt=""
+[ -z "$moddir_extra" ] || mpopt="-d $moddir_extra "
 {
   echo '#!/bin/sh'
   echo 'export PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin HOME=/root'
@@ -99,8 +118,9 @@ chmod +x "$work/initrd/init"
   echo 'echo booted >$out/booted'
   printf '%s' "$modprobes" | while read -r line; do
     [ -n "$line" ] || continue
-    echo "modprobe $line >>\$out/modprobe.log 2>&1 || { echo 'modprobe $line failed' >\$out/nodriver; echo o >/proc/sysrq-trigger; sleep 10; }"
+    echo "modprobe $mpopt$line >>\$out/modprobe.log 2>&1 || { echo 'modprobe $line failed' >\$out/nodriver; echo o >/proc/sysrq-trigger; sleep 10; }"
   done
+  echo 'grep -qw configfs /proc/filesystems && mount -t configfs none /sys/kernel/config 2>/dev/null'
   echo "cd '$(pwd)'"
   printf 'AGGSCAN_IN_VM=1 '
   for a in "$@"; do printf "'%s' " "$(printf '%s' "$a" | sed "s/'/'\\\\''/g")"; done
