@@ -185,7 +185,7 @@ const std::vector<Field<Config>>& Fields() {
         "refuse to configure when the device lacks a control for a locked setting"),
 
       F(turntable.backend, Backend("turntable"),
-        "turntable backend: sim | modbus-tcp | modbus-rtu (usb in a later issue)"),
+        "turntable backend: sim | modbus-tcp | modbus-rtu | usb-tic"),
       F(turntable.max_speed_deg_s, Above(0, 3600), "trapezoidal profile speed limit, degrees/s"),
       F(turntable.accel_deg_s2, Above(0, 36000),
         "trapezoidal profile acceleration limit, degrees/s^2"),
@@ -234,6 +234,25 @@ const std::vector<Field<Config>>& Fields() {
         "positive | negative: the direction every target is finally approached in"),
       F(turntable.modbus.in_position_window_deg, Above(0, 10),
         "in-position also needs the measured angle this close to the target, degrees"),
+      F(turntable.usb.serial_number, Any(),
+        "the Tic's USB serial number (ticcmd --list, lsusb -v); empty = the only Tic attached"),
+      F(turntable.usb.vendor_id, Range(0, 0xFFFF), "USB vendor ID (0x1FFB, Pololu)"),
+      F(turntable.usb.product_id, Range(0, 0xFFFF),
+        "USB product ID; 0 = any Tic (T825 0xB3, T834 0xB5, T500 0xBD, N825 0xC3, T249 0xC9, "
+        "36v4 0xCB)"),
+      F(turntable.usb.motor_steps_per_rev, Range(1, 1'000'000), "full steps per motor revolution"),
+      F(turntable.usb.microsteps, Range(1, 256),
+        "step mode set on open: 1 2 4 8 16 32 (36v4 also 64 128 256)"),
+      F(turntable.usb.gear_ratio, Above(0, 10'000),
+        "motor revolutions per platter revolution (steps/rev = motor steps x microsteps x this)"),
+      F(turntable.usb.home, OneOf({"reverse", "forward", "here"}),
+        "reverse | forward: the Tic's homing run toward its limit switch; here: the platter's "
+        "place when homing is angle 0"),
+      D(turntable.usb.timeout, Above(0, 10 * kSec), "one USB control transfer must end within this"),
+      F(turntable.usb.shortest_path, Any(),
+        "go to the target's position modulo 360 the shorter way round (angles stay cumulative)"),
+      F(turntable.usb.in_position_window_deg, Above(0, 10),
+        "in-position also needs the position this close to the target, degrees"),
 
       F(button.backend, Backend("button"),
         "button backend: sim (gpio, evdev, modbus in a later issue)"),
@@ -353,6 +372,9 @@ const std::vector<Section>& Sections() {
       {"turntable.faults", "Sim turntable fault injection (tests); unset = no fault."},
       {"turntable.modbus",
        "Modbus turntable (backend modbus-tcp or modbus-rtu): link, register-map profile, scaling."},
+      {"turntable.usb",
+       "USB turntable (backend usb-tic): a Pololu Tic stepper controller on its native USB "
+       "interface."},
       {"button", "Operator start button."},
       {"sim", "Simulated rig: rock, camera geometry and sensor."},
       {"rig", "Rig geometry: turntable and the background scale markers."},
@@ -804,6 +826,7 @@ class Validator {
     CheckBoard(c);
     CheckAruco(c);
     CheckModbus(c);
+    CheckUsbTic(c);
     if (c.mask.method == "onnx" && c.mask.model.empty()) {
       Add("mask.model",
           "mask.method = \"onnx\" needs the network: name its .onnx file here, or set "
@@ -853,6 +876,26 @@ class Validator {
           "steps per revolution " + FormatDouble(spr) +
               " leave fewer than 1000 turns in an int32 position; lower the microstepping");
     }
+  }
+
+  // The Tic: a step mode it has, and room for many turns in its int32 position.
+  void CheckUsbTic(const Config& c) {
+    if (c.turntable.backend != "usb-tic") return;
+    const UsbTicConfig& u = c.turntable.usb;
+    const double spr = u.steps_per_rev();
+    if (spr * 1000.0 > 2147483647.0) {
+      Add("turntable.usb.microsteps",
+          "microsteps per revolution " + FormatDouble(spr) +
+              " leave fewer than 1000 turns in the Tic's int32 position; lower the microstepping");
+    }
+    const int m = u.microsteps;
+    if (m < 1 || m > 256 || (m & (m - 1)) != 0) {
+      Add("turntable.usb.microsteps",
+          "the Tic's step modes are 1, 2, 4, 8, 16, 32 (36v4 also 64, 128, 256) microsteps, got " +
+              std::to_string(m));
+    }
+    // Speed and acceleration in the Tic's units are checked when the backend
+    // opens (drivers/usb/tic_protocol.h), where the model is known.
   }
 
   // The ArUco scale markers: ids unique and in the dictionary, each marker
@@ -1239,7 +1282,7 @@ const std::vector<std::string>& KnownBackends(const std::string& kind) {
   // Add a real backend's name here when its driver lands in the factory.
   static const std::map<std::string, std::vector<std::string>> kBackends = {
       {"camera", {"sim", "v4l2"}},
-      {"turntable", {"sim", "modbus-tcp", "modbus-rtu"}},
+      {"turntable", {"sim", "modbus-tcp", "modbus-rtu", "usb-tic"}},
       {"button", {"sim"}},
   };
   static const std::vector<std::string> kNone;

@@ -135,8 +135,29 @@ struct ModbusTurntableConfig {
   bool operator==(const ModbusTurntableConfig&) const = default;
 };
 
+// The USB turntable backend "usb-tic" (drivers/usb/): a Pololu Tic stepper
+// controller on its native USB interface, through libusb.
+struct UsbTicConfig {
+  std::string serial_number;          // the Tic's USB serial number ("00123456"); empty = the only Tic attached
+  int vendor_id = 0x1FFB;             // USB vendor ID (Pololu's)
+  int product_id = 0;                 // USB product ID; 0 = any Tic model (T825, T834, T500, N825, T249, 36v4)
+  // Scaling: microsteps per platter revolution = motor_steps_per_rev * microsteps * gear_ratio.
+  int motor_steps_per_rev = 200;      // full steps per motor revolution
+  int microsteps = 8;                 // step mode set on open: 1, 2, 4, 8, 16, 32 (36v4 also 64, 128, 256)
+  double gear_ratio = 1.0;            // motor revolutions per platter revolution
+  std::string home = "reverse";       // reverse | forward: the Tic's homing (limit switch) direction;
+                                      // here: the platter's place at StartHome is angle 0
+  TimeNs timeout = 500 * kNsPerMs;    // one control transfer must complete within this
+  bool shortest_path = false;         // go to the target's position modulo 360 the shorter way round
+  double in_position_window_deg = 0.05;  // in-position also needs the position this close to the target
+
+  /// Microsteps per platter revolution.
+  double steps_per_rev() const { return motor_steps_per_rev * static_cast<double>(microsteps) * gear_ratio; }
+  bool operator==(const UsbTicConfig&) const = default;
+};
+
 struct TurntableConfig {
-  std::string backend = "sim";        // sim | modbus-tcp | modbus-rtu (usb in a later issue)
+  std::string backend = "sim";        // sim | modbus-tcp | modbus-rtu | usb-tic
   double max_speed_deg_s = 60.0;      // trapezoidal profile speed limit
   double accel_deg_s2 = 180.0;        // and acceleration limit
   // Sim model of a real platter:
@@ -148,6 +169,7 @@ struct TurntableConfig {
   TimeNs home_duration = 1500 * kNsPerMs;  // sim homing time
   SimTurntableFaults faults;
   ModbusTurntableConfig modbus;       // modbus-tcp / modbus-rtu only
+  UsbTicConfig usb;                   // usb-tic only
 
   bool operator==(const TurntableConfig&) const = default;
 };

@@ -11,6 +11,7 @@
 #include "drivers/sim/sim_camera.h"
 #include "drivers/sim/sim_turntable.h"
 #include "drivers/sim/world.h"
+#include "drivers/usb/usb_tic_turntable.h"
 #include "drivers/v4l2/v4l2_camera.h"
 
 namespace aggscan {
@@ -69,6 +70,11 @@ Result<std::unique_ptr<Turntable>> MakeModbusRtuTurntable(Context& ctx) {
   return MakeModbusTurntable(ctx, modbus::Transport::kRtu);
 }
 
+// Nothing is opened here: a missing Tic is reported by Open().
+Result<std::unique_ptr<Turntable>> MakeUsbTicTurntable(Context& ctx) {
+  return std::unique_ptr<Turntable>(std::make_unique<usb::UsbTicTurntable>(ctx.config.turntable));
+}
+
 Result<std::unique_ptr<Camera>> MakeSimCamera(Context& ctx) {
   Status s = EnsureWorld(ctx);
   if (!s) return s.error();
@@ -91,7 +97,8 @@ Result<std::unique_ptr<Button>> MakeSimButton(Context& ctx) {
 // Real backends (modbus-rtu, usb, v4l2, gpio, ...) join these tables.
 const Backend<Turntable> kTurntables[] = {{"sim", MakeSimTurntable},
                                           {"modbus-tcp", MakeModbusTcpTurntable},
-                                          {"modbus-rtu", MakeModbusRtuTurntable}};
+                                          {"modbus-rtu", MakeModbusRtuTurntable},
+                                          {"usb-tic", MakeUsbTicTurntable}};
 const Backend<Camera> kCameras[] = {{"sim", MakeSimCamera}, {"v4l2", MakeV4l2Camera}};
 const Backend<Button> kButtons[] = {{"sim", MakeSimButton}};
 

@@ -30,7 +30,7 @@ TEST(Factory, UnknownBackendNamesTheKeyAndTheKnownOnes) {
   r = CreateRig(c, clock);
   ASSERT_FALSE(r.ok());
   EXPECT_EQ(r.error().message,
-            "turntable.backend \"usb\" is not known; available: sim, modbus-tcp, modbus-rtu; "
+            "turntable.backend \"usb\" is not known; available: sim, modbus-tcp, modbus-rtu, usb-tic; "
             "button.backend \"gpio\" is not known; available: sim");
 }
 

@@ -1,0 +1,184 @@
+// The USB turntable backend against the emulated Tic (tic_gadget.cpp) on
+// dummy_hcd, inside the VM lane (tic_vm.sh sets the environment): hotplug and
+// error classification. The contract suite runs there too
+// (turntable_contract_test, backend usb_tic).
+//
+//   AGGSCAN_TIC_SERIAL       the gadget's serial number
+//   AGGSCAN_TIC_UDC_FILE     the gadget's configfs UDC file (unbind = unplug)
+//   AGGSCAN_TIC_UDC          the UDC to bind it to again (re-plug)
+//   AGGSCAN_TIC_GADGET_PID   the gadget program (SIGUSR1: motor driver error)
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <signal.h>
+
+#include <chrono>
+#include <cstdlib>
+#include <fstream>
+#include <string>
+#include <thread>
+
+#include "drivers/usb/usb_tic_turntable.h"
+
+namespace aggscan {
+namespace {
+
+using ::testing::HasSubstr;
+using Clock = std::chrono::steady_clock;
+
+std::string Env(const char* name) {
+  const char* v = std::getenv(name);
+  return v ? v : "";
+}
+
+class UsbTicVm : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    serial_ = Env("AGGSCAN_TIC_SERIAL");
+    if (serial_.empty()) GTEST_SKIP() << "not in the VM lane (tests/drivers/usb/tic_vm.sh)";
+    cfg_.backend = "usb-tic";
+    cfg_.usb.serial_number = serial_;
+    cfg_.usb.microsteps = 8;
+    cfg_.max_speed_deg_s = 180;
+    cfg_.accel_deg_s2 = 720;
+  }
+  void TearDown() override { Plug(true); }
+
+  // Binds or unbinds the gadget: a cable plugged in or pulled.
+  void Plug(bool in) {
+    if (serial_.empty() || plugged_ == in) return;
+    std::ofstream(Env("AGGSCAN_TIC_UDC_FILE")) << (in ? Env("AGGSCAN_TIC_UDC") : "") << "\n";
+    plugged_ = in;
+  }
+
+  void HomeAndWait(Turntable& t) {
+    ASSERT_TRUE(t.StartHome().ok());
+    const auto deadline = Clock::now() + std::chrono::seconds(20);
+    while (Clock::now() < deadline) {
+      auto st = t.ReadStatus();
+      ASSERT_TRUE(st.ok()) << st.error().ToString();
+      if (st->in_position) {
+        EXPECT_TRUE(st->homed);
+        EXPECT_FALSE(st->alarm);
+        return;
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    FAIL() << "homing did not finish";
+  }
+
+  std::string serial_;
+  TurntableConfig cfg_;
+  bool plugged_ = true;
+};
+
+TEST_F(UsbTicVm, UnplugWhileOpenIsDisconnectedAndReplugReopens) {
+  usb::UsbTicTurntable t(cfg_);
+  ASSERT_TRUE(t.Open().ok());
+  HomeAndWait(t);
+  ASSERT_TRUE(t.StartMoveTo(90).ok());
+
+  Plug(false);
+  // Every failure from here is "disconnected" (never a timeout or a fault);
+  // the host notices the unplug within moments.
+  Error first;
+  bool failed = false;
+  const auto deadline = Clock::now() + std::chrono::seconds(5);
+  while (Clock::now() < deadline && !failed) {
+    auto st = t.ReadStatus();
+    if (!st) {
+      first = st.error();
+      failed = true;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  ASSERT_TRUE(failed) << "ReadStatus still answered 5 s after the unplug";
+  EXPECT_EQ(first.cls, ErrorClass::kDisconnected) << first.ToString();
+  EXPECT_THAT(first.message, HasSubstr("serial " + serial_));
+  // Still away: disconnected, saying what to check.
+  auto away = t.ReadStatus();
+  ASSERT_FALSE(away.ok());
+  EXPECT_EQ(away.error().cls, ErrorClass::kDisconnected) << away.error().ToString();
+  EXPECT_THAT(away.error().message, HasSubstr("1ffb"));
+  EXPECT_EQ(t.StartMoveTo(10).error().cls, ErrorClass::kDisconnected);
+
+  // Re-plug: the next requests find it again; its position is unknown now.
+  Plug(true);
+  Result<TurntableStatus> back = MakeError(ErrorClass::kInternal, "not polled");
+  const auto replug_deadline = Clock::now() + std::chrono::seconds(10);
+  while (Clock::now() < replug_deadline) {
+    back = t.ReadStatus();
+    if (back.ok()) break;
+    EXPECT_EQ(back.error().cls, ErrorClass::kDisconnected) << back.error().ToString();
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  ASSERT_TRUE(back.ok()) << "not back 10 s after re-plug: " << back.error().ToString();
+  EXPECT_FALSE(back->homed);
+  EXPECT_EQ(t.StartMoveTo(10).error().cls, ErrorClass::kInvalidState);
+  HomeAndWait(t);
+  ASSERT_TRUE(t.StartMoveTo(45).ok());
+  t.Close();
+}
+
+TEST_F(UsbTicVm, OpenWithoutTheDeviceIsMissingAndNamesTheSelection) {
+  Plug(false);
+  // Wait until the host has dropped it (the hub notices the disconnect).
+  usb::UsbTicTurntable t(cfg_);
+  Status s = OkStatus();
+  const auto deadline = Clock::now() + std::chrono::seconds(5);
+  do {
+    s = t.Open();
+    if (s) t.Close();
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  } while (s && Clock::now() < deadline);
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().cls, ErrorClass::kDeviceMissing) << s.error().ToString();
+  EXPECT_THAT(s.error().message, HasSubstr("Tic (USB 1ffb:any Tic model, serial " + serial_ + ")"));
+  EXPECT_THAT(s.error().message, HasSubstr("not found"));
+  EXPECT_THAT(s.error().message, HasSubstr("lsusb"));
+
+  // Another serial number, device present: missing too.
+  Plug(true);
+  TurntableConfig other = cfg_;
+  other.usb.serial_number = "00999999";
+  usb::UsbTicTurntable wrong(other);
+  Status w = wrong.Open();
+  ASSERT_FALSE(w.ok());
+  EXPECT_EQ(w.error().cls, ErrorClass::kDeviceMissing);
+  EXPECT_THAT(w.error().message, HasSubstr("serial 00999999"));
+  // Re-plugged, the right one opens.
+  const auto open_deadline = Clock::now() + std::chrono::seconds(10);
+  Status again = t.Open();
+  while (!again && Clock::now() < open_deadline) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    again = t.Open();
+  }
+  EXPECT_TRUE(again.ok()) << again.error().ToString();
+}
+
+TEST_F(UsbTicVm, MotorDriverErrorIsAnAlarmAndHomingRecovers) {
+  usb::UsbTicTurntable t(cfg_);
+  ASSERT_TRUE(t.Open().ok());
+  HomeAndWait(t);
+  const int pid = std::atoi(Env("AGGSCAN_TIC_GADGET_PID").c_str());
+  ASSERT_GT(pid, 0);
+  ASSERT_EQ(kill(pid, SIGUSR1), 0);
+  Result<TurntableStatus> st = MakeError(ErrorClass::kInternal, "not polled");
+  const auto deadline = Clock::now() + std::chrono::seconds(5);
+  do {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    st = t.ReadStatus();
+    ASSERT_TRUE(st.ok()) << st.error().ToString();
+  } while (!st->alarm && Clock::now() < deadline);
+  ASSERT_TRUE(st->alarm);
+  EXPECT_THAT(st->alarm_text, HasSubstr("motor driver error"));
+  EXPECT_EQ(st->alarm_code, 1 << 1);
+  Status move = t.StartMoveTo(30);
+  ASSERT_FALSE(move.ok());
+  EXPECT_EQ(move.error().cls, ErrorClass::kDeviceFault);
+  EXPECT_THAT(move.error().message, HasSubstr("home again"));
+  HomeAndWait(t);  // clears the driver error
+  ASSERT_TRUE(t.StartMoveTo(30).ok());
+}
+
+}  // namespace
+}  // namespace aggscan
