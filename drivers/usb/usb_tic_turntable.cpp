@@ -100,7 +100,13 @@ void UsbTicTurntable::PollHotplug() {
     AGG_LOGW(kLog, "%s left the USB bus (hotplug event)", SelectionDescription().c_str());
     DropHandle();
     lost_ = true;
+    ++hotplug_departures_;
   }
+}
+
+int UsbTicTurntable::hotplug_departures() const {
+  std::lock_guard<std::mutex> l(mu_);
+  return hotplug_departures_;
 }
 
 Status UsbTicTurntable::Connect() {

@@ -56,8 +56,9 @@ class UsbTicTurntable final : public Turntable {
   /// Sends the Tic's "Reset" command: it forgets its state as after power-up
   /// (position 0 and uncertain, de-energized, safe start). Needs homing after.
   Status ResetController();
-  /// Whether libusb on this machine delivers hotplug events.
-  bool hotplug_supported() const { return hotplug_ != 0; }
+  /// Departures of the open Tic that libusb's hotplug events reported (they
+  /// need a udev daemon; without one a failing transfer tells).
+  int hotplug_departures() const;
 
  protected:
   Status DoOpen() override;
@@ -94,6 +95,7 @@ class UsbTicTurntable final : public Turntable {
   uint16_t product_id_ = 0;          // of the opened device
   std::string serial_;               // of the opened device
   bool lost_ = false;                // the device went away while open
+  int hotplug_departures_ = 0;
   Phase phase_ = Phase::kNone;
   bool homed_ = false;
   int64_t target_steps_ = 0;

@@ -747,7 +747,7 @@ TEST(ConfigToToml, CommentsEveryFieldAndShowsUnsetOptionals) {
 TEST(Config, KnownBackends) {
   EXPECT_EQ(KnownBackends("camera"), (std::vector<std::string>{"sim", "v4l2"}));
   EXPECT_EQ(KnownBackends("turntable"),
-            (std::vector<std::string>{"sim", "modbus-tcp", "modbus-rtu"}));
+            (std::vector<std::string>{"sim", "modbus-tcp", "modbus-rtu", "usb-tic"}));
   EXPECT_EQ(KnownBackends("button"), std::vector<std::string>{"sim"});
   EXPECT_TRUE(KnownBackends("toaster").empty());
 }

@@ -99,6 +99,8 @@ TurntableHarness MakeUsbTic() {
   h.config.usb.microsteps = 8;  // 1600 microsteps/rev
   h.config.max_speed_deg_s = 180.0;
   h.config.accel_deg_s2 = 720.0;
+  // QEMU/TCG on a loaded CI machine can pause the guest for a moment.
+  h.config.usb.timeout = 2 * kNsPerSec;
   auto tic = std::make_unique<usb::UsbTicTurntable>(h.config);
   // Each test starts from a Tic as after power-up (its Reset command).
   Status s = tic->Open();

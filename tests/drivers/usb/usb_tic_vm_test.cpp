@@ -7,6 +7,7 @@
 //   AGGSCAN_TIC_UDC_FILE     the gadget's configfs UDC file (unbind = unplug)
 //   AGGSCAN_TIC_UDC          the UDC to bind it to again (re-plug)
 //   AGGSCAN_TIC_GADGET_PID   the gadget program (SIGUSR1: motor driver error)
+//   AGGSCAN_TIC_UDEVD        set when a udev daemon runs (libusb hotplug events flow)
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 #include <signal.h>
@@ -40,6 +41,7 @@ class UsbTicVm : public ::testing::Test {
     cfg_.usb.microsteps = 8;
     cfg_.max_speed_deg_s = 180;
     cfg_.accel_deg_s2 = 720;
+    cfg_.usb.timeout = 2 * kNsPerSec;  // QEMU/TCG under CI load can pause the guest a moment
   }
   void TearDown() override { Plug(true); }
 
@@ -78,22 +80,17 @@ TEST_F(UsbTicVm, UnplugWhileOpenIsDisconnectedAndReplugReopens) {
   ASSERT_TRUE(t.StartMoveTo(90).ok());
 
   Plug(false);
-  // Every failure from here is "disconnected" (never a timeout or a fault);
-  // the host notices the unplug within moments.
-  Error first;
-  bool failed = false;
-  const auto deadline = Clock::now() + std::chrono::seconds(5);
-  while (Clock::now() < deadline && !failed) {
-    auto st = t.ReadStatus();
-    if (!st) {
-      first = st.error();
-      failed = true;
-    }
-    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  // Give the host (and udev, where it runs) a moment to notice the unplug.
+  std::this_thread::sleep_for(std::chrono::milliseconds(1500));
+  auto gone = t.ReadStatus();
+  ASSERT_FALSE(gone.ok()) << "ReadStatus still answered 1.5 s after the unplug";
+  EXPECT_EQ(gone.error().cls, ErrorClass::kDisconnected) << gone.error().ToString();
+  EXPECT_THAT(gone.error().message, HasSubstr("serial " + serial_));
+  // With a udev daemon running, libusb's hotplug event told the backend
+  // before any transfer failed.
+  if (!Env("AGGSCAN_TIC_UDEVD").empty()) {
+    EXPECT_EQ(t.hotplug_departures(), 1);
   }
-  ASSERT_TRUE(failed) << "ReadStatus still answered 5 s after the unplug";
-  EXPECT_EQ(first.cls, ErrorClass::kDisconnected) << first.ToString();
-  EXPECT_THAT(first.message, HasSubstr("serial " + serial_));
   // Still away: disconnected, saying what to check.
   auto away = t.ReadStatus();
   ASSERT_FALSE(away.ok());
