@@ -191,8 +191,8 @@ Status UsbTicTurntable::Connect() {
     if (!denied.empty()) {
       return MakeError(ErrorClass::kDeviceMissing,
                        "no permission to open " + SelectionDescription() + " at " + denied +
-                           " — install the udev rule for vendor " + Hex4(usb_.vendor_id) +
-                           " (README: USB turntable) or run the service as a user that may");
+                           " — install systemd/70-aggscan.rules (vendor " + Hex4(usb_.vendor_id) +
+                           ": group plugdev) and add the user to plugdev, then re-plug");
     }
     return MakeError(ErrorClass::kDeviceMissing,
                      SelectionDescription() +
