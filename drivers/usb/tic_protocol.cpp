@@ -25,28 +25,33 @@ std::optional<uint8_t> StepModeCode(int microsteps) {
   }
 }
 
-Result<uint32_t> SpeedUnits(double deg_per_s, double steps_per_rev) {
-  const double v = std::round(deg_per_s * steps_per_rev / 360.0 * kSpeedUnitsPerStepPerS);
-  if (!(v >= 1 && v <= kMaxSpeedLimit)) {
+namespace {
+
+// A platter rate (per degree) in the Tic's units, or kInvalidConfig naming
+// the config key when it is outside [lo, hi].
+Result<uint32_t> TicUnits(double per_deg, double steps_per_rev, double units_per_step,
+                          double lo, double hi, const char* key, const char* range) {
+  const double v = std::round(per_deg * steps_per_rev / 360.0 * units_per_step);
+  if (!(v >= lo && v <= hi)) {
     return MakeError(ErrorClass::kInvalidConfig,
-                     "turntable.max_speed_deg_s " + std::to_string(deg_per_s) + " at " +
-                         std::to_string(steps_per_rev) +
-                         " microsteps/rev is outside the Tic's speed range (up to 50000 "
-                         "microsteps/s); lower the speed or the microstepping");
+                     std::string("turntable.") + key + " " + std::to_string(per_deg) + " at " +
+                         std::to_string(steps_per_rev) + " microsteps/rev is outside the Tic's " +
+                         range + "; change " + key + " or the microstepping");
   }
   return static_cast<uint32_t>(v);
 }
 
+}  // namespace
+
+Result<uint32_t> SpeedUnits(double deg_per_s, double steps_per_rev) {
+  return TicUnits(deg_per_s, steps_per_rev, kSpeedUnitsPerStepPerS, 1, kMaxSpeedLimit,
+                  "max_speed_deg_s", "speed range (up to 50000 microsteps/s)");
+}
+
 Result<uint32_t> AccelUnits(double deg_per_s2, double steps_per_rev) {
-  const double a = std::round(deg_per_s2 * steps_per_rev / 360.0 * kAccelUnitsPerStepPerS2);
-  if (!(a >= kMinAccelLimit && a <= kMaxAccelLimit)) {
-    return MakeError(ErrorClass::kInvalidConfig,
-                     "turntable.accel_deg_s2 " + std::to_string(deg_per_s2) + " at " +
-                         std::to_string(steps_per_rev) +
-                         " microsteps/rev is outside the Tic's acceleration range (1 to "
-                         "21474836 microsteps/s^2); change accel_deg_s2 or the microstepping");
-  }
-  return static_cast<uint32_t>(a);
+  return TicUnits(deg_per_s2, steps_per_rev, kAccelUnitsPerStepPerS2, kMinAccelLimit,
+                  kMaxAccelLimit, "accel_deg_s2",
+                  "acceleration range (1 to 21474836 microsteps/s^2)");
 }
 
 Result<Variables> ParseVariables(std::span<const uint8_t> b) {

@@ -59,6 +59,16 @@ TurntableHarness MakeSim(uint64_t seed) {
   return h;
 }
 
+// A real peer on the real clock: time passes by sleeping.
+void UseRealClock(TurntableHarness& h) {
+  auto clock = std::make_shared<RealClock>();
+  h.now = [clock] { return clock->Now(); };
+  h.advance_to = [clock](TimeNs t) {
+    const TimeNs d = t - clock->Now();
+    if (d > 0) std::this_thread::sleep_for(std::chrono::nanoseconds(d));
+  };
+}
+
 // The Modbus backend against a libmodbus server on loopback (TCP) or on a
 // pseudo-terminal pair (RTU), on the real clock.
 TurntableHarness MakeModbus(bool tcp) {
@@ -72,12 +82,7 @@ TurntableHarness MakeModbus(bool tcp) {
   if (!profile) throw std::runtime_error(profile.error().ToString());
   h.turntable = std::make_unique<modbus::ModbusTurntable>(
       tcp ? modbus::Transport::kTcp : modbus::Transport::kRtu, h.config, std::move(*profile));
-  auto clock = std::make_shared<RealClock>();
-  h.now = [clock] { return clock->Now(); };
-  h.advance_to = [clock](TimeNs t) {
-    const TimeNs d = t - clock->Now();
-    if (d > 0) std::this_thread::sleep_for(std::chrono::nanoseconds(d));
-  };
+  UseRealClock(h);
   // A real clock on a shared machine: the poll after the end can be late by
   // the request's round trip and the scheduler, which under CI's parallel
   // load (2 cores, reconstructions beside it) can take a few hundred ms.
@@ -108,15 +113,9 @@ TurntableHarness MakeUsbTic() {
   if (!s) throw std::runtime_error(s.error().ToString());
   tic->Close();
   h.turntable = std::move(tic);
-  auto clock = std::make_shared<RealClock>();
-  h.now = [clock] { return clock->Now(); };
-  h.advance_to = [clock](TimeNs t) {
-    const TimeNs d = t - clock->Now();
-    if (d > 0) std::this_thread::sleep_for(std::chrono::nanoseconds(d));
-  };
+  UseRealClock(h);
   // An emulated CPU (QEMU/TCG) under CI load: the same reasoning as Modbus.
   h.timing_slack = 500 * kNsPerMs;
-  h.keep_alive = clock;
   return h;
 }
 
