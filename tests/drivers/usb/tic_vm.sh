@@ -74,7 +74,9 @@ echo "tic_vm: contract suite, backend usb_tic" >&2
 if [ -x /lib/systemd/systemd-udevd ] && /lib/systemd/systemd-udevd --daemon 2>/dev/null; then
   export AGGSCAN_TIC_UDEVD=1
 fi
-echo "tic_vm: hotplug and error classification" >&2
+# Loopback for aggscand's HTTP API (the guest configures no network).
+ip link set lo up 2>/dev/null || ifconfig lo 127.0.0.1 up 2>/dev/null || true
+echo "tic_vm: hotplug, error classification, daemon health" >&2
 "$vm_test_bin" || { r=$?; [ $rc -ne 0 ] || rc=$r; }
 kill $gpid 2>/dev/null
 exit $rc

@@ -19,6 +19,7 @@
 #include <thread>
 
 #include "drivers/usb/usb_tic_turntable.h"
+#include "tests/scenario/process.h"
 
 namespace aggscan {
 namespace {
@@ -175,6 +176,59 @@ TEST_F(UsbTicVm, MotorDriverErrorIsAnAlarmAndHomingRecovers) {
   EXPECT_THAT(move.error().message, HasSubstr("home again"));
   HomeAndWait(t);  // clears the driver error
   ASSERT_TRUE(t.StartMoveTo(30).ok());
+}
+
+// The real aggscand with its turntable on the emulated Tic: GET /api/v1/health
+// and `aggscan selftest` follow an unplug and a re-plug by themselves.
+TEST_F(UsbTicVm, DaemonHealthFollowsUnplugAndReplug) {
+  using json = nlohmann::json;
+  test::TempDir dir;
+  const std::string config = dir.path() + "/usb.toml";
+  std::ofstream(config)
+      << "[daemon]\nstate_dir = \"" << dir.path() << "/state\"\nlisten_port = 0\n"
+      << "reopen_backoff_min = \"100ms\"\nreopen_backoff_max = \"400ms\"\n"
+      << "health_probe_interval = \"200ms\"\n\n[camera]\nwidth = 640\nheight = 480\n\n"
+      << "[turntable]\nbackend = \"usb-tic\"\nmax_speed_deg_s = 180.0\naccel_deg_s2 = 720.0\n"
+      << "[turntable.usb]\nserial_number = \"" << serial_ << "\"\nmicrosteps = 8\ntimeout = \"2s\"\n";
+  test::Daemon d(config, dir.path());
+  ASSERT_TRUE(d.ok()) << test::ReadAll(d.log());
+  auto turntable_state = [&](json* h) {
+    *h = d.Get("/api/v1/health");
+    return h->is_object() ? (*h)["devices"]["turntable"].value("state", "") : std::string();
+  };
+  auto wait_state = [&](auto pred, int seconds, json* h) {
+    const auto deadline = Clock::now() + std::chrono::seconds(seconds);
+    while (Clock::now() < deadline) {
+      if (pred(turntable_state(h))) return true;
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+    return false;
+  };
+  json h;
+  ASSERT_TRUE(wait_state([](const std::string& s) { return s == "ok"; }, 20, &h))
+      << h.dump() << test::ReadAll(d.log());
+  EXPECT_EQ(h["devices"]["turntable"]["backend"], "usb-tic") << h.dump();
+
+  Plug(false);
+  ASSERT_TRUE(wait_state([](const std::string& s) { return !s.empty() && s != "ok"; }, 10, &h))
+      << h.dump();
+  // Disconnected while open; once the daemon reopens it, missing: both name it.
+  const std::string state = h["devices"]["turntable"]["state"];
+  EXPECT_TRUE(state == "disconnected" || state == "device_missing") << h.dump();
+  const std::string msg = h["devices"]["turntable"]["message"];
+  EXPECT_THAT(msg, HasSubstr("1ffb")) << msg;
+  EXPECT_THAT(msg, HasSubstr("serial " + serial_)) << msg;
+  const std::string cli_log = dir.path() + "/cli.log";
+  const int rc = test::WaitExit(test::Spawn(
+      {test::Bin("cli/aggscan"), "--url", "http://127.0.0.1:" + std::to_string(d.port()),
+       "selftest"},
+      cli_log));
+  EXPECT_EQ(rc, 4) << test::ReadAll(cli_log);
+  EXPECT_THAT(test::ReadAll(cli_log), HasSubstr("turntable: FAIL"));
+
+  Plug(true);
+  EXPECT_TRUE(wait_state([](const std::string& s) { return s == "ok"; }, 20, &h))
+      << h.dump() << test::ReadAll(d.log());
 }
 
 }  // namespace
