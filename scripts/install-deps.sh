@@ -35,6 +35,9 @@ PACKAGES=(
   # booted in the VM, never loaded on this machine), a static busybox and cpio
   # for the initramfs, kmod for modprobe inside the guest. Skipped (77) without.
   qemu-system-x86 linux-image-amd64 busybox-static cpio kmod
+  # tests only: loopback (ip) and a udev daemon (libusb hotplug events) inside
+  # the VM for the USB turntable test (tests/drivers/usb/tic_vm.sh)
+  iproute2 udev
   # tests only: the test drivers Debian's kernel lacks (vimc, gpio-sim,
   # raw_gadget) are built for the VM's kernel from Debian's kernel source
   # (tests/vm/build-test-modules.sh); the headers of that exact kernel are
