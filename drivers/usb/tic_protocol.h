@@ -16,8 +16,9 @@
 
 namespace aggscan::tic {
 
-// Section 11 "USB command encoding" (and the device's USB descriptors): the
-// Tic is a Pololu device, vendor ID 0x1FFB; one product ID per model.
+// USB IDs: Pololu's vendor ID 0x1FFB and one product ID per model, as
+// Pololu's own software matches them (pololu-tic-software,
+// include/tic_protocol.h, TIC_VENDOR_ID / TIC_PRODUCT_ID_*).
 inline constexpr uint16_t kVendorId = 0x1FFB;
 struct Product {
   uint16_t id;
@@ -29,8 +30,9 @@ inline constexpr Product kProducts[] = {
 };
 /// The model name for a product ID, or nullptr when it is not a Tic.
 const char* ProductName(uint16_t product_id);
-/// The Tic's native USB interface is interface 0 (the others are its CDC
-/// serial port); commands are vendor control transfers on endpoint 0.
+/// The Tic's native USB interface is interface 0 (pololu-tic-software opens
+/// interface 0; the others are its CDC serial port). Commands themselves are
+/// vendor control transfers on endpoint 0 (section 11).
 inline constexpr int kNativeInterface = 0;
 
 // Section 11: "All of the Tic's USB commands are implemented as vendor-defined

@@ -127,7 +127,7 @@ Status UsbTicTurntable::Connect() {
     }
     if (libusb_has_capability(LIBUSB_CAP_HAS_HOTPLUG)) {
       libusb_hotplug_register_callback(
-          ctx_, LIBUSB_HOTPLUG_EVENT_DEVICE_ARRIVED | LIBUSB_HOTPLUG_EVENT_DEVICE_LEFT,
+          ctx_, LIBUSB_HOTPLUG_EVENT_DEVICE_LEFT,
           LIBUSB_HOTPLUG_NO_FLAGS, usb_.vendor_id, LIBUSB_HOTPLUG_MATCH_ANY,
           LIBUSB_HOTPLUG_MATCH_ANY, &HotplugBridge::Callback, this, &hotplug_);
     }

@@ -16,9 +16,10 @@
 //    up again (re-plug) and, found, sets it up again and reports homed = false
 //    (its position is no longer known). A transfer that does not complete in
 //    turntable.usb.timeout is kTimeout; a stalled (refused) request is
-//    kDeviceFault. Where libusb has hotplug support the backend also listens
-//    for arrival/departure events of the Tic's vendor ID, so a departure is
-//    reported at the next call without waiting for a transfer to fail.
+//    kDeviceFault. Where libusb delivers hotplug events (a udev daemon runs)
+//    the backend also listens for departures of the Tic's vendor ID, so an
+//    unplug is reported at the next call without waiting for a transfer to
+//    fail. Arrival needs no event: every request without a handle searches.
 //  - Homing: the Tic's own homing procedure ("Go home", limit switch) in the
 //    configured direction, or home = "here" (Halt and set position 0). It is
 //    also the recovery step: a motor driver error is cleared first.
