@@ -157,6 +157,9 @@ Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int sid
     const auto t0 = std::chrono::steady_clock::now();
     auto side_result = ReadJson(SideResultPath(sample_dir, side), "side result");
     if (!side_result) return side_result.error();
+    if (Status s = SideHasEnoughWholeViews(*side_result); !s) {
+      return MakeError(s.error().cls, "poses stage: " + s.error().message);
+    }
     json jviews = json::array();
     for (const auto& v : side_result->value("views", json::array())) {
       if (!v.value("ok", false)) continue;  // no rock in this view: it cannot bound the hull

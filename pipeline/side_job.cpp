@@ -114,6 +114,72 @@ Result<std::vector<ManifestView>> ReadManifest(const std::string& side_dir, int 
   return views;
 }
 
+// Rock pixels on the photo's outermost row or column.
+int FramePixels(const cv::Mat& mask) {
+  if (mask.empty()) return 0;
+  const int r = mask.rows - 1, c = mask.cols - 1;
+  return cv::countNonZero(mask.row(0)) + cv::countNonZero(mask.row(r)) +
+         cv::countNonZero(mask.col(0).rowRange(1, std::max(1, r))) +
+         cv::countNonZero(mask.col(c).rowRange(1, std::max(1, r)));
+}
+
+std::string ViewList(const std::vector<int>& v) {
+  std::string s;
+  for (size_t i = 0; i < v.size(); ++i) s += (i ? ", " : "") + std::to_string(v[i]);
+  return s;
+}
+
+}  // namespace
+
+std::string CheckSideMasks(json* jviews) {
+  double largest = 0;
+  for (const json& jv : *jviews) {
+    if (jv.value("ok", false)) largest = std::max(largest, jv.value("mask_area_fraction", 0.0));
+  }
+  std::vector<int> cut, small;
+  for (json& jv : *jviews) {
+    if (!jv.value("ok", false)) continue;
+    const int view = jv.value("view", -1);
+    if (jv.value("mask_frame_px", 0) >= kMaskFrameMinPx) {
+      cut.push_back(view);
+      jv["ok"] = false;
+      jv["error"] = "the rock reaches the edge of the photo (" + std::to_string(jv.value("mask_frame_px", 0)) +
+                    " px on its border): its silhouette is cut";
+    } else if (jv.value("mask_area_fraction", 0.0) < kMaskMinAreaOfLargest * largest) {
+      small.push_back(view);
+      jv["ok"] = false;
+      jv["error"] = "the mask covers " +
+                    std::to_string(static_cast<int>(std::lround(100 * jv.value("mask_area_fraction", 0.0) / largest))) +
+                    " % of the side's largest: the segmentation lost the rock";
+    }
+  }
+  std::string msg;
+  if (!cut.empty()) {
+    msg = "the rock reaches the edge of the photo in view" + std::string(cut.size() > 1 ? "s " : " ") + ViewList(cut) +
+          " (left out): move the camera back or use a wider lens so the whole rock is in every photo, then "
+          "re-capture";
+  }
+  if (!small.empty()) {
+    msg += std::string(msg.empty() ? "" : "; ") + "the rock was lost by the segmentation in view" +
+           (small.size() > 1 ? "s " : " ") + ViewList(small) +
+           " (masks under " + std::to_string(static_cast<int>(100 * kMaskMinAreaOfLargest)) +
+           " % of the side's largest; left out): check those photos (rock leaving the frame, background of the "
+           "rock's colour, lighting)";
+  }
+  return msg;
+}
+
+Status SideHasEnoughWholeViews(const json& side_result) {
+  const std::string problems = side_result.value("mask_problems", "");
+  const int total = side_result.value("views_total", 0), ok = side_result.value("views_ok", 0);
+  if (problems.empty() || 3 * ok >= 2 * total) return OkStatus();
+  return MakeError(ErrorClass::kCorrupt, "side " + std::to_string(side_result.value("side", 0)) + ": only " +
+                                             std::to_string(ok) + " of " + std::to_string(total) +
+                                             " views show the whole rock, too few for its model: " + problems);
+}
+
+namespace {
+
 Status WriteJson(const std::string& path, const json& j) { return WriteFileAtomic(path, j.dump(2) + "\n"); }
 
 }  // namespace
@@ -195,6 +261,7 @@ Status ProcessSide(const std::string& sample_dir, int side, const WorkerOptions&
     }
     const double total_px = static_cast<double>(image_size.area());
     jv["mask_area_fraction"] = total_px > 0 ? cv::countNonZero(mask) / total_px : 0.0;
+    jv["mask_frame_px"] = FramePixels(mask);
     auto m = ComputeMorph2D(mask);
     if (m.ok()) {
       jv["ok"] = true;
@@ -205,10 +272,6 @@ Status ProcessSide(const std::string& sample_dir, int side, const WorkerOptions&
       jv["perimeter_px"] = m->perimeter_px;
       jv["circularity"] = m->circularity;
       jv["l_max_angle_deg"] = m->l_max_angle_deg;
-      values["fer_2d"].push_back(m->fer_2d);
-      values["circularity"].push_back(m->circularity);
-      values["l_max_px"].push_back(m->l_max_px);
-      values["l_min_px"].push_back(m->l_min_px);
     } else {
       jv["ok"] = false;
       jv["error"] = "no rock found in this view";
@@ -218,16 +281,33 @@ Status ProcessSide(const std::string& sample_dir, int side, const WorkerOptions&
     jv["timing_ms"] = mask_ms;
     jviews.push_back(std::move(jv));
   }
+  // Masks that cannot be the rock's whole silhouette: cut by the photo's
+  // edge, or a small fraction of the side's largest (the segmentation lost
+  // the rock). Either would make the 2D figures wrong and carve rock away
+  // from the model, so such views are left out, and said so.
+  const std::string lost = CheckSideMasks(&jviews);
+  if (!lost.empty()) {
+    LogLine(LogLevel::kWarning, kCat, sample_id, "side " + std::to_string(side) + ": " + lost);
+  }
+  for (const json& jv : jviews) {
+    if (!jv.value("ok", false)) continue;
+    values["fer_2d"].push_back(jv["fer_2d"].get<double>());
+    values["circularity"].push_back(jv["circularity"].get<double>());
+    values["l_max_px"].push_back(jv["l_max_px"].get<double>());
+    values["l_min_px"].push_back(jv["l_min_px"].get<double>());
+  }
   const int ok_views = static_cast<int>(values["fer_2d"].size());
   if (ok_views == 0)
     return MakeError(ErrorClass::kCorrupt, "side " + std::to_string(side) + " of " + sample_id +
-                                               ": no rock found in any view (empty turntable or wrong exposure?)");
+                                               ": no rock found in any view (empty turntable or wrong exposure?)" +
+                                               (lost.empty() ? "" : "; " + lost));
   const double total_ms = static_cast<double>(MonotonicNs() - t_start) / 1e6;
   json out = {{"sample_id", sample_id},
               {"side", side},
               {"views", jviews},
               {"views_total", static_cast<int>(views->size())},
               {"views_ok", ok_views},
+              {"mask_problems", lost},
               {"stats", StatsBlock(values)},
               {"std_kind", "sample"},
               {"mask_method", opts.mask_net ? "onnx" : "classical"},

@@ -17,6 +17,8 @@
 #include <memory>
 #include <string>
 
+#include <nlohmann/json.hpp>
+
 #include "common/error.h"
 #include "pipeline/mask.h"
 #include "pipeline/mask_net.h"
@@ -39,6 +41,28 @@ Status ProcessSide(const std::string& sample_dir, int side, const WorkerOptions&
 /// manifest but no result yet are processed first. kNotFound when no side has
 /// been captured or a side directory has no manifest.
 Status ProcessSample(const std::string& sample_dir, const WorkerOptions& opts = {});
+
+/// A view whose mask has at least this many pixels on the photo's outermost
+/// rows and columns shows a rock cut by the frame.
+inline constexpr int kMaskFrameMinPx = 3;
+/// A view whose mask covers less than this fraction of the side's largest
+/// mask lost the rock (a 3:1 rod seen end-on keeps about a third; the sim's
+/// 22 cm ashlar 923, reaching the frame, left masks of 0.8 %).
+inline constexpr double kMaskMinAreaOfLargest = 0.15;
+
+/// Marks the views of one side's result (the "views" array of
+/// side<N>_morph2d.json, each with "ok", "mask_area_fraction" and
+/// "mask_frame_px") whose masks cannot be the rock's whole silhouette: cut by
+/// the photo's edge, or under kMaskMinAreaOfLargest of the side's largest.
+/// Those get "ok": false and an "error"; the later stages leave them out.
+/// Returns what was found and what to do, empty when nothing.
+std::string CheckSideMasks(nlohmann::json* views);
+
+/// kCorrupt, naming the side, the views left and what to do, when a side
+/// result (side<N>_morph2d.json) lost more than a third of its views to
+/// CheckSideMasks: the silhouettes left are too few for a trustworthy model,
+/// and the cause (a rock too big for the frame, say) is usually in every view.
+Status SideHasEnoughWholeViews(const nlohmann::json& side_result);
 
 /// Paths of the outputs, relative names as in the layout above.
 std::string SideResultPath(const std::string& sample_dir, int side);

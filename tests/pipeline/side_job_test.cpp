@@ -1,6 +1,7 @@
 #include "pipeline/side_job.h"
 
 #include <atomic>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -8,6 +9,7 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "common/fsutil.h"
 #include "store/layout.h"
@@ -134,6 +136,72 @@ TEST_F(SideJobTest, FinishedSideIsSkippedAndMasksAreReused) {
   const json again = ReadJson(SideResultPath(dir_, 1));
   for (int v = 0; v < 3; ++v)
     EXPECT_DOUBLE_EQ(again["views"][v]["fer_2d"].get<double>(), first["views"][v]["fer_2d"].get<double>());
+}
+
+// A rock cut by the photo's edge, or lost by the segmentation, must not
+// carve the model or enter the 2D statistics: such views are left out and
+// the side result says which and what to do.
+TEST_F(SideJobTest, MasksCutByTheFrameOrLostAreLeftOut) {
+  MakeSide(1, 4);
+  ASSERT_TRUE(ProcessSide(dir_, 1).ok());
+  const json first = ReadJson(SideResultPath(dir_, 1));
+  EXPECT_EQ(first["views_ok"], 4);
+  EXPECT_EQ(first["mask_problems"], "");
+  for (const auto& v : first["views"]) EXPECT_EQ(v["mask_frame_px"], 0) << v["view"];
+
+  // View 1: the rock reaches the top edge; view 2: a speck of the usual size's 5 %.
+  cv::Mat cut = cv::imread(ViewMaskPath(dir_, 1, 1), cv::IMREAD_GRAYSCALE);
+  ASSERT_FALSE(cut.empty());
+  cv::rectangle(cut, cv::Rect(250, 0, 140, 200), cv::Scalar(255), cv::FILLED);
+  ASSERT_TRUE(cv::imwrite(ViewMaskPath(dir_, 1, 1), cut));
+  cv::Mat speck = cv::Mat::zeros(cut.size(), CV_8UC1);
+  const int side_px = static_cast<int>(std::sqrt(0.05 * first["views"][0]["area_px"].get<double>()));
+  cv::rectangle(speck, cv::Rect(300, 240, side_px, side_px), cv::Scalar(255), cv::FILLED);
+  ASSERT_TRUE(cv::imwrite(ViewMaskPath(dir_, 1, 2), speck));
+  fs::remove(SideResultPath(dir_, 1));
+  ASSERT_TRUE(ProcessSide(dir_, 1).ok());  // reuses the masks
+
+  const json r = ReadJson(SideResultPath(dir_, 1));
+  EXPECT_EQ(r["views_ok"], 2);
+  EXPECT_EQ(r["stats"]["fer_2d"]["n"], 2);
+  EXPECT_TRUE(r["views"][0]["ok"].get<bool>());
+  EXPECT_TRUE(r["views"][3]["ok"].get<bool>());
+  EXPECT_FALSE(r["views"][1]["ok"].get<bool>());
+  EXPECT_GE(r["views"][1]["mask_frame_px"].get<int>(), 140);
+  EXPECT_NE(r["views"][1]["error"].get<std::string>().find("edge of the photo"), std::string::npos);
+  EXPECT_FALSE(r["views"][2]["ok"].get<bool>());
+  EXPECT_NE(r["views"][2]["error"].get<std::string>().find("lost the rock"), std::string::npos);
+  const std::string problems = r["mask_problems"].get<std::string>();
+  EXPECT_NE(problems.find("edge of the photo in view 1 "), std::string::npos) << problems;
+  EXPECT_NE(problems.find("move the camera back"), std::string::npos) << problems;
+  EXPECT_NE(problems.find("segmentation in view 2 "), std::string::npos) << problems;
+  // Half the views left out: the side cannot give a model, and says why.
+  const Status enough = SideHasEnoughWholeViews(r);
+  ASSERT_FALSE(enough.ok());
+  EXPECT_EQ(enough.error().cls, ErrorClass::kCorrupt);
+  EXPECT_NE(enough.error().message.find("side 1: only 2 of 4 views"), std::string::npos) << enough.error().message;
+  EXPECT_NE(enough.error().message.find("move the camera back"), std::string::npos) << enough.error().message;
+  EXPECT_TRUE(SideHasEnoughWholeViews(first).ok());
+}
+
+TEST(CheckSideMasks, ThresholdsAndMessages) {
+  auto view = [](int v, double area, int frame) {
+    return json{{"view", v}, {"ok", true}, {"mask_area_fraction", area}, {"mask_frame_px", frame}};
+  };
+  json views = json::array({view(0, 0.20, 0), view(1, 0.20 * kMaskMinAreaOfLargest * 1.01, 0),
+                            view(2, 0.20 * kMaskMinAreaOfLargest * 0.99, 0), view(3, 0.18, kMaskFrameMinPx - 1),
+                            view(4, 0.19, kMaskFrameMinPx), view(5, 0.19, 0)});
+  views[5]["ok"] = false;  // already without a rock: untouched
+  const std::string msg = CheckSideMasks(&views);
+  std::vector<bool> ok;
+  for (const auto& v : views) ok.push_back(v["ok"].get<bool>());
+  EXPECT_EQ(ok, (std::vector<bool>{true, true, false, true, false, false}));
+  EXPECT_FALSE(views[5].contains("error"));
+  EXPECT_NE(msg.find("view 4 "), std::string::npos) << msg;
+  EXPECT_NE(msg.find("view 2 "), std::string::npos) << msg;
+
+  json fine = json::array({view(0, 0.2, 0), view(1, 0.1, 0)});
+  EXPECT_EQ(CheckSideMasks(&fine), "");
 }
 
 TEST_F(SideJobTest, CancelStopsBetweenViewsAndResumes) {
