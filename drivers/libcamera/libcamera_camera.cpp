@@ -4,11 +4,13 @@
 #include <libcamera/property_ids.h>
 #include <libcamera/stream.h>
 #include <sys/mman.h>
+#include <sys/stat.h>
 #include <time.h>
 
 #include <algorithm>
 #include <cerrno>
 #include <cstring>
+#include <filesystem>
 #include <span>
 #include <utility>
 
@@ -33,6 +35,25 @@ std::string Seconds(TimeNs t) {
 
 std::string SizeText(const libcamera::PixelFormat& f, unsigned w, unsigned h) {
   return f.toString() + " " + std::to_string(w) + "x" + std::to_string(h);
+}
+
+// A camera that vanished while running, with its requests and the allocator
+// owning their buffers. libcamera 0.0.3 cannot stop it (stop() is refused
+// after a disconnect, or aborts on requests stuck in the vanished device) and
+// aborts when it destroys a camera still running (its IPA thread is never
+// joined), while its pipeline keeps pointers to our requests. So all of it is
+// kept for the life of the process: a few objects and one idle thread per
+// unplug, against a crash.
+struct Abandoned {
+  std::vector<std::unique_ptr<libcamera::Request>> requests;
+  std::unique_ptr<libcamera::FrameBufferAllocator> allocator;
+  std::shared_ptr<libcamera::Camera> camera;
+};
+void Abandon(Abandoned a) {
+  static std::mutex mu;
+  static auto* kept = new std::vector<Abandoned>;  // never freed, on purpose
+  std::lock_guard<std::mutex> l(mu);
+  kept->push_back(std::move(a));
 }
 
 }  // namespace
@@ -89,6 +110,15 @@ Status LibcameraCamera::DoOpen() {
   }
   camera_ = std::move(cam);
   id_ = *id;
+  nodes_.clear();
+  std::error_code ec;
+  for (const auto& e : std::filesystem::directory_iterator("/dev", ec)) {
+    const std::string path = e.path().string();
+    struct stat st {};
+    if (path.rfind("/dev/video", 0) != 0 || ::stat(path.c_str(), &st) != 0 || !S_ISCHR(st.st_mode))
+      continue;
+    if (manager_->get(st.st_rdev) == camera_) nodes_.push_back({path, st.st_rdev});
+  }
   const auto model = camera_->properties().get(libcamera::properties::Model);
   model_ = (model ? *model + " (" : "(") + id_ + ")";
   {
@@ -100,14 +130,25 @@ Status LibcameraCamera::DoOpen() {
   camera_->requestCompleted.connect(this, &LibcameraCamera::OnRequestCompleted);
   camera_->disconnected.connect(this, &LibcameraCamera::OnDisconnected);
   worker_ = std::thread([this] { WorkerLoop(); });
-  AGG_LOGI(kLog, "opened %s", model_.c_str());
+  std::string on;
+  for (const Node& n : nodes_) on += " " + n.path;
+  AGG_LOGI(kLog, "opened %s%s%s", model_.c_str(), on.empty() ? "" : " on", on.c_str());
   return OkStatus();
+}
+
+bool LibcameraCamera::NodesGone() const {
+  for (const Node& n : nodes_) {
+    struct stat st {};
+    if (::stat(n.path.c_str(), &st) != 0 || st.st_rdev != n.rdev) return true;
+  }
+  return false;
 }
 
 void LibcameraCamera::OnRequestCompleted(libcamera::Request* request) {
   {
     std::lock_guard<std::mutex> l(mu_);
     completed_.push_back(request);
+    --in_flight_;
   }
   cv_.notify_all();
 }
@@ -125,7 +166,7 @@ Status LibcameraCamera::DoConfigure(const CameraSettings& settings) {
   StopCamera();  // a second Configure renegotiates from scratch
   {
     std::lock_guard<std::mutex> l(mu_);
-    if (disconnected_)
+    if (disconnected_ || NodesGone())
       return MakeError(ErrorClass::kDisconnected,
                        "camera " + id_ + " went away; it is reopened on reset");
   }
@@ -263,18 +304,38 @@ Status LibcameraCamera::StartCamera(const ControlPlan& plan) {
 
 void LibcameraCamera::StopCamera() {
   if (started_ && camera_) {
-    // Completes (cancels) every queued request; fails harmlessly on a
-    // camera that went away.
-    (void)camera_->stop();
+    bool gone = NodesGone();
+    {
+      std::lock_guard<std::mutex> l(mu_);
+      gone = gone || disconnected_;
+    }
+    // stop() completes (cancels) every queued request. A camera that went
+    // away cannot be stopped (see Abandoned): the requests its pipeline fails
+    // to queue come back cancelled (waited for briefly, so its thread is not
+    // mid-signal when we disconnect), then it is abandoned running.
+    if (!gone) {
+      (void)camera_->stop();
+    } else {
+      {
+        std::unique_lock<std::mutex> l(mu_);
+        cv_.wait_for(l, std::chrono::seconds(2), [this] { return in_flight_ <= 0; });
+        AGG_LOGW(kLog, "%s went away while running: abandoned (%d request(s) never came back)",
+                 id_.c_str(), in_flight_);
+      }
+      Abandon({std::move(requests_), std::move(allocator_), camera_});
+      requests_.clear();
+      abandoned_ = true;
+    }
   }
   started_ = false;
   {
     std::lock_guard<std::mutex> l(mu_);
     completed_.clear();
     idle_.clear();
+    in_flight_ = 0;
   }
-  requests_.clear();
   mapped_.clear();  // munmap before the buffers are freed
+  requests_.clear();
   allocator_.reset();
   lc_config_.reset();
   stream_ = nullptr;
@@ -284,7 +345,8 @@ void LibcameraCamera::ReleaseCamera() {
   if (!camera_) return;
   camera_->requestCompleted.disconnect(this);
   camera_->disconnected.disconnect(this);
-  (void)camera_->release();
+  if (!abandoned_) (void)camera_->release();  // an abandoned camera is still running
+  abandoned_ = false;
   camera_.reset();
 }
 
@@ -333,97 +395,135 @@ Status LibcameraCamera::QueueStill(libcamera::Request* request) {
   // The locked values ride on every request, so no frame of the rock can be
   // shot with anything else, whatever the pipeline did in between.
   for (const auto& [id, value] : request_controls_) request->controls().set(id, value);
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    ++in_flight_;  // before queueing: the completion may come first
+  }
   if (const int r = camera_->queueRequest(request); r < 0) {
     std::lock_guard<std::mutex> l(mu_);
+    --in_flight_;
     idle_.push_back(request);
-    const bool gone = disconnected_ || r == -ENODEV;
+    const bool gone = disconnected_ || r == -ENODEV || NodesGone();
     return LibcameraError(id_, "queueing a request", gone ? -ENODEV : r, true);
   }
   return OkStatus();
 }
 
+// Pipelines need several requests in flight to stream at all (vimc's
+// capture node starts only with two buffers queued), so while a still is
+// pending every idle request is queued, and the first good frame whose
+// exposure began after the request is the still. Between stills the
+// requests drain and the pipeline idles; what completed meanwhile is stale.
 Result<FramePtr> LibcameraCamera::Capture(const Job& job) {
   const int64_t deadline = job.requested_mono_ns + config_.libcamera.frame_timeout;
-  libcamera::Request* mine = nullptr;  // the request queued for this still
-  std::string unsettled;               // why the last frame was not the still
+  std::string unsettled;  // why the last fresh frame was not the still
+  bool cancelled = false;  // the pipeline cancelled a request: queue nothing more
+  uint64_t bad = 0;        // frames flagged bad during this still
   for (;;) {
-    libcamera::Request* done = nullptr;
-    libcamera::Request* to_queue = nullptr;
+    std::vector<libcamera::Request*> to_queue;
+    std::deque<libcamera::Request*> got;
     {
       std::unique_lock<std::mutex> l(mu_);
       for (;;) {
         if (stop_)
           return MakeError(ErrorClass::kInvalidState, "camera closed while a still was pending");
-        if (disconnected_)
+        if (disconnected_ || (cancelled && NodesGone()))
           return MakeError(ErrorClass::kDisconnected,
                            "camera " + id_ +
                                " went away while a still was pending — check the cable; it is "
                                "reopened on reset");
-        // Completions of requests abandoned by an earlier, timed-out still
-        // go back to the idle pool.
-        while (!completed_.empty()) {
-          libcamera::Request* r = completed_.front();
-          completed_.pop_front();
-          if (r == mine) {
-            done = r;
-          } else {
-            ++late_frames_;
-            idle_.push_back(r);
-          }
+        if (!completed_.empty()) {
+          got.swap(completed_);
+          break;
         }
-        if (done) break;
-        if (!mine && !idle_.empty()) {
-          to_queue = idle_.back();
-          idle_.pop_back();
+        // After a cancellation nothing is queued again: a camera that went
+        // away says so (disconnected) before the deadline, else it is a fault.
+        if (!cancelled && !idle_.empty()) {
+          to_queue.swap(idle_);
           break;
         }
         const int64_t now = MonotonicNs();
+        if (now >= deadline && NodesGone()) {
+          disconnected_ = true;
+          continue;  // reported as disconnected above
+        }
         if (now >= deadline) {
-          if (!unsettled.empty())
+          const std::string within = " within " + Seconds(config_.libcamera.frame_timeout);
+          if (cancelled)
             return MakeError(ErrorClass::kDeviceFault,
-                             "camera " + id_ + " did not apply the locked settings within " +
-                                 Seconds(config_.libcamera.frame_timeout) + ": its last frame had " +
-                                 unsettled);
+                             "camera " + id_ +
+                                 ": the pipeline cancelled the still's requests — the camera is "
+                                 "reconfigured on reset");
+          if (!unsettled.empty())
+            return MakeError(ErrorClass::kDeviceFault, "camera " + id_ +
+                                                           " did not apply the locked settings" +
+                                                           within + ": its last frame had " +
+                                                           unsettled);
+          if (bad > 0)
+            return MakeError(ErrorClass::kDeviceFault,
+                             "camera " + id_ + ": only frames flagged bad (" + std::to_string(bad) +
+                                 ")" + within + " of the still request");
           return MakeError(ErrorClass::kTimeout,
-                           "camera " + id_ + ": no frame within " +
-                               Seconds(config_.libcamera.frame_timeout) +
+                           "camera " + id_ + ": no frame" + within +
                                " of the still request — check the camera and its cable");
         }
-        cv_.wait_for(l, std::chrono::nanoseconds(deadline - now));
+        // After a cancellation, look for the vanished node now and then: it
+        // goes a moment after the device stops answering.
+        const int64_t slice = cancelled ? std::min<int64_t>(deadline - now, 50'000'000) : deadline - now;
+        cv_.wait_for(l, std::chrono::nanoseconds(slice));
       }
     }
-    if (to_queue) {
-      if (Status s = QueueStill(to_queue); !s) return s.error();
-      mine = to_queue;
-      continue;
+    for (size_t i = 0; i < to_queue.size(); ++i) {
+      if (Status s = QueueStill(to_queue[i]); !s) {
+        std::lock_guard<std::mutex> l(mu_);
+        idle_.insert(idle_.end(), to_queue.begin() + static_cast<std::ptrdiff_t>(i) + 1,
+                     to_queue.end());
+        return s.error();
+      }
     }
-    // `done` is this still's request: the still, or a reason to ask again.
-    mine = nullptr;
-    auto retry = [&]() {
+    libcamera::Request* still = nullptr;
+    ReadBack still_rb;
+    for (libcamera::Request* r : got) {
+      if (still != nullptr) continue;  // frames after the still: back to the pool below
+      if (r->status() == libcamera::Request::RequestCancelled) {
+        cancelled = true;  // stop_ or disconnected_ tell why, else the deadline does
+        continue;
+      }
+      const libcamera::FrameBuffer* fb = r->findBuffer(stream_);
+      if (fb == nullptr || fb->metadata().status != libcamera::FrameMetadata::FrameSuccess) {
+        ++corrupt_frames_;
+        ++bad;
+        continue;
+      }
+      if (FrameTimestamp(r) < job.requested_mono_ns) {
+        ++stale_frames_;
+        continue;
+      }
+      const ReadBack rb = ReadMetadata(r->metadata());
+      if (std::string why = UnsettledReason(rb, active_, neg_.missing_controls); !why.empty()) {
+        ++unsettled_frames_;
+        unsettled = why;
+        continue;
+      }
+      still = r;
+      still_rb = rb;
+    }
+    Result<FramePtr> frame = MakeError(ErrorClass::kInternal, "no still");
+    if (still != nullptr) frame = MakeFrame(job, still, still_rb);
+    {
       std::lock_guard<std::mutex> l(mu_);
-      idle_.push_back(done);
-    };
-    if (done->status() == libcamera::Request::RequestCancelled) {
-      retry();
-      continue;  // stop_ or disconnected_ tell why on the next turn, else ask again
+      idle_.insert(idle_.end(), got.begin(), got.end());
     }
-    const libcamera::FrameBuffer* fb = done->findBuffer(stream_);
-    if (fb == nullptr || fb->metadata().status != libcamera::FrameMetadata::FrameSuccess) {
-      ++corrupt_frames_;
-      retry();
-      continue;
-    }
-    const ReadBack rb = ReadMetadata(done->metadata());
-    if (std::string why = UnsettledReason(rb, active_, neg_.missing_controls); !why.empty()) {
-      ++unsettled_frames_;
-      unsettled = why;
-      retry();
-      continue;
-    }
-    Result<FramePtr> frame = MakeFrame(job, done, rb);
-    retry();
-    return frame;
+    if (still != nullptr) return frame;
   }
+}
+
+int64_t LibcameraCamera::FrameTimestamp(libcamera::Request* request) const {
+  // SensorTimestamp: start of exposure of the first line, CLOCK_MONOTONIC;
+  // else the buffer's own timestamp (same clock).
+  if (const auto ts = request->metadata().get(libcamera::controls::SensorTimestamp)) return *ts;
+  const libcamera::FrameBuffer* fb = request->findBuffer(stream_);
+  return fb ? static_cast<int64_t>(fb->metadata().timestamp) : 0;
 }
 
 Result<FramePtr> LibcameraCamera::MakeFrame(const Job& job, libcamera::Request* request,
@@ -453,9 +553,7 @@ Result<FramePtr> LibcameraCamera::MakeFrame(const Job& job, libcamera::Request* 
     e.message = "camera " + id_ + ": " + e.message;
     return e;
   }
-  // SensorTimestamp: start of exposure of the first line, CLOCK_MONOTONIC.
-  const auto sensor_ts = request->metadata().get(libcamera::controls::SensorTimestamp);
-  const int64_t ts = sensor_ts ? *sensor_ts : static_cast<int64_t>(md.timestamp);
+  const int64_t ts = FrameTimestamp(request);
   const int64_t age = std::max<int64_t>(0, MonotonicNs() - ts);
   auto frame = std::make_shared<Frame>();
   frame->data = std::move(*still);

@@ -10,17 +10,20 @@
 // does), maps exposure, gain and white balance onto libcamera controls
 // (ExposureTime, AnalogueGain, ColourGains with AeEnable/AwbEnable off),
 // allocates the buffers with FrameBufferAllocator, mmaps their dmabuf planes
-// and starts the camera with those controls. A still queues one Request
-// carrying the controls; its completion is the still unless the frame is
-// flagged bad, started before the request, or its metadata shows locked
-// values not yet in effect: then the request is queued again.
+// and starts the camera with those controls. While a still is pending every
+// idle Request is queued, each carrying the controls (pipelines need several
+// in flight to stream); the still is the first completed frame that is not
+// flagged bad, began after the request and whose metadata shows the locked
+// values in effect.
 //
 // Threads: libcamera emits requestCompleted and disconnected on its own
 // thread; the handlers only post them (a queue and a flag under a mutex) to
 // this backend's worker thread, which converts, encodes and calls `done`.
 //
 // Errors: camera not listed -> kDeviceMissing naming the cameras found; the
-// camera removed while open (unplug, driver unbound) -> kDisconnected; no
+// camera removed while open (unplug, driver unbound: libcamera's disconnected
+// signal, or the camera's video node gone once the pipeline cancels a
+// request or fails to queue one) -> kDisconnected; no
 // completed frame within camera.libcamera.frame_timeout -> kTimeout; frames
 // arriving but never with the locked values -> kDeviceFault. After a
 // disconnect the camera must be closed and opened again (the recovery path).
@@ -31,6 +34,8 @@
 #include <libcamera/framebuffer_allocator.h>
 #include <libcamera/pixel_format.h>
 #include <libcamera/request.h>
+
+#include <sys/types.h>
 
 #include <atomic>
 #include <condition_variable>
@@ -77,8 +82,8 @@ class LibcameraCamera final : public Camera {
   uint64_t corrupt_frames() const { return corrupt_frames_.load(); }
   /// Frames re-requested because their metadata did not yet show the locked values.
   uint64_t unsettled_frames() const { return unsettled_frames_.load(); }
-  /// Completions of requests whose still had already timed out.
-  uint64_t late_frames() const { return late_frames_.load(); }
+  /// Frames skipped because their exposure began before the still request.
+  uint64_t stale_frames() const { return stale_frames_.load(); }
 
  protected:
   Status DoOpen() override;
@@ -108,7 +113,10 @@ class LibcameraCamera final : public Camera {
   void WorkerLoop();
   Result<FramePtr> Capture(const Job& job);
   Result<FramePtr> MakeFrame(const Job& job, libcamera::Request* request, const ReadBack& rb);
+  int64_t FrameTimestamp(libcamera::Request* request) const;
   void ReleaseCamera();
+  /// True when a device node the camera was found on has vanished since Open.
+  bool NodesGone() const;
 
   Clock& clock_;
   CameraConfig config_;
@@ -119,7 +127,16 @@ class LibcameraCamera final : public Camera {
   std::shared_ptr<libcamera::Camera> camera_;
   std::string id_;
   std::string model_;
+  // The camera's capture nodes (libcamera maps their device numbers to it):
+  // not every pipeline handler signals `disconnected` (0.0.3's vimc handler
+  // does not), so a vanished node is how an unplug is told from a fault.
+  struct Node {
+    std::string path;
+    dev_t rdev = 0;
+  };
+  std::vector<Node> nodes_;
   bool started_ = false;
+  bool abandoned_ = false;  // went away while running: left to libcamera, never released
   std::unique_ptr<libcamera::CameraConfiguration> lc_config_;
   std::unique_ptr<libcamera::FrameBufferAllocator> allocator_;
   libcamera::Stream* stream_ = nullptr;
@@ -131,7 +148,7 @@ class LibcameraCamera final : public Camera {
 
   std::atomic<uint64_t> corrupt_frames_{0};
   std::atomic<uint64_t> unsettled_frames_{0};
-  std::atomic<uint64_t> late_frames_{0};
+  std::atomic<uint64_t> stale_frames_{0};
 
   mutable std::mutex mu_;  // guards everything below
   std::condition_variable cv_;
@@ -140,6 +157,7 @@ class LibcameraCamera final : public Camera {
   bool disconnected_ = false;
   std::deque<libcamera::Request*> completed_;  // posted by OnRequestCompleted
   std::vector<libcamera::Request*> idle_;      // not queued to the camera
+  int in_flight_ = 0;                          // queued, not yet completed
   std::thread worker_;
 };
 
