@@ -5,7 +5,6 @@
 #include <libcamera/stream.h>
 #include <sys/mman.h>
 #include <sys/stat.h>
-#include <time.h>
 
 #include <algorithm>
 #include <cerrno>
@@ -20,18 +19,6 @@ namespace aggscan::lc {
 namespace {
 
 constexpr const char* kLog = "libcamera";
-
-int64_t MonotonicNs() {
-  timespec ts{};
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return static_cast<int64_t>(ts.tv_sec) * 1'000'000'000 + ts.tv_nsec;
-}
-
-std::string Seconds(TimeNs t) {
-  char b[32];
-  std::snprintf(b, sizeof b, "%.3g s", static_cast<double>(t) / 1e9);
-  return b;
-}
 
 std::string SizeText(const libcamera::PixelFormat& f, unsigned w, unsigned h) {
   return f.toString() + " " + std::to_string(w) + "x" + std::to_string(h);
@@ -123,13 +110,11 @@ Status LibcameraCamera::DoOpen() {
   model_ = (model ? *model + " (" : "(") + id_ + ")";
   {
     std::lock_guard<std::mutex> l(mu_);
-    stop_ = false;
     disconnected_ = false;
-    job_.reset();
   }
   camera_->requestCompleted.connect(this, &LibcameraCamera::OnRequestCompleted);
   camera_->disconnected.connect(this, &LibcameraCamera::OnDisconnected);
-  worker_ = std::thread([this] { WorkerLoop(); });
+  worker_.Start(kLog, id_, [this](const Job& job) { return Capture(job); });
   std::string on;
   for (const Node& n : nodes_) on += " " + n.path;
   AGG_LOGI(kLog, "opened %s%s%s", model_.c_str(), on.empty() ? "" : " on", on.c_str());
@@ -351,43 +336,15 @@ void LibcameraCamera::ReleaseCamera() {
 }
 
 Status LibcameraCamera::DoRequestStill(const StillRequest& req, FrameCallback done) {
-  std::lock_guard<std::mutex> l(mu_);
-  if (!worker_.joinable() || stop_ || !started_)
-    return MakeError(ErrorClass::kInvalidState, "camera is not streaming");
-  job_ = Job{req, std::move(done), MonotonicNs()};
-  cv_.notify_all();
-  return OkStatus();
+  return worker_.Post(req, std::move(done), started_);
 }
 
 void LibcameraCamera::DoClose() {
-  {
-    std::lock_guard<std::mutex> l(mu_);
-    stop_ = true;
-  }
-  cv_.notify_all();
-  if (worker_.joinable()) worker_.join();  // delivers the in-flight still (or an error) first
+  worker_.Stop();
   StopCamera();
   ReleaseCamera();
   manager_.reset();
   neg_ = {};
-}
-
-void LibcameraCamera::WorkerLoop() {
-  for (;;) {
-    Job job;
-    {
-      std::unique_lock<std::mutex> l(mu_);
-      cv_.wait(l, [this] { return stop_ || job_.has_value(); });
-      if (!job_) return;
-      job = std::move(*job_);
-      job_.reset();
-    }
-    Result<FramePtr> r = Capture(job);
-    if (!r)
-      AGG_LOGW(kLog, "%s: still %llu: %s", id_.c_str(),
-               static_cast<unsigned long long>(job.req.request_id), r.error().ToString().c_str());
-    job.done(std::move(r));
-  }
 }
 
 Status LibcameraCamera::QueueStill(libcamera::Request* request) {
@@ -425,7 +382,7 @@ Result<FramePtr> LibcameraCamera::Capture(const Job& job) {
     {
       std::unique_lock<std::mutex> l(mu_);
       for (;;) {
-        if (stop_)
+        if (worker_.stopping_locked())
           return MakeError(ErrorClass::kInvalidState, "camera closed while a still was pending");
         if (disconnected_ || (cancelled && NodesGone()))
           return MakeError(ErrorClass::kDisconnected,
@@ -448,7 +405,7 @@ Result<FramePtr> LibcameraCamera::Capture(const Job& job) {
           continue;  // reported as disconnected above
         }
         if (now >= deadline) {
-          const std::string within = " within " + Seconds(config_.libcamera.frame_timeout);
+          const std::string within = " within " + SecondsText(config_.libcamera.frame_timeout);
           if (cancelled)
             return MakeError(ErrorClass::kDeviceFault,
                              "camera " + id_ +
@@ -486,7 +443,7 @@ Result<FramePtr> LibcameraCamera::Capture(const Job& job) {
     for (libcamera::Request* r : got) {
       if (still != nullptr) continue;  // frames after the still: back to the pool below
       if (r->status() == libcamera::Request::RequestCancelled) {
-        cancelled = true;  // stop_ or disconnected_ tell why, else the deadline does
+        cancelled = true;  // a stop or disconnected_ tell why, else the deadline does
         continue;
       }
       const libcamera::FrameBuffer* fb = r->findBuffer(stream_);
@@ -553,8 +510,6 @@ Result<FramePtr> LibcameraCamera::MakeFrame(const Job& job, libcamera::Request* 
     e.message = "camera " + id_ + ": " + e.message;
     return e;
   }
-  const int64_t ts = FrameTimestamp(request);
-  const int64_t age = std::max<int64_t>(0, MonotonicNs() - ts);
   auto frame = std::make_shared<Frame>();
   frame->data = std::move(*still);
   frame->request_id = job.req.request_id;
@@ -562,10 +517,7 @@ Result<FramePtr> LibcameraCamera::MakeFrame(const Job& job, libcamera::Request* 
   frame->width = neg_.width;
   frame->height = neg_.height;
   frame->encoding = "jpeg";
-  frame->exposure_start =
-      clock_.Now() -
-      static_cast<TimeNs>(static_cast<double>(age) * (clock_.IsVirtual() ? 0.0 : clock_.Scale()));
-  frame->utc_ns = clock_.UtcNs() - age;
+  StampExposure(frame.get(), clock_, FrameTimestamp(request));
   // The metadata's values where the pipeline reports them; else, for manual
   // exposure, the values the camera accepted as controls (a setting without
   // a control, or an automatic one not reported, reads 0 / 1).

@@ -52,6 +52,7 @@
 #include "config/config.h"
 #include "drivers/camera.h"
 #include "drivers/libcamera/libcamera_util.h"
+#include "drivers/still_worker.h"
 #include "drivers/v4l2/v4l2_camera.h"
 
 namespace aggscan::lc {
@@ -92,11 +93,7 @@ class LibcameraCamera final : public Camera {
   void DoClose() override;
 
  private:
-  struct Job {
-    StillRequest req;
-    FrameCallback done;
-    int64_t requested_mono_ns = 0;
-  };
+  using Job = StillWorker::Job;
   // One allocated buffer, mapped: a pointer per plane into `maps`.
   struct MappedFrame {
     std::vector<v4l2::MappedBuffer> maps;
@@ -110,7 +107,6 @@ class LibcameraCamera final : public Camera {
   Status StartCamera(const ControlPlan& plan);
   void StopCamera();
   Status QueueStill(libcamera::Request* request);
-  void WorkerLoop();
   Result<FramePtr> Capture(const Job& job);
   Result<FramePtr> MakeFrame(const Job& job, libcamera::Request* request, const ReadBack& rb);
   int64_t FrameTimestamp(libcamera::Request* request) const;
@@ -152,13 +148,11 @@ class LibcameraCamera final : public Camera {
 
   mutable std::mutex mu_;  // guards everything below
   std::condition_variable cv_;
-  std::optional<Job> job_;
-  bool stop_ = false;
   bool disconnected_ = false;
   std::deque<libcamera::Request*> completed_;  // posted by OnRequestCompleted
   std::vector<libcamera::Request*> idle_;      // not queued to the camera
   int in_flight_ = 0;                          // queued, not yet completed
-  std::thread worker_;
+  StillWorker worker_{mu_, cv_};  // last: stopped before the rest goes
 };
 
 /// The process's CameraManager, started on first use and shared while any
