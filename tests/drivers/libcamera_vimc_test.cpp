@@ -19,6 +19,7 @@
 #include "config/config.h"
 #include "drivers/libcamera/libcamera_camera.h"
 #include "drivers/sim/jpeg.h"
+#include "tests/drivers/camera_test_util.h"
 
 namespace aggscan::lc {
 namespace {
@@ -56,16 +57,7 @@ CameraSettings Settings(const CameraConfig& c) {
 }
 
 Result<FramePtr> TakeStill(Camera& cam, uint64_t id, std::thread::id* on = nullptr) {
-  auto prom = std::make_shared<std::promise<Result<FramePtr>>>();
-  auto fut = prom->get_future();
-  Status s = cam.RequestStill({id, "vimc", 1, static_cast<int>(id)}, [prom, on](Result<FramePtr> r) {
-    if (on) *on = std::this_thread::get_id();
-    prom->set_value(std::move(r));
-  });
-  if (!s) return s.error();
-  if (fut.wait_for(std::chrono::seconds(90)) != std::future_status::ready)
-    return MakeError(ErrorClass::kInternal, "callback never came");
-  return fut.get();
+  return testutil::TakeStill(cam, {id, "vimc", 1, static_cast<int>(id)}, on);
 }
 
 // dmabuf mappings of this process of at least `min_bytes` (the frame
@@ -82,13 +74,9 @@ int MappedDmabufs(size_t min_bytes = 0) {
   return n;
 }
 
-struct Rgb {
-  int r, g, b;
-};
-Rgb At(const sim::RgbImage& img, int x, int y) {
-  const size_t i = (static_cast<size_t>(y) * img.width + x) * 3;
-  return {img.rgb[i], img.rgb[i + 1], img.rgb[i + 2]};
-}
+using testutil::At;
+using testutil::ExpectConfigureRefused;
+using testutil::Rgb;
 
 bool WriteSysfs(const std::string& path, const std::string& value) {
   std::ofstream f(path);
@@ -132,11 +120,7 @@ TEST_F(Vimc, StrictControlsRefuseVimcWhichHasNoExposureOrGain) {
   c.libcamera.strict_controls = true;
   LibcameraCamera cam(clock_, c);
   ASSERT_TRUE(cam.Open());
-  Status s = cam.Configure(Settings(c));
-  ASSERT_FALSE(s.ok());
-  EXPECT_EQ(s.error().cls, ErrorClass::kInvalidConfig);
-  EXPECT_THAT(s.error().message, HasSubstr("no control for exposure, gain, wb_red, wb_blue"));
-  EXPECT_EQ(cam.state(), Camera::State::kOpened);
+  ExpectConfigureRefused(cam, Settings(c), "no control for exposure, gain, wb_red, wb_blue");
   EXPECT_EQ(MappedDmabufs(), 0);
   cam.Close();
 }
@@ -215,11 +199,7 @@ TEST_F(Vimc, ASizeThePipelineAdjustsIsRefused) {
   c.width = 640;
   LibcameraCamera cam(clock_, c);
   ASSERT_TRUE(cam.Open());
-  Status s = cam.Configure(Settings(c));
-  ASSERT_FALSE(s.ok());
-  EXPECT_EQ(s.error().cls, ErrorClass::kInvalidConfig);
-  EXPECT_THAT(s.error().message, HasSubstr("cannot deliver BGR888 640x480; it offers BGR888 636x480"));
-  EXPECT_EQ(cam.state(), Camera::State::kOpened);
+  ExpectConfigureRefused(cam, Settings(c), "cannot deliver BGR888 640x480; it offers BGR888 636x480");
   cam.Close();
 }
 
@@ -228,10 +208,7 @@ TEST_F(Vimc, AFormatTheRoleDoesNotOfferIsRefused) {
   c.libcamera.pixel_format = "nv12";
   LibcameraCamera cam(clock_, c);
   ASSERT_TRUE(cam.Open());
-  Status s = cam.Configure(Settings(c));
-  ASSERT_FALSE(s.ok());
-  EXPECT_EQ(s.error().cls, ErrorClass::kInvalidConfig);
-  EXPECT_THAT(s.error().message, HasSubstr("does not offer NV12"));
+  ExpectConfigureRefused(cam, Settings(c), "does not offer NV12");
   cam.Close();
 }
 
