@@ -158,7 +158,7 @@ const std::vector<Field<Config>>& Fields() {
       F(capture.comm_retries, Range(0, 10), "turntable communication retries before a fault"),
 
       F(camera.backend, Backend("camera"),
-        "camera backend: sim | v4l2 (libcamera in a later issue)"),
+        "camera backend: sim | v4l2 | libcamera"),
       F(camera.id, NonEmpty(), "camera id recorded in every sidecar"),
       F(camera.device, Any(),
         "device path or udev name for real backends, e.g. /dev/aggscan/camera or a /dev/v4l/by-id name"),
@@ -183,6 +183,21 @@ const std::vector<Field<Config>>& Fields() {
         "manual focus position in device units (FOCUS_ABSOLUTE); -1 = leave focus alone"),
       F(camera.v4l2.strict_controls, Any(),
         "refuse to configure when the device lacks a control for a locked setting"),
+      F(camera.libcamera.camera_id, Any(),
+        "libcamera camera id as `cam -l` lists it; empty = the camera at index"),
+      F(camera.libcamera.index, Range(0, 63), "position in libcamera's camera list (camera_id empty)"),
+      F(camera.libcamera.role, OneOf({"still", "raw", "video", "viewfinder"}),
+        "stream role asked of the pipeline: still | raw | video | viewfinder"),
+      F(camera.libcamera.pixel_format,
+        OneOf({"auto", "mjpeg", "yuyv", "uyvy", "nv12", "rgb888", "bgr888", "r8"}),
+        "auto (the pipeline's choice for the role) | mjpeg | yuyv | uyvy | nv12 | rgb888 | "
+        "bgr888 | r8 (libcamera/DRM names: bgr888 is R, G, B in memory)"),
+      F(camera.libcamera.buffers, Range(0, 32),
+        "frame buffers to allocate; 0 = the pipeline's default"),
+      D(camera.libcamera.frame_timeout, Above(0, 600 * kSec),
+        "no completed frame this long after a still request = camera timeout"),
+      F(camera.libcamera.strict_controls, Any(),
+        "refuse to configure when the camera lacks a control for a locked setting"),
 
       F(turntable.backend, Backend("turntable"),
         "turntable backend: sim | modbus-tcp | modbus-rtu | usb-tic"),
@@ -368,6 +383,8 @@ const std::vector<Section>& Sections() {
       {"camera", "Camera backend and still format."},
       {"camera.exposure", "Locked exposure: every view of a rock shares it."},
       {"camera.v4l2", "V4L2 camera (backend v4l2): pixel format, buffers, timeout, control mapping."},
+      {"camera.libcamera",
+       "libcamera camera (backend libcamera): camera, stream role and format, buffers, timeout."},
       {"turntable", "Turntable backend, motion limits and the sim platter model."},
       {"turntable.faults", "Sim turntable fault injection (tests); unset = no fault."},
       {"turntable.modbus",
@@ -1281,7 +1298,7 @@ Error ProblemsError(const std::string& file, const std::vector<ConfigProblem>& p
 const std::vector<std::string>& KnownBackends(const std::string& kind) {
   // Add a real backend's name here when its driver lands in the factory.
   static const std::map<std::string, std::vector<std::string>> kBackends = {
-      {"camera", {"sim", "v4l2"}},
+      {"camera", {"sim", "v4l2", "libcamera"}},
       {"turntable", {"sim", "modbus-tcp", "modbus-rtu", "usb-tic"}},
       {"button", {"sim"}},
   };

@@ -81,8 +81,24 @@ struct V4l2CameraConfig {
   bool operator==(const V4l2CameraConfig&) const = default;
 };
 
+// The libcamera camera backend (drivers/libcamera/): which camera, the stream
+// asked of its pipeline, buffers and timeout. Exposure, gain and white balance
+// are set through libcamera controls on every request and read back from the
+// completed request's metadata.
+struct LibcameraCameraConfig {
+  std::string camera_id;              // libcamera camera id (`cam -l`); empty = the camera at `index`
+  int index = 0;                      // position in libcamera's camera list when camera_id is empty
+  std::string role = "still";         // stream role asked of the pipeline: still | raw | video | viewfinder
+  std::string pixel_format = "auto";  // auto (the pipeline's choice, if encodable) | mjpeg | yuyv | uyvy | nv12 | rgb888 | bgr888 | r8
+  int buffers = 0;                    // frame buffers to allocate, 1..32; 0 = the pipeline's default
+  TimeNs frame_timeout = 2 * kNsPerSec;  // no completed frame this long after a still request = timeout
+  bool strict_controls = true;        // refuse to configure when a locked setting has no libcamera control
+
+  bool operator==(const LibcameraCameraConfig&) const = default;
+};
+
 struct CameraConfig {
-  std::string backend = "sim";   // sim | v4l2 (libcamera in a later issue)
+  std::string backend = "sim";   // sim | v4l2 | libcamera
   std::string id = "sim-cam0";   // camera id recorded in every sidecar
   std::string device;            // device path or udev name for real backends
   int width = 2016;              // still resolution, pixels
@@ -90,6 +106,7 @@ struct CameraConfig {
   int jpeg_quality = 92;         // 1..100, when the driver encodes JPEG itself
   ExposureConfig exposure;
   V4l2CameraConfig v4l2;
+  LibcameraCameraConfig libcamera;
 
   bool operator==(const CameraConfig&) const = default;
 };

@@ -13,6 +13,9 @@
 #include "drivers/sim/world.h"
 #include "drivers/usb/usb_tic_turntable.h"
 #include "drivers/v4l2/v4l2_camera.h"
+#ifdef AGGSCAN_HAVE_LIBCAMERA
+#include "drivers/libcamera/libcamera_camera.h"
+#endif
 
 namespace aggscan {
 namespace {
@@ -88,6 +91,19 @@ Result<std::unique_ptr<Camera>> MakeV4l2Camera(Context& ctx) {
   return std::unique_ptr<Camera>(std::make_unique<v4l2::V4l2Camera>(ctx.clock, ctx.config.camera));
 }
 
+// Like V4L2, nothing is opened here. A build without libcamera still knows
+// the name, so the config names the missing package rather than a typo.
+Result<std::unique_ptr<Camera>> MakeLibcameraCamera(Context& ctx) {
+#ifdef AGGSCAN_HAVE_LIBCAMERA
+  return std::unique_ptr<Camera>(std::make_unique<lc::LibcameraCamera>(ctx.clock, ctx.config.camera));
+#else
+  (void)ctx;
+  return MakeError(ErrorClass::kInvalidConfig,
+                   "camera.backend = \"libcamera\": this build has no libcamera support; install "
+                   "libcamera-dev and rebuild (cmake -DAGGSCAN_WITH_LIBCAMERA=ON)");
+#endif
+}
+
 Result<std::unique_ptr<Button>> MakeSimButton(Context& ctx) {
   Status s = EnsureWorld(ctx);  // RigDevices promises a world whenever any backend is sim
   if (!s) return s.error();
@@ -99,7 +115,8 @@ const Backend<Turntable> kTurntables[] = {{"sim", MakeSimTurntable},
                                           {"modbus-tcp", MakeModbusTcpTurntable},
                                           {"modbus-rtu", MakeModbusRtuTurntable},
                                           {"usb-tic", MakeUsbTicTurntable}};
-const Backend<Camera> kCameras[] = {{"sim", MakeSimCamera}, {"v4l2", MakeV4l2Camera}};
+const Backend<Camera> kCameras[] = {
+    {"sim", MakeSimCamera}, {"v4l2", MakeV4l2Camera}, {"libcamera", MakeLibcameraCamera}};
 const Backend<Button> kButtons[] = {{"sim", MakeSimButton}};
 
 template <typename Device, size_t N>

@@ -30,18 +30,6 @@ int Xioctl(int fd, unsigned long req, void* arg) {
   return r;
 }
 
-int64_t MonotonicNs() {
-  timespec ts{};
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return static_cast<int64_t>(ts.tv_sec) * 1'000'000'000 + ts.tv_nsec;
-}
-
-std::string Seconds(TimeNs t) {
-  char b[32];
-  std::snprintf(b, sizeof b, "%.3g s", static_cast<double>(t) / 1e9);
-  return b;
-}
-
 }  // namespace
 
 UniqueFd& UniqueFd::operator=(UniqueFd&& o) noexcept {
@@ -109,12 +97,7 @@ Status V4l2Camera::DoOpen() {
            reinterpret_cast<const char*>(cap.driver) + ", " +
            reinterpret_cast<const char*>(cap.bus_info) + ")";
   fd_ = std::move(owned);
-  {
-    std::lock_guard<std::mutex> l(mu_);
-    stop_ = false;
-    job_.reset();
-  }
-  worker_ = std::thread([this] { WorkerLoop(); });
+  worker_.Start(kLog, path_, [this](const Job& job) { return Capture(job); });
   AGG_LOGI(kLog, "opened %s: %s", path_.c_str(), model_.c_str());
   return OkStatus();
 }
@@ -410,42 +393,14 @@ void V4l2Camera::StopStreaming() {
 }
 
 Status V4l2Camera::DoRequestStill(const StillRequest& req, FrameCallback done) {
-  std::lock_guard<std::mutex> l(mu_);
-  if (!worker_.joinable() || stop_ || !streaming_)
-    return MakeError(ErrorClass::kInvalidState, "camera is not streaming");
-  job_ = Job{req, std::move(done), MonotonicNs()};
-  cv_.notify_one();
-  return OkStatus();
+  return worker_.Post(req, std::move(done), streaming_);
 }
 
 void V4l2Camera::DoClose() {
-  {
-    std::lock_guard<std::mutex> l(mu_);
-    stop_ = true;
-  }
-  cv_.notify_all();
-  if (worker_.joinable()) worker_.join();  // delivers the in-flight still (or an error) first
+  worker_.Stop();
   StopStreaming();
   fd_.Reset();
   neg_ = {};
-}
-
-void V4l2Camera::WorkerLoop() {
-  for (;;) {
-    Job job;
-    {
-      std::unique_lock<std::mutex> l(mu_);
-      cv_.wait(l, [this] { return stop_ || job_.has_value(); });
-      if (!job_) return;
-      job = std::move(*job_);
-      job_.reset();
-    }
-    Result<FramePtr> r = Capture(job);
-    if (!r)
-      AGG_LOGW(kLog, "%s: still %llu: %s", path_.c_str(),
-               static_cast<unsigned long long>(job.req.request_id), r.error().ToString().c_str());
-    job.done(std::move(r));
-  }
 }
 
 Result<FramePtr> V4l2Camera::Capture(const Job& job) {
@@ -457,14 +412,14 @@ Result<FramePtr> V4l2Camera::Capture(const Job& job) {
   for (;;) {
     {
       std::lock_guard<std::mutex> l(mu_);
-      if (stop_)
+      if (worker_.stopping_locked())
         return MakeError(ErrorClass::kInvalidState, "camera closed while a still was pending");
     }
     const int64_t now = MonotonicNs();
     if (now >= deadline) {
       return MakeError(ErrorClass::kTimeout,
                        "camera " + path_ + ": no frame within " +
-                           Seconds(config_.v4l2.frame_timeout) +
+                           SecondsText(config_.v4l2.frame_timeout) +
                            " of the still request — check the camera and its cable");
     }
     // Short slices so Close() is never kept waiting for long.
@@ -530,16 +485,12 @@ Result<FramePtr> V4l2Camera::MakeFrame(const Job& job, const uint8_t* data, size
   }
   auto frame = std::make_shared<Frame>();
   frame->data = std::move(*still);
-  const int64_t age = std::max<int64_t>(0, MonotonicNs() - ts_mono_ns);
   frame->request_id = job.req.request_id;
   frame->sequence = sequence;
   frame->width = neg_.width;
   frame->height = neg_.height;
   frame->encoding = "jpeg";
-  frame->exposure_start =
-      clock_.Now() -
-      static_cast<TimeNs>(static_cast<double>(age) * (clock_.IsVirtual() ? 0.0 : clock_.Scale()));
-  frame->utc_ns = clock_.UtcNs() - age;
+  StampExposure(frame.get(), clock_, ts_mono_ns);
   const ReadBack rb = ReadControls();
   frame->exposure_us = rb.exposure_us;
   frame->gain = rb.gain;

@@ -28,6 +28,7 @@
 
 #include "config/config.h"
 #include "drivers/camera.h"
+#include "drivers/still_worker.h"
 #include "drivers/v4l2/v4l2_util.h"
 
 namespace aggscan::v4l2 {
@@ -99,11 +100,7 @@ class V4l2Camera final : public Camera {
   void DoClose() override;
 
  private:
-  struct Job {
-    StillRequest req;
-    FrameCallback done;
-    int64_t requested_mono_ns = 0;
-  };
+  using Job = StillWorker::Job;
   struct ReadBack {  // device values after the last still
     double exposure_us = 0, gain = 0, wb_red = 1, wb_blue = 1;
   };
@@ -115,7 +112,6 @@ class V4l2Camera final : public Camera {
   ReadBack ReadControls() const;
   Status StartStreaming();
   void StopStreaming();
-  void WorkerLoop();
   Result<FramePtr> Capture(const Job& job);
   Result<FramePtr> MakeFrame(const Job& job, const uint8_t* data, size_t bytes, int64_t ts_mono_ns,
                              uint64_t sequence);
@@ -140,11 +136,9 @@ class V4l2Camera final : public Camera {
   std::atomic<uint64_t> corrupt_frames_{0};
   std::atomic<uint64_t> stale_frames_{0};
 
-  mutable std::mutex mu_;  // guards the job slot and stop_
+  mutable std::mutex mu_;  // guards the worker's job slot and stop flag
   std::condition_variable cv_;
-  std::optional<Job> job_;
-  bool stop_ = false;
-  std::thread worker_;
+  StillWorker worker_{mu_, cv_};  // last: stopped before the rest goes
 };
 
 }  // namespace aggscan::v4l2

@@ -745,7 +745,7 @@ TEST(ConfigToToml, CommentsEveryFieldAndShowsUnsetOptionals) {
 }
 
 TEST(Config, KnownBackends) {
-  EXPECT_EQ(KnownBackends("camera"), (std::vector<std::string>{"sim", "v4l2"}));
+  EXPECT_EQ(KnownBackends("camera"), (std::vector<std::string>{"sim", "v4l2", "libcamera"}));
   EXPECT_EQ(KnownBackends("turntable"),
             (std::vector<std::string>{"sim", "modbus-tcp", "modbus-rtu", "usb-tic"}));
   EXPECT_EQ(KnownBackends("button"), std::vector<std::string>{"sim"});

@@ -22,7 +22,7 @@ TEST(Factory, UnknownBackendNamesTheKeyAndTheKnownOnes) {
   auto r = CreateRig(c, clock);
   ASSERT_FALSE(r.ok());
   EXPECT_EQ(r.error().cls, ErrorClass::kInvalidConfig);
-  EXPECT_EQ(r.error().message, "camera.backend \"foo\" is not known; available: sim, v4l2");
+  EXPECT_EQ(r.error().message, "camera.backend \"foo\" is not known; available: sim, v4l2, libcamera");
 
   c = Config{};
   c.turntable.backend = "usb";

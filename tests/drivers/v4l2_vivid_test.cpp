@@ -26,6 +26,7 @@
 #include "drivers/factory.h"
 #include "drivers/sim/jpeg.h"
 #include "drivers/v4l2/v4l2_camera.h"
+#include "tests/drivers/camera_test_util.h"
 
 namespace aggscan::v4l2 {
 namespace {
@@ -105,17 +106,7 @@ CameraSettings Settings(const CameraConfig& c, double gain = 1.5) {
 }
 
 Result<FramePtr> TakeStill(Camera& cam, uint64_t id, std::thread::id* on = nullptr) {
-  auto prom = std::make_shared<std::promise<Result<FramePtr>>>();
-  auto fut = prom->get_future();
-  Status s =
-      cam.RequestStill({id, "vivid", 1, static_cast<int>(id)}, [prom, on](Result<FramePtr> r) {
-        if (on) *on = std::this_thread::get_id();
-        prom->set_value(std::move(r));
-      });
-  if (!s) return s.error();
-  if (fut.wait_for(std::chrono::seconds(60)) != std::future_status::ready)
-    return MakeError(ErrorClass::kInternal, "callback never came");
-  return fut.get();
+  return testutil::TakeStill(cam, {id, "vivid", 1, static_cast<int>(id)}, on);
 }
 
 // Mappings of the video node in this process (buffers still mapped).
@@ -128,13 +119,8 @@ int MappedVideoBuffers() {
   return n;
 }
 
-struct Rgb {
-  int r, g, b;
-};
-Rgb At(const sim::RgbImage& img, int x, int y) {
-  const size_t i = (static_cast<size_t>(y) * img.width + x) * 3;
-  return {img.rgb[i], img.rgb[i + 1], img.rgb[i + 2]};
-}
+using testutil::At;
+using testutil::Rgb;
 
 class Vivid : public ::testing::Test {
  protected:
@@ -441,11 +427,8 @@ TEST_F(Vivid, ASizeTheDeviceCannotGiveIsRefused) {
   c.width = 641;
   V4l2Camera cam(clock_, c);
   ASSERT_TRUE(cam.Open());
-  Status s = cam.Configure(Settings(c));
-  ASSERT_FALSE(s.ok());
-  EXPECT_EQ(s.error().cls, ErrorClass::kInvalidConfig);
-  EXPECT_THAT(s.error().message, HasSubstr("cannot deliver YUYV 641x480; it offers YUYV 640x480"));
-  EXPECT_EQ(cam.state(), Camera::State::kOpened);
+  testutil::ExpectConfigureRefused(cam, Settings(c),
+                                   "cannot deliver YUYV 641x480; it offers YUYV 640x480");
   cam.Close();
 }
 

@@ -3,11 +3,15 @@
 # kernel, with kernel test drivers loaded, and returns its exit status and
 # output to the host.
 #
-#   tests/vm/run-in-vm.sh [--modprobe "vivid n_devs=1 node_types=0x1"]... [--modules DIR] [--timeout S] -- CMD [ARG]...
+#   tests/vm/run-in-vm.sh [--modprobe "vivid n_devs=1 node_types=0x1"]... [--modules DIR] [--udev] [--timeout S] -- CMD [ARG]...
 #
 # --modules DIR: a private module tree from tests/vm/build-test-modules.sh
 # (out-of-tree vimc, gpio-sim, irq_sim, raw_gadget beside the installed
 # modules); the guest's modprobe then runs as `modprobe -d DIR`.
+#
+# --udev: start systemd-udevd before the modules load and let it process
+# every device (udevadm trigger + settle) before CMD runs; libcamera's device
+# enumerator and hotplug need it. Without it the guest has no udev at all.
 #
 # The guest's root is this machine's / shared read-only over 9p (so CMD, its
 # libraries and the build tree are seen at the same paths); a second, writable
@@ -23,17 +27,19 @@ set -eu
 modprobes=""
 timeout_s=120
 moddir_extra=""
+udev=0
 while [ $# -gt 0 ]; do
   case "$1" in
     --modprobe) modprobes="$modprobes$2
 "; shift 2 ;;
     --timeout) timeout_s=$2; shift 2 ;;
     --modules) moddir_extra=$2; shift 2 ;;
+    --udev) udev=1; shift ;;
     --) shift; break ;;
     *) break ;;
   esac
 done
-[ $# -gt 0 ] || { echo "usage: $0 [--modprobe 'MOD ARGS']... [--modules DIR] [--timeout S] -- CMD [ARG]..." >&2; exit 2; }
+[ $# -gt 0 ] || { echo "usage: $0 [--modprobe 'MOD ARGS']... [--modules DIR] [--udev] [--timeout S] -- CMD [ARG]..." >&2; exit 2; }
 
 skip() { echo "run-in-vm: SKIP: $*" >&2; exit 77; }
 
@@ -43,6 +49,8 @@ for b in /bin/busybox /usr/bin/busybox; do
   if [ -x "$b" ] && ! ldd "$b" >/dev/null 2>&1; then busybox=$b; break; fi  # must be static
 done
 [ -n "$busybox" ] || skip "no static busybox (apt-get install busybox-static)"
+udevd=/lib/systemd/systemd-udevd
+[ "$udev" = 0 ] || { [ -x "$udevd" ] && command -v udevadm >/dev/null 2>&1; } || skip "--udev: no $udevd or udevadm (apt-get install udev)"
 
 # The newest installed Debian kernel that has its modules (not the host's
 # running kernel, which may be anything in a container).
@@ -116,10 +124,12 @@ mpopt=""
   echo 'export PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin HOME=/root'
   echo 'out=/tmp/vm-out'
   echo 'echo booted >$out/booted'
+  [ "$udev" = 0 ] || echo "$udevd --daemon >>\$out/udev.log 2>&1"
   printf '%s' "$modprobes" | while read -r line; do
     [ -n "$line" ] || continue
     echo "modprobe $mpopt$line >>\$out/modprobe.log 2>&1 || { echo 'modprobe $line failed' >\$out/nodriver; echo o >/proc/sysrq-trigger; sleep 10; }"
   done
+  [ "$udev" = 0 ] || echo 'udevadm trigger --action=add >>$out/udev.log 2>&1; udevadm settle --timeout=60 >>$out/udev.log 2>&1'
   echo 'grep -qw configfs /proc/filesystems && mount -t configfs none /sys/kernel/config 2>/dev/null'
   echo "cd '$(pwd)'"
   printf 'AGGSCAN_IN_VM=1 '
