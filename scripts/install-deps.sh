@@ -46,9 +46,8 @@ PACKAGES=(
   # USB turntable controllers (libusb), start buttons (libgpiod v1, evdev),
   # the libcamera camera backend (and its IPA modules, which vimc needs)
   libusb-1.0-0-dev libgpiod-dev libevdev-dev libcamera-dev libcamera-ipa
-  # tests only: udev inside the VM (run-in-vm.sh --udev) for the libcamera
-  # backend's vimc test (libcamera enumerates devices through udev)
-  udev
+  # (udev, listed above, also serves run-in-vm.sh --udev for the libcamera
+  # backend's vimc test: libcamera enumerates devices through udev)
 )
 
 missing=()
