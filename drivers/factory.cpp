@@ -6,6 +6,8 @@
 #include <vector>
 
 #include "config/turntable_profile.h"
+#include "drivers/gpio/gpio_button.h"
+#include "drivers/gpio/gpio_light.h"
 #include "drivers/modbus/modbus_turntable.h"
 #include "drivers/sim/sim_button.h"
 #include "drivers/sim/sim_camera.h"
@@ -88,12 +90,25 @@ Result<std::unique_ptr<Button>> MakeSimButton(Context& ctx) {
   return std::unique_ptr<Button>(std::make_unique<sim::SimButton>(ctx.clock, ctx.config.button));
 }
 
+// Nothing is opened here either: a missing chip or device is the button's
+// health, reported by Start().
+Result<std::unique_ptr<Button>> MakeGpioButton(Context& ctx) {
+  return std::unique_ptr<Button>(std::make_unique<gpio::GpioButton>(ctx.clock, ctx.config.button));
+}
+
+// The status light is optional: "none" makes no device.
+Result<std::unique_ptr<StatusLight>> MakeNoLight(Context&) { return std::unique_ptr<StatusLight>(); }
+Result<std::unique_ptr<StatusLight>> MakeGpioLight(Context& ctx) {
+  return std::unique_ptr<StatusLight>(std::make_unique<gpio::GpioLight>(ctx.config.light.gpio));
+}
+
 // Real backends (modbus-rtu, usb, v4l2, gpio, ...) join these tables.
 const Backend<Turntable> kTurntables[] = {{"sim", MakeSimTurntable},
                                           {"modbus-tcp", MakeModbusTcpTurntable},
                                           {"modbus-rtu", MakeModbusRtuTurntable}};
 const Backend<Camera> kCameras[] = {{"sim", MakeSimCamera}, {"v4l2", MakeV4l2Camera}};
-const Backend<Button> kButtons[] = {{"sim", MakeSimButton}};
+const Backend<Button> kButtons[] = {{"sim", MakeSimButton}, {"gpio", MakeGpioButton}};
+const Backend<StatusLight> kLights[] = {{"none", MakeNoLight}, {"gpio", MakeGpioLight}};
 
 template <typename Device, size_t N>
 const Backend<Device>* Find(const Backend<Device> (&table)[N], const std::string& name) {
@@ -122,6 +137,8 @@ Result<RigDevices> CreateRig(const Config& config, Clock& clock) {
   if (!turntable)
     unknown.push_back(UnknownMessage("turntable.backend", config.turntable.backend, kTurntables));
   if (!button) unknown.push_back(UnknownMessage("button.backend", config.button.backend, kButtons));
+  const auto* light = Find(kLights, config.light.backend);
+  if (!light) unknown.push_back(UnknownMessage("light.backend", config.light.backend, kLights));
   if (!unknown.empty()) {
     std::string msg;
     for (const auto& u : unknown) msg += (msg.empty() ? "" : "; ") + u;
@@ -140,6 +157,9 @@ Result<RigDevices> CreateRig(const Config& config, Clock& clock) {
   auto b = button->make(ctx);
   if (!b) return b.error();
   rig.button = std::move(*b);
+  auto l = light->make(ctx);
+  if (!l) return l.error();
+  rig.light = std::move(*l);
   return rig;
 }
 
