@@ -911,7 +911,7 @@ class Validator {
       Add("light.modbus.link", "link = \"button\" needs button.backend = \"modbus\"; use link = "
                                "\"turntable\" or configure [button.modbus]");
     }
-    const bool button_link_used = modbus_button || (modbus_light && c.light.modbus.link == "button");
+    const bool button_link_used = modbus_button;  // a light on it needs the button (above)
     const ModbusButtonConfig& l = c.button.modbus;
     const bool turntable_link_used = (button_link_used && l.link == "turntable") ||
                                      (modbus_light && c.light.modbus.link == "turntable");

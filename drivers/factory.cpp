@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "config/turntable_profile.h"
+#include "drivers/evdev/evdev_button.h"
 #include "drivers/gpio/gpio_button.h"
 #include "drivers/gpio/gpio_light.h"
 #include "drivers/modbus/modbus_io.h"
@@ -105,6 +106,9 @@ Result<std::unique_ptr<Button>> MakeGpioButton(Context& ctx) {
   return std::unique_ptr<Button>(std::make_unique<gpio::GpioButton>(ctx.clock, ctx.config.button));
 }
 
+Result<std::unique_ptr<Button>> MakeEvdevButton(Context& ctx) {
+  return std::unique_ptr<Button>(std::make_unique<evdev::EvdevButton>(ctx.clock, ctx.config.button));
+}
 Result<std::unique_ptr<Button>> MakeModbusButton(Context& ctx) {
   return std::unique_ptr<Button>(std::make_unique<modbus::ModbusButton>(
       ctx.clock, ctx.config.button, BitLinkFor(ctx, modbus::ButtonLinkSettings(ctx.config))));
@@ -126,6 +130,7 @@ const Backend<Turntable> kTurntables[] = {{"sim", MakeSimTurntable},
                                           {"modbus-rtu", MakeModbusRtuTurntable}};
 const Backend<Camera> kCameras[] = {{"sim", MakeSimCamera}, {"v4l2", MakeV4l2Camera}};
 const Backend<Button> kButtons[] = {{"sim", MakeSimButton}, {"gpio", MakeGpioButton},
+                                    {"evdev", MakeEvdevButton},
                                     {"modbus", MakeModbusButton}};
 const Backend<StatusLight> kLights[] = {{"none", MakeNoLight}, {"gpio", MakeGpioLight},
                                         {"modbus", MakeModbusLight}};
