@@ -22,34 +22,20 @@
 #include <thread>
 
 #include "common/clock.h"
+#include "tests/util/eventually.h"
 #include "config/config.h"
 #include "drivers/evdev/evdev_button.h"
 
 namespace aggscan::evdev {
 namespace {
 
+using test::Eventually;
+using test::WriteFile;
+
 const std::string kGadget = "/sys/kernel/config/usb_gadget/aggscan-pedal";
 const char* kProduct = "aggscan test pedal";
 std::string g_udc;    // the dummy UDC the gadget is bound to
 std::string g_event;  // /dev/input/eventN of the gadget, seen from the host side
-
-bool WriteFile(const std::string& path, const std::string& value) {
-  std::ofstream f(path, std::ios::binary);
-  f << value;
-  f.flush();
-  return static_cast<bool>(f);
-}
-
-// Waits (real time, a hang guard only) until pred() holds.
-template <typename P>
-bool Eventually(P pred, double seconds = 20) {
-  const auto end = std::chrono::steady_clock::now() + std::chrono::milliseconds(int(seconds * 1000));
-  while (std::chrono::steady_clock::now() < end) {
-    if (pred()) return true;
-    std::this_thread::sleep_for(std::chrono::milliseconds(5));
-  }
-  return pred();
-}
 
 // The boot keyboard report descriptor (HID 1.11, appendix B.1): 8-byte
 // input reports [modifiers, reserved, 6 key usages], 1-byte LED output.

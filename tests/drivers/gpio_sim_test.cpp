@@ -26,6 +26,7 @@
 #include <thread>
 
 #include "common/clock.h"
+#include "tests/util/eventually.h"
 #include "config/config.h"
 #include "drivers/gpio/gpio_button.h"
 #include "drivers/gpio/gpio_light.h"
@@ -34,16 +35,13 @@
 namespace aggscan::gpio {
 namespace {
 
+using test::Eventually;
+using test::WriteFile;
+
 const char* kConfigfs = "/sys/kernel/config/gpio-sim";
 std::string g_chip;   // "gpiochipN" of the simulated bank
 std::string g_sysfs;  // /sys/devices/platform/gpio-sim.K/gpiochipN
 
-bool WriteFile(const std::string& path, const std::string& value) {
-  std::ofstream f(path);
-  f << value;
-  f.flush();
-  return static_cast<bool>(f);
-}
 std::string ReadLine(const std::string& path) {
   std::ifstream f(path);
   std::string s;
@@ -88,17 +86,6 @@ void Pull(int offset, bool high) {
 }
 int Value(int offset) {
   return std::stoi(ReadLine(g_sysfs + "/sim_gpio" + std::to_string(offset) + "/value"));
-}
-
-// Waits (real time, a hang guard only) until pred() holds.
-template <typename P>
-bool Eventually(P pred, double seconds = 20) {
-  const auto end = std::chrono::steady_clock::now() + std::chrono::milliseconds(int(seconds * 1000));
-  while (std::chrono::steady_clock::now() < end) {
-    if (pred()) return true;
-    std::this_thread::sleep_for(std::chrono::milliseconds(5));
-  }
-  return pred();
 }
 
 ButtonConfig Config(const std::string& line, bool active_low, TimeNs debounce,

@@ -13,24 +13,17 @@
 #include <thread>
 
 #include "tests/drivers/modbus_test_server.h"
+#include "tests/util/eventually.h"
 #include "tests/scenario/process.h"
 
 namespace aggscan {
 namespace {
 
+using test::Eventually;
+
 using json = nlohmann::json;
 using testing::ModbusServerOptions;
 using testing::ModbusTestServer;
-
-template <typename P>
-bool Eventually(P pred, double seconds = 20) {
-  const auto end = std::chrono::steady_clock::now() + std::chrono::milliseconds(int(seconds * 1000));
-  while (std::chrono::steady_clock::now() < end) {
-    if (pred()) return true;
-    std::this_thread::sleep_for(std::chrono::milliseconds(10));
-  }
-  return pred();
-}
 
 TEST(ModbusButtonDaemon, HealthPressAndLampThroughTheRealDaemon) {
   int port = 0;

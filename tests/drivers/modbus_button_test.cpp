@@ -8,6 +8,7 @@
 #include <thread>
 
 #include "common/clock.h"
+#include "tests/util/eventually.h"
 #include "config/config.h"
 #include "drivers/factory.h"
 #include "drivers/modbus/modbus_io.h"
@@ -16,18 +17,9 @@
 namespace aggscan::modbus {
 namespace {
 
-using testing::ModbusTestServer;
+using test::Eventually;
 
-// Waits (real time, a hang guard only) until pred() holds.
-template <typename P>
-bool Eventually(P pred, double seconds = 10) {
-  const auto end = std::chrono::steady_clock::now() + std::chrono::milliseconds(int(seconds * 1000));
-  while (std::chrono::steady_clock::now() < end) {
-    if (pred()) return true;
-    std::this_thread::sleep_for(std::chrono::milliseconds(2));
-  }
-  return pred();
-}
+using testing::ModbusTestServer;
 
 Config ButtonOn(int port, const std::string& input = "discrete", int address = 3) {
   Config c;
