@@ -3,7 +3,7 @@
 // the missing button with its actionable message and refuses a capture, the
 // button recovers by itself when the peer appears, a press on the discrete
 // input starts the armed capture, the lamp follows the state (steady ready,
-// blinking while capturing), and a peer lost while idle makes the button
+// blinking while capturing, fast blink for the flip), and a peer lost while idle makes the button
 // unhealthy again at the next health probe.
 #include <gtest/gtest.h>
 
@@ -39,7 +39,7 @@ TEST(ModbusButtonDaemon, HealthPressAndLampThroughTheRealDaemon) {
       "poll_interval = \"10ms\"\n\n[light]\nbackend = \"modbus\"\n[light.modbus]\nlink = \"button\"\n"
       "coil = 5\n\n[turntable]\nmax_speed_deg_s = 360.0\naccel_deg_s2 = 1440.0\n",
       1,
-      "profile = \"custom\"\nsides = 1\nviews_per_side = 2\nstep_deg = 90.0\ninterval = \"1s\"\n"
+      "profile = \"custom\"\nsides = 2\nviews_per_side = 2\nstep_deg = 90.0\ninterval = \"1s\"\n"
       "settle = \"50ms\"\n");
   // Quick retries and probes, so the test sees recovery and loss at once.
   std::string text = test::ReadAll(config);
@@ -85,8 +85,18 @@ TEST(ModbusButtonDaemon, HealthPressAndLampThroughTheRealDaemon) {
   EXPECT_EQ(st["side"], 1);
   server->SetDiscreteInput(2, false);
   EXPECT_TRUE(Eventually([&] { return !server->coil(5); })) << "lamp blinks while capturing";
+  // Side 1 done: the lamp asks for the rock to be flipped; the next press
+  // shoots side 2.
+  ASSERT_TRUE(d.WaitFor([](const json& s) { return s.value("state", "") == "awaiting_pose"; }, 30, &st))
+      << st.dump() << test::ReadAll(d.log());
+  h = d.Get("/api/v1/health", &code);
+  EXPECT_EQ(h["devices"]["light"]["pattern"], "flip") << h.dump();
+  server->SetDiscreteInput(2, true);
+  ASSERT_TRUE(d.WaitFor([](const json& s) { return s.value("state", "") != "awaiting_pose"; }, 20, &st))
+      << st.dump();
+  server->SetDiscreteInput(2, false);
   ASSERT_TRUE(d.WaitFor(
-      [](const json& s) { return s.value("state", "") == "idle" && s.value("views_captured", 0) == 2; },
+      [](const json& s) { return s.value("state", "") == "idle" && s.value("views_captured", 0) == 4; },
       30, &st))
       << st.dump() << test::ReadAll(d.log());
   EXPECT_TRUE(Eventually([&] { return server->coil(5); })) << "steady again when idle";
@@ -101,6 +111,7 @@ TEST(ModbusButtonDaemon, HealthPressAndLampThroughTheRealDaemon) {
   EXPECT_NE(h["devices"]["button"]["message"].get<std::string>().find("no answer from Modbus unit 1"),
             std::string::npos)
       << h.dump();
+  EXPECT_EQ(h["devices"]["light"]["pattern"], "fault") << h.dump();
   r = d.Post("/api/v1/samples", R"({"id": "rock-n"})", &code);
   EXPECT_EQ(code, 503) << r.dump();
   EXPECT_EQ(d.Stop(), 0);
