@@ -68,6 +68,7 @@ std::string MakeSimChip() {
   const std::string bank = dev + "/bank0";
   if (::mkdir(dev.c_str(), 0755) != 0 || ::mkdir(bank.c_str(), 0755) != 0) return "mkdir " + bank;
   if (!WriteFile(bank + "/num_lines", "4")) return "num_lines";
+  if (!WriteFile(bank + "/label", "aggscan-sim")) return "label";
   const char* names[] = {"start", "lamp"};
   for (int i = 0; i < 2; ++i) {
     const std::string line = bank + "/line" + std::to_string(i);
@@ -149,7 +150,9 @@ TEST(GpioSim, BounceTrainIsOnePress) {
   RealClock clock;
   Pull(0, false);
   const TimeNs debounce = 1 * kNsPerSec;
-  GpioButton b(clock, Config("0", false, debounce));
+  ButtonConfig c = Config("0", false, debounce);
+  c.gpio.chip = "/dev/" + g_chip;  // the chip by path, the line by offset
+  GpioButton b(clock, c);
   Presses got;
   ASSERT_TRUE(b.Start(got.cb()).ok());
   // A contact closing with bounce: five edges (three of them rising), all
@@ -173,7 +176,9 @@ TEST(GpioSim, BounceTrainIsOnePress) {
 TEST(GpioSim, ActiveLowPressIsTheFallingEdge) {
   RealClock clock;
   // A switch to ground with the pull-up requested on the line: idle high.
-  GpioButton b(clock, Config("start", true, 20 * kNsPerMs, "pull-up"));
+  ButtonConfig c = Config("start", true, 20 * kNsPerMs, "pull-up");
+  c.gpio.chip = "aggscan-sim";  // the chip by its label
+  GpioButton b(clock, c);
   Presses got;
   ASSERT_TRUE(b.Start(got.cb()).ok());
   ASSERT_TRUE(Eventually([&] { return Value(0) == 1; })) << "bias pull-up not applied";

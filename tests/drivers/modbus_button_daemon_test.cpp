@@ -114,7 +114,15 @@ TEST(ModbusButtonDaemon, HealthPressAndLampThroughTheRealDaemon) {
   EXPECT_EQ(h["devices"]["light"]["pattern"], "fault") << h.dump();
   r = d.Post("/api/v1/samples", R"({"id": "rock-n"})", &code);
   EXPECT_EQ(code, 503) << r.dump();
+  // Back again, then aggscand stops: the lamp goes dark.
+  server->SetSilent(false);
+  ASSERT_TRUE(Eventually([&] {
+    h = d.Get("/api/v1/health", &code);
+    return code == 200;
+  })) << h.dump();
+  EXPECT_TRUE(Eventually([&] { return server->coil(5); })) << "steady on when ready again";
   EXPECT_EQ(d.Stop(), 0);
+  EXPECT_FALSE(server->coil(5)) << "dark once aggscand has stopped";
 }
 
 }  // namespace
