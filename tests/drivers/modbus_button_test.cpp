@@ -131,6 +131,29 @@ TEST(ModbusButton, LinkErrorsAreClassified) {
   b->Stop();
 }
 
+TEST(ModbusButton, TurntableLinkTakesTheTurntablesTcpSettings) {
+  Config c;
+  c.turntable.backend = "modbus-tcp";
+  c.turntable.modbus.host = "10.0.0.5";
+  c.turntable.modbus.port = 1502;
+  c.turntable.modbus.unit_id = 3;
+  c.turntable.modbus.response_timeout = 150 * kNsPerMs;
+  c.button.modbus.link = "turntable";
+  c.button.modbus.host = "ignored";
+  const LinkSettings b = ButtonLinkSettings(c);
+  EXPECT_TRUE(b.tcp);
+  EXPECT_EQ(b.Describe(), "unit 3 at 10.0.0.5:1502");
+  EXPECT_EQ(b.response_timeout, 150 * kNsPerMs);
+  EXPECT_NE(b.section.find("[turntable.modbus]"), std::string::npos) << b.section;
+  c.light.modbus.link = "turntable";
+  EXPECT_TRUE(LightLinkSettings(c).SameLink(b));
+  c.button.modbus.link = "rtu";
+  c.button.modbus.device = "/dev/ttyUSB1";
+  c.button.modbus.parity = "even";
+  EXPECT_EQ(ButtonLinkSettings(c).Describe(), "unit 1 on /dev/ttyUSB1 at 19200 8E1");
+  EXPECT_FALSE(LightLinkSettings(c).SameLink(ButtonLinkSettings(c)));
+}
+
 TEST(ModbusLight, CoilFollowsThePattern) {
   auto server = ModbusTestServer::StartTcp({});
   server->SetCoil(7, true);
