@@ -301,6 +301,19 @@ TEST(GpioSim, SimulatedPressStartsACaptureInAggscand) {
   EXPECT_EQ(d.Stop(), 0);
 }
 
+// Last: takes the simulated chip down under a running button, as an
+// unplugged USB GPIO adapter would.
+TEST(GpioSim, ChipGoneWhileRunningIsADisconnect) {
+  RealClock clock;
+  GpioButton b(clock, Config("start", false, 20 * kNsPerMs));
+  ASSERT_TRUE(b.Start([](const ButtonPress&) {}).ok());
+  ASSERT_TRUE(WriteFile(std::string(kConfigfs) + "/aggscan/live", "0"));
+  ASSERT_TRUE(Eventually([&] { return !b.Health().ok(); })) << "chip removal not noticed";
+  EXPECT_EQ(b.Health().error().cls, ErrorClass::kDisconnected) << b.Health().error().ToString();
+  EXPECT_NE(b.Health().error().message.find("stopped delivering edges"), std::string::npos);
+  b.Stop();
+}
+
 }  // namespace
 }  // namespace aggscan::gpio
 
