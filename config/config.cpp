@@ -269,9 +269,43 @@ const std::vector<Field<Config>>& Fields() {
       F(turntable.usb.in_position_window_deg, Above(0, 10),
         "in-position also needs the position this close to the target, degrees"),
 
-      F(button.backend, Backend("button"),
-        "button backend: sim (gpio, evdev, modbus in a later issue)"),
+      F(button.backend, Backend("button"), "button backend: sim | gpio | evdev | modbus"),
       D(button.debounce, Range(0, 1 * kSec), "presses closer than this are one press"),
+      F(button.gpio.chip, NonEmpty(),
+        "gpio: chip name (gpiochip0), path (/dev/gpiochip0), number or label"),
+      F(button.gpio.line, NonEmpty(), "gpio: line offset (\"17\") or line name (\"start\")"),
+      F(button.gpio.active_low, Any(), "gpio: pressed = low level (a switch to ground)"),
+      F(button.gpio.bias, OneOf({"as-is", "pull-up", "pull-down", "disable"}),
+        "gpio: as-is | pull-up | pull-down | disable (pull-up for a switch to ground)"),
+      F(button.evdev.device, Any(),
+        "evdev: /dev/input/eventN, or a name in /dev/input/by-id or /dev/input/by-path"),
+      F(button.evdev.key, NonEmpty(), "evdev: key code name (KEY_F1, BTN_0, ...) or number"),
+      F(button.evdev.grab, Any(), "evdev: grab the device (EVIOCGRAB) so no other reader sees it"),
+      F(button.modbus.link, OneOf({"turntable", "tcp", "rtu"}),
+        "modbus: turntable (a second connection with [turntable.modbus]'s TCP settings) | tcp | "
+        "rtu (the settings below)"),
+      F(button.modbus.host, Any(), "modbus tcp: controller or gateway address"),
+      F(button.modbus.port, Range(1, 65535), "modbus tcp: port"),
+      F(button.modbus.device, Any(), "modbus rtu: serial device, e.g. /dev/ttyUSB1"),
+      F(button.modbus.baud, Range(300, 4'000'000), "modbus rtu: line speed, bit/s (8 data, 1 stop)"),
+      F(button.modbus.parity, OneOf({"none", "even", "odd"}), "modbus rtu: none | even | odd"),
+      F(button.modbus.unit_id, Range(0, 255), "modbus: unit (slave) id"),
+      D(button.modbus.response_timeout, Above(0, 10 * kSec),
+        "modbus: one request must be answered within this"),
+      F(button.modbus.input, OneOf({"discrete", "coil"}),
+        "modbus: discrete (discrete input, function 2) | coil (function 1)"),
+      F(button.modbus.address, Range(0, 65535), "modbus: bit address, 0-based as on the wire"),
+      D(button.modbus.poll_interval, Range(5 * kMs, 1 * kSec),
+        "modbus: read period; a press must be held longer than this to be seen"),
+
+      F(light.backend, OneOf({"none", "gpio", "modbus"}), "status light: none | gpio | modbus"),
+      F(light.gpio.chip, NonEmpty(), "gpio: chip name, path, number or label"),
+      F(light.gpio.line, NonEmpty(), "gpio: line offset or line name"),
+      F(light.gpio.active_low, Any(), "gpio: lit = low level"),
+      F(light.gpio.bias, OneOf({"as-is", "pull-up", "pull-down", "disable"}), "gpio: unused for an output"),
+      F(light.modbus.link, OneOf({"turntable", "button"}),
+        "modbus: turntable ([turntable.modbus], modbus-tcp) | button ([button.modbus]'s link)"),
+      F(light.modbus.coil, Range(0, 65535), "modbus: coil address, 0-based as on the wire"),
 
       F(sim.seed, Any(), "procedural rock, noise and turntable errors"),
       F(sim.rock_mesh, Any(), "PLY/OBJ/STL file; empty = procedural rock from seed"),
@@ -393,6 +427,12 @@ const std::vector<Section>& Sections() {
        "USB turntable (backend usb-tic): a Pololu Tic stepper controller on its native USB "
        "interface."},
       {"button", "Operator start button."},
+      {"button.gpio", "GPIO button (backend gpio): a line through libgpiod."},
+      {"button.evdev", "Input-device button (backend evdev): a key of a foot pedal or keypad."},
+      {"button.modbus", "Modbus button (backend modbus): a polled discrete input or coil."},
+      {"light", "Status light: ready steady, capturing slow blink, flip the rock fast blink, fault double flash."},
+      {"light.gpio", "GPIO status light (backend gpio): an output line."},
+      {"light.modbus", "Modbus status light (backend modbus): one coil."},
       {"sim", "Simulated rig: rock, camera geometry and sensor."},
       {"rig", "Rig geometry: turntable and the background scale markers."},
       {"calibration",
@@ -844,6 +884,7 @@ class Validator {
     CheckAruco(c);
     CheckModbus(c);
     CheckUsbTic(c);
+    CheckButtonAndLight(c);
     if (c.mask.method == "onnx" && c.mask.model.empty()) {
       Add("mask.model",
           "mask.method = \"onnx\" needs the network: name its .onnx file here, or set "
@@ -913,6 +954,38 @@ class Validator {
     }
     // Speed and acceleration in the Tic's units are checked when the backend
     // opens (drivers/usb/tic_protocol.h), where the model is known.
+  }
+
+  // The button's and the light's device must be named; a Modbus link shared
+  // with the turntable must be a TCP one (a second connection): two masters
+  // on one serial line would garble each other's frames.
+  void CheckButtonAndLight(const Config& c) {
+    if (c.button.backend == "evdev" && c.button.evdev.device.empty()) {
+      Add("button.evdev.device",
+          "button.backend = \"evdev\" needs the input device, e.g. device = "
+          "\"/dev/input/by-id/usb-pedal-event-kbd\"");
+    }
+    const bool modbus_button = c.button.backend == "modbus";
+    const bool modbus_light = c.light.backend == "modbus";
+    if (modbus_light && c.light.modbus.link == "button" && !modbus_button) {
+      Add("light.modbus.link", "link = \"button\" needs button.backend = \"modbus\"; use link = "
+                               "\"turntable\" or configure [button.modbus]");
+    }
+    const bool button_link_used = modbus_button;  // a light on it needs the button (above)
+    const ModbusButtonConfig& l = c.button.modbus;
+    const bool turntable_link_used = (button_link_used && l.link == "turntable") ||
+                                     (modbus_light && c.light.modbus.link == "turntable");
+    if (turntable_link_used && c.turntable.backend != "modbus-tcp") {
+      Add(modbus_light && c.light.modbus.link == "turntable" ? "light.modbus.link" : "button.modbus.link",
+          "the turntable's Modbus link can be shared only when turntable.backend = \"modbus-tcp\" "
+          "(got \"" + c.turntable.backend + "\"); give the button its own link (link = \"tcp\" or \"rtu\")");
+    }
+    if (button_link_used && l.link == "tcp" && l.host.empty()) {
+      Add("button.modbus.host", "link = \"tcp\" needs the controller's address, e.g. host = \"192.168.1.50\"");
+    }
+    if (button_link_used && l.link == "rtu" && l.device.empty()) {
+      Add("button.modbus.device", "link = \"rtu\" needs the serial device, e.g. device = \"/dev/ttyUSB1\"");
+    }
   }
 
   // The ArUco scale markers: ids unique and in the dictionary, each marker
@@ -1300,7 +1373,7 @@ const std::vector<std::string>& KnownBackends(const std::string& kind) {
   static const std::map<std::string, std::vector<std::string>> kBackends = {
       {"camera", {"sim", "v4l2", "libcamera"}},
       {"turntable", {"sim", "modbus-tcp", "modbus-rtu", "usb-tic"}},
-      {"button", {"sim"}},
+      {"button", {"sim", "gpio", "evdev", "modbus"}},
   };
   static const std::vector<std::string> kNone;
   auto it = kBackends.find(kind);

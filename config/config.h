@@ -191,11 +191,70 @@ struct TurntableConfig {
   bool operator==(const TurntableConfig&) const = default;
 };
 
+// A GPIO line through libgpiod (button backend gpio, status light gpio).
+struct GpioLineConfig {
+  std::string chip = "gpiochip0";  // chip name (gpiochip0), path (/dev/gpiochip0), number or label
+  std::string line = "0";          // line offset ("17") or line name ("start")
+  bool active_low = false;         // active (pressed / lit) = low level
+  std::string bias = "as-is";      // inputs: as-is | pull-up | pull-down | disable
+
+  bool operator==(const GpioLineConfig&) const = default;
+};
+
+// An input device key (button backend evdev): USB foot pedal, keypad.
+struct EvdevButtonConfig {
+  std::string device;          // /dev/input/eventN, or a name in /dev/input/by-id or by-path
+  std::string key = "KEY_F1";  // key code name (KEY_*, BTN_*) or its number
+  bool grab = false;           // EVIOCGRAB: the key reaches no other reader (console, X)
+
+  bool operator==(const EvdevButtonConfig&) const = default;
+};
+
+// A Modbus discrete input or coil polled as a button (backend modbus), on a
+// link of its own or the turntable's (link = "turntable": the
+// [turntable.modbus] settings of a modbus-tcp turntable, a second connection).
+struct ModbusButtonConfig {
+  std::string link = "turntable";  // turntable | tcp | rtu
+  std::string host;                // tcp: controller or gateway address
+  int port = 502;                  // tcp: port
+  std::string device;              // rtu: serial device
+  int baud = 19200;                // rtu: line speed, bit/s (8 data bits, 1 stop bit)
+  std::string parity = "none";     // rtu: none | even | odd
+  int unit_id = 1;                 // Modbus unit (slave) id
+  TimeNs response_timeout = 200 * kNsPerMs;  // one request must be answered within this
+  std::string input = "discrete";  // discrete (function 2) | coil (function 1)
+  int address = 0;                 // bit address, 0-based as on the wire
+  TimeNs poll_interval = 20 * kNsPerMs;  // read period; a press must last longer than this
+
+  bool operator==(const ModbusButtonConfig&) const = default;
+};
+
 struct ButtonConfig {
-  std::string backend = "sim";   // sim (gpio, evdev, modbus in a later issue)
+  std::string backend = "sim";   // sim | gpio | evdev | modbus
   TimeNs debounce = 50 * kNsPerMs;  // presses closer than this are one press
+  GpioLineConfig gpio;           // gpio only
+  EvdevButtonConfig evdev;       // evdev only
+  ModbusButtonConfig modbus;     // modbus only
 
   bool operator==(const ButtonConfig&) const = default;
+};
+
+// The optional status light (drivers/status_light.h has the patterns):
+// ready = steady, capturing = slow blink, flip the rock = fast blink,
+// fault = double flash, off while aggscand is not running.
+struct ModbusLightConfig {
+  std::string link = "turntable";  // turntable ([turntable.modbus]) | button ([button.modbus]'s link)
+  int coil = 0;                    // coil address written (function 5), 0-based as on the wire
+
+  bool operator==(const ModbusLightConfig&) const = default;
+};
+
+struct LightConfig {
+  std::string backend = "none";  // none | gpio | modbus
+  GpioLineConfig gpio;           // gpio: the output line (bias unused)
+  ModbusLightConfig modbus;      // modbus: the coil
+
+  bool operator==(const LightConfig&) const = default;
 };
 
 struct SimConfig {
@@ -315,6 +374,7 @@ struct Config {
   CameraConfig camera;
   TurntableConfig turntable;
   ButtonConfig button;
+  LightConfig light;
   SimConfig sim;
   RigConfig rig;
   CalibrationConfig calibration;

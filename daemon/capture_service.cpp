@@ -53,9 +53,11 @@ CaptureService::CaptureService(EventLoop& loop, Config config, std::string effec
   for (const char* name : {"camera", "turntable", "button"}) {
     health_[name].message = std::string(name) + ": not opened yet";
   }
+  if (dev_.light) health_["light"].message = "light: not opened yet";
 }
 
 CaptureService::~CaptureService() {
+  if (dev_.light) dev_.light->Close();
   if (dev_.button) dev_.button->Stop();
   if (dev_.camera) dev_.camera->Close();
   if (dev_.turntable) dev_.turntable->Close();
@@ -112,6 +114,7 @@ bool CaptureService::SideRunning() const {
 }
 
 void CaptureService::ProbeDevices() {
+  ProbeButtonAndLight();
   DeviceHealth& h = health_["turntable"];
   if (dev_.turntable && h.healthy && !SideRunning() && dev_.turntable->is_open()) {
     Result<TurntableStatus> st = dev_.turntable->ReadStatus();
@@ -131,8 +134,28 @@ void CaptureService::ProbeDevices() {
 }
 
 void CaptureService::OpenDevices() {
-  for (const char* name : {"camera", "turntable", "button"}) {
-    if (!health_[name].healthy) TryOpen(name);
+  for (const char* name : {"camera", "turntable", "button", "light"}) {
+    if (health_.count(name) && !health_[name].healthy) TryOpen(name);
+  }
+}
+
+// The button's and the light's threads record a device lost while running
+// (unplugged pedal, lost link); here that becomes the device's health, and
+// the usual backoff reopens it.
+void CaptureService::ProbeButtonAndLight() {
+  struct Probe {
+    const char* name;
+    Status health;
+  };
+  std::vector<Probe> probes;
+  if (dev_.button && health_["button"].healthy) probes.push_back({"button", dev_.button->Health()});
+  if (dev_.light && health_["light"].healthy) probes.push_back({"light", dev_.light->Health()});
+  for (const Probe& p : probes) {
+    if (p.health) continue;
+    if (std::string(p.name) == "button") dev_.button->Stop();
+    MarkUnhealthy(p.name, p.health.error().cls, std::string(p.name) + ": " + p.health.error().ToString());
+    ScheduleReopen(p.name);
+    NotifyStatus();
   }
 }
 
@@ -150,7 +173,12 @@ Status CaptureService::OpenDevice(const std::string& name) {
     dev_.turntable->Close();
     return dev_.turntable->Open();
   }
+  if (name == "light") {
+    dev_.light->Close();
+    return dev_.light->Open();
+  }
   if (!dev_.button) return MakeError(ErrorClass::kInvalidConfig, "button: none configured; check [button]");
+  dev_.button->Stop();  // a reopen after a runtime fault
   return dev_.button->Start([this](const ButtonPress& p) {
     const std::string src = p.source;
     loop_.Post([this, src] {
@@ -591,10 +619,25 @@ std::string CaptureService::StatusLine() const {
 }
 
 void CaptureService::NotifyStatus() {
+  if (dev_.light) dev_.light->Show(LightPatternFor());
   const std::string line = StatusLine();
   if (line != last_status_) {
     last_status_ = line;
     if (on_status_) on_status_(line);
+  }
+}
+
+LightPattern CaptureService::LightPatternFor() const {
+  if (state_.phase == cs::Phase::kFaulted) return LightPattern::kFault;
+  for (const char* name : {"camera", "turntable", "button"}) {
+    auto it = health_.find(name);
+    if (it != health_.end() && it->second.tried && !it->second.healthy) return LightPattern::kFault;
+  }
+  switch (state_.phase) {
+    case cs::Phase::kIdle:
+    case cs::Phase::kArmed: return LightPattern::kReady;
+    case cs::Phase::kAwaitingPose: return LightPattern::kFlip;
+    default: return LightPattern::kCapturing;
   }
 }
 
@@ -641,6 +684,10 @@ json CaptureService::HealthOnLoop() const {
     } else if (name == "button" && dev_.button) {
       d["backend"] = config_.button.backend;
       d["id"] = dev_.button->Describe();
+    } else if (name == "light" && dev_.light) {
+      d["backend"] = config_.light.backend;
+      d["id"] = dev_.light->Describe();
+      d["pattern"] = LightPatternName(dev_.light->pattern());
     }
     devices[name] = std::move(d);
   }
@@ -881,6 +928,7 @@ void CaptureService::Shutdown() {
   if (dev_.button) dev_.button->Stop();
   if (dev_.camera) dev_.camera->Close();
   if (dev_.turntable) dev_.turntable->Close();
+  if (dev_.light) dev_.light->Close();
 }
 
 }  // namespace aggscan

@@ -121,6 +121,10 @@ class CaptureService final : public DaemonControl {
   /// Reads the turntable's status every daemon.health_probe_interval while no
   /// side runs; comm_retries consecutive failures make it unhealthy.
   void ProbeDevices();
+  /// Turns a runtime fault recorded by the button or light thread into health.
+  void ProbeButtonAndLight();
+  /// The status light's pattern for the current state and device health.
+  LightPattern LightPatternFor() const;
   /// True while a side is being shot (homing .. storing): devices are not
   /// reopened or probed then.
   bool SideRunning() const;

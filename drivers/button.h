@@ -1,11 +1,14 @@
 // Start button interface: GPIO line, input-device key, Modbus input, or the
 // sim. Presses are delivered through the callback on the driver's thread
 // (post an event, touch nothing). The base debounces: presses closer than the
-// debounce time to the previous accepted one are dropped.
+// debounce time to the previous accepted one are dropped. A backend whose
+// device goes away while it runs (unplugged pedal, lost Modbus link) records
+// the error with ReportFault(); Health() shows it until the next Start().
 #pragma once
 
 #include <functional>
 #include <mutex>
+#include <optional>
 #include <string>
 
 #include "common/clock.h"
@@ -31,19 +34,25 @@ class Button {
   /// A press from software (API, CLI, tests): same path as the hardware.
   void InjectPress(const std::string& source);
   virtual std::string Describe() const = 0;
+  /// Ok while started and working; the backend's runtime fault otherwise
+  /// (kDisconnected, kTimeout, ...), with a message naming what to check.
+  Status Health() const;
 
  protected:
   Button(Clock& clock, TimeNs debounce) : clock_(clock), debounce_(debounce) {}
   /// Backends call this for every hardware press; the base debounces.
   void DeliverPress(const std::string& source);
+  /// Backends call this from their thread when the device fails while started.
+  void ReportFault(Error error);
   virtual Status DoStart() = 0;
   virtual void DoStop() = 0;
 
  private:
   Clock& clock_;
   TimeNs debounce_;
-  std::mutex mu_;
+  mutable std::mutex mu_;
   PressCallback cb_;
+  std::optional<Error> fault_;
   bool started_ = false;
   bool have_last_ = false;
   TimeNs last_press_ = 0;

@@ -159,6 +159,7 @@ Status Button::Start(PressCallback on_press) {
     std::lock_guard<std::mutex> l(mu_);
     if (started_) return MakeError(ErrorClass::kInvalidState, "button already started");
     cb_ = std::move(on_press);
+    fault_.reset();
   }
   Status s = DoStart();
   if (s) {
@@ -178,6 +179,18 @@ void Button::Stop() {
 }
 
 void Button::InjectPress(const std::string& source) { DeliverPress(source); }
+
+Status Button::Health() const {
+  std::lock_guard<std::mutex> l(mu_);
+  if (fault_) return *fault_;
+  if (!started_) return MakeError(ErrorClass::kInvalidState, "button is not started");
+  return OkStatus();
+}
+
+void Button::ReportFault(Error error) {
+  std::lock_guard<std::mutex> l(mu_);
+  if (started_ && !fault_) fault_ = std::move(error);
+}
 
 void Button::DeliverPress(const std::string& source) {
   PressCallback cb;

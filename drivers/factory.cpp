@@ -6,6 +6,10 @@
 #include <vector>
 
 #include "config/turntable_profile.h"
+#include "drivers/evdev/evdev_button.h"
+#include "drivers/gpio/gpio_button.h"
+#include "drivers/gpio/gpio_light.h"
+#include "drivers/modbus/modbus_io.h"
 #include "drivers/modbus/modbus_turntable.h"
 #include "drivers/sim/sim_button.h"
 #include "drivers/sim/sim_camera.h"
@@ -28,7 +32,15 @@ struct Context {
   // Physical platter angle for the sim camera; empty when the turntable is
   // real (the sim camera then sees the platter at 0).
   std::function<double(TimeNs)> platter_angle_at;
+  // The Modbus connection of the button, shared with a light on the same link.
+  std::shared_ptr<modbus::BitLink> bit_link;
 };
+
+std::shared_ptr<modbus::BitLink> BitLinkFor(Context& ctx, const modbus::LinkSettings& s) {
+  if (ctx.bit_link && ctx.bit_link->settings().SameLink(s)) return ctx.bit_link;
+  ctx.bit_link = std::make_shared<modbus::BitLink>(s);
+  return ctx.bit_link;
+}
 
 // The sim world is created once and shared by every sim device of the rig.
 Status EnsureWorld(Context& ctx) {
@@ -110,6 +122,30 @@ Result<std::unique_ptr<Button>> MakeSimButton(Context& ctx) {
   return std::unique_ptr<Button>(std::make_unique<sim::SimButton>(ctx.clock, ctx.config.button));
 }
 
+// Nothing is opened here either: a missing chip or device is the button's
+// health, reported by Start().
+Result<std::unique_ptr<Button>> MakeGpioButton(Context& ctx) {
+  return std::unique_ptr<Button>(std::make_unique<gpio::GpioButton>(ctx.clock, ctx.config.button));
+}
+
+Result<std::unique_ptr<Button>> MakeEvdevButton(Context& ctx) {
+  return std::unique_ptr<Button>(std::make_unique<evdev::EvdevButton>(ctx.clock, ctx.config.button));
+}
+Result<std::unique_ptr<Button>> MakeModbusButton(Context& ctx) {
+  return std::unique_ptr<Button>(std::make_unique<modbus::ModbusButton>(
+      ctx.clock, ctx.config.button, BitLinkFor(ctx, modbus::ButtonLinkSettings(ctx.config))));
+}
+
+// The status light is optional: "none" makes no device.
+Result<std::unique_ptr<StatusLight>> MakeNoLight(Context&) { return std::unique_ptr<StatusLight>(); }
+Result<std::unique_ptr<StatusLight>> MakeGpioLight(Context& ctx) {
+  return std::unique_ptr<StatusLight>(std::make_unique<gpio::GpioLight>(ctx.config.light.gpio));
+}
+Result<std::unique_ptr<StatusLight>> MakeModbusLight(Context& ctx) {
+  return std::unique_ptr<StatusLight>(std::make_unique<modbus::ModbusLight>(
+      ctx.config.light.modbus, BitLinkFor(ctx, modbus::LightLinkSettings(ctx.config))));
+}
+
 // Real backends (modbus-rtu, usb, v4l2, gpio, ...) join these tables.
 const Backend<Turntable> kTurntables[] = {{"sim", MakeSimTurntable},
                                           {"modbus-tcp", MakeModbusTcpTurntable},
@@ -117,7 +153,11 @@ const Backend<Turntable> kTurntables[] = {{"sim", MakeSimTurntable},
                                           {"usb-tic", MakeUsbTicTurntable}};
 const Backend<Camera> kCameras[] = {
     {"sim", MakeSimCamera}, {"v4l2", MakeV4l2Camera}, {"libcamera", MakeLibcameraCamera}};
-const Backend<Button> kButtons[] = {{"sim", MakeSimButton}};
+const Backend<Button> kButtons[] = {{"sim", MakeSimButton}, {"gpio", MakeGpioButton},
+                                    {"evdev", MakeEvdevButton},
+                                    {"modbus", MakeModbusButton}};
+const Backend<StatusLight> kLights[] = {{"none", MakeNoLight}, {"gpio", MakeGpioLight},
+                                        {"modbus", MakeModbusLight}};
 
 template <typename Device, size_t N>
 const Backend<Device>* Find(const Backend<Device> (&table)[N], const std::string& name) {
@@ -146,6 +186,8 @@ Result<RigDevices> CreateRig(const Config& config, Clock& clock) {
   if (!turntable)
     unknown.push_back(UnknownMessage("turntable.backend", config.turntable.backend, kTurntables));
   if (!button) unknown.push_back(UnknownMessage("button.backend", config.button.backend, kButtons));
+  const auto* light = Find(kLights, config.light.backend);
+  if (!light) unknown.push_back(UnknownMessage("light.backend", config.light.backend, kLights));
   if (!unknown.empty()) {
     std::string msg;
     for (const auto& u : unknown) msg += (msg.empty() ? "" : "; ") + u;
@@ -164,6 +206,9 @@ Result<RigDevices> CreateRig(const Config& config, Clock& clock) {
   auto b = button->make(ctx);
   if (!b) return b.error();
   rig.button = std::move(*b);
+  auto l = light->make(ctx);
+  if (!l) return l.error();
+  rig.light = std::move(*l);
   return rig;
 }
 

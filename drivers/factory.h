@@ -8,6 +8,7 @@
 #include "config/config.h"
 #include "drivers/button.h"
 #include "drivers/camera.h"
+#include "drivers/status_light.h"
 #include "drivers/turntable.h"
 
 namespace aggscan {
@@ -21,6 +22,7 @@ struct RigDevices {
   std::unique_ptr<Camera> camera;
   std::unique_ptr<Turntable> turntable;
   std::unique_ptr<Button> button;
+  std::unique_ptr<StatusLight> light;  // null when [light] backend = "none"
 };
 
 /// Creates (does not open) the devices named by the config. Unknown backend

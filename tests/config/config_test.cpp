@@ -744,11 +744,28 @@ TEST(ConfigToToml, CommentsEveryFieldAndShowsUnsetOptionals) {
   }
 }
 
+TEST(Config, ButtonAndLightDevicesMustBeNamedAndLinksShareable) {
+  ExpectOneProblem("[button]\nbackend = \"evdev\"\n", 0, "button.evdev.device", "needs the input device");
+  // The turntable's link is shared only over TCP (a second connection).
+  ExpectOneProblem("[button]\nbackend = \"modbus\"\n", 0, "button.modbus.link",
+                   "only when turntable.backend = \"modbus-tcp\"");
+  ExpectOneProblem("[button]\nbackend = \"modbus\"\n[button.modbus]\nlink = \"tcp\"\n", 0,
+                   "button.modbus.host", "needs the controller's address");
+  ExpectOneProblem("[light]\nbackend = \"modbus\"\n[light.modbus]\nlink = \"button\"\n", 4,
+                   "light.modbus.link", "needs button.backend = \"modbus\"");
+  ExpectOneProblem("[button]\nbackend = \"gpio\"\n[button.gpio]\nbias = \"strong\"\n", 4,
+                   "button.gpio.bias", "pull-up");
+  Loaded ok = Load(
+      "[button]\nbackend = \"modbus\"\n[button.modbus]\nlink = \"rtu\"\ndevice = \"/dev/ttyUSB1\"\n"
+      "[light]\nbackend = \"modbus\"\n[light.modbus]\nlink = \"button\"\ncoil = 3\n");
+  EXPECT_TRUE(ok.result.ok()) << Dump(ok.problems);
+}
+
 TEST(Config, KnownBackends) {
   EXPECT_EQ(KnownBackends("camera"), (std::vector<std::string>{"sim", "v4l2", "libcamera"}));
   EXPECT_EQ(KnownBackends("turntable"),
             (std::vector<std::string>{"sim", "modbus-tcp", "modbus-rtu", "usb-tic"}));
-  EXPECT_EQ(KnownBackends("button"), std::vector<std::string>{"sim"});
+  EXPECT_EQ(KnownBackends("button"), (std::vector<std::string>{"sim", "gpio", "evdev", "modbus"}));
   EXPECT_TRUE(KnownBackends("toaster").empty());
 }
 

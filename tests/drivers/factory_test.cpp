@@ -26,12 +26,12 @@ TEST(Factory, UnknownBackendNamesTheKeyAndTheKnownOnes) {
 
   c = Config{};
   c.turntable.backend = "usb";
-  c.button.backend = "gpio";
+  c.button.backend = "knob";
   r = CreateRig(c, clock);
   ASSERT_FALSE(r.ok());
   EXPECT_EQ(r.error().message,
             "turntable.backend \"usb\" is not known; available: sim, modbus-tcp, modbus-rtu, usb-tic; "
-            "button.backend \"gpio\" is not known; available: sim");
+            "button.backend \"knob\" is not known; available: sim, gpio, evdev, modbus");
 }
 
 TEST(Factory, ModbusTurntableFromConfigAndProfile) {

@@ -43,6 +43,8 @@ constexpr int kFirst = 0x1000, kCount = 0x6210 - 0x1000;
 
 }  // namespace
 
+constexpr int kBits = 64;  // coils and discrete inputs at 0..63
+
 struct ModbusTestServer::Mapping {
   modbus_mapping_t* m = nullptr;
   ~Mapping() {
@@ -54,7 +56,7 @@ struct ModbusTestServer::Mapping {
 ModbusTestServer::ModbusTestServer(const ModbusServerOptions& options)
     : opt_(options), map_(std::make_unique<Mapping>()) {
   const bool gen = opt_.map == ServerMap::kGeneric;
-  map_->m = modbus_mapping_new_start_address(0, 0, 0, 0, gen ? generic::kFirst : leadshine::kFirst,
+  map_->m = modbus_mapping_new_start_address(0, kBits, 0, kBits, gen ? generic::kFirst : leadshine::kFirst,
                                              gen ? generic::kCount : leadshine::kCount, 0, 0);
   if (!map_->m) throw std::runtime_error("modbus_mapping_new_start_address failed");
   UpdateRegisters(NowNs());
@@ -163,8 +165,9 @@ void ModbusTestServer::Handle(const uint8_t* req, int len) {
   if (silent_) return;
   const int function = req[hl];
   const int address = (req[hl + 1] << 8) | req[hl + 2];
-  const int count =
-      function == MODBUS_FC_WRITE_SINGLE_REGISTER ? 1 : (req[hl + 3] << 8) | req[hl + 4];
+  const bool single =
+      function == MODBUS_FC_WRITE_SINGLE_REGISTER || function == MODBUS_FC_WRITE_SINGLE_COIL;
+  const int count = single ? 1 : (req[hl + 3] << 8) | req[hl + 4];
   for (int r : rejected_) {
     if (r >= address && r < address + count) {
       modbus_reply_exception(ctx_, req, MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
@@ -174,7 +177,7 @@ void ModbusTestServer::Handle(const uint8_t* req, int len) {
   const int64_t now = NowNs();
   Advance(now);
   UpdateRegisters(now);
-  modbus_reply(ctx_, req, len, map_->m);
+  if (modbus_reply(ctx_, req, len, map_->m) > 0 && function == MODBUS_FC_WRITE_SINGLE_COIL) ++coil_writes_;
   ApplyCommands(now);
   UpdateRegisters(now);
 }
@@ -444,6 +447,26 @@ Result<TurntableStatus> WaitInPosition(Turntable& t) {
     if (!st || st->in_position || std::chrono::steady_clock::now() > deadline) return st;
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
+}
+
+void ModbusTestServer::SetDiscreteInput(int address, bool on) {
+  std::lock_guard<std::mutex> l(mu_);
+  map_->m->tab_input_bits[address] = on ? 1 : 0;
+}
+
+void ModbusTestServer::SetCoil(int address, bool on) {
+  std::lock_guard<std::mutex> l(mu_);
+  map_->m->tab_bits[address] = on ? 1 : 0;
+}
+
+bool ModbusTestServer::coil(int address) {
+  std::lock_guard<std::mutex> l(mu_);
+  return map_->m->tab_bits[address] != 0;
+}
+
+int ModbusTestServer::coil_writes() {
+  std::lock_guard<std::mutex> l(mu_);
+  return coil_writes_;
 }
 
 }  // namespace aggscan::testing

@@ -59,6 +59,10 @@ class ModbusTestServer {
   void RaiseAlarm(int code);                           // stops motion, alarm bit and code set
   void RejectRegister(int address);                    // requests touching it get exception 2
   void DropClient();                                   // TCP: closes the connection
+  // Bits (addresses 0..63): discrete inputs the test sets (a button), coils
+  // the backend writes (a lamp) or the test sets (a button on a coil).
+  void SetDiscreteInput(int address, bool on);
+  void SetCoil(int address, bool on);
 
   // Observations.
   int64_t position_steps();
@@ -68,6 +72,8 @@ class ModbusTestServer {
   int64_t min_steps_since_last_move();  // lowest position since the last move command
   int64_t max_steps_since_last_move();
   uint16_t reg(int address);  // a holding register as the backend left it
+  bool coil(int address);     // a coil as the backend left it
+  int coil_writes();          // write-coil requests answered
 
  private:
   explicit ModbusTestServer(const ModbusServerOptions& options);
@@ -97,6 +103,7 @@ class ModbusTestServer {
   std::optional<int64_t> stall_at_;
   std::vector<int> rejected_;
   int requests_ = 0;
+  int coil_writes_ = 0;
   std::vector<int64_t> targets_;
   // Motion model (steps, seconds on CLOCK_MONOTONIC).
   double pos_ = 0, start_pos_ = 0, goal_ = 0, v_ = 1, a_ = 1;

@@ -59,12 +59,13 @@ inline std::string ReadAll(const std::string& p) {
 /// A running aggscand on an ephemeral port.
 class Daemon {
  public:
-  Daemon(const std::string& config, const std::string& dir) : dir_(dir) {
+  /// Waits up to `start_s` for the API port (longer under a VM's TCG).
+  Daemon(const std::string& config, const std::string& dir, double start_s = 5) : dir_(dir) {
     port_file_ = dir + "/port";
     std::filesystem::remove(port_file_);
     log_ = dir + "/aggscand.log";
     pid_ = Spawn({Bin("daemon/aggscand"), "--config", config, "--port", "0", "--port-file", port_file_}, log_);
-    for (int i = 0; i < 500 && port_ == 0; ++i) {
+    for (int i = 0; i < start_s * 100 && port_ == 0; ++i) {
       std::this_thread::sleep_for(std::chrono::milliseconds(10));
       std::string p = ReadAll(port_file_);
       if (!p.empty()) port_ = std::atoi(p.c_str());
