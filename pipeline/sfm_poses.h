@@ -40,9 +40,12 @@ namespace aggscan {
 
 struct SfmPosesOptions {
   std::string colmap_binary = "/usr/bin/colmap";
-  /// SIFT on at most this many px along the longer side (the notes: 1600-2000
-  /// keeps a 12 MP photo at ~1-2 s and ~1.5 GB on the rig's 2 cores).
-  int max_image_size = 1600;
+  /// SIFT on at most this many px along the longer side: the rig's 2016 x
+  /// 1512 stills at full size (the rock fills a small part of the photo:
+  /// ~1000 SIFT features inside its mask on the sim at 2016 px, ~200 at
+  /// 1008 px, too few for COLMAP's initial pair); a 12 MP photo is reduced
+  /// (the notes: ~1-2 s and ~1.5 GB a photo at 1600-2000 px on 2 cores).
+  int max_image_size = 2016;
   int circular_neighbours = 3;  // pairs per view in the ring's pair list (~4x cheaper than exhaustive)
   /// COLMAP camera model when the intrinsics are not known: k1 and k2 like
   /// the rig calibration's lens.
