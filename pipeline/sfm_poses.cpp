@@ -67,6 +67,9 @@ Result<json> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts) {
   o.free_camera_model = opts.free_camera_model;
   o.sift.max_image_size = opts.max_image_size;
   o.matching.circular_neighbours = opts.circular_neighbours;
+  o.mapper.init_min_num_inliers = opts.init_min_num_inliers;
+  o.mapper.init_min_tri_angle_deg = opts.init_min_tri_angle_deg;
+  o.mapper.abs_pose_min_num_inliers = opts.abs_pose_min_num_inliers;
   o.expect_ring = true;
   o.num_threads = opts.num_threads;
   o.cancel = in.cancel;

@@ -50,6 +50,14 @@ struct SfmPosesOptions {
   /// COLMAP camera model when the intrinsics are not known: k1 and k2 like
   /// the rig calibration's lens.
   std::string free_camera_model = "RADIAL";
+  /// COLMAP's mapper on a small rock: ~1000 SIFT features a view, adjacent
+  /// views 30 deg apart share 30-300. With COLMAP's defaults (initial pair
+  /// 100 inliers and 16 deg, 30 inliers to register a view) sim seed 1 side
+  /// 2 stopped at 7 of 12 views and the model was dropped; with these all 12
+  /// register. The plausibility checks still judge the model.
+  int init_min_num_inliers = 50;
+  double init_min_tri_angle_deg = 8;
+  int abs_pose_min_num_inliers = 15;
   int num_threads = 2;
   /// RMS of the label/ArUco similarity fit (mm) above which the side is
   /// rejected: the located references do not fit the configured layout.
