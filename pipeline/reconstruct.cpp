@@ -218,20 +218,11 @@ Result<double> MeasuredAngle(const json& v, int side) {
   return v["measured_angle_deg"].get<double>();
 }
 
-// What the SfM path of a side needs besides the side's views.
-struct SfmSideSetup {
-  std::optional<CameraModel> fixed_camera;
-  std::string camera_source;
-  std::optional<double> focal_hint_px;
-  std::string focal_hint_source;
-  const RigCalibration* calibration = nullptr;  // the rig's, when there is one
-  RigConfig rig;
-};
-
 // The SfM poses record of a side (sfm_poses.h) from its side result.
+// `setup`: what the side needs besides its views (camera, focal hint, rig).
 Result<json> SfmPosesRecord(const std::string& sample_dir, int side, const json& side_result,
-                            const SfmSideSetup& setup, const ReconstructOptions& opts) {
-  SfmPosesInput in;
+                            const SfmPosesInput& setup, const ReconstructOptions& opts) {
+  SfmPosesInput in = setup;
   in.sample_dir = sample_dir;
   in.side = side;
   for (const auto& v : side_result.value("views", json::array())) {
@@ -247,18 +238,12 @@ Result<json> SfmPosesRecord(const std::string& sample_dir, int side, const json&
     sv.mask = ResultsPath(sample_dir, sv.mask_rel);
     in.views.push_back(std::move(sv));
   }
-  in.fixed_camera = setup.fixed_camera;
-  in.camera_source = setup.camera_source;
-  in.expected_focal_px = setup.focal_hint_px;
-  in.focal_hint_source = setup.focal_hint_source;
-  in.calibration = setup.calibration;
-  in.rig = setup.rig;
   in.cancel = opts.cancel;
   return RunSfmPoses(in, opts.sfm);
 }
 
 Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int side, const RigCalibration* cal,
-                                          const SfmSideSetup* sfm, const ReconstructOptions& opts, json* timings,
+                                          const SfmPosesInput* sfm, const ReconstructOptions& opts, json* timings,
                                           std::string* method) {
   const std::string out = ResultsPath(sample_dir, results::PosesName(side));
   const std::string side_dir = sample_dir + "/" + layout::SideDirName(side);
@@ -776,7 +761,7 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
     if (!c) return c.error();
     cal = std::move(*c);
   }
-  SfmSideSetup sfm_setup;
+  SfmPosesInput sfm_setup;  // every side's views are added by the poses stage
   if (*use_sfm) {
     sfm_setup.rig = rig;
     if (cal) {
@@ -788,7 +773,7 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
       // The sim camera's nominal lens as the focal hint (a real camera has
       // none here: COLMAP starts from its default and the ring checks judge).
       if (sample_cfg && sample_cfg->camera.backend == "sim") {
-        sfm_setup.focal_hint_px = image_size.width / 2.0 / std::tan(sample_cfg->sim.hfov_deg * M_PI / 360.0);
+        sfm_setup.expected_focal_px = image_size.width / 2.0 / std::tan(sample_cfg->sim.hfov_deg * M_PI / 360.0);
         sfm_setup.focal_hint_source = "sim.hfov_deg of the sample's config";
       }
     }
