@@ -21,12 +21,14 @@ int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& ou
   };
   for (size_t i = 0; i < args.size(); ++i) {
     if (args[i] == "--poses") {
-      if (!choice(&i, "turntable", "turntable+ba",
-                  "turntable (calibration and measured angles) or turntable+ba (refined by bundle adjustment, "
-                  "the default)",
-                  &poses)) {
+      PosesPath unused;
+      if (i + 1 >= args.size() || (args[i + 1] != "turntable+ba" && !ParsePosesPath(args[i + 1], &unused))) {
+        err << "aggscan reconstruct: --poses needs turntable (calibration and measured angles), turntable+ba "
+               "(refined by bundle adjustment, the default), sfm (full SfM through COLMAP, scaled by the "
+               "background labels) or auto (turntable with a rig calibration, sfm without)\n";
         return 2;
       }
+      poses = args[++i];
     } else if (args[i] == "--surface") {
       if (!choice(&i, "hull", "hull+photo",
                   "hull (visual hull only) or hull+photo (refined by photo-consistency, the default)", &surface)) {
@@ -71,9 +73,10 @@ int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& ou
   ReconstructOptions opts;
   opts.state_dir = state_dir;
   opts.photo_refine = surface == "hull+photo";
-  if (!poses.empty()) opts.bundle_adjust = poses == "turntable+ba";
+  if (poses == "turntable") opts.bundle_adjust = false;
+  if (!poses.empty() && poses != "turntable+ba") ParsePosesPath(poses, &opts.poses);
   if (!config_path.empty()) {
-    // Only the [mask] section matters here: an ONNX mask network, if configured.
+    // The [mask] section (an ONNX mask network, if configured) and [worker] poses.
     std::vector<ConfigProblem> problems;
     auto cfg = LoadConfigFile(config_path, &problems);
     if (!cfg.ok()) {
@@ -87,6 +90,7 @@ int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& ou
       return 2;
     }
     opts.worker.mask_net = *net;
+    if (poses.empty()) ParsePosesPath(cfg->worker.poses, &opts.poses);  // validated by LoadConfigFile
   }
   if (Status s = ReconstructSample(sample_dir, opts); !s) {
     err << "aggscan reconstruct: " << s.error().ToString() << "\n";

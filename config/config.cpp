@@ -366,6 +366,9 @@ const std::vector<Field<Config>>& Fields() {
 
       D(worker.poll_interval, Above(0, 60 * kSec), "queue polling period when idle"),
       F(worker.nice, Range(0, 19), "CPU priority below the capture daemon (0..19)"),
+      F(worker.poses, OneOf({"auto", "turntable", "sfm"}),
+        "poses: turntable (rig calibration + measured angles) | sfm (full SfM through COLMAP, scaled by "
+        "the background labels; minutes a side) | auto (turntable with a calibration, sfm without)"),
   };
   return k;
 }

@@ -364,6 +364,10 @@ struct MaskConfig {
 struct WorkerConfig {
   TimeNs poll_interval = 500 * kNsPerMs;  // queue polling period when idle
   int nice = 10;                          // CPU priority below the capture daemon
+  /// Poses path: turntable (calibration + measured angles) | sfm (COLMAP) |
+  /// auto (turntable with a rig calibration, sfm without). Not auto by
+  /// default: SfM costs minutes a side on the rig's CPU.
+  std::string poses = "turntable";
 
   bool operator==(const WorkerConfig&) const = default;
 };

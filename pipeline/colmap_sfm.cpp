@@ -1431,6 +1431,7 @@ Result<SfmResult> SfmRun::Run() {
                         {"fixed", fixed},
                         {"min_num_matches", mp.min_num_matches},
                         {"init_min_tri_angle", mp.init_min_tri_angle_deg},
+                        {"init_min_num_inliers", mp.init_min_num_inliers},
                         {"abs_pose_min_num_inliers", mp.abs_pose_min_num_inliers},
                         {"multiple_models", mp.multiple_models}};
   st = Stage(
@@ -1454,7 +1455,8 @@ Result<SfmResult> SfmRun::Run() {
             {"--database_path", P("database.db"), "--image_path", P("images"), "--output_path",
              P("sparse"), "--Mapper.num_threads", std::to_string(t), "--Mapper.min_num_matches",
              std::to_string(mp.min_num_matches), "--Mapper.init_min_tri_angle",
-             Fmt("%.9g", mp.init_min_tri_angle_deg), "--Mapper.abs_pose_min_num_inliers",
+             Fmt("%.9g", mp.init_min_tri_angle_deg), "--Mapper.init_min_num_inliers",
+             std::to_string(mp.init_min_num_inliers), "--Mapper.abs_pose_min_num_inliers",
              std::to_string(mp.abs_pose_min_num_inliers), "--Mapper.multiple_models",
              mp.multiple_models ? "1" : "0",
              // Known intrinsics stay fixed; otherwise COLMAP refines focal and distortion (its

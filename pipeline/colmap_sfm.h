@@ -253,6 +253,7 @@ struct SfmMatchingOptions {
 struct SfmMapperOptions {
   int min_num_matches = 15;  // pairs with fewer inliers are not used
   double init_min_tri_angle_deg = 16;
+  int init_min_num_inliers = 100;  // verified matches of the initial pair (COLMAP's default)
   int abs_pose_min_num_inliers = 30;
   bool multiple_models = true;  // let COLMAP start new sub-models; the largest is used
 };

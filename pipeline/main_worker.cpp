@@ -48,7 +48,7 @@ void Usage(FILE* f) {
                "  --sample DIR      process one sample directory now (every captured side, then\n"
                "                    the sample stage), without the queue; exit 1 on failure\n"
                "  --state-dir DIR   aggscan state directory (samples/, queue.db)\n"
-               "  --config FILE     TOML config (worker.nice, worker.poll_interval); defaults otherwise\n"
+               "  --config FILE     TOML config (worker.nice, worker.poll_interval, worker.poses); defaults otherwise\n"
                "  --once            exit when the queue is empty (exit 1 if a job failed for good)\n"
                "  --poll-ms N       idle queue polling period in ms (overrides the config)\n"
                "  --log-level L     error|warning|notice|info|debug\n");
@@ -115,9 +115,11 @@ void IdleWait(long ms) {
 }
 
 // The sample stage: the 3D reconstruction when the sample carries its rig
-// calibration, the 2D figures alone otherwise.
-Status RunSampleStage(const std::string& dir, const std::string& state_dir, const WorkerOptions& opts) {
-  if (!PathExists(dir + "/" + layout::kCalibrationCopy)) {
+// calibration or [worker] poses asks for SfM (auto, sfm), the 2D figures
+// alone otherwise.
+Status RunSampleStage(const std::string& dir, const std::string& state_dir, const WorkerOptions& opts,
+                      PosesPath poses) {
+  if (poses == PosesPath::kTurntable && !PathExists(dir + "/" + layout::kCalibrationCopy)) {
     AGG_LOGW(kCat, "%s: no rig calibration recorded in the sample: 2D figures only; run `aggscan calibrate` "
                    "(the daemon records it in every later sample), or give this sample a calibration.json and "
                    "run `aggscan reconstruct %s`",
@@ -128,14 +130,15 @@ Status RunSampleStage(const std::string& dir, const std::string& state_dir, cons
   ro.worker = opts;
   ro.state_dir = state_dir;
   ro.cancel = opts.cancel;
+  ro.poses = poses;
   return ReconstructSample(dir, ro);
 }
 
-Status RunJob(const std::string& state_dir, const Job& job, const WorkerOptions& opts) {
+Status RunJob(const std::string& state_dir, const Job& job, const WorkerOptions& opts, PosesPath poses) {
   if (!layout::IsValidSampleId(job.sample_id))
     return MakeError(ErrorClass::kCorrupt, "job " + std::to_string(job.id) + " names an invalid sample id");
   const std::string dir = layout::SampleDir(state_dir, job.sample_id);
-  return job.side > 0 ? ProcessSide(dir, job.side, opts) : RunSampleStage(dir, state_dir, opts);
+  return job.side > 0 ? ProcessSide(dir, job.side, opts) : RunSampleStage(dir, state_dir, opts, poses);
 }
 
 }  // namespace
@@ -180,11 +183,13 @@ int main(int argc, char** argv) {
     return 2;
   }
   if (*mask_net) AGG_LOGI(kCat, "masks: ONNX network %s", cfg.mask.model.c_str());
+  PosesPath poses = PosesPath::kTurntable;
+  ParsePosesPath(cfg.worker.poses, &poses);  // validated with the config
 
   if (!args.sample_dir.empty()) {
     WorkerOptions one;
     one.mask_net = *mask_net;
-    Status st = RunSampleStage(args.sample_dir, "", one);
+    Status st = RunSampleStage(args.sample_dir, "", one, poses);
     if (!st.ok()) {
       AGG_LOGE(kCat, "%s: %s", args.sample_dir.c_str(), st.error().ToString().c_str());
       return 1;
@@ -232,7 +237,7 @@ int main(int argc, char** argv) {
     const std::string what = job.side > 0 ? "side " + std::to_string(job.side) : std::string("sample stage");
     LogLine(LogLevel::kInfo, kCat, job.sample_id, "job " + std::to_string(job.id) + ": " + what + ", attempt " +
                                                       std::to_string(job.attempts));
-    Status st = RunJob(args.state_dir, job, opts);
+    Status st = RunJob(args.state_dir, job, opts, poses);
     if (!st.ok() && g_stop.load() && st.error().cls == ErrorClass::kInvalidState) {
       // Interrupted by a stop request: leave it running; the next start requeues it.
       LogLine(LogLevel::kNotice, kCat, job.sample_id, "job " + std::to_string(job.id) + " interrupted, will resume");

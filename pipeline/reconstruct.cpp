@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <map>
+#include <optional>
 #include <thread>
 
 #include <opencv2/imgcodecs.hpp>
@@ -102,7 +103,12 @@ Result<RigCalibration> CalibrationStage(const std::string& sample_dir, const Rec
   if (!PathExists(path) && !opts.state_dir.empty()) path = CalibrationPath(opts.state_dir);
   auto cal = LoadCalibration(path);
   if (!cal) {
-    return MakeError(cal.error().cls, "calibration stage: " + cal.error().message, cal.error().detail);
+    std::string alt;
+    if (cal.error().cls == ErrorClass::kNotFound) {
+      alt = "; or pose the views by full SfM, which needs no calibration: [worker] poses = \"auto\" or \"sfm\" "
+            "(aggscan reconstruct --poses sfm)";
+    }
+    return MakeError(cal.error().cls, "calibration stage: " + cal.error().message + alt, cal.error().detail);
   }
   if (Status s = CheckCalibrationFits(*cal, image_size.width, image_size.height); !s) {
     return MakeError(ErrorClass::kInvalidConfig, "calibration stage: " + s.error().message);
@@ -114,6 +120,60 @@ Result<RigCalibration> CalibrationStage(const std::string& sample_dir, const Rec
   if (Status s = WriteJson(out, j); !s) return s.error();
   (*timings)["calibration_s"] = j["stage_seconds"];
   return cal;
+}
+
+// --- poses path -----------------------------------------------------------
+
+// Whether a rig calibration is there for the sample (what CalibrationStage reads).
+bool HasCalibration(const std::string& sample_dir, const ReconstructOptions& opts) {
+  return PathExists(ResultsPath(sample_dir, results::kCalibrationUsed)) ||
+         PathExists(sample_dir + "/" + layout::kCalibrationCopy) ||
+         (!opts.state_dir.empty() && PathExists(CalibrationPath(opts.state_dir)));
+}
+
+// The method of the calibration record, "" when there is none.
+Result<std::string> CalibrationUsedMethod(const std::string& sample_dir) {
+  const std::string path = ResultsPath(sample_dir, results::kCalibrationUsed);
+  if (!PathExists(path)) return std::string();
+  auto j = ReadJson(path, "calibration record");
+  if (!j) return j.error();
+  return j->value("method", "");
+}
+
+// True for the SfM path. A sample whose calibration was estimated by SfM
+// (no rig calibration) stays on that path when resumed.
+Result<bool> ChoosePosesPath(const std::string& sample_dir, const ReconstructOptions& opts) {
+  auto used = CalibrationUsedMethod(sample_dir);
+  if (!used) return used.error();
+  switch (opts.poses) {
+    case PosesPath::kSfm:
+      return true;
+    case PosesPath::kAuto:
+      return *used == "sfm" || !HasCalibration(sample_dir, opts);
+    case PosesPath::kTurntable:
+      if (*used == "sfm") {
+        return MakeError(ErrorClass::kInvalidState,
+                         "sample " + SampleIdOf(sample_dir) +
+                             " was reconstructed through SfM without a rig calibration (results/" +
+                             results::kCalibrationUsed +
+                             " is SfM's): reconstruct it with poses \"sfm\" or \"auto\", or give it a "
+                             "calibration.json and delete its results/ to start over on the turntable path");
+      }
+      return false;
+  }
+  return false;
+}
+
+// The calibration record of a side's SfM poses (the camera it was posed with).
+Result<RigCalibration> SfmCalibrationOfSide(const std::string& sample_dir, int side) {
+  const std::string path = ResultsPath(sample_dir, results::PosesName(side));
+  auto j = ReadJson(path, "poses");
+  if (!j) return j.error();
+  if (j->value("method", "") != "sfm" || !j->contains("calibration")) {
+    return MakeError(ErrorClass::kCorrupt, path + " holds no SfM camera (method " + j->value("method", "?") +
+                                               "); delete it to pose that side again");
+  }
+  return CalibrationFromJson((*j)["calibration"], path);
 }
 
 // --- stage: poses --------------------------------------------------------
@@ -148,12 +208,59 @@ json BundleAdjustJson(const BundleAdjustResult& r) {
   return j;
 }
 
-Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int side, const RigCalibration& cal,
-                                          const ReconstructOptions& opts, json* timings, std::string* method) {
+// A side result view's measured turntable angle (from its sidecar).
+Result<double> MeasuredAngle(const json& v, int side) {
+  if (!v.contains("measured_angle_deg") || !v["measured_angle_deg"].is_number()) {
+    return MakeError(ErrorClass::kCorrupt, "poses stage: view " + std::to_string(v.value("view", -1)) + " of " +
+                                               layout::SideDirName(side) +
+                                               " has no measured turntable angle in its sidecar");
+  }
+  return v["measured_angle_deg"].get<double>();
+}
+
+// The SfM poses record of a side (sfm_poses.h) from its side result.
+// `setup`: what the side needs besides its views (camera, focal hint, rig).
+Result<json> SfmPosesRecord(const std::string& sample_dir, int side, const json& side_result,
+                            const SfmPosesInput& setup, const ReconstructOptions& opts) {
+  SfmPosesInput in = setup;
+  in.sample_dir = sample_dir;
+  in.side = side;
+  for (const auto& v : side_result.value("views", json::array())) {
+    if (!v.value("ok", false)) continue;
+    auto angle = MeasuredAngle(v, side);
+    if (!angle) return angle.error();
+    SfmPosesView sv;
+    sv.view = v.value("view", 0);
+    sv.angle_deg = *angle;
+    sv.image_rel = v.value("image", "");
+    sv.mask_rel = v.value("mask", "");
+    sv.image = sample_dir + "/" + layout::SideDirName(side) + "/" + sv.image_rel;
+    sv.mask = ResultsPath(sample_dir, sv.mask_rel);
+    in.views.push_back(std::move(sv));
+  }
+  in.cancel = opts.cancel;
+  return RunSfmPoses(in, opts.sfm);
+}
+
+Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int side, const RigCalibration* cal,
+                                          const SfmPosesInput* sfm, const ReconstructOptions& opts, json* timings,
+                                          std::string* method) {
   const std::string out = ResultsPath(sample_dir, results::PosesName(side));
   const std::string side_dir = sample_dir + "/" + layout::SideDirName(side);
   std::vector<ViewInput> views;
-  if (!PathExists(out)) {
+  if (!PathExists(out) && sfm) {
+    const auto t0 = std::chrono::steady_clock::now();
+    auto side_result = ReadJson(SideResultPath(sample_dir, side), "side result");
+    if (!side_result) return side_result.error();
+    auto j = SfmPosesRecord(sample_dir, side, *side_result, *sfm, opts);
+    if (!j) return j.error();
+    (*j)["stage_seconds"] = Seconds(t0);
+    if (Status s = WriteJson(out, *j); !s) return s.error();
+    LogLine(LogLevel::kInfo, kCat, SampleIdOf(sample_dir),
+            layout::SideDirName(side) + ": SfM registered " + std::to_string((*j)["sfm"].value("registered_views", 0)) +
+                " views, scale residual " + std::to_string((*j)["scale"].value("residual_mm", 0.0)) + " mm");
+  } else if (!PathExists(out)) {
+    if (!cal) return MakeError(ErrorClass::kInternal, "poses stage: no calibration for the turntable path");
     const auto t0 = std::chrono::steady_clock::now();
     auto side_result = ReadJson(SideResultPath(sample_dir, side), "side result");
     if (!side_result) return side_result.error();
@@ -163,13 +270,10 @@ Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int sid
     json jviews = json::array();
     for (const auto& v : side_result->value("views", json::array())) {
       if (!v.value("ok", false)) continue;  // no rock in this view: it cannot bound the hull
-      if (!v.contains("measured_angle_deg") || !v["measured_angle_deg"].is_number()) {
-        return MakeError(ErrorClass::kCorrupt, "poses stage: view " + std::to_string(v.value("view", -1)) + " of " +
-                                                   layout::SideDirName(side) +
-                                                   " has no measured turntable angle in its sidecar");
-      }
-      const double angle = v["measured_angle_deg"].get<double>();
-      const Eigen::Isometry3d T = IsoFromRowMajor(cal.CamFromTable(angle));
+      auto measured = MeasuredAngle(v, side);
+      if (!measured) return measured.error();
+      const double angle = *measured;
+      const Eigen::Isometry3d T = IsoFromRowMajor(cal->CamFromTable(angle));
       jviews.push_back({{"view", v["view"]},
                         {"image", v.value("image", "")},
                         {"mask", v.value("mask", "")},
@@ -195,7 +299,7 @@ Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int sid
         return !bgr->empty() && !mask->empty() && bgr->size() == mask->size();
       };
       const BundleAdjustResult ba =
-          BundleAdjustSideImages(static_cast<int>(jviews.size()), load, measured, cal, opts.ba);
+          BundleAdjustSideImages(static_cast<int>(jviews.size()), load, measured, *cal, opts.ba);
       j["bundle_adjustment"] = BundleAdjustJson(ba);
       if (ba.refined) {
         j["method"] = "turntable+ba";
@@ -564,6 +668,28 @@ std::string LibraryCsvRow(const json& m) {
   return row;
 }
 
+bool ParsePosesPath(const std::string& name, PosesPath* out) {
+  for (PosesPath p : {PosesPath::kAuto, PosesPath::kTurntable, PosesPath::kSfm}) {
+    if (name == PosesPathName(p)) {
+      *out = p;
+      return true;
+    }
+  }
+  return false;
+}
+
+const char* PosesPathName(PosesPath p) {
+  switch (p) {
+    case PosesPath::kAuto:
+      return "auto";
+    case PosesPath::kTurntable:
+      return "turntable";
+    case PosesPath::kSfm:
+      return "sfm";
+  }
+  return "?";
+}
+
 Result<json> ReadMorphology(const std::string& sample_dir) {
   const std::string path = ResultsPath(sample_dir, results::kMorphology);
   if (!PathExists(path)) {
@@ -615,8 +741,46 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
                                                  layout::SideDirName(sides[0]));
     }
   }
-  auto cal = CalibrationStage(sample_dir, opts, image_size, &timings);
-  if (!cal) return cal.error();
+  // The config the sample was armed with: its background labels (the SfM
+  // path's scale, the stitch stage's check) and its camera.
+  std::optional<Config> sample_cfg;
+  if (const std::string cfg_path = sample_dir + "/" + layout::kConfigCopy; PathExists(cfg_path)) {
+    std::vector<ConfigProblem> problems;
+    auto c = LoadConfigFile(cfg_path, &problems);
+    if (!c) {
+      return MakeError(ErrorClass::kInvalidConfig, "sample " + sample_id + ": its " + cfg_path + " does not load (" +
+                                                       c.error().message +
+                                                       "); it is written at arm time and must not be edited");
+    }
+    sample_cfg = std::move(*c);
+  }
+  const RigConfig rig = sample_cfg ? sample_cfg->rig : RigConfig{};
+
+  auto use_sfm = ChoosePosesPath(sample_dir, opts);
+  if (!use_sfm) return use_sfm.error();
+  std::optional<RigCalibration> cal;
+  if (!*use_sfm || HasCalibration(sample_dir, opts)) {
+    auto c = CalibrationStage(sample_dir, opts, image_size, &timings);
+    if (!c) return c.error();
+    cal = std::move(*c);
+  }
+  SfmPosesInput sfm_setup;  // every side's views are added by the poses stage
+  if (*use_sfm) {
+    sfm_setup.rig = rig;
+    if (cal) {
+      sfm_setup.fixed_camera = cal->camera;
+      sfm_setup.camera_source = cal->method == "sfm" ? "sfm (" + cal->source + ")" : "calibration";
+      sfm_setup.calibration = &*cal;
+    } else {
+      sfm_setup.camera_source = "sfm (estimated)";
+      // The sim camera's nominal lens as the focal hint (a real camera has
+      // none here: COLMAP starts from its default and the ring checks judge).
+      if (sample_cfg && sample_cfg->camera.backend == "sim") {
+        sfm_setup.expected_focal_px = image_size.width / 2.0 / std::tan(sample_cfg->sim.hfov_deg * M_PI / 360.0);
+        sfm_setup.focal_hint_source = "sim.hfov_deg of the sample's config";
+      }
+    }
+  }
 
   std::map<int, std::vector<ViewInput>> side_views;
   std::map<int, std::string> poses_methods;
@@ -625,28 +789,39 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
     if (opts.cancel && opts.cancel->load()) {
       return MakeError(ErrorClass::kInvalidState, "interrupted before the poses of " + layout::SideDirName(side));
     }
+    if (*use_sfm && !cal && side != sides[0]) {
+      // Every side in one camera model (the surface stage has one): the
+      // first side's SfM camera, held fixed.
+      auto first = SfmCalibrationOfSide(sample_dir, sides[0]);
+      if (!first) return first.error();
+      sfm_setup.fixed_camera = first->camera;
+      sfm_setup.camera_source = "sfm " + layout::SideDirName(sides[0]);
+    }
     std::string method;
-    auto v = PosesStage(sample_dir, side, *cal, opts, &timings, &method);
+    auto v = PosesStage(sample_dir, side, cal ? &*cal : nullptr, *use_sfm ? &sfm_setup : nullptr, opts, &timings,
+                        &method);
     poses_methods[side] = method;
     if (!v) return v.error();
     side_views[side] = *v;
     all_views.insert(all_views.end(), v->begin(), v->end());
+  }
+  if (!cal) {
+    // SfM without a rig calibration: the first side's camera is the sample's.
+    auto c = SfmCalibrationOfSide(sample_dir, sides[0]);
+    if (!c) return c.error();
+    json j = CalibrationToJson(*c);
+    j["origin"] = ResultsPath(sample_dir, results::PosesName(sides[0]));
+    j["stage_seconds"] = 0.0;
+    if (Status s = WriteJson(ResultsPath(sample_dir, results::kCalibrationUsed), j); !s) return s;
+    timings["calibration_s"] = 0.0;
+    cal = std::move(*c);
   }
   if (opts.cancel && opts.cancel->load()) return MakeError(ErrorClass::kInvalidState, "interrupted before stitching");
   StitchStageInput sin;
   sin.sample_dir = sample_dir;
   sin.calibration = &*cal;
   // The background labels are the ones configured when the sample was armed.
-  if (const std::string cfg_path = sample_dir + "/" + layout::kConfigCopy; PathExists(cfg_path)) {
-    std::vector<ConfigProblem> problems;
-    auto sample_cfg = LoadConfigFile(cfg_path, &problems);
-    if (!sample_cfg) {
-      return MakeError(ErrorClass::kInvalidConfig, "stitch stage: the sample's " + cfg_path +
-                                                       " does not load (" + sample_cfg.error().message +
-                                                       "); it is written at arm time and must not be edited");
-    }
-    sin.rig = sample_cfg->rig;
-  }
+  sin.rig = rig;
   for (const auto& [side, vs] : side_views) {
     for (const ViewInput& v : vs) {
       sin.views[side].push_back({v.view, v.angle_deg, v.image, v.mask, v.cam_from_table});
@@ -774,6 +949,31 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
       break;
     }
   }
+  // Each side's poses figures (the method's own: SfM's registration and
+  // scale, or the bundle adjustment's).
+  json poses_detail = json::array();
+  for (int side : sides) {
+    auto pj = ReadJson(ResultsPath(sample_dir, results::PosesName(side)), "poses");
+    if (!pj) return pj.error();
+    json e = {{"side", side}, {"method", pj->value("method", "")}};
+    if (pj->contains("sfm")) {
+      const json& s = (*pj)["sfm"];
+      const json& sc = pj->value("scale", json::object());
+      e.update({{"registered_views", s.value("registered_views", 0)},
+                {"input_views", s.value("input_views", 0)},
+                {"mean_reprojection_px", s.value("mean_reprojection_px", 0.0)},
+                {"checks_passed", s.value("checks_passed", false)},
+                {"camera_source", s.value("camera_source", "")},
+                {"scale_reference", sc.value("reference", "")},
+                {"scale_residual_mm", sc.value("residual_mm", 0.0)},
+                {"colmap_s", s.value("colmap_s", 0.0)},
+                {"model_dir", s.value("model_dir", "")}});
+    } else if (pj->contains("bundle_adjustment")) {
+      const json& ba = (*pj)["bundle_adjustment"];
+      e.update({{"ba_refined", ba.value("refined", false)}, {"ba_final_rms_px", ba.value("final_rms_px", 0.0)}});
+    }
+    poses_detail.push_back(std::move(e));
+  }
   json morphology_3d = MeshPropsJson(p);
   morphology_3d["watertight"] = watertight.ok();
   json out = {
@@ -788,6 +988,7 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
         {"surface", surface->value("method", "")},
         {"masks", mask_method}}},
       {"morphology_3d", morphology_3d},
+      {"poses", poses_detail},
       {"views_2d", views2d},
       {"stats_2d", stats},
       {"comparison_2d_3d",

@@ -6,7 +6,12 @@
 //   results/calibration_used.json  the rig calibration the sample is reconstructed with
 //                                  (samples/<id>/calibration.json, else the state dir's)
 //   results/poses_side<N>.json     every view's pose in its side's turntable frame
-//                                  (measured angles, refined by bundle adjustment)
+//                                  (measured angles, refined by bundle adjustment; or
+//                                  full SfM scaled by the background labels: "method": "sfm",
+//                                  its model exported to results/sfm/side<N>/)
+//   (SfM without a calibration: calibration_used.json is then written after the poses,
+//   from side 1's SfM camera, "method": "sfm"; every later side is posed with it fixed,
+//   so all views share one camera model, as the surface stage needs)
 //   results/stitch.json            each side's turntable frame -> side 1's (object frame)
 //   results/surface.json           the mesh files below are complete
 //     results/mesh.ply (binary, per-vertex colour), mesh.obj, mesh.stl   (mm, object frame)
@@ -24,13 +29,30 @@
 #include "common/error.h"
 #include "pipeline/bundle_adjust.h"
 #include "pipeline/photo_refine.h"
+#include "pipeline/sfm_poses.h"
 #include "pipeline/side_job.h"
 #include "pipeline/visual_hull.h"
 
 namespace aggscan {
 
+/// Where the views' poses come from (issue 3 item 4): the calibrated
+/// turntable (fast path) or full SfM through COLMAP (pipeline/sfm_poses.h).
+enum class PosesPath {
+  kAuto,       // the turntable when the sample has a rig calibration, SfM otherwise
+  kTurntable,  // calibration and measured angles (+ bundle adjustment)
+  kSfm,        // COLMAP; intrinsics fixed from the calibration when there is one
+};
+/// "auto" | "turntable" | "sfm"; false for anything else.
+bool ParsePosesPath(const std::string& name, PosesPath* out);
+const char* PosesPathName(PosesPath p);
+
 struct ReconstructOptions {
   WorkerOptions worker;        // per-side masks
+  /// The poses path. The turntable by default: the SfM path costs minutes a
+  /// side on the rig's 2 cores (../shared/notes/colmap-debian.md) and is
+  /// asked for explicitly ([worker] poses, aggscan reconstruct --poses).
+  PosesPath poses = PosesPath::kTurntable;
+  SfmPosesOptions sfm;         // the SfM path's settings
   /// Poses: refine each side's measured turntable angles by bundle adjustment
   /// over the features inside the rock masks (pipeline/bundle_adjust.h);
   /// recorded as "turntable+ba", or "turntable" with the reason when there

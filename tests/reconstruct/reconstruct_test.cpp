@@ -17,6 +17,7 @@
 #include "common/mesh_check.h"
 #include "config/config.h"
 #include "drivers/sim/world.h"
+#include "tests/reconstruct/sim_sample.h"
 #include "tests/util/temp_dir.h"
 
 namespace aggscan {
@@ -29,35 +30,7 @@ using nlohmann::json;
 // truth_masks, the sim's ground-truth masks are put where the side stage
 // keeps its masks (it reuses them), to test the geometric stages alone.
 std::string Capture(const std::string& dir, uint64_t seed, int sides, bool truth_masks = true) {
-  const std::string cfg = dir + "/cfg.toml";
-  std::ofstream(cfg) << "[capture]\nprofile = \"custom\"\nsides = " << sides << "\nviews_per_side = 30\nstep_deg = 30\n";
-  SimCaptureOptions o;
-  o.seed = seed;
-  o.out = dir + "/sample";
-  o.config_path = cfg;
-  o.width = 1008;
-  o.height = 756;
-  std::ostringstream out, err;
-  EXPECT_EQ(RunSimCapture(o, out, err), 0) << err.str();
-  Config c;
-  c.sim.seed = seed;
-  sim::SimWorld world(c);
-  EXPECT_TRUE(SaveCalibration(o.out + "/calibration.json", world.TruthCalibration(1008, 756)));
-  if (truth_masks) {
-    for (int side = 1; side <= sides; ++side) {
-      const std::string dst = o.out + "/results/masks/side" + std::to_string(side);
-      fs::create_directories(dst);
-      for (int v = 0; v < 30; ++v) {
-        char name[32];
-        std::snprintf(name, sizeof name, "view_%03d", v);
-        const cv::Mat m = cv::imread(o.out + "/truth/side" + std::to_string(side) + "/" + name + "_mask.pgm",
-                                     cv::IMREAD_GRAYSCALE);
-        EXPECT_FALSE(m.empty());
-        cv::imwrite(dst + "/" + name + ".png", m);
-      }
-    }
-  }
-  return o.out;
+  return test::CaptureSimSample(dir, seed, sides, true, truth_masks, 30, 1008, 756, 30.0);
 }
 
 json Truth(const std::string& sample) {

@@ -1,0 +1,63 @@
+// A simulated sample for the reconstruction tests, rendered offline.
+#pragma once
+
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+
+#include <opencv2/imgcodecs.hpp>
+
+#include "cli/sim_capture.h"
+#include "common/rig_calibration.h"
+#include "config/config.h"
+#include "drivers/sim/world.h"
+
+namespace aggscan::test {
+
+/// Renders `sides` x `views` photos (custom profile, `step_deg` apart) of the
+/// sim rock `seed` at width x height into dir/sample and returns that path.
+/// calibration: the sim's exact rig calibration is recorded in the sample.
+/// truth_masks: the sim's ground-truth masks are put where the side stage
+/// keeps its masks (it reuses them), to test the geometric stages alone.
+inline std::string CaptureSimSample(const std::string& dir, uint64_t seed, int sides, bool calibration,
+                                    bool truth_masks, int views, int width, int height, double step_deg) {
+  namespace fs = std::filesystem;
+  const std::string cfg = dir + "/cfg.toml";
+  std::ofstream(cfg) << "[capture]\nprofile = \"custom\"\nsides = " << sides << "\nviews_per_side = " << views
+                     << "\nstep_deg = " << step_deg << "\n";
+  SimCaptureOptions o;
+  o.seed = seed;
+  o.out = dir + "/sample";
+  o.config_path = cfg;
+  o.width = width;
+  o.height = height;
+  std::ostringstream out, err;
+  EXPECT_EQ(RunSimCapture(o, out, err), 0) << err.str();
+  if (calibration) {
+    Config c;
+    c.sim.seed = seed;
+    sim::SimWorld world(c);
+    EXPECT_TRUE(SaveCalibration(o.out + "/calibration.json", world.TruthCalibration(width, height)));
+  }
+  if (truth_masks) {
+    for (int side = 1; side <= sides; ++side) {
+      const std::string dst = o.out + "/results/masks/side" + std::to_string(side);
+      fs::create_directories(dst);
+      for (int v = 0; v < views; ++v) {
+        char name[32];
+        std::snprintf(name, sizeof name, "view_%03d", v);
+        const cv::Mat m = cv::imread(o.out + "/truth/side" + std::to_string(side) + "/" + name + "_mask.pgm",
+                                     cv::IMREAD_GRAYSCALE);
+        EXPECT_FALSE(m.empty());
+        cv::imwrite(dst + "/" + name + ".png", m);
+      }
+    }
+  }
+  return o.out;
+}
+
+}  // namespace aggscan::test
