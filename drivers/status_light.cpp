@@ -97,7 +97,9 @@ Status StatusLight::Health() const {
 
 void StatusLight::Run() {
   std::unique_lock<std::mutex> l(mu_);
-  std::optional<bool> level;  // what the output was last set to
+  // What the output was last set to: Open() left it dark. (Unknown here, the
+  // thread wrote "dark" a second time, racing the caller's first pattern.)
+  std::optional<bool> level = false;
   while (!stop_) {
     const uint64_t gen = generation_;
     const std::vector<LightStep>& steps = PatternSteps(pattern_);
