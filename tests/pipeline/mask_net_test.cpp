@@ -153,7 +153,13 @@ TEST_F(MaskNetTest, WorkerMasksComeFromTheNetwork) {
   ASSERT_TRUE(net.ok()) << net.error().ToString();
   WorkerOptions w;
   w.mask_net = std::shared_ptr<MaskNet>(std::move(*net));
-  ASSERT_TRUE(ProcessSide(sample, 1, w).ok());
+  const Status processed = ProcessSide(sample, 1, w);
+  // This toy network marks texture, and its mask may reach the photo's edge:
+  // the side job then leaves the view out and says so (side_job.h), but the
+  // mask it stored is still the network's.
+  if (!processed.ok()) {
+    EXPECT_THAT(processed.error().message, HasSubstr("edge of the photo")) << processed.error().ToString();
+  }
   const cv::Mat stored = cv::imread(ViewMaskPath(sample, 1, 0), cv::IMREAD_GRAYSCALE);
   ASSERT_FALSE(stored.empty());
   auto expected = w.mask_net->Mask(sc.bgr);
