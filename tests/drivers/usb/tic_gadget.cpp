@@ -343,6 +343,7 @@ int main(int argc, char** argv) {
   }
 
   SimTic tic(steps_per_rev, switch_at, start_at, timeout_ms / 1000.0);
+  int exit_code = 0;
   while (!g_stop) {
     pollfd p{ep0, POLLIN, 0};
     if (poll(&p, 1, 50) <= 0) {
@@ -353,11 +354,27 @@ int main(int argc, char** argv) {
     const ssize_t n = read(ep0, ev.data(), sizeof(ev));
     if (n < 0) {
       if (errno == EINTR || errno == EAGAIN) continue;
-      std::fprintf(stderr, "tic_gadget: read ep0: %s\n", std::strerror(errno));
+      if (errno == EIDRM) {
+        // A setup request was cancelled before we answered it (the host gave
+        // up on it, or another event came first): FunctionFS says so once;
+        // the host has moved on, and so do we.
+        std::fprintf(stderr, "tic_gadget: a request was cancelled before it was answered\n");
+        continue;
+      }
+      std::fprintf(stderr, "tic_gadget: read ep0: %s; stopping\n", std::strerror(errno));
+      exit_code = 1;
       break;
     }
     for (size_t i = 0; i < static_cast<size_t>(n) / sizeof(usb_functionfs_event); ++i) {
-      if (ev[i].type != FUNCTIONFS_SETUP) continue;  // bind, enable, disable, suspend: no state
+      if (ev[i].type != FUNCTIONFS_SETUP) {
+        // Bind, enable, disable, suspend, resume: no state here, but the log
+        // tells a failing run's story.
+        static const char* const kNames[] = {"bind", "unbind", "enable", "disable",
+                                             "setup", "suspend", "resume"};
+        std::fprintf(stderr, "tic_gadget: %.3f s: %s\n", NowS(),
+                     ev[i].type < 7 ? kNames[ev[i].type] : "unknown event");
+        continue;
+      }
       const usb_ctrlrequest& r = ev[i].u.setup;
       const uint16_t value = le16toh(r.wValue), index = le16toh(r.wIndex),
                      length = le16toh(r.wLength);
@@ -384,5 +401,6 @@ int main(int argc, char** argv) {
     }
   }
   close(ep0);
-  return 0;
+  std::fprintf(stderr, "tic_gadget: %s\n", exit_code ? "ended on an error" : "stopped");
+  return exit_code;
 }

@@ -36,13 +36,14 @@ echo 100 >$g/configs/c.1/MaxPower
 ln -s $g/functions/ffs.tic $g/configs/c.1/ || skip "cannot link the function"
 mount -t functionfs tic /tmp/ffs || skip "cannot mount functionfs"
 
-"$gadget_bin" --ffs /tmp/ffs --ready /tmp/tic-ready --steps-per-rev 1600 --start-at 400 &
+glog=/tmp/tic-gadget.log
+"$gadget_bin" --ffs /tmp/ffs --ready /tmp/tic-ready --steps-per-rev 1600 --start-at 400 2>"$glog" &
 gpid=$!
 n=0
 while [ ! -e /tmp/tic-ready ]; do
   n=$((n + 1))
   [ $n -lt 200 ] || { echo "tic_vm: the gadget did not start" >&2; kill $gpid; exit 1; }
-  kill -0 $gpid 2>/dev/null || { echo "tic_vm: the gadget exited" >&2; exit 1; }
+  kill -0 $gpid 2>/dev/null || { echo "tic_vm: the gadget exited" >&2; cat "$glog" >&2; exit 1; }
   sleep 0.05
 done
 echo "$udc" >$g/UDC || { echo "tic_vm: cannot bind the gadget to $udc" >&2; kill $gpid; exit 1; }
@@ -67,6 +68,7 @@ export AGGSCAN_TIC_SERIAL=$serial AGGSCAN_TIC_UDC_FILE=$g/UDC AGGSCAN_TIC_UDC=$u
 rc=0
 echo "tic_vm: contract suite, backend usb_tic" >&2
 "$contract_bin" --gtest_filter='Backends/TurntableContract.*/usb_tic' || rc=$?
+kill -0 $gpid 2>/dev/null || echo "tic_vm: the gadget program is gone after the contract suite" >&2
 # A udev daemon, as on a real system, so libusb's hotplug events flow (the
 # backend copes without one: it then learns of an unplug from a failing
 # transfer). Started only now: its start-up work would compete with the
@@ -78,5 +80,13 @@ fi
 ip link set lo up 2>/dev/null || ifconfig lo 127.0.0.1 up 2>/dev/null || true
 echo "tic_vm: hotplug, error classification, daemon health" >&2
 "$vm_test_bin" || { r=$?; [ $rc -ne 0 ] || rc=$r; }
+if [ $rc -ne 0 ]; then
+  # What the emulated Tic and the kernel saw, last, so a CI log's tail has it.
+  kill -0 $gpid 2>/dev/null || echo "tic_vm: the gadget program had ended" >&2
+  echo "tic_vm: the gadget's log (last 40 lines):" >&2
+  tail -n 40 "$glog" >&2
+  echo "tic_vm: kernel log (last 40 lines):" >&2
+  dmesg 2>/dev/null | tail -n 40 >&2
+fi
 kill $gpid 2>/dev/null
 exit $rc
