@@ -114,11 +114,20 @@ json Realism(const Config& c, int sides) {
            "errors); the flip puts the rock on its next stable rest for each side"}};
 }
 
+// The sim rig's set-up where it differs from the config's (the tripod moved
+// back for big rocks), as a [sim] table; empty when it does not.
+std::string RigToml(const ValidateOptions& o) {
+  if (o.camera_distance_mm <= 0) return "";
+  std::ostringstream t;
+  t << "[sim]\ncamera_distance_mm = " << o.camera_distance_mm << "\n";
+  return t.str();
+}
+
 // Writes the capture config: the study's protocol with the chosen sides and views.
 Status WriteCaptureConfig(const std::string& path, const ValidateOptions& o) {
   std::ostringstream t;
   t << "[capture]\nprofile = \"custom\"\nsides = " << o.sides << "\nviews_per_side = " << o.views_per_side
-    << "\nstep_deg = " << kStepDeg << "\n";
+    << "\nstep_deg = " << kStepDeg << "\n" << RigToml(o);
   return WriteFileAtomic(path, t.str());
 }
 
@@ -129,6 +138,7 @@ Result<json> MakeCalibration(const ValidateOptions& o, const std::string& work, 
   const int w = o.width > 0 ? o.width : defaults.camera.width;
   const int h = o.height > 0 ? o.height : defaults.camera.height;
   Config c;
+  if (o.camera_distance_mm > 0) c.sim.camera_distance_mm = o.camera_distance_mm;
   sim::SimWorld world(c);  // the rig geometry does not depend on the rock
   const RigCalibration truth = world.TruthCalibration(w, h);
   if (o.calibration == "truth") {
@@ -142,6 +152,11 @@ Result<json> MakeCalibration(const ValidateOptions& o, const std::string& work, 
   cap.scene = "charuco";
   cap.seed = 1;
   cap.out = work + "/calibration-capture";
+  if (!RigToml(o).empty()) {
+    // The board is seen from where the rocks will be.
+    cap.config_path = work + "/rig.toml";
+    if (Status s = WriteFileAtomic(cap.config_path, RigToml(o)); !s) return s.error();
+  }
   cap.width = w;
   cap.height = h;
   std::ostringstream cout_, cerr_;
@@ -400,6 +415,8 @@ Result<ValidateReport> RunValidation(const ValidateOptions& o, std::ostream& log
                   {"height", o.height > 0 ? o.height : effective.camera.height},
                   {"sides", o.sides},
                   {"views_per_side", o.views_per_side},
+                  {"camera_distance_mm",
+                   o.camera_distance_mm > 0 ? o.camera_distance_mm : effective.sim.camera_distance_mm},
                   {"step_deg", kStepDeg},
                   {"calibration", *cal},
                   {"masks", "computed by the worker (classical segmentation), not the sim's truth masks"},
@@ -573,13 +590,15 @@ json ValidateReportToJson(const ValidateReport& r) {
 void PrintValidateUsage(std::ostream& o) {
   o << "  aggscan validate [--count N] [--seed S] [--mesh-dir DIR --unit mm|cm|m [--scale-to-mm L|LO:HI]]\n"
        "                   [--sides 1|2] [--views N] [--width W --height H] [--calibration charuco|truth]\n"
-       "                   [--json] [--keep DIR]\n"
+       "                   [--camera-distance-mm D] [--json] [--keep DIR]\n"
        "      accuracy harness: simulated two-side captures (noise, distortion, JPEG, turntable\n"
        "      errors, flip) of N procedural rocks (default 20, seeds S..S+N-1) or of every mesh in\n"
        "      DIR scaled so its longest dimension is L mm (LO..HI spread over the files),\n"
        "      reconstructed by the worker; prints true vs reconstructed volume, area, a, b, c,\n"
        "      sphericity, volume MPE/MAPE and PASS/FAIL against the targets (--json: the same as\n"
        "      JSON); calibration from a simulated ChArUco capture unless --calibration truth;\n"
+       "      --camera-distance-mm: the sim rig's tripod distance from the disc centre (default\n"
+       "      650 mm frames rocks up to ~20 cm in every pose; ~800 mm for 20-25 cm rocks);\n"
        "      exit 0 all targets met, 1 a target missed or a rock failed, 2 usage\n";
 }
 
@@ -631,6 +650,16 @@ int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, 
       }
       o.scale_min_mm = lo;
       o.scale_max_mm = hi;
+    } else if (a == "--camera-distance-mm") {
+      if (!has_value) return need("a distance in mm");
+      double d = 0;
+      if (!ParseDouble(args[++i], &d) || d < 400 || d > 2000) {
+        err << "aggscan validate: --camera-distance-mm expects the camera's distance from the disc centre "
+               "in mm, 400..2000, got '"
+            << args[i] << "'\n";
+        return 2;
+      }
+      o.camera_distance_mm = d;
     } else if (a == "--calibration") {
       if (!has_value) return need("charuco or truth");
       o.calibration = args[++i];

@@ -30,6 +30,8 @@ struct ValidateOptions {
   int sides = 2;                  // sides per rock (the operator flips the rock between them)
   int views_per_side = 30;        // views per side, 30 deg apart (the study's protocol)
   int width = 0, height = 0;      // image size (0: the config's 2016 x 1512)
+  double camera_distance_mm = 0;  // the tripod's distance from the disc centre, as the rig is set
+                                  // up for the batch's rock sizes (0: the config's 650 mm)
   std::string calibration = "charuco";  // charuco: calibrate from a simulated board capture;
                                         // truth: the sim's exact calibration
   std::string keep;               // keep every sample under this new folder (empty: temporary)
