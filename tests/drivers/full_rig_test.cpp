@@ -48,7 +48,8 @@ std::string FindVivid() {
   std::error_code ec;
   for (const auto& e : fs::directory_iterator("/sys/class/video4linux", ec)) {
     const std::string name = gpiosim::ReadLine(e.path().string() + "/name");
-    if (name.starts_with("vivid-") && name.ends_with("-vid-cap")) return "/dev/" + e.path().filename().string();
+    if (name.starts_with("vivid-") && name.ends_with("-vid-cap"))
+      return "/dev/" + e.path().filename().string();
   }
   return {};
 }
@@ -86,16 +87,19 @@ std::string WriteConfig(const std::string& dir, const testing::ModbusTestServer&
   const TurntableConfig tt = testing::ModbusConfigFor(peer, /*tcp=*/true);
   const std::string path = dir + "/full-rig.toml";
   std::ofstream f(path);
-  f << "[daemon]\nstate_dir = \"" << dir << "/state\"\nlisten_port = 0\ntime_scale = 1\nlog_level = \"info\"\n\n"
+  f << "[daemon]\nstate_dir = \"" << dir
+    << "/state\"\nlisten_port = 0\ntime_scale = 1\nlog_level = \"info\"\n\n"
     << "[capture]\nprofile = \"custom\"\nsides = 1\nviews_per_side = " << kViews
     << "\nstep_deg = 90.0\ninterval = \"3s\"\nsettle = \"50ms\"\nframe_timeout = \"30s\"\n\n"
-    << "[camera]\nbackend = \"v4l2\"\nid = \"vivid0\"\ndevice = \"" << g_vivid << "\"\nwidth = " << g_width
-    << "\nheight = " << g_height << "\n\n"
+    << "[camera]\nbackend = \"v4l2\"\nid = \"vivid0\"\ndevice = \"" << g_vivid
+    << "\"\nwidth = " << g_width << "\nheight = " << g_height
+    << "\n\n"
     // vivid has gain but no exposure or white balance controls.
     << "[camera.v4l2]\nstrict_controls = false\nframe_timeout = \"30s\"\n\n"
     << "[turntable]\nbackend = \"modbus-tcp\"\nmax_speed_deg_s = 360.0\naccel_deg_s2 = 1440.0\n\n"
-    << "[turntable.modbus]\nprofile = \"" << tt.modbus.profile << "\"\nhost = \"127.0.0.1\"\nport = "
-    << peer.port() << "\nmotor_steps_per_rev = 200\nmicrosteps = 16\ngear_ratio = 10.0\n"
+    << "[turntable.modbus]\nprofile = \"" << tt.modbus.profile
+    << "\"\nhost = \"127.0.0.1\"\nport = " << peer.port()
+    << "\nmotor_steps_per_rev = 200\nmicrosteps = 16\ngear_ratio = 10.0\n"
     << "in_position_window_deg = 0.2\nresponse_timeout = \"2s\"\n\n"
     << "[button]\nbackend = \"gpio\"\ndebounce = \"50ms\"\n\n"
     << "[button.gpio]\nchip = \"" << g_sim.name << "\"\nline = \"start\"\n";
@@ -112,19 +116,22 @@ TEST(FullRig, GpioPressCapturesASideOfVividImagesAtTheAnglesTheModbusPeerReports
 
   // All three devices up: each names the real device behind it.
   json h;
-  ASSERT_TRUE(Eventually([&] {
-    h = d.Get("/api/v1/health");
-    if (!h.is_object()) return false;
-    for (const char* dev : {"camera", "turntable", "button"}) {
-      if (h["devices"][dev].value("state", "") != "ok") {
-        std::this_thread::sleep_for(std::chrono::milliseconds(100));  // spare the guest's CPUs
-        return false;
-      }
-    }
-    return true;
-  }, 90)) << h.dump(2) << ReadAll(d.log());
+  ASSERT_TRUE(Eventually(
+      [&] {
+        h = d.Get("/api/v1/health");
+        if (!h.is_object()) return false;
+        for (const char* dev : {"camera", "turntable", "button"}) {
+          if (h["devices"][dev].value("state", "") != "ok") {
+            std::this_thread::sleep_for(std::chrono::milliseconds(100));  // spare the guest's CPUs
+            return false;
+          }
+        }
+        return true;
+      },
+      90))
+      << h.dump(2) << ReadAll(d.log());
   EXPECT_EQ(h["devices"]["camera"]["backend"], "v4l2");
-  EXPECT_NE(h["devices"]["camera"]["model"].get<std::string>().find("(vivid, "), std::string::npos)
+  EXPECT_NE(h["devices"]["camera"].value("model", "").find("(vivid, "), std::string::npos)
       << h["devices"]["camera"].dump();
   EXPECT_EQ(h["devices"]["turntable"]["backend"], "modbus-tcp");
   EXPECT_EQ(h["devices"]["turntable"]["id"], "127.0.0.1:" + std::to_string(peer->port()) + "/1");
@@ -140,9 +147,12 @@ TEST(FullRig, GpioPressCapturesASideOfVividImagesAtTheAnglesTheModbusPeerReports
   ASSERT_TRUE(d.WaitFor([](const json& s) { return s.value("state", "") != "armed"; }, 60, &st))
       << st.dump() << ReadAll(d.log());
   ASSERT_TRUE(gpiosim::SetPull(g_sim, 0, false));
-  EXPECT_NE(ReadAll(d.log()).find("start button pressed (gpio)"), std::string::npos) << ReadAll(d.log());
+  EXPECT_NE(ReadAll(d.log()).find("start button pressed (gpio)"), std::string::npos)
+      << ReadAll(d.log());
   ASSERT_TRUE(d.WaitFor(
-      [](const json& s) { return s.value("state", "") == "idle" && s.value("views_captured", 0) == kViews; },
+      [](const json& s) {
+        return s.value("state", "") == "idle" && s.value("views_captured", 0) == kViews;
+      },
       180, &st))
       << st.dump() << ReadAll(d.log());
 
@@ -182,7 +192,8 @@ TEST(FullRig, GpioPressCapturesASideOfVividImagesAtTheAnglesTheModbusPeerReports
     const double commanded = 90.0 * i;
     const int64_t peer_steps = i == 0 ? 0 : rests[i - 1];
     EXPECT_DOUBLE_EQ(car["commanded_angle_deg"].get<double>(), commanded);
-    EXPECT_NEAR(car["measured_angle_deg"].get<double>(), static_cast<double>(peer_steps) / kStepsPerDeg, 1e-9);
+    EXPECT_NEAR(car["measured_angle_deg"].get<double>(),
+                static_cast<double>(peer_steps) / kStepsPerDeg, 1e-9);
     if (i > 0) {
       EXPECT_GT(std::fabs(car["measured_angle_deg"].get<double>() - commanded), 10 / kStepsPerDeg)
           << "the measured angle must be the peer's, not the commanded one";
@@ -221,7 +232,8 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "full_rig_test: cannot create the gpio-sim chip: %s\n", err.c_str());
     return 1;
   }
-  std::fprintf(stderr, "full_rig_test: vivid %s at %dx%d, gpio-sim chip %s\n", aggscan::g_vivid.c_str(),
-               aggscan::g_width, aggscan::g_height, aggscan::g_sim.name.c_str());
+  std::fprintf(stderr, "full_rig_test: vivid %s at %dx%d, gpio-sim chip %s\n",
+               aggscan::g_vivid.c_str(), aggscan::g_width, aggscan::g_height,
+               aggscan::g_sim.name.c_str());
   return RUN_ALL_TESTS();
 }

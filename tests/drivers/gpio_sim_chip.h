@@ -77,7 +77,8 @@ inline std::string MakeChip(Chip* out) {
 
 /// Sets the simulated level of a line's input (what a switch would do to it).
 inline bool SetPull(const Chip& c, int offset, bool high) {
-  return WriteFile(c.sysfs + "/sim_gpio" + std::to_string(offset) + "/pull", high ? "pull-up" : "pull-down");
+  return WriteFile(c.sysfs + "/sim_gpio" + std::to_string(offset) + "/pull",
+                   high ? "pull-up" : "pull-down");
 }
 
 /// The line's level as the chip sees it.
