@@ -677,10 +677,12 @@ json CaptureService::HealthOnLoop() const {
       const CameraInfo info = dev_.camera->Info();
       d["backend"] = info.backend;
       d["id"] = info.id;
+      d["model"] = info.model;
     } else if (name == "turntable" && dev_.turntable) {
       const TurntableInfo info = dev_.turntable->Info();
       d["backend"] = info.backend;
       d["id"] = info.id;
+      d["model"] = info.model;
     } else if (name == "button" && dev_.button) {
       d["backend"] = config_.button.backend;
       d["id"] = dev_.button->Describe();

@@ -4,17 +4,11 @@
 // (gpio-sim built out of tree, loaded with --modprobe gpio-sim, configfs on
 // /sys/kernel/config); exits 77 (skipped) where gpio-sim is not there.
 //
-// The chip is made here, by writing configfs files (no helper programs: each
-// costs ~0.3 s under TCG): bank0 with 4 lines, line 0 named "start" (the
-// button) and line 1 "lamp" (the light). A press is gpio-sim's simulated
-// pull: `pull-up` drives the input high, `pull-down` low; the light's output
-// level is read back from sim_gpioN/value.
+// The chip (tests/drivers/gpio_sim_chip.h): bank0 with 4 lines, line 0
+// named "start" (the button) and line 1 "lamp" (the light). A press is
+// gpio-sim's simulated pull; the light's output level is read back from
+// sim_gpioN/value.
 #include <gtest/gtest.h>
-#include <net/if.h>
-#include <sys/ioctl.h>
-#include <sys/socket.h>
-#include <sys/stat.h>
-#include <unistd.h>
 
 #include <atomic>
 #include <chrono>
@@ -30,64 +24,22 @@
 #include "config/config.h"
 #include "drivers/gpio/gpio_button.h"
 #include "drivers/gpio/gpio_light.h"
+#include "tests/drivers/gpio_sim_chip.h"
 #include "tests/scenario/process.h"
 
 namespace aggscan::gpio {
 namespace {
 
+namespace gpiosim = test::gpiosim;
 using test::Eventually;
 using test::WriteFile;
 
-const char* kConfigfs = "/sys/kernel/config/gpio-sim";
-std::string g_chip;   // "gpiochipN" of the simulated bank
-std::string g_sysfs;  // /sys/devices/platform/gpio-sim.K/gpiochipN
-
-std::string ReadLine(const std::string& path) {
-  std::ifstream f(path);
-  std::string s;
-  std::getline(f, s);
-  return s;
-}
-
-// The VM boots with the loopback interface down; aggscand's API needs it.
-void BringUpLoopback() {
-  const int fd = ::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
-  if (fd < 0) return;
-  ifreq ifr{};
-  std::strncpy(ifr.ifr_name, "lo", IFNAMSIZ - 1);
-  if (::ioctl(fd, SIOCGIFFLAGS, &ifr) == 0 && !(ifr.ifr_flags & IFF_UP)) {
-    ifr.ifr_flags |= IFF_UP;
-    if (::ioctl(fd, SIOCSIFFLAGS, &ifr) != 0) std::perror("gpio_sim_test: bring up lo");
-  }
-  ::close(fd);
-}
-
-// Creates the simulated chip; an empty string on success, else what failed.
-std::string MakeSimChip() {
-  const std::string dev = std::string(kConfigfs) + "/aggscan";
-  const std::string bank = dev + "/bank0";
-  if (::mkdir(dev.c_str(), 0755) != 0 || ::mkdir(bank.c_str(), 0755) != 0) return "mkdir " + bank;
-  if (!WriteFile(bank + "/num_lines", "4")) return "num_lines";
-  if (!WriteFile(bank + "/label", "aggscan-sim")) return "label";
-  const char* names[] = {"start", "lamp"};
-  for (int i = 0; i < 2; ++i) {
-    const std::string line = bank + "/line" + std::to_string(i);
-    if (::mkdir(line.c_str(), 0755) != 0 || !WriteFile(line + "/name", names[i])) return line;
-  }
-  if (!WriteFile(dev + "/live", "1")) return "live";
-  g_chip = ReadLine(bank + "/chip_name");
-  g_sysfs = "/sys/devices/platform/" + ReadLine(dev + "/dev_name") + "/" + g_chip;
-  return g_chip.empty() ? "chip_name" : "";
-}
+gpiosim::Chip g_sim;  // the simulated bank, made in main()
+const std::string& g_chip = g_sim.name;  // "gpiochipN"
 
 // The simulated level of a line's input (what a switch would do to it).
-void Pull(int offset, bool high) {
-  ASSERT_TRUE(WriteFile(g_sysfs + "/sim_gpio" + std::to_string(offset) + "/pull",
-                        high ? "pull-up" : "pull-down"));
-}
-int Value(int offset) {
-  return std::stoi(ReadLine(g_sysfs + "/sim_gpio" + std::to_string(offset) + "/value"));
-}
+void Pull(int offset, bool high) { ASSERT_TRUE(gpiosim::SetPull(g_sim, offset, high)); }
+int Value(int offset) { return gpiosim::Value(g_sim, offset); }
 
 ButtonConfig Config(const std::string& line, bool active_low, TimeNs debounce,
                     const std::string& bias = "as-is") {
@@ -307,7 +259,7 @@ TEST(GpioSim, ChipGoneWhileRunningIsADisconnect) {
   RealClock clock;
   GpioButton b(clock, Config("start", false, 20 * kNsPerMs));
   ASSERT_TRUE(b.Start([](const ButtonPress&) {}).ok());
-  ASSERT_TRUE(WriteFile(std::string(kConfigfs) + "/aggscan/live", "0"));
+  ASSERT_TRUE(WriteFile(std::string(gpiosim::kChipDir) + "/live", "0"));
   ASSERT_TRUE(Eventually([&] { return !b.Health().ok(); })) << "chip removal not noticed";
   EXPECT_EQ(b.Health().error().cls, ErrorClass::kDisconnected) << b.Health().error().ToString();
   EXPECT_NE(b.Health().error().message.find("stopped delivering edges"), std::string::npos);
@@ -318,22 +270,22 @@ TEST(GpioSim, ChipGoneWhileRunningIsADisconnect) {
 }  // namespace aggscan::gpio
 
 int main(int argc, char** argv) {
+  namespace gpiosim = aggscan::test::gpiosim;
   ::testing::InitGoogleTest(&argc, argv);
-  struct stat st {};
-  if (::stat(aggscan::gpio::kConfigfs, &st) != 0) {
+  if (!gpiosim::Available()) {
     std::fprintf(stderr,
                  "gpio_sim_test: SKIP: no %s (gpio-sim not loaded or configfs not mounted; "
                  "tests/vm/run-in-vm.sh --modules DIR --modprobe gpio-sim does both in a VM)\n",
-                 aggscan::gpio::kConfigfs);
+                 gpiosim::kConfigfs);
     return 77;
   }
-  aggscan::gpio::BringUpLoopback();
-  const std::string err = aggscan::gpio::MakeSimChip();
+  gpiosim::BringUpLoopback();
+  const std::string err = gpiosim::MakeChip(&aggscan::gpio::g_sim);
   if (!err.empty()) {
     std::fprintf(stderr, "gpio_sim_test: cannot create the gpio-sim chip: %s\n", err.c_str());
     return 1;
   }
-  std::fprintf(stderr, "gpio_sim_test: gpio-sim chip %s at %s\n", aggscan::gpio::g_chip.c_str(),
-               aggscan::gpio::g_sysfs.c_str());
+  std::fprintf(stderr, "gpio_sim_test: gpio-sim chip %s at %s\n", aggscan::gpio::g_sim.name.c_str(),
+               aggscan::gpio::g_sim.sysfs.c_str());
   return RUN_ALL_TESTS();
 }

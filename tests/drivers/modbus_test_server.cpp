@@ -250,9 +250,10 @@ void ModbusTestServer::Advance(int64_t now) {
   min_pos_ = std::min(min_pos_, pos_);
   max_pos_ = std::max(max_pos_, pos_);
   if (t >= total) {
-    pos_ = goal_;
+    pos_ = goal_ + static_cast<double>(rest_error_);
     moving_ = false;
     in_position_ = true;
+    rests_.push_back(std::lround(pos_));
   }
 }
 
@@ -360,6 +361,11 @@ void ModbusTestServer::SetStallAtSteps(std::optional<int64_t> steps) {
   stall_at_ = steps;
 }
 
+void ModbusTestServer::SetRestErrorSteps(int64_t steps) {
+  std::lock_guard<std::mutex> l(mu_);
+  rest_error_ = steps;
+}
+
 void ModbusTestServer::RaiseAlarm(int code) {
   std::lock_guard<std::mutex> l(mu_);
   Advance(NowNs());
@@ -399,6 +405,12 @@ int ModbusTestServer::requests() {
 std::vector<int64_t> ModbusTestServer::move_targets() {
   std::lock_guard<std::mutex> l(mu_);
   return targets_;
+}
+
+std::vector<int64_t> ModbusTestServer::rest_positions() {
+  std::lock_guard<std::mutex> l(mu_);
+  Advance(NowNs());
+  return rests_;
 }
 
 int64_t ModbusTestServer::min_steps_since_last_move() {

@@ -59,6 +59,9 @@ class ModbusTestServer {
   void RaiseAlarm(int code);                           // stops motion, alarm bit and code set
   void RejectRegister(int address);                    // requests touching it get exception 2
   void DropClient();                                   // TCP: closes the connection
+  // Moves come to rest this many steps past their target, in position (a
+  // drive's following error inside its in-position window).
+  void SetRestErrorSteps(int64_t steps);
   // Bits (addresses 0..63): discrete inputs the test sets (a button), coils
   // the backend writes (a lamp) or the test sets (a button on a coil).
   void SetDiscreteInput(int address, bool on);
@@ -69,6 +72,7 @@ class ModbusTestServer {
   bool homed();
   int requests();                       // requests received (answered or not)
   std::vector<int64_t> move_targets();  // targets of accepted move commands, in order
+  std::vector<int64_t> rest_positions();  // where each of those moves came to rest, in order
   int64_t min_steps_since_last_move();  // lowest position since the last move command
   int64_t max_steps_since_last_move();
   uint16_t reg(int address);  // a holding register as the backend left it
@@ -105,6 +109,8 @@ class ModbusTestServer {
   int requests_ = 0;
   int coil_writes_ = 0;
   std::vector<int64_t> targets_;
+  std::vector<int64_t> rests_;
+  int64_t rest_error_ = 0;
   // Motion model (steps, seconds on CLOCK_MONOTONIC).
   double pos_ = 0, start_pos_ = 0, goal_ = 0, v_ = 1, a_ = 1;
   int64_t t0_ = 0;
