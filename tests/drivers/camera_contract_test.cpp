@@ -66,8 +66,8 @@ struct BackendParam {
 
 CameraSetup SetupSim() {
   CameraSetup s;
-  s.config.camera.backend = "sim";
-  s.virtual_clock = true;  // the rig's 12 MP mode is the full size
+  s.config.camera.backend = "sim";  // any size; full: the rig's 12 MP mode
+  s.virtual_clock = true;
   return s;
 }
 
@@ -169,6 +169,28 @@ Result<FramePtr> TakeStill(Camera& cam, int view, std::thread::id* delivered_on 
                              std::chrono::seconds(120));
 }
 
+// Takes a still and checks it is a JPEG of w x h, framed as that; null when
+// there is none (the failure is recorded).
+FramePtr ExpectStill(Camera& cam, int view, int w, int h, std::thread::id* delivered_on = nullptr) {
+  Result<FramePtr> f = TakeStill(cam, view, delivered_on);
+  if (!f.ok()) {
+    ADD_FAILURE() << "still " << view << ": " << f.error().ToString();
+    return nullptr;
+  }
+  const Frame& fr = **f;
+  EXPECT_EQ(fr.request_id, static_cast<uint64_t>(100 + view));
+  EXPECT_EQ(fr.encoding, "jpeg");
+  EXPECT_EQ(fr.width, w);
+  EXPECT_EQ(fr.height, h);
+  auto img = sim::DecodeJpeg(fr.data);
+  EXPECT_TRUE(img.ok()) << img.error().ToString();
+  if (img.ok()) {
+    EXPECT_EQ(img->width, w);
+    EXPECT_EQ(img->height, h);
+  }
+  return *f;
+}
+
 bool Named(const Frame& f, const std::string& setting) {
   return std::find(f.missing_controls.begin(), f.missing_controls.end(), setting) != f.missing_controls.end();
 }
@@ -208,6 +230,7 @@ class CameraContract : public ::testing::TestWithParam<BackendParam> {
     c.camera.width = setup_.width;
     c.camera.height = setup_.height;
     if (change) change(c.camera);
+    rig_ = {};  // a camera made before goes before its clock
     if (setup_.virtual_clock) {
       clock_ = std::make_unique<VirtualClock>();
     } else {
@@ -276,24 +299,17 @@ TEST_P(CameraContract, StillsArriveOnTheDriverThreadWithLockedExposure) {
   TimeNs last_t = -1;
   std::vector<std::string> first_missing;
   for (int v = 0; v < 3; ++v) {
-    std::thread::id on;
-    Result<FramePtr> f = TakeStill(cam, v, &on);
-    ASSERT_TRUE(f.ok()) << f.error().ToString();
-    const Frame& fr = **f;
-    EXPECT_NE(on, std::this_thread::get_id()) << "frames must be delivered on the driver's own thread";
-    EXPECT_EQ(fr.request_id, static_cast<uint64_t>(100 + v));
-    EXPECT_EQ(fr.encoding, "jpeg");
-    EXPECT_EQ(fr.width, settings.width);
-    EXPECT_EQ(fr.height, settings.height);
+    const std::thread::id caller = std::this_thread::get_id();
+    std::thread::id on = caller;
+    FramePtr f = ExpectStill(cam, v, settings.width, settings.height, &on);
+    ASSERT_TRUE(f);
+    const Frame& fr = *f;
+    EXPECT_NE(on, caller) << "frames must be delivered on the driver's own thread";
     // Exposure, gain and white balance are the locked values on every view,
     // or named as settings the device has no control for.
     ExpectLockedOrNamed(fr, settings);
     if (v == 0) first_missing = fr.missing_controls;
     EXPECT_EQ(fr.missing_controls, first_missing) << "every view shares the same settings";
-    auto img = sim::DecodeJpeg(fr.data);
-    ASSERT_TRUE(img.ok()) << img.error().ToString();
-    EXPECT_EQ(img->width, settings.width);
-    EXPECT_EQ(img->height, settings.height);
     if (v > 0) {
       EXPECT_GT(fr.sequence, last_seq);
       EXPECT_GE(fr.exposure_start, last_t);
@@ -369,20 +385,11 @@ TEST_P(CameraContract, ConfigureAgainTakesTheNewSize) {
   Camera& cam = Make();
   ASSERT_TRUE(cam.Open());
   ASSERT_TRUE(cam.Configure(Ordinary()));
-  Result<FramePtr> first = TakeStill(cam, 0);
-  ASSERT_TRUE(first.ok()) << first.error().ToString();
-  const CameraSettings small = Settings(setup_.small_width, setup_.small_height);
-  Status s = cam.Configure(small);
+  ASSERT_TRUE(ExpectStill(cam, 0, setup_.width, setup_.height));
+  Status s = cam.Configure(Settings(setup_.small_width, setup_.small_height));
   ASSERT_TRUE(s.ok()) << s.error().ToString();
   EXPECT_EQ(cam.state(), Camera::State::kReady);
-  Result<FramePtr> f = TakeStill(cam, 1);
-  ASSERT_TRUE(f.ok()) << f.error().ToString();
-  EXPECT_EQ((*f)->width, small.width);
-  EXPECT_EQ((*f)->height, small.height);
-  auto img = sim::DecodeJpeg((*f)->data);
-  ASSERT_TRUE(img.ok()) << img.error().ToString();
-  EXPECT_EQ(img->width, small.width);
-  EXPECT_EQ(img->height, small.height);
+  EXPECT_TRUE(ExpectStill(cam, 1, setup_.small_width, setup_.small_height));
   cam.Close();
 }
 
@@ -394,17 +401,13 @@ TEST_P(CameraContract, ASizeTheDeviceCannotGiveIsRefusedAndLeavesItOpened) {
   Camera& cam = Make();
   ASSERT_TRUE(cam.Open());
   ASSERT_TRUE(cam.Configure(Ordinary()));
-  Result<FramePtr> first = TakeStill(cam, 0);
-  ASSERT_TRUE(first.ok()) << first.error().ToString();
+  ASSERT_TRUE(ExpectStill(cam, 0, setup_.width, setup_.height));
   const bool every_size = setup_.odd_width == 0;
   const CameraSettings odd = every_size ? Settings(641, 481) : Settings(setup_.odd_width, setup_.odd_height);
   Status s = cam.Configure(odd);
   if (every_size) {
     ASSERT_TRUE(s.ok()) << s.error().ToString();
-    Result<FramePtr> f = TakeStill(cam, 1);
-    ASSERT_TRUE(f.ok()) << f.error().ToString();
-    EXPECT_EQ((*f)->width, odd.width);
-    EXPECT_EQ((*f)->height, odd.height);
+    EXPECT_TRUE(ExpectStill(cam, 1, odd.width, odd.height));
   } else {
     ASSERT_FALSE(s.ok()) << "the device cannot give " << odd.width << "x" << odd.height;
     EXPECT_EQ(s.error().cls, ErrorClass::kInvalidConfig) << s.error().ToString();
@@ -414,9 +417,7 @@ TEST_P(CameraContract, ASizeTheDeviceCannotGiveIsRefusedAndLeavesItOpened) {
         << "no still with settings the camera no longer has";
     Status again = cam.Configure(Ordinary());
     ASSERT_TRUE(again.ok()) << again.error().ToString();
-    Result<FramePtr> f = TakeStill(cam, 2);
-    ASSERT_TRUE(f.ok()) << f.error().ToString();
-    EXPECT_EQ((*f)->width, setup_.width);
+    EXPECT_TRUE(ExpectStill(cam, 2, setup_.width, setup_.height));
   }
   cam.Close();
 }
@@ -428,9 +429,7 @@ TEST_P(CameraContract, ReopensAfterClose) {
     Status open = cam.Open();
     ASSERT_TRUE(open.ok()) << "round " << round << ": " << open.error().ToString();
     ASSERT_TRUE(cam.Configure(Ordinary()));
-    Result<FramePtr> f = TakeStill(cam, round);
-    ASSERT_TRUE(f.ok()) << "round " << round << ": " << f.error().ToString();
-    EXPECT_EQ((*f)->request_id, static_cast<uint64_t>(100 + round));
+    EXPECT_TRUE(ExpectStill(cam, round, setup_.width, setup_.height)) << "round " << round;
     cam.Close();
   }
 }
@@ -446,12 +445,7 @@ TEST_P(CameraContract, FullResolutionStill) {
   ASSERT_TRUE(cam.Open());
   Status cs = cam.Configure(Settings(setup_.full_width, setup_.full_height));
   ASSERT_TRUE(cs.ok()) << cs.error().ToString();
-  Result<FramePtr> f = TakeStill(cam, 0);
-  ASSERT_TRUE(f.ok()) << f.error().ToString();
-  auto img = sim::DecodeJpeg((*f)->data);
-  ASSERT_TRUE(img.ok());
-  EXPECT_EQ(img->width, setup_.full_width);
-  EXPECT_EQ(img->height, setup_.full_height);
+  EXPECT_TRUE(ExpectStill(cam, 0, setup_.full_width, setup_.full_height));
   cam.Close();
 }
 
