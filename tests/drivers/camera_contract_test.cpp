@@ -19,6 +19,7 @@
 #include <algorithm>
 #include <atomic>
 #include <condition_variable>
+#include <cstdio>
 #include <cstdlib>
 #include <functional>
 #include <future>
@@ -345,6 +346,7 @@ TEST_P(CameraContract, StrictControlsLockEverythingOrNameWhatTheyCannot) {
   } else {
     std::string list;
     for (const auto& m : missing) list += (list.empty() ? "" : ", ") + m;
+    std::fprintf(stderr, "%s: no control for %s\n", GetParam().name, list.c_str());
     ASSERT_FALSE(s.ok()) << "a strict camera must refuse settings it cannot lock: " << list;
     EXPECT_EQ(s.error().cls, ErrorClass::kInvalidConfig);
     EXPECT_THAT(s.error().message, HasSubstr("no control for " + list));
