@@ -454,5 +454,45 @@ TEST_P(CameraContract, FullResolutionStill) {
 INSTANTIATE_TEST_SUITE_P(Backends, CameraContract, ::testing::ValuesIn(kBackends),
                          [](const ::testing::TestParamInfo<BackendParam>& i) { return std::string(i.param.name); });
 
+// The base class's part of the rule above, on every machine: a backend that
+// refuses a Configure (after stopping its stream, as V4L2 and libcamera do)
+// leaves the camera Opened; settings refused before the device is asked
+// leave it as it was.
+class RefusingCamera final : public Camera {
+ public:
+  bool refuse = false;
+  CameraInfo Info() const override { return {"refusing", "test", "refuses when told"}; }
+
+ protected:
+  Status DoOpen() override { return OkStatus(); }
+  Status DoConfigure(const CameraSettings& s) override {
+    if (refuse) return MakeError(ErrorClass::kInvalidConfig, "cannot deliver " + std::to_string(s.width));
+    return OkStatus();
+  }
+  Status DoRequestStill(const StillRequest&, FrameCallback done) override {
+    done(MakeError(ErrorClass::kDeviceFault, "no pictures here"));
+    return OkStatus();
+  }
+  void DoClose() override {}
+};
+
+TEST(CameraBase, ARefusedConfigureLeavesAReadyCameraOpened) {
+  RefusingCamera cam;
+  ASSERT_TRUE(cam.Open());
+  ASSERT_TRUE(cam.Configure(Settings(640, 480)));
+  ASSERT_EQ(cam.state(), Camera::State::kReady);
+  EXPECT_EQ(cam.Configure(Settings(8, 480)).error().cls, ErrorClass::kInvalidArgument);
+  EXPECT_EQ(cam.state(), Camera::State::kReady) << "refused before the device was asked";
+  cam.refuse = true;
+  EXPECT_EQ(cam.Configure(Settings(641, 480)).error().cls, ErrorClass::kInvalidConfig);
+  EXPECT_EQ(cam.state(), Camera::State::kOpened);
+  EXPECT_EQ(cam.RequestStill({}, [](Result<FramePtr>) {}).error().cls, ErrorClass::kInvalidState);
+  cam.refuse = false;
+  ASSERT_TRUE(cam.Configure(Settings(640, 480)));
+  EXPECT_EQ(cam.state(), Camera::State::kReady);
+  EXPECT_EQ(cam.settings().width, 640);
+  cam.Close();
+}
+
 }  // namespace
 }  // namespace aggscan
