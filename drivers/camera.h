@@ -11,7 +11,8 @@
 // States:   Closed --Open()--> Opened --Configure()--> Ready
 //           Ready --RequestStill()--> Busy --(callback)--> Ready
 //           any --Close()--> Closed
-// Calls in the wrong state return kInvalidState and do nothing.
+// Calls in the wrong state return kInvalidState and do nothing. A Configure
+// the device refuses leaves the camera Opened, whatever it was before.
 #pragma once
 
 #include <cstdint>
@@ -64,7 +65,8 @@ struct Frame {
   double wb_blue = 1.0;
   // Locked settings the device has no control for (e.g. "exposure" on a
   // camera without V4L2_CID_EXPOSURE_ABSOLUTE): their values above are not
-  // the device's. Empty when every setting was applied and read back.
+  // the device's and read 0 (exposure, gain) or 1 (white balance), never the
+  // value asked for. Empty when every setting was applied and read back.
   std::vector<std::string> missing_controls;
 };
 using FramePtr = std::shared_ptr<const Frame>;
@@ -86,6 +88,8 @@ class Camera {
   /// Finds and opens the device.
   Status Open();
   /// Applies settings; verifies exposure lock where the device can report it.
+  /// Settings out of range are refused before the device is touched; a
+  /// refusal by the device leaves the camera Opened (configure it again).
   Status Configure(const CameraSettings& settings);
   /// Starts one still; `done` is called exactly once, on the driver's thread.
   Status RequestStill(const StillRequest& req, FrameCallback done);

@@ -54,8 +54,13 @@ Status Camera::Configure(const CameraSettings& settings) {
     }
   }
   Status s = DoConfigure(settings);
-  if (!s) return s;
   std::lock_guard<std::mutex> l(mu_);
+  if (!s) {
+    // The backend may have stopped the old stream before refusing (V4L2 and
+    // libcamera renegotiate from scratch): no longer ready to shoot.
+    if (state_ == State::kReady) state_ = State::kOpened;
+    return s;
+  }
   settings_ = settings;
   state_ = State::kReady;
   return OkStatus();

@@ -1,14 +1,20 @@
 // Helpers the camera backend tests against kernel test drivers share.
 #pragma once
 
+#include <fcntl.h>
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+#include <linux/videodev2.h>
+#include <sys/ioctl.h>
+#include <unistd.h>
 
 #include <chrono>
+#include <cstdint>
 #include <future>
 #include <memory>
 #include <string>
 #include <thread>
+#include <utility>
 
 #include "drivers/camera.h"
 #include "drivers/sim/jpeg.h"
@@ -41,6 +47,46 @@ inline void ExpectConfigureRefused(Camera& cam, const CameraSettings& s,
   EXPECT_EQ(st.error().cls, ErrorClass::kInvalidConfig) << st.error().ToString();
   EXPECT_THAT(st.error().message, ::testing::HasSubstr(message_part));
   EXPECT_EQ(cam.state(), Camera::State::kOpened);
+}
+
+/// The first /dev/videoN whose driver (VIDIOC_QUERYCAP) is `driver` and that
+/// captures video; "" when none.
+inline std::string FindCaptureNode(const std::string& driver) {
+  for (int i = 0; i < 16; ++i) {
+    const std::string p = "/dev/video" + std::to_string(i);
+    const int fd = ::open(p.c_str(), O_RDWR | O_CLOEXEC);
+    if (fd < 0) continue;
+    v4l2_capability cap{};
+    const bool match = ::ioctl(fd, VIDIOC_QUERYCAP, &cap) == 0 &&
+                       std::string(reinterpret_cast<const char*>(cap.driver)) == driver &&
+                       (cap.device_caps & V4L2_CAP_VIDEO_CAPTURE);
+    ::close(fd);
+    if (match) return p;
+  }
+  return {};
+}
+
+/// The largest frame size the capture node lists for `fourcc` (the maximum
+/// of a stepwise range); {0, 0} when it lists none.
+inline std::pair<int, int> LargestFrameSize(const std::string& node, uint32_t fourcc) {
+  int w = 0, h = 0;
+  const int fd = ::open(node.c_str(), O_RDWR | O_CLOEXEC);
+  if (fd < 0) return {0, 0};
+  v4l2_frmsizeenum fs{};
+  fs.pixel_format = fourcc;
+  for (fs.index = 0; ::ioctl(fd, VIDIOC_ENUM_FRAMESIZES, &fs) == 0; ++fs.index) {
+    if (fs.type != V4L2_FRMSIZE_TYPE_DISCRETE) {
+      w = static_cast<int>(fs.stepwise.max_width);
+      h = static_cast<int>(fs.stepwise.max_height);
+      break;
+    }
+    if (static_cast<int64_t>(fs.discrete.width) * fs.discrete.height > static_cast<int64_t>(w) * h) {
+      w = static_cast<int>(fs.discrete.width);
+      h = static_cast<int>(fs.discrete.height);
+    }
+  }
+  ::close(fd);
+  return {w, h};
 }
 
 struct Rgb {

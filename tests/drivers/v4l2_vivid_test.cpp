@@ -36,21 +36,6 @@ using ::testing::HasSubstr;
 
 std::string g_vivid;  // the vivid capture node found at start-up
 
-std::string FindVivid() {
-  for (int i = 0; i < 16; ++i) {
-    const std::string p = "/dev/video" + std::to_string(i);
-    const int fd = ::open(p.c_str(), O_RDWR | O_CLOEXEC);
-    if (fd < 0) continue;
-    v4l2_capability cap{};
-    const bool vivid = ::ioctl(fd, VIDIOC_QUERYCAP, &cap) == 0 &&
-                       std::string(reinterpret_cast<const char*>(cap.driver)) == "vivid" &&
-                       (cap.device_caps & V4L2_CAP_VIDEO_CAPTURE);
-    ::close(fd);
-    if (vivid) return p;
-  }
-  return {};
-}
-
 // A second handle on the device, for vivid's test controls.
 class Side {
  public:
@@ -381,26 +366,7 @@ TEST_F(Vivid, CloseWithAStillInFlightDeliversExactlyOnce) {
 // The largest frame size the device lists for YUYV (vivid's webcam input:
 // 3840x2160), as the rig's full-resolution still.
 TEST_F(Vivid, FullResolutionStill) {
-  int w = 0, h = 0;
-  {
-    const int fd = ::open(g_vivid.c_str(), O_RDWR | O_CLOEXEC);
-    ASSERT_GE(fd, 0);
-    v4l2_frmsizeenum fs{};
-    fs.pixel_format = V4L2_PIX_FMT_YUYV;
-    for (fs.index = 0; ::ioctl(fd, VIDIOC_ENUM_FRAMESIZES, &fs) == 0; ++fs.index) {
-      if (fs.type != V4L2_FRMSIZE_TYPE_DISCRETE) {
-        w = static_cast<int>(fs.stepwise.max_width);
-        h = static_cast<int>(fs.stepwise.max_height);
-        break;
-      }
-      if (static_cast<int64_t>(fs.discrete.width) * fs.discrete.height >
-          static_cast<int64_t>(w) * h) {
-        w = static_cast<int>(fs.discrete.width);
-        h = static_cast<int>(fs.discrete.height);
-      }
-    }
-    ::close(fd);
-  }
+  const auto [w, h] = testutil::LargestFrameSize(g_vivid, V4L2_PIX_FMT_YUYV);
   ASSERT_GT(w, 640);
   CameraConfig c = BaseConfig();
   c.width = w;
@@ -472,7 +438,7 @@ TEST_F(Vivid, ZzUnplugIsDisconnectedThenMissingThenRecovers) {
 }  // namespace aggscan::v4l2
 int main(int argc, char** argv) {
   ::testing::InitGoogleTest(&argc, argv);
-  aggscan::v4l2::g_vivid = aggscan::v4l2::FindVivid();
+  aggscan::v4l2::g_vivid = aggscan::testutil::FindCaptureNode("vivid");
   if (aggscan::v4l2::g_vivid.empty()) {
     std::fprintf(
         stderr,
