@@ -25,8 +25,8 @@ BacklashApproach ParseBacklashApproach(const std::string& name);
 
 /// A move's target on the controller, in its steps.
 struct ControllerTarget {
-  int64_t steps = 0;              // where the controller must end
-  double turn_offset_deg = 0.0;   // reported angle = controller angle + this, once there
+  int64_t steps = 0;             // where the controller must end
+  double turn_offset_deg = 0.0;  // reported angle = controller angle + this, once there
 };
 
 /// The controller target for the interface's cumulative `angle_deg`, given

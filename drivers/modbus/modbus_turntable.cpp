@@ -484,11 +484,11 @@ Status ModbusTurntable::DoStartMoveTo(double angle_deg) {
                          "); remove the cause, then home again (homing resets the alarm)");
   }
   const double spd = StepsPerDeg();
-  const ControllerTarget target = PlanControllerTarget(angle_deg, turn_offset_deg_, raw->steps,
-                                                       spd, config_.modbus.shortest_path);
-  const MoveLegs legs =
-      PlanBacklashLegs(raw->steps, target.steps, std::llround(config_.modbus.backlash_comp_deg * spd),
-                       ParseBacklashApproach(config_.modbus.backlash_approach));
+  const ControllerTarget target = PlanControllerTarget(angle_deg, turn_offset_deg_, raw->steps, spd,
+                                                       config_.modbus.shortest_path);
+  const MoveLegs legs = PlanBacklashLegs(raw->steps, target.steps,
+                                         std::llround(config_.modbus.backlash_comp_deg * spd),
+                                         ParseBacklashApproach(config_.modbus.backlash_approach));
   if (!legs.fit_int32()) {
     return MakeError(ErrorClass::kInvalidArgument,
                      "target " + std::to_string(angle_deg) +

@@ -432,11 +432,11 @@ Status UsbTicTurntable::DoStartMoveTo(double angle_deg) {
                          "; remove the cause, then home again (homing clears a driver error)");
   }
   const double spd = StepsPerDeg();
-  const ControllerTarget target = PlanControllerTarget(angle_deg, turn_offset_deg_,
-                                                       v->current_position, spd, usb_.shortest_path);
-  const MoveLegs legs =
-      PlanBacklashLegs(v->current_position, target.steps, std::llround(usb_.backlash_comp_deg * spd),
-                       ParseBacklashApproach(usb_.backlash_approach));
+  const ControllerTarget target = PlanControllerTarget(
+      angle_deg, turn_offset_deg_, v->current_position, spd, usb_.shortest_path);
+  const MoveLegs legs = PlanBacklashLegs(v->current_position, target.steps,
+                                         std::llround(usb_.backlash_comp_deg * spd),
+                                         ParseBacklashApproach(usb_.backlash_approach));
   if (!legs.fit_int32()) {
     return MakeError(ErrorClass::kInvalidArgument,
                      "target " + std::to_string(angle_deg) +
@@ -454,9 +454,9 @@ Status UsbTicTurntable::DoStartMoveTo(double angle_deg) {
 }
 
 Status UsbTicTurntable::StartLeg(int64_t target_steps) {
-  Status s = Command(tic::kCmdSetTargetPosition,
-                     static_cast<uint32_t>(static_cast<int32_t>(target_steps)),
-                     "setting the target position");
+  Status s =
+      Command(tic::kCmdSetTargetPosition, static_cast<uint32_t>(static_cast<int32_t>(target_steps)),
+              "setting the target position");
   if (s) leg_steps_ = target_steps;
   return s;
 }

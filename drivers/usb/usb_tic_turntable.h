@@ -105,8 +105,8 @@ class UsbTicTurntable final : public Turntable {
   int hotplug_departures_ = 0;
   Phase phase_ = Phase::kNone;
   bool homed_ = false;
-  int64_t target_steps_ = 0;  // target of the whole move
-  int64_t leg_steps_ = 0;     // target of the leg in progress
+  int64_t target_steps_ = 0;      // target of the whole move
+  int64_t leg_steps_ = 0;         // target of the leg in progress
   double turn_offset_deg_ = 0.0;  // reported angle = controller angle + this (multiples of 360)
 };
 

@@ -307,9 +307,10 @@ TEST(Config, ModbusTurntableValuesAreChecked) {
 
 TEST(Config, UsbTurntableBacklashValuesAreChecked) {
   ExpectOneProblem("[turntable.usb]\nbacklash_approach = \"up\"\n", 2,
-                   "turntable.usb.backlash_approach", "must be one of positive | negative, got \"up\"");
-  ExpectOneProblem("[turntable.usb]\nbacklash_comp_deg = -1\n", 2, "turntable.usb.backlash_comp_deg",
-                   "0..10");
+                   "turntable.usb.backlash_approach",
+                   "must be one of positive | negative, got \"up\"");
+  ExpectOneProblem("[turntable.usb]\nbacklash_comp_deg = -1\n", 2,
+                   "turntable.usb.backlash_comp_deg", "0..10");
   ExpectOneProblem("[turntable.usb]\nbacklash_comp_deg = 10.5\n", 2,
                    "turntable.usb.backlash_comp_deg", "0..10");
   Loaded defaults = Load("");
