@@ -266,6 +266,10 @@ const std::vector<Field<Config>>& Fields() {
       D(turntable.usb.timeout, Above(0, 10 * kSec), "one USB control transfer must end within this"),
       F(turntable.usb.shortest_path, Any(),
         "go to the target's position modulo 360 the shorter way round (angles stay cumulative)"),
+      F(turntable.usb.backlash_comp_deg, Range(0, 10),
+        "approach every target from one side, overshooting by this many degrees (0 = off)"),
+      F(turntable.usb.backlash_approach, OneOf({"positive", "negative"}),
+        "positive | negative: the direction every target is finally approached in"),
       F(turntable.usb.in_position_window_deg, Above(0, 10),
         "in-position also needs the position this close to the target, degrees"),
 

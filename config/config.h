@@ -166,6 +166,8 @@ struct UsbTicConfig {
                                       // here: the platter's place at StartHome is angle 0
   TimeNs timeout = 500 * kNsPerMs;    // one control transfer must complete within this
   bool shortest_path = false;         // go to the target's position modulo 360 the shorter way round
+  double backlash_comp_deg = 0.0;     // approach every target from one side, overshooting by this (0 = off)
+  std::string backlash_approach = "positive";  // positive | negative: the side targets are approached from
   double in_position_window_deg = 0.05;  // in-position also needs the position this close to the target
 
   /// Microsteps per platter revolution.

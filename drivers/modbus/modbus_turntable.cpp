@@ -7,11 +7,11 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
-#include <limits>
 #include <map>
 #include <set>
 
 #include "common/log.h"
+#include "drivers/turntable_legs.h"
 
 namespace aggscan::modbus {
 namespace {
@@ -484,33 +484,23 @@ Status ModbusTurntable::DoStartMoveTo(double angle_deg) {
                          "); remove the cause, then home again (homing resets the alarm)");
   }
   const double spd = StepsPerDeg();
-  const double current_deg = static_cast<double>(raw->steps) / spd;
-  double offset = turn_offset_deg_;
-  double controller_deg = angle_deg - offset;
-  if (config_.modbus.shortest_path) {
-    const double turns = std::round((controller_deg - current_deg) / 360.0);
-    controller_deg -= 360.0 * turns;
-    offset += 360.0 * turns;
-  }
-  const double target = std::round(controller_deg * spd);
-  const double comp = std::round(config_.modbus.backlash_comp_deg * spd);
-  const int dir = config_.modbus.backlash_approach == "negative" ? -1 : 1;
-  const double first =
-      (target - static_cast<double>(raw->steps)) * dir < 0 ? target - dir * comp : target;
-  constexpr double kMax = std::numeric_limits<int32_t>::max(),
-                   kMin = std::numeric_limits<int32_t>::min();
-  if (target > kMax || target < kMin || first > kMax || first < kMin) {
+  const ControllerTarget target = PlanControllerTarget(angle_deg, turn_offset_deg_, raw->steps, spd,
+                                                       config_.modbus.shortest_path);
+  const MoveLegs legs = PlanBacklashLegs(raw->steps, target.steps,
+                                         std::llround(config_.modbus.backlash_comp_deg * spd),
+                                         ParseBacklashApproach(config_.modbus.backlash_approach));
+  if (!legs.fit_int32()) {
     return MakeError(ErrorClass::kInvalidArgument,
                      "target " + std::to_string(angle_deg) +
                          " deg is beyond the controller's int32 "
                          "step range at " +
                          std::to_string(config_.modbus.steps_per_rev()) + " steps/rev");
   }
-  Status s = StartLeg(static_cast<int64_t>(first));
+  Status s = StartLeg(legs.first);
   if (!s) return s;
-  turn_offset_deg_ = offset;
-  final_steps_ = static_cast<int64_t>(target);
-  phase_ = first != target ? Phase::kOvershoot : Phase::kFinal;
+  turn_offset_deg_ = target.turn_offset_deg;
+  final_steps_ = legs.final;
+  phase_ = legs.two_legs() ? Phase::kOvershoot : Phase::kFinal;
   return OkStatus();
 }
 

@@ -5,10 +5,10 @@
 #include <array>
 #include <cmath>
 #include <cstdio>
-#include <limits>
 #include <vector>
 
 #include "common/log.h"
+#include "drivers/turntable_legs.h"
 
 namespace aggscan::usb {
 namespace {
@@ -432,16 +432,12 @@ Status UsbTicTurntable::DoStartMoveTo(double angle_deg) {
                          "; remove the cause, then home again (homing clears a driver error)");
   }
   const double spd = StepsPerDeg();
-  const double current_deg = v->current_position / spd;
-  double offset = turn_offset_deg_;
-  double controller_deg = angle_deg - offset;
-  if (usb_.shortest_path) {
-    const double turns = std::round((controller_deg - current_deg) / 360.0);
-    controller_deg -= 360.0 * turns;
-    offset += 360.0 * turns;
-  }
-  const double target = std::round(controller_deg * spd);
-  if (target > std::numeric_limits<int32_t>::max() || target < std::numeric_limits<int32_t>::min()) {
+  const ControllerTarget target = PlanControllerTarget(
+      angle_deg, turn_offset_deg_, v->current_position, spd, usb_.shortest_path);
+  const MoveLegs legs = PlanBacklashLegs(v->current_position, target.steps,
+                                         std::llround(usb_.backlash_comp_deg * spd),
+                                         ParseBacklashApproach(usb_.backlash_approach));
+  if (!legs.fit_int32()) {
     return MakeError(ErrorClass::kInvalidArgument,
                      "target " + std::to_string(angle_deg) +
                          " deg is beyond the Tic's int32 position range at " +
@@ -449,13 +445,20 @@ Status UsbTicTurntable::DoStartMoveTo(double angle_deg) {
   }
   Status s = Prepare();
   if (!s) return s;
-  const auto steps = static_cast<int32_t>(target);
-  s = Command(tic::kCmdSetTargetPosition, static_cast<uint32_t>(steps), "setting the target position");
+  s = StartLeg(legs.first);
   if (!s) return s;
-  turn_offset_deg_ = offset;
-  target_steps_ = steps;
-  phase_ = Phase::kMoving;
+  turn_offset_deg_ = target.turn_offset_deg;
+  target_steps_ = legs.final;
+  phase_ = legs.two_legs() ? Phase::kOvershoot : Phase::kMoving;
   return OkStatus();
+}
+
+Status UsbTicTurntable::StartLeg(int64_t target_steps) {
+  Status s =
+      Command(tic::kCmdSetTargetPosition, static_cast<uint32_t>(static_cast<int32_t>(target_steps)),
+              "setting the target position");
+  if (s) leg_steps_ = target_steps;
+  return s;
 }
 
 Status UsbTicTurntable::DoStop() {
@@ -483,7 +486,8 @@ Result<TurntableStatus> UsbTicTurntable::DoReadStatus() {
   st.moving = v.current_velocity != 0 || planning || v.homing_active();
   // Errors aggscan's commands clear are alarms only while a commanded motion
   // cannot go on because of them.
-  const bool in_motion_phase = phase_ == Phase::kHoming || phase_ == Phase::kMoving;
+  const bool in_motion_phase =
+      phase_ == Phase::kHoming || phase_ == Phase::kOvershoot || phase_ == Phase::kMoving;
   const uint16_t alarm = in_motion_phase && !st.moving ? v.error_status
                                                        : v.error_status & ~kClearedByPrepare;
   st.alarm = alarm != 0;
@@ -509,6 +513,16 @@ Result<TurntableStatus> UsbTicTurntable::DoReadStatus() {
       if (st.in_position) {
         homed_ = true;
         phase_ = Phase::kNone;
+      }
+      break;
+    case Phase::kOvershoot:
+      st.in_position = false;
+      if (settled && near(leg_steps_)) {
+        // Past the target: now approach it in the compensation's direction.
+        s = StartLeg(target_steps_);
+        if (!s) return s.error();
+        phase_ = Phase::kMoving;
+        st.moving = true;
       }
       break;
     case Phase::kMoving:

@@ -30,7 +30,10 @@
 //  - Angles: microsteps per platter revolution = motor_steps_per_rev x
 //    microsteps x gear_ratio; shortest_path as in the Modbus backend (the
 //    backend keeps the whole-turn offset, ReadStatus reports cumulative
-//    angles).
+//    angles); backlash_comp_deg / backlash_approach as in the Modbus backend
+//    (drivers/turntable_legs.h): a move against the approach direction first
+//    goes past the target by the compensation; ReadStatus starts the leg back
+//    once the Tic is there, and reports in_position only after that leg.
 #pragma once
 
 #include <atomic>
@@ -70,7 +73,9 @@ class UsbTicTurntable final : public Turntable {
   void DoClose() override;
 
  private:
-  enum class Phase { kNone, kHoming, kMoving, kStopped };
+  // kOvershoot: the first leg of a backlash-compensated move; kMoving: the
+  // move's (last) leg to target_steps_.
+  enum class Phase { kNone, kHoming, kOvershoot, kMoving, kStopped };
 
   Status Connect();
   Status SetUp();  // step mode, limits, safe start, energize on a fresh handle
@@ -82,6 +87,7 @@ class UsbTicTurntable final : public Turntable {
   Result<tic::Variables> ReadVariables();
   Error TransferError(int rc, const std::string& what);
   Status Prepare();  // before a motion command: command timeout, safe start, energize
+  Status StartLeg(int64_t target_steps);  // sets the Tic's target position
   double StepsPerDeg() const { return usb_.steps_per_rev() / 360.0; }
   friend struct HotplugBridge;  // libusb's callback (in the .cpp) sets departed_
 
@@ -99,7 +105,8 @@ class UsbTicTurntable final : public Turntable {
   int hotplug_departures_ = 0;
   Phase phase_ = Phase::kNone;
   bool homed_ = false;
-  int64_t target_steps_ = 0;
+  int64_t target_steps_ = 0;      // target of the whole move
+  int64_t leg_steps_ = 0;         // target of the leg in progress
   double turn_offset_deg_ = 0.0;  // reported angle = controller angle + this (multiples of 360)
 };
 

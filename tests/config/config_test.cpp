@@ -305,6 +305,24 @@ TEST(Config, ModbusTurntableValuesAreChecked) {
   EXPECT_DOUBLE_EQ(ok.result->turntable.modbus.steps_per_rev(), 3200.0);
 }
 
+TEST(Config, UsbTurntableBacklashValuesAreChecked) {
+  ExpectOneProblem("[turntable.usb]\nbacklash_approach = \"up\"\n", 2,
+                   "turntable.usb.backlash_approach",
+                   "must be one of positive | negative, got \"up\"");
+  ExpectOneProblem("[turntable.usb]\nbacklash_comp_deg = -1\n", 2,
+                   "turntable.usb.backlash_comp_deg", "0..10");
+  ExpectOneProblem("[turntable.usb]\nbacklash_comp_deg = 10.5\n", 2,
+                   "turntable.usb.backlash_comp_deg", "0..10");
+  Loaded defaults = Load("");
+  ASSERT_TRUE(defaults.result.ok()) << Dump(defaults.problems);
+  EXPECT_EQ(defaults.result->turntable.usb.backlash_comp_deg, 0.0);  // off unless asked for
+  EXPECT_EQ(defaults.result->turntable.usb.backlash_approach, "positive");
+  Loaded ok = Load("[turntable.usb]\nbacklash_comp_deg = 0.5\nbacklash_approach = \"negative\"\n");
+  ASSERT_TRUE(ok.result.ok()) << Dump(ok.problems);
+  EXPECT_DOUBLE_EQ(ok.result->turntable.usb.backlash_comp_deg, 0.5);
+  EXPECT_EQ(ok.result->turntable.usb.backlash_approach, "negative");
+}
+
 TEST(Config, OnnxMaskNeedsAModel) {
   ExpectOneProblem("[mask]\nmodel = \"\"\nmethod = \"onnx\"\n", 2, "mask.model",
                    "needs the network: name its .onnx file here, or set mask.method = \"classical\"");
@@ -686,6 +704,8 @@ TEST(ConfigToToml, RoundTripEveryFieldChanged) {
   c.turntable.modbus.backlash_comp_deg = 0.25;
   c.turntable.modbus.backlash_approach = "negative";
   c.turntable.modbus.in_position_window_deg = 0.125;
+  c.turntable.usb.backlash_comp_deg = 0.75;
+  c.turntable.usb.backlash_approach = "negative";
   c.button.debounce = kNsPerSec;
   c.sim.seed = 9'223'372'036'854'775'807ULL;
   c.sim.rock_mesh = "rocks/r1.ply";

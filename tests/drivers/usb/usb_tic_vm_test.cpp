@@ -70,6 +70,25 @@ class UsbTicVm : public ::testing::Test {
     FAIL() << "homing did not finish";
   }
 
+  // Moves to `angle` and polls until in position; *lo / *hi: the least and
+  // greatest angle reported on the way (the end included).
+  void MoveAndTrack(Turntable& t, double angle, double* lo, double* hi, TurntableStatus* end) {
+    ASSERT_TRUE(t.StartMoveTo(angle).ok());
+    *lo = 1e9;
+    *hi = -1e9;
+    Result<TurntableStatus> st = MakeError(ErrorClass::kInternal, "not polled");
+    const auto deadline = Clock::now() + std::chrono::seconds(10);
+    do {
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+      st = t.ReadStatus();
+      ASSERT_TRUE(st.ok()) << st.error().ToString();
+      *lo = std::min(*lo, st->angle_deg);
+      *hi = std::max(*hi, st->angle_deg);
+    } while (!st->in_position && Clock::now() < deadline);
+    ASSERT_TRUE(st->in_position) << "not in position at " << angle << " deg: " << st->angle_deg;
+    *end = *st;
+  }
+
   std::string serial_;
   TurntableConfig cfg_;
   bool plugged_ = true;
@@ -187,21 +206,51 @@ TEST_F(UsbTicVm, HomeHereAndShortestPath) {
   usb::UsbTicTurntable t(cfg_);
   ASSERT_TRUE(t.Open().ok());
   HomeAndWait(t);
-  ASSERT_TRUE(t.StartMoveTo(350).ok());
-  double lo = 1e9, hi = -1e9;
-  Result<TurntableStatus> st = MakeError(ErrorClass::kInternal, "not polled");
-  const auto deadline = Clock::now() + std::chrono::seconds(10);
-  do {
-    std::this_thread::sleep_for(std::chrono::milliseconds(20));
-    st = t.ReadStatus();
-    ASSERT_TRUE(st.ok()) << st.error().ToString();
-    lo = std::min(lo, st->angle_deg);
-    hi = std::max(hi, st->angle_deg);
-  } while (!st->in_position && Clock::now() < deadline);
-  ASSERT_TRUE(st->in_position);
-  EXPECT_NEAR(st->angle_deg, 350.0, 360.0 / 1600 / 2 + 1e-9);  // the nearest microstep
+  double lo = 0, hi = 0;
+  TurntableStatus st;
+  ASSERT_NO_FATAL_FAILURE(MoveAndTrack(t, 350, &lo, &hi, &st));
+  EXPECT_NEAR(st.angle_deg, 350.0, 360.0 / 1600 / 2 + 1e-9);  // the nearest microstep
   EXPECT_GE(lo, 349.9);  // reported cumulatively: from 360 down to 350
   EXPECT_LE(hi, 360.1);
+}
+
+// Backlash compensation, approach "positive": every target is reached going
+// up. A move down first goes 5 deg past the target, then back up; in position
+// only after that. Shortest path on too: angles stay cumulative through it.
+TEST_F(UsbTicVm, BacklashCompensationApproachesFromOneSide) {
+  cfg_.usb.backlash_comp_deg = 5;
+  cfg_.usb.backlash_approach = "positive";
+  cfg_.usb.shortest_path = true;
+  usb::UsbTicTurntable t(cfg_);
+  ASSERT_TRUE(t.Open().ok());
+  HomeAndWait(t);
+  constexpr double kMicrostep = 360.0 / 1600;  // 200 steps x 8 microsteps per turn
+  double lo = 0, hi = 0;
+  TurntableStatus st;
+  ASSERT_NO_FATAL_FAILURE(MoveAndTrack(t, 90, &lo, &hi, &st));  // up: straight there
+  EXPECT_NEAR(st.angle_deg, 90.0, kMicrostep);
+  EXPECT_LE(hi, 90.0 + kMicrostep);
+
+  // Down: to 40, then up to 45. The turn-around is seen by a status read (it
+  // starts the second leg), so the least angle reported is 40.
+  ASSERT_NO_FATAL_FAILURE(MoveAndTrack(t, 45, &lo, &hi, &st));
+  EXPECT_NEAR(st.angle_deg, 45.0, kMicrostep);
+  EXPECT_NEAR(lo, 40.0, kMicrostep);
+  EXPECT_LE(hi, 90.0 + kMicrostep);
+
+  // Up again: no overshoot, no dip.
+  ASSERT_NO_FATAL_FAILURE(MoveAndTrack(t, 90, &lo, &hi, &st));
+  EXPECT_NEAR(st.angle_deg, 90.0, kMicrostep);
+  EXPECT_LE(hi, 90.0 + kMicrostep);
+  EXPECT_GE(lo, 45.0 - kMicrostep);
+
+  // 350 the shorter way is 100 deg down: past it to 345, then up to 350.
+  // The whole turn is in the offset from the start, so the angles reported
+  // run from 450 (90 + a turn) down to 345 (never near 0 or -10).
+  ASSERT_NO_FATAL_FAILURE(MoveAndTrack(t, 350, &lo, &hi, &st));
+  EXPECT_NEAR(st.angle_deg, 350.0, kMicrostep);
+  EXPECT_NEAR(lo, 345.0, kMicrostep);
+  EXPECT_LE(hi, 450.0 + kMicrostep);
 }
 
 // The real aggscand with its turntable on the emulated Tic: GET /api/v1/health
