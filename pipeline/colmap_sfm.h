@@ -318,4 +318,13 @@ Result<SfmResult> RunColmapSfm(const ColmapSfmOptions& opts);
 /// duplicates (k is capped at (n-1)/2 … n-1 so each unordered pair appears once).
 std::vector<std::pair<int, int>> CircularPairs(int n, int k);
 
+/// The pair list by turntable angle: every pair whose angles lie within k
+/// turntable steps of each other (the step: the median non-zero difference
+/// between consecutive views' angles), so views of the same angle on later
+/// turns (the paper profile's 30 views at 30 deg go round 2.5 times) are
+/// matched with each other as well as with their neighbours. For one turn of
+/// equal steps it is CircularPairs(n, k). Empty when the angles are not one
+/// finite value per image or show no step.
+std::vector<std::pair<int, int>> AnglePairs(const std::vector<double>& angles_deg, int k);
+
 }  // namespace aggscan

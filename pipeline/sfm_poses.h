@@ -81,7 +81,8 @@ struct SfmPosesInput {
   /// Known intrinsics (full image size), held fixed; nullopt: COLMAP
   /// estimates them (free_camera_model).
   std::optional<CameraModel> fixed_camera;
-  std::string camera_source;  // recorded: "calibration", "sfm side 1", "sfm (estimated)"
+  std::string camera_source;  // recorded: "calibration", "sfm side 1", "sfm (estimated)",
+                              // "sfm (focal hint held)"
   std::optional<double> expected_focal_px;  // focal hint when not fixed (px, full size)
   std::string focal_hint_source;            // recorded with it
   /// For the expected apparent label size (ExpectedLabelSidePx); may be null.

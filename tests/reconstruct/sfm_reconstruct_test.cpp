@@ -240,17 +240,19 @@ TEST(SfmReconstruct, AutoPicksSfmWithoutCalibration) {
 }
 
 // Without a calibration, side 1's COLMAP camera becomes the sample's and
-// side 2 is posed with it held fixed (one camera model). DISABLED: on the sim
-// at 12 views a side COLMAP finds no initial pair with free intrinsics
-// (seed 1 side 1, seed 6 side 1: the ring breaks into pieces), where the
-// same photos register fully with the intrinsics fixed. Not yet verified.
-TEST(SfmReconstruct, DISABLED_AutoWithoutCalibrationEstimatesTheCamera) {
+// side 2 is posed with it held fixed (one camera model). The sim's nominal
+// lens (sim.hfov_deg) is the focal hint, held while COLMAP poses the ring:
+// refining focal and distortion from the first pair on, COLMAP never
+// registered a third view (seed 1; seed 6 likewise). The lens's distortion
+// (k1 -0.08) stays unmodelled, and still the rock comes out within 1 %
+// (measured V +0.62 %, a/b/c +0.05 / -0.75 / -0.28 %, centres 7.2 / 3.8 mm).
+TEST(SfmReconstruct, AutoWithoutCalibrationPosesWithTheLensHint) {
   SKIP_WITHOUT_COLMAP();
   test::TempDir tmp;
   const uint64_t seed = 1;  // seed 6's side 1 breaks COLMAP's ring at 12 views (pairs without matches)
   const std::string sample = CaptureAndReconstruct(tmp.path(), seed, false, PosesPath::kAuto);
   ASSERT_FALSE(sample.empty());
-  ExpectSfmSide(sample, 1, "sfm (estimated)");
+  ExpectSfmSide(sample, 1, "sfm (focal hint held)");
   ExpectSfmSide(sample, 2, "sfm side1");
   const json cal = ReadJsonFile(sample + "/results/calibration_used.json");
   EXPECT_EQ(cal["method"], "sfm");
@@ -260,8 +262,10 @@ TEST(SfmReconstruct, DISABLED_AutoWithoutCalibrationEstimatesTheCamera) {
   const RigCalibration truth = world.TruthCalibration(kWidth, kHeight);
   auto used = CalibrationFromJson(cal, "calibration_used");
   ASSERT_TRUE(used) << used.error().ToString();
-  std::printf("estimated focal %.1f px (truth %.1f), k1 %.4f (%.4f)\n", used->camera.fx, truth.camera.fx,
+  std::printf("SfM camera: focal %.1f px (truth %.1f), k1 %.4f (%.4f)\n", used->camera.fx, truth.camera.fx,
               used->camera.k1, truth.camera.k1);
+  // The hint, held: the nominal lens of the sample's config.
+  EXPECT_NEAR(used->camera.fx, kWidth / 2.0 / std::tan(Config{}.sim.hfov_deg * M_PI / 360.0), 1e-3);
   EXPECT_NEAR(used->camera.fx / truth.camera.fx, 1.0, 0.01);
   for (int side : {1, 2}) {
     const double worst = WorstCentreErrorMm(sample, side, seed);
@@ -360,12 +364,20 @@ TEST(SfmReconstruct, AnglesContradictingThePhotosAreRejected) {
 // --gtest_filter='*FullSize*'): one paper-profile capture (2 x 30 views, 30 deg
 // steps, 2016 x 1512), posed by SfM (calibration known, intrinsics fixed) and
 // by the calibrated turntable with bundle adjustment, same truth masks.
+// Measured (seed 1, Debug build, 2 cores): SfM 262 s (SIFT 96 s a side,
+// matching 12-13 s, mapper 4-6 s), 30/30 views a side, V -0.06 %, a/b/c
+// -0.31 / -0.65 / -0.98 %, camera centres within 4.3 / 5.4 mm; turntable+ba
+// 32 s, V -0.08 %, a/b/c -0.50 / -0.79 / -0.74 %, centres within 0.9 mm.
+// With the capture-order pair list side 2 stopped at 19 of 30 views: the
+// paper profile goes round 2.5 times and views of one angle were never matched.
 TEST(SfmReconstruct, DISABLED_FullSizeSfmAgainstTheTurntablePath) {
   SKIP_WITHOUT_COLMAP();
   test::TempDir tmp;
   const uint64_t seed = 1;
   const std::string sample = Capture(tmp.path(), seed, 2, true, 30, 2016, 1512, 30.0);
-  const std::string fast = tmp.path() + "/fast";
+  // The copy keeps the folder's name: a sample's manifests name their sample.
+  const std::string fast = tmp.path() + "/fast/" + fs::path(sample).filename().string();
+  fs::create_directories(fs::path(fast).parent_path());
   fs::copy(sample, fast, fs::copy_options::recursive);
   for (const auto& [dir, path] : {std::pair{sample, PosesPath::kSfm}, std::pair{fast, PosesPath::kTurntable}}) {
     ReconstructOptions opts;

@@ -8,6 +8,7 @@
 #include <sys/stat.h>
 
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <opencv2/imgcodecs.hpp>
@@ -183,6 +184,38 @@ TEST(CircularPairs, EachUnorderedPairOnce) {
   }
   EXPECT_EQ(CircularPairs(4, 3).size(), 6u);  // all pairs of 4, none twice
   EXPECT_EQ(CircularPairs(6, 3).size(), 15u);
+}
+
+TEST(AnglePairs, FollowTheTurntableAngles) {
+  auto normalized = [](std::vector<std::pair<int, int>> p) {
+    for (auto& [i, j] : p) {
+      if (i > j) std::swap(i, j);
+    }
+    std::sort(p.begin(), p.end());
+    return p;
+  };
+  // One turn of 12 views at 30 deg (with encoder noise): the circular list.
+  std::vector<double> one;
+  for (int i = 0; i < 12; ++i) one.push_back(30.0 * i + (i % 2 ? 0.07 : -0.05));
+  EXPECT_EQ(normalized(AnglePairs(one, 3)), normalized(CircularPairs(12, 3)));
+  // The paper profile: 30 views at 30 deg go round 2.5 times. Views of one
+  // angle on different turns are paired (0, 12, 24), views 4 steps apart are not.
+  std::vector<double> paper;
+  for (int i = 0; i < 30; ++i) paper.push_back(std::fmod(30.0 * i, 360.0) + 0.02 * i);
+  const auto p = AnglePairs(paper, 3);
+  const std::set<std::pair<int, int>> s(p.begin(), p.end());
+  EXPECT_EQ(s.size(), p.size());
+  EXPECT_TRUE(s.count({0, 12}) && s.count({0, 24}) && s.count({12, 24}));
+  EXPECT_TRUE(s.count({0, 1}) && s.count({0, 3}) && s.count({0, 11}) && s.count({2, 27}));
+  EXPECT_FALSE(s.count({0, 4}) || s.count({0, 16}) || s.count({0, 8}));
+  for (auto [i, j] : p) {
+    EXPECT_LT(i, j);
+    EXPECT_LE(std::abs(std::remainder(paper[j] - paper[i], 360.0)), 105.0) << i << " " << j;
+  }
+  // No usable angles: empty (the caller falls back to capture order).
+  EXPECT_TRUE(AnglePairs({}, 3).empty());
+  EXPECT_TRUE(AnglePairs({0, 0, 0}, 3).empty());
+  EXPECT_TRUE(AnglePairs({0, NAN, 60}, 3).empty());
 }
 
 // --------------------------------------------------------------- text model
