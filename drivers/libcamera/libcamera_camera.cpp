@@ -502,21 +502,11 @@ Result<FramePtr> LibcameraCamera::MakeFrame(const Job& job, libcamera::Request* 
                     mf.planes[i] + std::min<size_t>(planes[i].bytesused, fb->planes()[i].length));
     bytes = joined;
   }
-  Result<std::vector<unsigned char>> still =
-      v4l2::EncodeStill(V4l2FourCcFor(neg_.format), bytes, neg_.width, neg_.height, neg_.stride,
-                        active_.jpeg_quality);
-  if (!still) {
-    Error e = still.error();
-    e.message = "camera " + id_ + ": " + e.message;
-    return e;
-  }
-  auto frame = std::make_shared<Frame>();
-  frame->data = std::move(*still);
-  frame->request_id = job.req.request_id;
-  frame->sequence = md.sequence;
-  frame->width = neg_.width;
-  frame->height = neg_.height;
-  frame->encoding = "jpeg";
+  Result<std::shared_ptr<Frame>> made =
+      v4l2::EncodeStillFrame(id_, V4l2FourCcFor(neg_.format), bytes, neg_.width, neg_.height,
+                             neg_.stride, active_.jpeg_quality, job.req.request_id, md.sequence);
+  if (!made) return made.error();
+  std::shared_ptr<Frame> frame = std::move(*made);
   StampExposure(frame.get(), clock_, FrameTimestamp(request));
   // The metadata's values where the pipeline reports them; else, for manual
   // exposure, the values the camera accepted as controls (a setting without

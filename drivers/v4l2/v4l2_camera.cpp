@@ -475,21 +475,12 @@ Result<FramePtr> V4l2Camera::Capture(const Job& job) {
 Result<FramePtr> V4l2Camera::MakeFrame(const Job& job, const uint8_t* data, size_t bytes,
                                        int64_t ts_mono_ns, uint64_t sequence) {
   // MJPEG: the camera's own JPEG is the still, no decode and no second compression.
-  Result<std::vector<unsigned char>> still =
-      EncodeStill(neg_.fourcc, std::span<const uint8_t>(data, bytes), neg_.width, neg_.height,
-                  neg_.bytes_per_line, active_.jpeg_quality);
-  if (!still) {
-    Error e = still.error();
-    e.message = "camera " + path_ + ": " + e.message;
-    return e;
-  }
-  auto frame = std::make_shared<Frame>();
-  frame->data = std::move(*still);
-  frame->request_id = job.req.request_id;
-  frame->sequence = sequence;
-  frame->width = neg_.width;
-  frame->height = neg_.height;
-  frame->encoding = "jpeg";
+  Result<std::shared_ptr<Frame>> made =
+      EncodeStillFrame(path_, neg_.fourcc, std::span<const uint8_t>(data, bytes), neg_.width,
+                       neg_.height, neg_.bytes_per_line, active_.jpeg_quality,
+                       job.req.request_id, sequence);
+  if (!made) return made.error();
+  std::shared_ptr<Frame> frame = std::move(*made);
   StampExposure(frame.get(), clock_, ts_mono_ns);
   const ReadBack rb = ReadControls();
   frame->exposure_us = rb.exposure_us;

@@ -129,6 +129,26 @@ Result<std::vector<unsigned char>> EncodeStill(uint32_t fourcc, std::span<const 
   return sim::EncodeJpeg(rgb->data(), width, height, quality);
 }
 
+Result<std::shared_ptr<Frame>> EncodeStillFrame(const std::string& who, uint32_t fourcc,
+                                                std::span<const uint8_t> data, int width,
+                                                int height, int stride, int quality,
+                                                uint64_t request_id, uint64_t sequence) {
+  Result<std::vector<unsigned char>> still = EncodeStill(fourcc, data, width, height, stride, quality);
+  if (!still) {
+    Error e = still.error();
+    e.message = "camera " + who + ": " + e.message;
+    return e;
+  }
+  auto frame = std::make_shared<Frame>();
+  frame->data = std::move(*still);
+  frame->request_id = request_id;
+  frame->sequence = sequence;
+  frame->width = width;
+  frame->height = height;
+  frame->encoding = "jpeg";
+  return frame;
+}
+
 std::string FourCcName(uint32_t fourcc) {
   std::string s(4, '?');
   for (int i = 0; i < 4; ++i) {

@@ -5,12 +5,14 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <optional>
 #include <span>
 #include <string>
 #include <vector>
 
 #include "common/error.h"
+#include "drivers/camera.h"
 
 namespace aggscan::v4l2 {
 
@@ -44,6 +46,13 @@ Result<std::vector<uint8_t>> ToRgb(uint32_t fourcc, std::span<const uint8_t> dat
 /// A buffer that is not what the format says is a kDeviceFault.
 Result<std::vector<unsigned char>> EncodeStill(uint32_t fourcc, std::span<const uint8_t> data,
                                                int width, int height, int stride, int quality);
+/// EncodeStill made into the Frame of a still request: its data, the
+/// request's id, the driver's sequence, the size, "jpeg"; an encoding error
+/// names the camera `who`. Exposure, time and controls are the caller's.
+Result<std::shared_ptr<Frame>> EncodeStillFrame(const std::string& who, uint32_t fourcc,
+                                                std::span<const uint8_t> data, int width,
+                                                int height, int stride, int quality,
+                                                uint64_t request_id, uint64_t sequence);
 /// Inserts the standard Huffman tables (JPEG spec, Annex K.3) before the
 /// first SOS of a JPEG that defines none (motion-JPEG as UVC cameras send
 /// it); a JPEG with tables is returned unchanged.
