@@ -1458,13 +1458,13 @@ Result<SfmResult> SfmRun::Run() {
 
   // --- mapping
   const bool fixed = o_.fixed_camera.has_value();
-  // A focal hint is held while the ring grows: with the rock alone in the
+  // A focal hint is held, when asked, while the ring grows: with the rock alone in the
   // masks the focal length and distortion are barely observable, and
   // refining them from the first pair on sent the focal astray (sim seed 1,
   // 12 views: the third view never registered; with the hint held, all 12
   // at 0.27 px). COLMAP's final refinement of them drifted 1.3 % off the true
   // focal, so the hint stays as given.
-  const bool hold = fixed || o_.expected_focal_px.has_value();
+  const bool hold = fixed || (o_.hold_focal_hint && o_.expected_focal_px.has_value());
   const auto& mp = o_.mapper;
   nlohmann::json fp_map{{"match", fp_match},
                         {"fixed", fixed},

@@ -265,6 +265,11 @@ struct ColmapSfmOptions {
   std::vector<std::string> masks;   // empty, or one PNG per image (0 = ignore features there)
   std::optional<CameraModel> fixed_camera;  // known intrinsics: one camera, held fixed in BA
   std::optional<double> expected_focal_px;  // focal hint when not fixed: prior + plausibility check
+  /// Hold the hint (and zero distortion) while mapping instead of refining
+  /// them: for a hint that is the lens's true nominal focal (the sim's). A
+  /// rough hint (oxford_dino's, from skewed projection matrices) must be
+  /// refined: held, the dino ring came out wrong in one CI rehearsal of two.
+  bool hold_focal_hint = false;
   std::string free_camera_model =
       "SIMPLE_RADIAL";  // COLMAP model when not fixed (one shared camera)
   SiftOptions sift;

@@ -63,7 +63,10 @@ Result<json> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts) {
     o.angles_deg.push_back(v.angle_deg);
   }
   o.fixed_camera = in.fixed_camera;
-  if (!in.fixed_camera) o.expected_focal_px = in.expected_focal_px;
+  if (!in.fixed_camera) {
+    o.expected_focal_px = in.expected_focal_px;
+    o.hold_focal_hint = in.expected_focal_px.has_value();  // the worker's hint is a lens's nominal focal
+  }
   o.free_camera_model = opts.free_camera_model;
   o.sift.max_image_size = opts.max_image_size;
   o.matching.circular_neighbours = opts.circular_neighbours;
