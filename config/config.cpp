@@ -165,6 +165,12 @@ const std::vector<Field<Config>>& Fields() {
       F(camera.width, Range(16, 16384), "still width, pixels"),
       F(camera.height, Range(16, 16384), "still height, pixels"),
       F(camera.jpeg_quality, Range(1, 100), "1..100, when the driver encodes JPEG itself"),
+      F(camera.lens_focal_mm, Range(0, 1000),
+        "the lens's nominal focal length, mm (0 = unknown); with sensor_width_mm, the SfM "
+        "path's focal when the rig has no calibration"),
+      F(camera.sensor_width_mm, Range(0, 100),
+        "the sensor's active width at this resolution, mm (0 = unknown; a cropping mode "
+        "narrows it)"),
       F(camera.exposure.manual, Any(), "lock exposure so all views of a rock share it"),
       F(camera.exposure.exposure_us, Above(0, 10'000'000), "shutter time, microseconds"),
       F(camera.exposure.gain, Range(1, 64), "analogue gain (1.0 = base ISO)"),
@@ -886,6 +892,11 @@ class Validator {
     if (c.sim.rock_size_mm > 0 && c.sim.rock_size_mm < 10) {
       Add("sim.rock_size_mm",
           "must be 0 (random) or at least 10 mm, got " + FormatDouble(c.sim.rock_size_mm));
+    }
+    if ((c.camera.lens_focal_mm > 0) != (c.camera.sensor_width_mm > 0)) {
+      Add(c.camera.lens_focal_mm > 0 ? "camera.sensor_width_mm" : "camera.lens_focal_mm",
+          "camera.lens_focal_mm and camera.sensor_width_mm go together (the focal in pixels "
+          "is their ratio times the width): set both from the datasheets, or neither");
     }
     CheckBoard(c);
     CheckAruco(c);

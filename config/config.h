@@ -104,6 +104,12 @@ struct CameraConfig {
   int width = 2016;              // still resolution, pixels
   int height = 1512;
   int jpeg_quality = 92;         // 1..100, when the driver encodes JPEG itself
+  // The lens's nominal focal length and the sensor's active width (datasheet
+  // values; 0 = unknown). Without a rig calibration the SfM path holds
+  // lens_focal_mm / sensor_width_mm * width as the focal while it poses the
+  // views; with neither, COLMAP starts from its own default.
+  double lens_focal_mm = 0.0;
+  double sensor_width_mm = 0.0;
   ExposureConfig exposure;
   V4l2CameraConfig v4l2;
   LibcameraCameraConfig libcamera;

@@ -773,13 +773,15 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
       sfm_setup.calibration = &*cal;
     } else {
       sfm_setup.camera_source = "sfm (estimated)";
-      // The sim camera's nominal lens as the focal hint, held while COLMAP
-      // poses the ring (a real camera has none here: COLMAP starts from its
-      // default, refines it, and the ring checks judge).
-      if (sample_cfg && sample_cfg->camera.backend == "sim") {
-        sfm_setup.expected_focal_px = image_size.width / 2.0 / std::tan(sample_cfg->sim.hfov_deg * M_PI / 360.0);
-        sfm_setup.focal_hint_source = "sim.hfov_deg of the sample's config";
-        sfm_setup.camera_source = "sfm (focal hint held)";
+      // The lens's nominal focal as the hint, held while COLMAP poses the
+      // ring (the config's lens, or the sim's). Without one COLMAP starts
+      // from its default, refines it, and the ring checks judge.
+      if (sample_cfg) {
+        if (auto hint = FocalHintFromConfig(*sample_cfg, image_size.width)) {
+          sfm_setup.expected_focal_px = hint->focal_px;
+          sfm_setup.focal_hint_source = hint->source;
+          sfm_setup.camera_source = "sfm (focal hint held)";
+        }
       }
     }
   }

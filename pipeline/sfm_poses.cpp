@@ -289,4 +289,19 @@ Result<json> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts) {
   return j;
 }
 
+std::optional<FocalHint> FocalHintFromConfig(const Config& cfg, int image_width) {
+  if (image_width <= 0) return std::nullopt;
+  const CameraConfig& c = cfg.camera;
+  if (c.lens_focal_mm > 0 && c.sensor_width_mm > 0) {
+    return FocalHint{c.lens_focal_mm / c.sensor_width_mm * image_width,
+                     "camera.lens_focal_mm " + Fmt("%g", c.lens_focal_mm) + " / camera.sensor_width_mm " +
+                         Fmt("%g", c.sensor_width_mm) + " of the sample's config"};
+  }
+  if (c.backend == "sim" && cfg.sim.hfov_deg > 0 && cfg.sim.hfov_deg < 180) {
+    return FocalHint{image_width / 2.0 / std::tan(cfg.sim.hfov_deg * M_PI / 360.0),
+                     "sim.hfov_deg " + Fmt("%g", cfg.sim.hfov_deg) + " of the sample's config"};
+  }
+  return std::nullopt;
+}
+
 }  // namespace aggscan

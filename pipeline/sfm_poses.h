@@ -91,6 +91,16 @@ struct SfmPosesInput {
   const std::atomic<bool>* cancel = nullptr;
 };
 
+/// The focal hint for a rig without calibration, from the sample's config:
+/// the lens's nominal focal (camera.lens_focal_mm over camera.sensor_width_mm,
+/// times the image width) when set, else the sim lens (camera.backend "sim":
+/// sim.hfov_deg). nullopt when the config names no lens.
+struct FocalHint {
+  double focal_px = 0;
+  std::string source;  // recorded with it, e.g. "camera.lens_focal_mm 6 / camera.sensor_width_mm 6.287"
+};
+std::optional<FocalHint> FocalHintFromConfig(const Config& cfg, int image_width);
+
 /// Runs the path above and returns the side's poses record: {"side",
 /// "method": "sfm", "method_detail", "sfm" (registered views, reprojection
 /// error, checks, timings, workspace, model export), "scale" (reference,

@@ -323,6 +323,19 @@ TEST(Config, UsbTurntableBacklashValuesAreChecked) {
   EXPECT_EQ(ok.result->turntable.usb.backlash_approach, "negative");
 }
 
+// The lens's nominal focal (the SfM path's hint without a calibration) needs
+// the sensor's width: one without the other is refused, naming the missing one.
+TEST(Config, LensFocalAndSensorWidthGoTogether) {
+  ExpectOneProblem("[camera]\nlens_focal_mm = 6.0\n", 0, "camera.sensor_width_mm",
+                   "camera.lens_focal_mm and camera.sensor_width_mm go together");
+  ExpectOneProblem("[camera]\nsensor_width_mm = 6.287\n", 0, "camera.lens_focal_mm", "set both from the datasheets");
+  ExpectOneProblem("[camera]\nlens_focal_mm = -6.0\n", 2, "camera.lens_focal_mm", "");
+  Loaded l = Load("[camera]\nlens_focal_mm = 6.0\nsensor_width_mm = 6.287\n");
+  ASSERT_TRUE(l.result.ok()) << Dump(l.problems);
+  EXPECT_EQ(l.result->camera.lens_focal_mm, 6.0);
+  EXPECT_EQ(l.result->camera.sensor_width_mm, 6.287);
+}
+
 TEST(Config, OnnxMaskNeedsAModel) {
   ExpectOneProblem("[mask]\nmodel = \"\"\nmethod = \"onnx\"\n", 2, "mask.model",
                    "needs the network: name its .onnx file here, or set mask.method = \"classical\"");

@@ -3,6 +3,7 @@
 // good and deliberately wrong models, and the runner's errors with a missing
 // or failing colmap binary.
 #include "pipeline/colmap_sfm.h"
+#include "pipeline/sfm_poses.h"
 
 #include <gtest/gtest.h>
 #include <sys/stat.h>
@@ -171,6 +172,29 @@ TEST(ColmapCamera, ProjectionMatchesOpenCvLensModelWithHalfPixelShift) {
   EXPECT_FALSE(ProjectColmap(ColmapCameraFromOpenCv(cams[0]), Eigen::Vector3d(0, 0, -1), &px));
   SfmCamera fisheye{1, "OPENCV_FISHEYE", 640, 480, {800, 800, 320, 240, 0, 0, 0, 0}};
   EXPECT_FALSE(OpenCvCameraFromColmap(fisheye).ok());
+}
+
+// The focal hint of a rig without calibration: the config's lens (focal over
+// sensor width, times the image width) over the sim's nominal lens; a real
+// camera without a lens in its config has none.
+TEST(FocalHint, FromTheConfigsLensElseTheSimsElseNone) {
+  Config c;  // sim camera, hfov 40 deg
+  auto h = FocalHintFromConfig(c, 2016);
+  ASSERT_TRUE(h);
+  EXPECT_NEAR(h->focal_px, 1008.0 / std::tan(20.0 * M_PI / 180), 1e-9);
+  EXPECT_NE(h->source.find("sim.hfov_deg 40"), std::string::npos) << h->source;
+  c.camera.lens_focal_mm = 6.0;
+  c.camera.sensor_width_mm = 6.287;
+  h = FocalHintFromConfig(c, 4056);
+  ASSERT_TRUE(h);
+  EXPECT_NEAR(h->focal_px, 6.0 / 6.287 * 4056, 1e-9);
+  EXPECT_NE(h->source.find("camera.lens_focal_mm 6 / camera.sensor_width_mm 6.287"), std::string::npos) << h->source;
+  c.camera.backend = "v4l2";
+  EXPECT_TRUE(FocalHintFromConfig(c, 4056));
+  c.camera.lens_focal_mm = 0;
+  c.camera.sensor_width_mm = 0;
+  EXPECT_FALSE(FocalHintFromConfig(c, 4056));
+  EXPECT_FALSE(FocalHintFromConfig(Config{}, 0));
 }
 
 TEST(CircularPairs, EachUnorderedPairOnce) {
