@@ -22,6 +22,7 @@
 #pragma once
 
 #include <memory>
+#include <string>
 #include <vector>
 
 #include <Eigen/Core>
@@ -82,5 +83,27 @@ class SilhouetteStitcher {
   struct Impl;
   std::shared_ptr<const Impl> impl_;
 };
+
+/// The polish of a motion the silhouettes chose: the same deficit on a grid
+/// with half the voxel (8x `coarse.target_points`), Nelder-Mead from `start`
+/// with 0.5 deg / 0.5 mm steps. The coarse grid's steps leave a motion a few
+/// tenths of a degree off, which shortens the rock where the sides' hulls
+/// meet. `done` when the fine deficit went down (T is then the polished
+/// motion, else `start`). Not done either when the finer voxel spans under
+/// `voxel_px` pixels of the photos (low resolution): `problem` says so.
+struct SilhouettePolish {
+  bool done = false;
+  geom::Rigid3 T;
+  double voxel_mm = 0;
+  double deficit_start = 0;  // on the fine grid
+  double deficit = 0;
+  double moved_deg = 0;
+  int evaluations = 0;
+  double seconds = 0;
+  std::string problem;  // the fine grid could not be prepared, or the photos do not resolve it
+};
+SilhouettePolish PolishSilhouetteStitch(const SilhouetteSideInput& reference, const SilhouetteSideInput& moving,
+                                        const CameraModel& camera, const geom::Rigid3& start,
+                                        const SilhouetteStitchOptions& coarse = {});
 
 }  // namespace aggscan
