@@ -20,6 +20,7 @@
 #pragma once
 
 #include <array>
+#include <cmath>
 #include <string>
 
 #include <nlohmann/json.hpp>
@@ -59,6 +60,12 @@ struct RigCalibration {
   /// Row-major 4x4 of cam_from_table(θ) = cam_from_table0 * Rz(θ).
   std::array<double, 16> CamFromTable(double angle_deg) const;
 };
+
+/// Pinhole focal length in pixels of a lens whose horizontal field of view is
+/// `hfov_deg` across `width` pixels (the sim's lens; a nominal lens hint).
+inline double FocalPxFromHfov(double hfov_deg, int width) {
+  return width / 2.0 / std::tan(hfov_deg * 3.14159265358979323846 / 360.0);
+}
 
 /// state_dir + "/calibration.json".
 std::string CalibrationPath(const std::string& state_dir);

@@ -298,7 +298,7 @@ std::optional<FocalHint> FocalHintFromConfig(const Config& cfg, int image_width)
                          Fmt("%g", c.sensor_width_mm) + " of the sample's config"};
   }
   if (c.backend == "sim" && cfg.sim.hfov_deg > 0 && cfg.sim.hfov_deg < 180) {
-    return FocalHint{image_width / 2.0 / std::tan(cfg.sim.hfov_deg * M_PI / 360.0),
+    return FocalHint{FocalPxFromHfov(cfg.sim.hfov_deg, image_width),
                      "sim.hfov_deg " + Fmt("%g", cfg.sim.hfov_deg) + " of the sample's config"};
   }
   return std::nullopt;

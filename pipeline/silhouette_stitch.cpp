@@ -408,23 +408,27 @@ Eigen::Vector3d SilhouetteStitcher::reference_centre() const { return impl_->cen
 int SilhouetteStitcher::views_used() const { return static_cast<int>(impl_->ref.views.size()); }
 double SilhouetteStitcher::image_scale() const { return impl_->scale; }
 
-SilhouettePolish PolishSilhouetteStitch(const SilhouetteSideInput& reference, const SilhouetteSideInput& moving,
-                                        const CameraModel& camera, const geom::Rigid3& start,
-                                        const SilhouetteStitchOptions& coarse) {
+SilhouettePolish PolishSilhouetteStitch(const SilhouetteStitcher& coarse, const SilhouetteSideInput& reference,
+                                        const SilhouetteSideInput& moving, const CameraModel& camera,
+                                        const geom::Rigid3& start, const SilhouetteStitchOptions& coarse_opts) {
   const auto t0 = std::chrono::steady_clock::now();
   SilhouettePolish out;
   out.T = start;
-  SilhouetteStitchOptions fine = coarse;
-  fine.target_points = 8 * coarse.target_points;  // half the voxel
+  // Half the voxel needs twice the working scale: at or over the full photo,
+  // the finer voxel spans under voxel_px pixels and the photos cannot resolve
+  // it (sim seed 6 at 1008x756: 0.61 -> 0.69 deg).
+  if (2 * coarse.image_scale() >= 1.0) {
+    out.voxel_mm = coarse.voxel_mm() / 2;
+    out.problem = "the photos do not resolve a grid of " + std::to_string(out.voxel_mm) + " mm; not polished";
+    out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return out;
+  }
+  SilhouetteStitchOptions fine = coarse_opts;
+  fine.target_points = 8 * coarse_opts.target_points;  // half the voxel
   fine.max_evaluations = 150;
   auto st = SilhouetteStitcher::Create(reference, moving, camera, fine);
   if (!st) {
     out.problem = st.error().message;
-  } else if (st->image_scale() >= 1.0) {
-    // The finer voxel spans under voxel_px pixels of these photos: they cannot
-    // resolve it (sim seed 6 at 1008x756: 0.61 -> 0.69 deg).
-    out.voxel_mm = st->voxel_mm();
-    out.problem = "the photos do not resolve a grid of " + std::to_string(out.voxel_mm) + " mm; not polished";
   } else {
     out.voxel_mm = st->voxel_mm();
     out.deficit_start = st->Deficit(start);

@@ -102,8 +102,11 @@ struct SilhouettePolish {
   double seconds = 0;
   std::string problem;  // the fine grid could not be prepared, or the photos do not resolve it
 };
-SilhouettePolish PolishSilhouetteStitch(const SilhouetteSideInput& reference, const SilhouetteSideInput& moving,
-                                        const CameraModel& camera, const geom::Rigid3& start,
-                                        const SilhouetteStitchOptions& coarse = {});
+/// `coarse` is the stitcher that chose the motion (built with `coarse_opts`):
+/// its working image scale tells, before the fine grid is built, whether the
+/// photos resolve half its voxel.
+SilhouettePolish PolishSilhouetteStitch(const SilhouetteStitcher& coarse, const SilhouetteSideInput& reference,
+                                        const SilhouetteSideInput& moving, const CameraModel& camera,
+                                        const geom::Rigid3& start, const SilhouetteStitchOptions& coarse_opts = {});
 
 }  // namespace aggscan

@@ -352,7 +352,7 @@ Result<json> RunStitchStage(const StitchStageInput& in) {
       // 0.19 / 0.39 deg; seed 13's long axis -2.7 -> -1.8 %).
       json polish = {{"done", false}};
       if (sil && st->silhouettes.used) {
-        const SilhouettePolish p = PolishSilhouetteStitch(r.silhouettes, ev.silhouettes, in.calibration->camera, st->T);
+        const SilhouettePolish p = PolishSilhouetteStitch(*sil, r.silhouettes, ev.silhouettes, in.calibration->camera, st->T);
         polish = {{"done", p.done},          {"voxel_mm", p.voxel_mm},       {"deficit_start", p.deficit_start},
                   {"deficit", p.deficit},    {"moved_deg", p.moved_deg},     {"evaluations", p.evaluations},
                   {"seconds", p.seconds}};

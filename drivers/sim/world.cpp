@@ -747,7 +747,7 @@ Intrinsics SimWorld::IntrinsicsFor(int width, int height) const {
   Intrinsics k;
   k.width = width;
   k.height = height;
-  k.fx = k.fy = (width / 2.0) / std::tan(config_.sim.hfov_deg * kPi / 360.0);
+  k.fx = k.fy = FocalPxFromHfov(config_.sim.hfov_deg, width);
   k.cx = (width - 1) / 2.0;
   k.cy = (height - 1) / 2.0;
   k.k1 = config_.sim.k1;

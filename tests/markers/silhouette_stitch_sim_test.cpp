@@ -153,7 +153,7 @@ TEST(SilhouetteStitchSim, PolishOnAFinerGridBringsTheMotionCloser) {
     auto st = StitchSides(rig.markers[0], rig.markers[1], nullptr, nullptr, {}, &*sil);
     ASSERT_TRUE(st.ok()) << st.error().ToString();
     ASSERT_TRUE(st->silhouettes.used);
-    const SilhouettePolish p = PolishSilhouetteStitch(rig.sil[0], rig.sil[1], rig.cal.camera, st->T);
+    const SilhouettePolish p = PolishSilhouetteStitch(*sil, rig.sil[0], rig.sil[1], rig.cal.camera, st->T);
     const testing::StitchError e0 = testing::MeasureStitch(*rig.world, st->T);
     const testing::StitchError e1 = testing::MeasureStitch(*rig.world, p.T);
     std::printf("seed %llu: coarse voxel %.2f mm, fine %.2f mm; deficit %.5f -> %.5f, moved %.2f deg, %d evals %.1f s; "
@@ -173,7 +173,7 @@ TEST(SilhouetteStitchSim, PolishOnAFinerGridBringsTheMotionCloser) {
   auto sil = SilhouetteStitcher::Create(low.sil[0], low.sil[1], low.cal.camera);
   ASSERT_TRUE(sil.ok()) << sil.error().ToString();
   const geom::Rigid3 truth = testing::TruthStitch(*low.world);
-  const SilhouettePolish p = PolishSilhouetteStitch(low.sil[0], low.sil[1], low.cal.camera, truth);
+  const SilhouettePolish p = PolishSilhouetteStitch(*sil, low.sil[0], low.sil[1], low.cal.camera, truth);
   EXPECT_FALSE(p.done);
   EXPECT_NE(p.problem.find("do not resolve"), std::string::npos) << p.problem;
   EXPECT_EQ((p.T.R - truth.R).norm() + (p.T.t - truth.t).norm(), 0.0);
