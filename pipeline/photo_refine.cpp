@@ -31,6 +31,8 @@ std::vector<std::string> PhotoRefineOptions::Check() const {
   if (min_gain < 0) p.push_back("min_gain must be >= 0");
   if (!(near_hull_mm >= 0 && near_hull_mm <= max_depth_mm)) p.push_back("near_hull_mm must be in [0, max_depth_mm]");
   if (!(outside_mm >= 0 && outside_mm <= 5)) p.push_back("outside_mm must be in [0, 5]");
+  if (!(move_reach >= 0 && move_reach <= 4)) p.push_back("move_reach must be in [0, 4]");
+  if (!(min_on_rock > 0 && min_on_rock <= 1)) p.push_back("min_on_rock must be in (0, 1]");
   if (untangle_passes < 0) p.push_back("untangle_passes must be >= 0");
   if (sample_rings < 0 || sample_rings > 3) p.push_back("sample_rings must be in 0..3");
   if (smooth_iterations < 0) p.push_back("smooth_iterations must be >= 0");
@@ -56,6 +58,7 @@ struct Prepared {
   Vec3 centre;  // camera centre, object frame
   cv::Mat depth;  // CV_32F, +inf where empty, at cam / depth_map_downscale
   CameraModel depth_cam;
+  cv::Mat mask;  // CV_8UC1 at cam's size (nonzero: rock), or empty
 };
 
 // OpenCV's lens model (see rig_calibration.h), inline: this is the hot loop.
@@ -133,20 +136,26 @@ void RasterizeDepth(const std::vector<Vec3>& V, const std::vector<std::array<int
   }
 }
 
-// Normalised cross-correlation of two equally long sample vectors; false when
-// either is flat (no texture to compare).
-inline bool Ncc(const float* a, const float* b, int n, double min_var, double* out) {
+// Normalised cross-correlation of two equally long sample vectors over the
+// samples whose on-rock flags are both set; false when fewer than min_count
+// are, or either side is flat (no texture to compare).
+inline bool NccOnRock(const float* a, const float* b, const uint8_t* ma, const uint8_t* mb, int n, int min_count,
+                      double min_var, double* out) {
   double sa = 0, sb = 0, saa = 0, sbb = 0, sab = 0;
+  int c = 0;
   for (int i = 0; i < n; ++i) {
+    if (!ma[i] || !mb[i]) continue;
+    ++c;
     sa += a[i];
     sb += b[i];
     saa += a[i] * a[i];
     sbb += b[i] * b[i];
     sab += a[i] * b[i];
   }
-  const double va = saa - sa * sa / n, vb = sbb - sb * sb / n;
-  if (va < min_var * n || vb < min_var * n) return false;
-  *out = (sab - sa * sb / n) / std::sqrt(va * vb);
+  if (c < min_count) return false;
+  const double va = saa - sa * sa / c, vb = sbb - sb * sb / c;
+  if (va < min_var * c || vb < min_var * c) return false;
+  *out = (sab - sa * sb / c) / std::sqrt(va * vb);
   return true;
 }
 
@@ -279,6 +288,11 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
                            "), the camera is " + std::to_string(v.camera.width) + "x" +
                            std::to_string(v.camera.height) + "; give an 8-bit grey or BGR image at the camera's size");
     }
+    if (!v.mask.empty() && (v.mask.type() != CV_8UC1 || v.mask.size() != v.image.size())) {
+      return MakeError(ErrorClass::kInvalidArgument,
+                       "photo refinement: mask of view " + std::to_string(i) +
+                           " is not an 8-bit single-channel image of the photo's size; give the view's rock mask");
+    }
   }
   ParallelFor(opts.threads, views.size(), [&](size_t i) {
     const PhotoView& v = views[i];
@@ -295,6 +309,15 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
       const int h = static_cast<int>(std::lround(v.camera.height * opts.image_scale));
       cv::resize(g, g, cv::Size(w, h), 0, 0, cv::INTER_AREA);
       p.cam = v.camera.Resized(w, h);
+    }
+    if (opts.masked_patches && !v.mask.empty()) {
+      if (v.mask.size() == g.size()) {
+        p.mask = v.mask > 127;
+      } else {
+        cv::Mat m;
+        cv::resize(v.mask, m, g.size(), 0, 0, cv::INTER_AREA);
+        p.mask = m > 127;
+      }
     }
     g.convertTo(p.grey, CV_32F);
     if (opts.blur_sigma_px > 0) cv::GaussianBlur(p.grey, p.grey, cv::Size(0, 0), opts.blur_sigma_px);
@@ -403,6 +426,8 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
                                                      : Eigen::Vector3d::Zero();
     const int nvw = static_cast<int>(cand.size());
     std::vector<float> samples(static_cast<size_t>(nvw) * ns);
+    std::vector<uint8_t> on_rock(static_cast<size_t>(nvw) * ns, 1);
+    const int min_on_rock = static_cast<int>(std::ceil(opts.min_on_rock * ns));
     // Hypothesis k lies at depth (k - kOut) * step: kOut steps outside the
     // hull too, so that a peak at the hull itself gets its sub-step position.
     const int kOut = static_cast<int>(std::lround(opts.outside_mm / opts.step_mm));
@@ -416,6 +441,7 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
         const Vec3 base = q.R * c + q.t;
         const Vec3 A = q.R * (s * t1), B = q.R * (s * t2), Nq = q.R * n;
         float* out = samples.data() + static_cast<size_t>(w) * ns;
+        uint8_t* rock = on_rock.data() + static_cast<size_t>(w) * ns;
         for (int b = -R; b <= R && ok[w]; ++b) {
           for (int a = -R; a <= R; ++a) {
             double u = 0, v = 0;
@@ -425,6 +451,12 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
               ok[w] = 0;
               break;
             }
+            if (!q.mask.empty()) {
+              const int mx = std::clamp(static_cast<int>(std::lround(u)), 0, q.mask.cols - 1);
+              const int my = std::clamp(static_cast<int>(std::lround(v)), 0, q.mask.rows - 1);
+              *rock = q.mask.at<uint8_t>(my, mx) != 0;
+            }
+            ++rock;
           }
         }
         if (w == 0 && !ok[0]) {
@@ -437,7 +469,10 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
       int cnt = 0;
       for (int w = 1; w < nvw; ++w) {
         double r = 0;
-        if (!ok[w] || !Ncc(samples.data(), samples.data() + static_cast<size_t>(w) * ns, ns, min_var, &r)) continue;
+        if (!ok[w] || !NccOnRock(samples.data(), samples.data() + static_cast<size_t>(w) * ns, on_rock.data(),
+                                 on_rock.data() + static_cast<size_t>(w) * ns, ns, min_on_rock, min_var, &r)) {
+          continue;
+        }
         sum += r;
         ++cnt;
       }
@@ -505,11 +540,44 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
     }
     return nbad;
   };
+  // Move directions: each vertex's normal smoothed further until the
+  // smoothing reaches about its move's depth. k passes of 1-ring averaging
+  // spread a normal over about e sqrt(k) (e: the mean edge), so a move d
+  // takes (reach d / e)^2 passes in all, the 3 of N included. A shallow move
+  // keeps N; a deep one behind a convex edge moves nearly parallel to its
+  // neighbours instead of converging with them.
+  std::vector<Vec3> M = N;
+  if (opts.move_reach > 0) {
+    double esum = 0;
+    for (const auto& f : F) esum += (V[f[1]] - V[f[0]]).norm();
+    const double e = F.empty() ? 1.0 : esum / F.size();
+    constexpr int kMaxPasses = 400;
+    std::vector<int> passes(nv, 0);
+    int most = 0;
+    for (size_t i = 0; i < nv; ++i) {
+      const double r = opts.move_reach * field[i] / e;
+      passes[i] = std::clamp(static_cast<int>(std::lround(r * r)) - 3, 0, kMaxPasses);
+      most = std::max(most, passes[i]);
+    }
+    res.max_direction_passes = most;
+    std::vector<Vec3> S = N, next(nv);
+    for (int k = 1; k <= most; ++k) {
+      for (size_t i = 0; i < nv; ++i) {
+        Vec3 sum = S[i];
+        for (int j : nb[i]) sum += S[j];
+        next[i] = sum.normalized();
+      }
+      S.swap(next);
+      for (size_t i = 0; i < nv; ++i) {
+        if (passes[i] == k) M[i] = S[i];
+      }
+    }
+  }
   // Undo folds where they are: a folding vertex moves to the centroid of its
   // neighbours' moved positions (never outward of the hull), which keeps the
   // region's depth. What that cannot undo is pulled back towards the hull,
   // where no face is folded: halving, then all the way.
-  for (size_t i = 0; i < nv; ++i) W[i] = V[i] - field[i] * N[i];
+  for (size_t i = 0; i < nv; ++i) W[i] = V[i] - field[i] * M[i];
   std::vector<char> bad;
   for (int pass = 0;; ++pass) {
     const int nbad = find_bad(W, &bad);

@@ -16,7 +16,8 @@
 //     vertices within the patch's reach; a tangent-plane patch fits best
 //     inside a convex surface), is projected into every chosen view (with
 //     lens distortion) and sampled bilinearly from grey images; the score is
-//     the mean NCC of the reference patch against each other view's.
+//     the mean NCC of the reference patch against each other view's, each
+//     over the samples on the rock in both views when masks are given.
 //  3. A vertex's move is kept only when it is confident: the best score is at
 //     least min_ncc and, for a peak deeper than near_hull_mm, beats the score
 //     at the hull (d = 0) by min_gain. Confident vertices whose best depth is
@@ -29,12 +30,15 @@
 //     smooths the rest; data farther than outlier_mm from that field are
 //     dropped and the smoothing repeated; the field is kept in
 //     [0, max_depth_mm] (no vertex leaves the hull outward).
-//  5. Vertices are moved; a face whose normal turns by more than
-//     max_face_turn_deg (inverted) is undone where it is: its vertices move
-//     to the centroid of their neighbours' moved positions (up to
-//     untangle_passes), and only what remains is pulled back towards the
-//     hull (halving, then all the way). The moved region is then
-//     Taubin-smoothed (no shrinkage), except where that would invert a face.
+//  5. Vertices are moved, each along the hull's normal smoothed over about
+//     its move's depth (a deep move behind a convex edge would otherwise
+//     converge with its neighbours' and collapse the faces there); a face
+//     whose normal turns by more than max_face_turn_deg (inverted) is
+//     undone where it is: its vertices move to the centroid of their
+//     neighbours' moved positions (up to untangle_passes), and only what
+//     remains is pulled back towards the hull (halving, then all the way).
+//     The moved region is then Taubin-smoothed (no shrinkage), except where
+//     that would invert a face.
 //     Topology is untouched, so a closed manifold hull stays closed and
 //     manifold.
 #pragma once
@@ -56,6 +60,10 @@ struct PhotoView {
   cv::Mat image;          // CV_8UC1 grey or CV_8UC3 BGR, at camera.width x camera.height
   CameraModel camera;     // lens for that resolution
   Eigen::Isometry3d cam_from_object = Eigen::Isometry3d::Identity();  // mm
+  // Optional CV_8UC1 rock mask at the image's size (255 rock, 0 background).
+  // Given, a patch's samples off the rock in either view are left out of
+  // that pair's NCC.
+  cv::Mat mask;
 };
 
 struct PhotoRefineOptions {
@@ -71,6 +79,12 @@ struct PhotoRefineOptions {
   double min_cos = 0.35;            // a view must see the vertex at most ~70 deg off its normal
   int patch_radius = 4;             // patch is (2r+1)^2 samples
   bool curved_patches = true;       // patches follow the hull's local quadric (false: its tangent plane)
+  // With the views' masks, the NCC of a pair of views covers only the patch's
+  // samples on the rock in both (at least min_on_rock of them): a patch
+  // straddling the silhouette compares the backdrop, which does not turn
+  // with the rock, and so scored best once pushed inside, off the rim.
+  bool masked_patches = true;
+  double min_on_rock = 0.6;
   double patch_spacing_px = 1.0;    // sample spacing in reference pixels
   double image_scale = 1.0;         // images are resized by this first (0.5 halves 2016x1512 for speed)
   double blur_sigma_px = 0.8;       // Gaussian pre-blur against sensor noise and JPEG blocks (scaled px)
@@ -84,6 +98,9 @@ struct PhotoRefineOptions {
   // of 20; EPFL MPE +0.37 %, E34 a -0.4 %; sphericity error max 0.017.
   // Curved patches then (same captures): +0.08 % (MAPE 0.19 %), 19 of 20,
   // area MPE -0.43 % (-0.81); real stones 8 of 8 (7), V MPE +0.65 % (+0.49).
+  // Masked patches and move_reach then (new captures, 20 + 8): dims within
+  // 2 % on 20 (18) and 8 (8), worst 1.49 % (2.03); V MPE +0.01 % (-0.02) and
+  // +0.65 % (+0.64); E34's a -0.17 % (+1.81: the collapsed faces' ridge).
   double min_ncc = 0.6;             // confident: best mean NCC at least this
   double min_gain = 0.1;            // ... and at least this above the NCC at the hull,
   double near_hull_mm = 0.5;        // ... for a peak deeper than this (shallower: the peak alone)
@@ -94,6 +111,12 @@ struct PhotoRefineOptions {
   double smooth_lambda = 3.0;       // neighbour weight relative to a confident vertex's data weight
   double max_face_turn_deg = 150.0; // a face turning more than this is inverted and undone
                                     // (not less: the hull's sliver faces turn a lot and are harmless)
+  // Vertices move along the hull's normals smoothed over about their move's
+  // depth (reach = move_reach x depth), not over 3 rings: behind a convex
+  // edge the 3-ring normals converge, and a move deeper than the edge's
+  // radius collapses the faces there (an inward offset past the edge). 0:
+  // every vertex moves along the 3-ring normal it was scored along.
+  double move_reach = 1.0;
   int untangle_passes = 20;         // centroid passes over folding vertices before pulling them back
   int surface_smooth_iterations = 30; // Taubin passes over the moved vertices' positions (0: none)
   int threads = 2;
@@ -110,6 +133,7 @@ struct PhotoRefineResult {
   int64_t vertices_moved = 0;  // final displacement > 0.05 mm
   double mean_displacement_mm = 0;  // over moved vertices
   double max_displacement_mm = 0;
+  int max_direction_passes = 0;  // most smoothing passes a move direction took (move_reach)
   int64_t faces_folded = 0;   // faces that turned too far with the smoothed moves, before undoing
   int fold_passes = 0;         // passes pulling folding vertices back towards the hull
   int untangle_passes = 0;     // centroid passes over folding vertices

@@ -536,6 +536,14 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
         pv[i].image = cv::imread(views[i].image, half ? cv::IMREAD_REDUCED_GRAYSCALE_2 : cv::IMREAD_GRAYSCALE);
         pv[i].camera = half ? cal.camera.Resized(pv[i].image.cols, pv[i].image.rows) : cal.camera;
         pv[i].cam_from_object = cam_from_object[i];
+        if (!pv[i].image.empty()) {
+          if (masks[i].size() == pv[i].image.size()) {
+            pv[i].mask = masks[i];
+          } else {
+            cv::resize(masks[i], pv[i].mask, pv[i].image.size(), 0, 0, cv::INTER_AREA);
+            pv[i].mask = pv[i].mask > 127;
+          }
+        }
       }
     };
     std::thread lt(load, 1, 2);
@@ -562,6 +570,8 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
                   {"vertices_moved", refined->vertices_moved},
                   {"mean_displacement_mm", refined->mean_displacement_mm},
                   {"max_displacement_mm", refined->max_displacement_mm},
+                  {"faces_folded", refined->faces_folded},
+                  {"max_direction_passes", refined->max_direction_passes},
                   {"fold_passes", refined->fold_passes},
                   {"untangle_passes", refined->untangle_passes},
                   {"refine_s", refined->seconds},
