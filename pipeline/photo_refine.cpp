@@ -288,10 +288,14 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
                            "), the camera is " + std::to_string(v.camera.width) + "x" +
                            std::to_string(v.camera.height) + "; give an 8-bit grey or BGR image at the camera's size");
     }
-    if (!v.mask.empty() && (v.mask.type() != CV_8UC1 || v.mask.size() != v.image.size())) {
+    if (!v.mask.empty() &&
+        (v.mask.type() != CV_8UC1 || v.mask.cols < v.image.cols ||
+         static_cast<int64_t>(v.mask.cols) * v.image.rows != static_cast<int64_t>(v.mask.rows) * v.image.cols)) {
       return MakeError(ErrorClass::kInvalidArgument,
-                       "photo refinement: mask of view " + std::to_string(i) +
-                           " is not an 8-bit single-channel image of the photo's size; give the view's rock mask");
+                       "photo refinement: mask of view " + std::to_string(i) + " is not an 8-bit single-channel image " +
+                           "of the photo's shape (" + std::to_string(v.mask.cols) + "x" + std::to_string(v.mask.rows) +
+                           " for a " + std::to_string(v.image.cols) + "x" + std::to_string(v.image.rows) +
+                           " photo); give the view's rock mask");
     }
   }
   ParallelFor(opts.threads, views.size(), [&](size_t i) {

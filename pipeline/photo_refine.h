@@ -60,9 +60,10 @@ struct PhotoView {
   cv::Mat image;          // CV_8UC1 grey or CV_8UC3 BGR, at camera.width x camera.height
   CameraModel camera;     // lens for that resolution
   Eigen::Isometry3d cam_from_object = Eigen::Isometry3d::Identity();  // mm
-  // Optional CV_8UC1 rock mask at the image's size (255 rock, 0 background).
-  // Given, a patch's samples off the rock in either view are left out of
-  // that pair's NCC.
+  // Optional CV_8UC1 rock mask (255 rock, 0 background) of the image's
+  // aspect, at its size or the full resolution it was reduced from; it is
+  // brought to the working scale here. Given, a patch's samples off the rock
+  // in either view are left out of that pair's NCC.
   cv::Mat mask;
 };
 

@@ -536,14 +536,7 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
         pv[i].image = cv::imread(views[i].image, half ? cv::IMREAD_REDUCED_GRAYSCALE_2 : cv::IMREAD_GRAYSCALE);
         pv[i].camera = half ? cal.camera.Resized(pv[i].image.cols, pv[i].image.rows) : cal.camera;
         pv[i].cam_from_object = cam_from_object[i];
-        if (!pv[i].image.empty()) {
-          if (masks[i].size() == pv[i].image.size()) {
-            pv[i].mask = masks[i];
-          } else {
-            cv::resize(masks[i], pv[i].mask, pv[i].image.size(), 0, 0, cv::INTER_AREA);
-            pv[i].mask = pv[i].mask > 127;
-          }
-        }
+        pv[i].mask = masks[i];  // full size: the refinement brings it to its working scale
       }
     };
     std::thread lt(load, 1, 2);
