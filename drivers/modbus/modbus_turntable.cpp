@@ -246,13 +246,13 @@ Status ModbusTurntable::Connect() {
 }
 
 void ModbusTurntable::Resync(int err) {
+  if (err == EMBXSBUSY || err == EMBXACK) return;  // answered: nothing is pending
   if (transport_ == Transport::kTcp || IsLinkLoss(err)) {
     // A late answer dies with the connection; the next try opens a new one.
     ctx_.reset();
     connected_ = false;
     return;
   }
-  if (err == EMBXSBUSY || err == EMBXACK) return;  // answered: nothing is pending
   const int dropped = WaitOutLateAnswer(ctx_.get(), config_.modbus.response_timeout,
                                         RtuQuietGap(config_.modbus.baud));
   if (dropped > 0) AGG_LOGD(kLog, "dropped %d bytes of a late answer", dropped);
