@@ -129,7 +129,8 @@ const std::vector<Field<Config>>& Fields() {
       F(daemon.listen_port, Range(0, 65535), "HTTP API port (0 = pick a free one, tests)"),
       F(daemon.log_level, OneOf(LogLevels()), "error | warning | notice | info | debug"),
       F(daemon.time_scale, Range(1, 1000),
-        "sim rig only: clock runs this many times faster than real time (1..1000)"),
+        "sim rig only: clock runs this many times faster than real time (1..1000); above 1 with "
+        "any real device is an error"),
       D(daemon.reopen_backoff_min, Range(10 * kMs, 600 * kSec),
         "first retry of a device that failed to open (real time); doubles per failure"),
       D(daemon.reopen_backoff_max, Range(10 * kMs, 3600 * kSec),
@@ -839,6 +840,26 @@ class Validator {
       Add("daemon.reopen_backoff_max", FormatDuration(c.daemon.reopen_backoff_max) +
                                            " is shorter than daemon.reopen_backoff_min (" +
                                            FormatDuration(c.daemon.reopen_backoff_min) + ")");
+    }
+    if (c.daemon.time_scale > 1.0) {
+      // The scaled clock drives every deadline, timer and timestamp, a real
+      // device's as well: its moves, exposures and time-outs would be scaled
+      // too, and no real platter turns ten times faster on request.
+      std::vector<std::string> real;
+      auto device = [&](const char* key, const std::string& backend, const char* simulated) {
+        if (backend != simulated) real.push_back(std::string(key) + " = \"" + backend + "\"");
+      };
+      device("camera.backend", c.camera.backend, "sim");
+      device("turntable.backend", c.turntable.backend, "sim");
+      device("button.backend", c.button.backend, "sim");
+      device("light.backend", c.light.backend, "none");
+      if (!real.empty()) {
+        Add("daemon.time_scale",
+            FormatDouble(c.daemon.time_scale) +
+                " runs the clock faster than real time, which only the sim rig can follow; " +
+                Join(real, ", ") + (real.size() > 1 ? " are real devices" : " is a real device") +
+                ": set daemon.time_scale = 1");
+      }
     }
     const CaptureConfig& cap = c.capture;
     if (cap.profile == "paper") {

@@ -21,7 +21,7 @@ struct DaemonConfig {
   std::string listen_address = "127.0.0.1";    // HTTP API bind address
   int listen_port = 8470;                      // HTTP API port (0 = pick a free one, tests)
   std::string log_level = "info";              // error|warning|notice|info|debug
-  double time_scale = 1.0;  // sim rig only: clock runs this many times faster than real time (>= 1)
+  double time_scale = 1.0;  // sim rig only (> 1 with a real device is refused): clock runs this many times faster
   TimeNs reopen_backoff_min = 1 * kNsPerSec;   // first retry of a device that failed to open (real time)
   TimeNs reopen_backoff_max = 30 * kNsPerSec;  // retries double up to this; reset when the device opens
   TimeNs health_probe_interval = 5 * kNsPerSec;  // turntable status read while no side runs (0 = off)

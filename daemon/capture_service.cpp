@@ -39,6 +39,43 @@ std::string Deg(double d) {
   std::snprintf(b, sizeof b, "%.2f", d);
   return b;
 }
+
+// Why a motion that came to rest never counted as finished: where the platter
+// stood against the target and the key of the backend's in-position window.
+std::string RestedOutOfPosition(const TurntableConfig& tt, double angle_deg, double target_deg) {
+  const double off = angle_deg - target_deg;
+  std::string key;
+  double window_deg = 0, steps_per_rev = 0;
+  if (tt.backend == "modbus-tcp" || tt.backend == "modbus-rtu") {
+    key = "turntable.modbus.in_position_window_deg";
+    window_deg = tt.modbus.in_position_window_deg;
+    steps_per_rev = tt.modbus.steps_per_rev();
+  } else if (tt.backend == "usb-tic") {
+    key = "turntable.usb.in_position_window_deg";
+    window_deg = tt.usb.in_position_window_deg;
+    steps_per_rev = tt.usb.steps_per_rev();
+  }
+  char b[256];
+  std::snprintf(b, sizeof b, "the platter came to rest at %.3f deg, %+.3f deg from the target", angle_deg, off);
+  std::string msg = b;
+  if (steps_per_rev > 0) {
+    std::snprintf(b, sizeof b, " (%+lld steps at %.0f steps per turn)", std::llround(off * steps_per_rev / 360.0),
+                  steps_per_rev);
+    msg += b;
+    window_deg = std::max(window_deg, 360.0 / steps_per_rev);  // the backends' window is at least a step
+  }
+  if (key.empty()) return msg;
+  if (std::fabs(off) > window_deg) {
+    std::snprintf(b, sizeof b, "%.3f", window_deg);
+    msg += ", outside " + key + " = " + b + " deg: if the drive cannot settle closer, raise " + key;
+    std::snprintf(b, sizeof b, "%.3f", std::fabs(off));
+    msg += std::string(" above ") + b + " deg, else check the drive's tuning and the gear's backlash";
+  } else {
+    msg += ", inside " + key + ", but the controller never reported in position: check its own in-position "
+           "setting";
+  }
+  return msg;
+}
 }  // namespace
 
 CaptureService::CaptureService(EventLoop& loop, Config config, std::string effective_config_toml, RigDevices devices,
@@ -349,7 +386,7 @@ void CaptureService::Execute(const cs::Effect& eff) {
             pending_events_.push_back(cs::DeviceFault{s.error().cls, "turntable: cannot start homing: " + s.error().ToString()});
             return;
           }
-          motion_ = MotionWatch{true, true, 0.0, clock.Now() + config_.capture.home_timeout, 0.0, clock.Now(), 0};
+          motion_ = MotionWatch{true, true, 0.0, clock.Now() + config_.capture.home_timeout, 0.0, clock.Now(), 0, {}};
           AddEpochTimer(clock.Now() + config_.capture.poll_interval, [this, ep = epoch_] { PollMotion(ep); });
         } else if constexpr (std::is_same_v<T, cs::MoveTo>) {
           Status s = dev_.turntable->StartMoveTo(e.angle_deg);
@@ -360,7 +397,7 @@ void CaptureService::Execute(const cs::Effect& eff) {
             return;
           }
           motion_ = MotionWatch{true, false, e.angle_deg, clock.Now() + config_.capture.move_timeout,
-                                motion_.last_angle, clock.Now(), 0};
+                                motion_.last_angle, clock.Now(), 0, {}};
           AddEpochTimer(clock.Now() + config_.capture.poll_interval, [this, ep = epoch_] { PollMotion(ep); });
         } else if constexpr (std::is_same_v<T, cs::BeginSide>) {
           Status s = store_.BeginSide(id, e.side);
@@ -563,6 +600,7 @@ void CaptureService::PollMotion(uint64_t epoch) {
     }
   } else {
     motion_.comm_errors = 0;
+    motion_.last_status = *st;
     const TurntableStatus& s = *st;
     if (s.alarm) {
       motion_.active = false;
@@ -591,10 +629,16 @@ void CaptureService::PollMotion(uint64_t epoch) {
   }
   if (now > motion_.deadline) {
     motion_.active = false;
+    std::string why;
+    const std::optional<TurntableStatus>& last = motion_.last_status;
+    if (last && !last->moving && !last->in_position) {
+      why = ": " + RestedOutOfPosition(config_.turntable, last->angle_deg, motion_.homing ? 0.0 : motion_.target_deg);
+    }
     Fault(ErrorClass::kTimeout, std::string("turntable: ") + (motion_.homing ? "homing" : "move to " + Deg(motion_.target_deg) + " deg") +
                                     " did not finish within " +
                                     FormatDuration(motion_.homing ? config_.capture.home_timeout
-                                                                  : config_.capture.move_timeout));
+                                                                  : config_.capture.move_timeout) +
+                                    why);
     return;
   }
   AddEpochTimer(now + config_.capture.poll_interval, [this, ep = epoch_] { PollMotion(ep); });

@@ -93,6 +93,7 @@ class CaptureService final : public DaemonControl {
     double last_angle = 0;
     TimeNs last_progress = 0;
     int comm_errors = 0;
+    std::optional<TurntableStatus> last_status;  // the latest status read, for the time-out message
   };
   struct PendingView {
     int side = 0, view = 0;

@@ -28,8 +28,12 @@ PACKAGES=(
   # tests only: writes the small ONNX networks of the mask-network test
   python3-onnx
   # tests only: an independent Modbus implementation acting as the turntable
-  # controller in the interoperability test (skipped, 77, without it)
-  python3-pymodbus
+  # controller in the interoperability test (skipped, 77, without it).
+  # pymodbus.server imports serial and serial_asyncio, which Debian's
+  # python3-pymodbus only recommends (python3-serial comes with
+  # python3-serial-asyncio); its other recommend, python3-typer, is for the
+  # REPL and is not imported by the server
+  python3-pymodbus python3-serial-asyncio python3-serial
   # tests only: the kernel-test-driver VM lane (tests/vm/run-in-vm.sh): QEMU
   # (TCG), Debian's kernel and modules (vivid for the V4L2 camera test; it is
   # booted in the VM, never loaded on this machine), a static busybox and cpio

@@ -5,6 +5,8 @@
 #include <cerrno>
 #include <chrono>
 
+#include "drivers/modbus/link_hygiene.h"
+
 namespace aggscan::modbus {
 namespace {
 
@@ -101,7 +103,10 @@ Error BitLink::Classify(int err, const std::string& what) {
                          "); check the address in " + s_.section,
                      detail);
   }
-  // Anything else may have left the connection out of step: reopen next time.
+  // Anything else may have left the connection out of step: reopen next time
+  // (a TCP answer still on its way dies with the connection; on a serial line
+  // it is waited out first, since the port's buffer would keep it).
+  if (!s_.tcp) WaitOutLateAnswer(ctx_, s_.response_timeout, RtuQuietGap(s_.baud));
   modbus_close(ctx_);
   connected_ = false;
   if (err == ETIMEDOUT) {
@@ -118,6 +123,7 @@ Error BitLink::Classify(int err, const std::string& what) {
 Result<bool> BitLink::ReadBit(bool discrete, int address) {
   std::lock_guard<std::mutex> l(mu_);
   if (Status s = ConnectLocked(); !s) return s.error();
+  DropStaleInput(ctx_);  // nothing waiting now can answer the request below
   uint8_t bit = 0;
   const int rc = discrete ? modbus_read_input_bits(ctx_, address, 1, &bit)
                           : modbus_read_bits(ctx_, address, 1, &bit);
@@ -131,6 +137,7 @@ Result<bool> BitLink::ReadBit(bool discrete, int address) {
 Status BitLink::WriteCoil(int address, bool on) {
   std::lock_guard<std::mutex> l(mu_);
   if (Status s = ConnectLocked(); !s) return s;
+  DropStaleInput(ctx_);
   if (modbus_write_bit(ctx_, address, on ? 1 : 0) != 1) {
     return Classify(errno, "writing coil " + std::to_string(address));
   }

@@ -11,6 +11,7 @@
 #include <set>
 
 #include "common/log.h"
+#include "drivers/modbus/link_hygiene.h"
 #include "drivers/turntable_legs.h"
 
 namespace aggscan::modbus {
@@ -103,6 +104,11 @@ ModbusTurntable::~ModbusTurntable() = default;
 
 double ModbusTurntable::StepsPerDeg() const { return config_.modbus.steps_per_rev() / 360.0; }
 
+bool ModbusTurntable::NearSteps(int64_t steps, int64_t goal) const {
+  const double window = std::max(1.0, config_.modbus.in_position_window_deg * StepsPerDeg());
+  return std::fabs(static_cast<double>(steps - goal)) <= window;
+}
+
 std::string ModbusTurntable::LinkDescription() const {
   const ModbusTurntableConfig& m = config_.modbus;
   if (transport_ == Transport::kTcp) {
@@ -161,7 +167,12 @@ Error ModbusTurntable::ClassifyFailure(int err, const std::string& what, int att
   // Garbled or mismatched answers that stayed so after every retry.
   return MakeError(ErrorClass::kTimeout,
                    "no valid answer from Modbus " + link + " (" + modbus_strerror(err) +
-                       ") — check the line settings, termination and unit id",
+                       (transport_ == Transport::kTcp
+                            ? ") — check that " + config_.modbus.host + ":" +
+                                  std::to_string(config_.modbus.port) +
+                                  " is the controller (or its gateway) speaking Modbus/TCP, "
+                                  "that no other client drives it, and the unit id"
+                            : std::string(") — check the line settings, termination and unit id")),
                    detail);
 }
 
@@ -234,8 +245,22 @@ Status ModbusTurntable::Connect() {
   return OkStatus();
 }
 
+void ModbusTurntable::Resync(int err) {
+  if (err == EMBXSBUSY || err == EMBXACK) return;  // answered: nothing is pending
+  if (transport_ == Transport::kTcp || IsLinkLoss(err)) {
+    // A late answer dies with the connection; the next try opens a new one.
+    ctx_.reset();
+    connected_ = false;
+    return;
+  }
+  const int dropped = WaitOutLateAnswer(ctx_.get(), config_.modbus.response_timeout,
+                                        RtuQuietGap(config_.modbus.baud));
+  if (dropped > 0) AGG_LOGD(kLog, "dropped %d bytes of a late answer", dropped);
+}
+
 template <typename F>
-Status ModbusTurntable::Transact(const std::string& what, F&& request) {
+Status ModbusTurntable::Transact(const std::string& what, F&& request,
+                                 const std::function<Result<bool>()>& resend) {
   const int tries = 1 + config_.modbus.retries;
   int err = 0;
   int sent = 0;
@@ -251,6 +276,9 @@ Status ModbusTurntable::Transact(const std::string& what, F&& request) {
         return c;
       }
     }
+    if (const int stale = DropStaleInput(ctx_.get()); stale > 0) {
+      AGG_LOGD(kLog, "%s: dropped %d bytes nobody asked for before sending", what.c_str(), stale);
+    }
     ++requests_;
     ++sent;
     if (request(ctx_.get()) >= 0) {
@@ -258,18 +286,34 @@ Status ModbusTurntable::Transact(const std::string& what, F&& request) {
       return OkStatus();
     }
     err = errno;
+    // "Acknowledge": a command was taken and is being carried out.
+    if (resend && err == EMBXACK) return OkStatus();
     if (IsException(err) && err != EMBXSBUSY && err != EMBXACK) break;
-    if (IsLinkLoss(err)) {
-      ctx_.reset();
-      connected_ = false;
+    const bool lost = IsLinkLoss(err);
+    if (!lost && !IsTransient(err)) break;
+    // Back in step before anything else is sent, also after the last try.
+    Resync(err);
+    // A command that may have been carried out is sent again only when the
+    // controller's state shows it was not ("busy" refused it: no doubt).
+    if (resend && err != EMBXSBUSY) {
+      Result<bool> again = resend();
+      if (!again) return again.error();
+      if (!*again) {
+        AGG_LOGI(kLog, "%s: %s, but the controller's state shows it was carried out",
+                 what.c_str(), modbus_strerror(err));
+        return OkStatus();
+      }
+      AGG_LOGI(kLog, "%s: %s and not carried out (try %d of %d)", what.c_str(),
+               modbus_strerror(err), attempt, tries);
+      continue;
+    }
+    if (lost) {
       if (reconnected) break;
       reconnected = true;  // one reopen per request; it does not count as a try
       --attempt;
       continue;
     }
-    if (!IsTransient(err)) break;
     AGG_LOGD(kLog, "%s: %s (try %d of %d)", what.c_str(), modbus_strerror(err), attempt, tries);
-    modbus_flush(ctx_.get());  // drop a late or partial answer before the next try
   }
   return ClassifyFailure(err, what, sent);
 }
@@ -304,10 +348,19 @@ Status ModbusTurntable::WriteRegisters(const std::vector<RegisterWrite>& writes,
   return OkStatus();
 }
 
-Status ModbusTurntable::WriteCommand(const RegisterWrite& command, const std::string& what) {
+Status ModbusTurntable::WriteCommand(const RegisterWrite& command, const std::string& what,
+                                     const std::function<bool(const Raw&)>& carried_out) {
+  // A command is not idempotent (a move may be relative on some drives, a
+  // second home restarts the search): when its answer is lost it is sent
+  // again only if a fresh status read says it did not take effect.
   return Transact(
       "writing the " + what + " command (register " + Hex(command.address) + ")",
-      [&](modbus_t* c) { return modbus_write_register(c, command.address, command.value); });
+      [&](modbus_t* c) { return modbus_write_register(c, command.address, command.value); },
+      [&]() -> Result<bool> {
+        Result<Raw> raw = ReadRaw();
+        if (!raw) return raw.error();
+        return !carried_out(*raw);
+      });
 }
 
 // Speed and acceleration registers from the motion limits, in the profile's
@@ -447,7 +500,9 @@ Status ModbusTurntable::StartLeg(int64_t target_steps) {
       {profile_.target_address + 1, high_first ? Low(target_steps) : High(target_steps)});
   s = WriteRegisters(writes, "the target position");
   if (!s) return s;
-  s = WriteCommand(profile_.move, "move");
+  s = WriteCommand(profile_.move, "move", [&](const Raw& r) {
+    return r.moving || NearSteps(r.steps, target_steps);  // a short move may be over already
+  });
   if (!s) return s;
   leg_steps_ = target_steps;
   return OkStatus();
@@ -458,10 +513,12 @@ Status ModbusTurntable::DoStartHome() {
   Result<Raw> raw = ReadRaw();
   if (!raw) return raw.error();
   if (raw->alarm && profile_.reset_alarm.address >= 0) {
-    Status s = WriteCommand(profile_.reset_alarm, "reset alarm");
+    Status s = WriteCommand(profile_.reset_alarm, "reset alarm", [](const Raw& r) { return !r.alarm; });
     if (!s) return s;
   }
-  Status s = WriteCommand(profile_.home, "home");
+  Status s = WriteCommand(profile_.home, "home", [&](const Raw& r) {
+    return r.moving || (NearSteps(r.steps, 0) && (!profile_.homed.present() || r.homed));
+  });
   if (!s) return s;
   phase_ = Phase::kHoming;
   turn_offset_deg_ = 0.0;
@@ -506,7 +563,7 @@ Status ModbusTurntable::DoStartMoveTo(double angle_deg) {
 
 Status ModbusTurntable::DoStop() {
   std::lock_guard<std::mutex> l(mu_);
-  Status s = WriteCommand(profile_.stop, "stop");
+  Status s = WriteCommand(profile_.stop, "stop", [](const Raw& r) { return !r.moving; });
   if (s) phase_ = Phase::kStopped;
   return s;
 }
@@ -519,7 +576,7 @@ Status ModbusTurntable::ResetAlarm() {
                                                     "\" has no reset command; reset the controller "
                                                     "by hand (or power-cycle it)");
   }
-  return WriteCommand(profile_.reset_alarm, "reset alarm");
+  return WriteCommand(profile_.reset_alarm, "reset alarm", [](const Raw& r) { return !r.alarm; });
 }
 
 Result<TurntableStatus> ModbusTurntable::DoReadStatus() {
@@ -528,10 +585,7 @@ Result<TurntableStatus> ModbusTurntable::DoReadStatus() {
   if (!r) return r.error();
   const Raw& raw = *r;
   const double spd = StepsPerDeg();
-  const double window = std::max(1.0, config_.modbus.in_position_window_deg * spd);
-  auto near = [&](int64_t goal) {
-    return std::fabs(static_cast<double>(raw.steps - goal)) <= window;
-  };
+  auto near = [&](int64_t goal) { return NearSteps(raw.steps, goal); };
   const bool settled = raw.in_position && !raw.moving && !raw.alarm;
 
   TurntableStatus st;

@@ -13,6 +13,12 @@
 //    names the unit, the port and the line settings. A lost TCP connection or
 //    serial device is reopened once on the next request (kDisconnected if it
 //    stays away). Modbus exception replies are kDeviceFault, named.
+//  - Link hygiene (link_hygiene.h): after a time-out or an answer that does
+//    not fit, TCP re-opens the connection and RTU waits out the late answer
+//    before anything else is sent, so no answer is taken for a later
+//    request's. Commands (move, home, stop, reset) are never repeated blindly:
+//    when one goes unanswered the controller's state is read, and it is sent
+//    again only if it did not take effect.
 //  - in_position is reported only when the controller's bit says so, it is not
 //    moving and the measured position is within in_position_window_deg of the
 //    commanded one: a controller may still show the previous move's bit for a
@@ -34,6 +40,7 @@
 //    service's too (capture.stall_timeout), not repeated here.
 #pragma once
 
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -85,16 +92,28 @@ class ModbusTurntable final : public Turntable {
   enum class Phase { kNone, kHoming, kOvershoot, kFinal, kStopped };
 
   Status Connect();
-  // Runs one request with the retry/reconnect policy; `what` names it in errors.
+  // Runs one request with the retry/reconnect policy; `what` names it in
+  // errors. A request that went unanswered is repeated as it is, unless
+  // `resend` is given (commands): then it is called first and the request is
+  // repeated only if it returns true; false means it took effect after all.
   template <typename F>
-  Status Transact(const std::string& what, F&& request);
+  Status Transact(const std::string& what, F&& request,
+                  const std::function<Result<bool>()>& resend = {});
+  // Puts the link back in step after request failure `err` (errno): TCP
+  // closes the connection, RTU waits out a late answer (link_hygiene.h).
+  void Resync(int err);
   Status WriteRegisters(const std::vector<RegisterWrite>& writes, const std::string& what);
-  Status WriteCommand(const RegisterWrite& command, const std::string& what);
+  // `carried_out`: whether the controller's state shows the command took
+  // effect (asked only when its answer was lost).
+  Status WriteCommand(const RegisterWrite& command, const std::string& what,
+                      const std::function<bool(const Raw&)>& carried_out);
   Result<Raw> ReadRaw();
   Status StartLeg(int64_t target_steps);
   Status MotionWrites(std::vector<RegisterWrite>* out) const;
   Error ClassifyFailure(int err, const std::string& what, int attempts) const;
   double StepsPerDeg() const;
+  // Within in_position_window_deg (at least one step) of `goal`.
+  bool NearSteps(int64_t steps, int64_t goal) const;
 
   const Transport transport_;
   const TurntableConfig config_;

@@ -206,6 +206,39 @@ TEST(Config, V4l2CameraSection) {
   ExpectOneProblem("[camera.v4l2]\nbufers = 4\n", 2, "camera.v4l2.bufers", "did you mean camera.v4l2.buffers?");
 }
 
+// The scaled clock is the sim rig's: it drives a real device's deadlines
+// and timers too, so a faster clock with any real device is refused.
+TEST(Config, TimeScaleIsRefusedWithARealDevice) {
+  ExpectOneProblem(
+      "[daemon]\ntime_scale = 10\n[turntable]\nbackend = \"modbus-tcp\"\n"
+      "[turntable.modbus]\nhost = \"10.0.0.5\"\n",
+      2, "daemon.time_scale",
+      "10.0 runs the clock faster than real time, which only the sim rig can follow; "
+      "turntable.backend = \"modbus-tcp\" is a real device: set daemon.time_scale = 1");
+  ExpectOneProblem(
+      "[daemon]\ntime_scale = 2.5\n[camera]\nbackend = \"v4l2\"\ndevice = \"/dev/video0\"\n"
+      "[button]\nbackend = \"gpio\"\n",
+      2, "daemon.time_scale",
+      "camera.backend = \"v4l2\", button.backend = \"gpio\" are real devices");
+  ExpectOneProblem("[daemon]\ntime_scale = 20\n[light]\nbackend = \"gpio\"\n", 2,
+                   "daemon.time_scale", "light.backend = \"gpio\" is a real device");
+  // The all-sim rig may run fast; real devices at time_scale 1 are fine.
+  Loaded sim = Load("[daemon]\ntime_scale = 1000\n");
+  EXPECT_TRUE(sim.result.ok()) << Dump(sim.problems);
+  Loaded real = Load(
+      "[daemon]\ntime_scale = 1\n[turntable]\nbackend = \"modbus-rtu\"\n"
+      "[turntable.modbus]\ndevice = \"/dev/ttyUSB0\"\n");
+  EXPECT_TRUE(real.result.ok()) << Dump(real.problems);
+  // The struct validator (what --check-config and the daemon run) agrees.
+  Config c;
+  c.daemon.time_scale = 10;
+  c.turntable.backend = "usb-tic";
+  std::vector<ConfigProblem> problems;
+  ValidateConfig(c, "struct", &problems);
+  ASSERT_EQ(problems.size(), 1u) << Dump(problems);
+  EXPECT_EQ(problems[0].key, "daemon.time_scale");
+}
+
 TEST(Config, OutOfRangeHasLine) {
   const RangeCase cases[] = {
       {"[capture]\nviews_per_side = 0\nprofile = \"custom\"\n", "capture.views_per_side",

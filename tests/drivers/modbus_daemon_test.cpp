@@ -21,7 +21,8 @@ using test::TempDir;
 std::string StateOf(const json& s) { return s.is_object() ? s.value("state", "") : ""; }
 
 // Four views 90 deg apart, one a second, on the real clock.
-std::string WriteModbusConfig(const TempDir& t, const testing::ModbusTestServer& server) {
+std::string WriteModbusConfig(const TempDir& t, const testing::ModbusTestServer& server,
+                              const std::string& capture_extra = "") {
   const TurntableConfig tt = testing::ModbusConfigFor(server, true);
   const std::string extra =
       "[turntable]\nbackend = \"modbus-tcp\"\nmax_speed_deg_s = 360.0\naccel_deg_s2 = 1440.0\n"
@@ -30,7 +31,7 @@ std::string WriteModbusConfig(const TempDir& t, const testing::ModbusTestServer&
       "gear_ratio = 10.0\n";
   const std::string capture =
       "profile = \"custom\"\nsides = 1\nviews_per_side = 4\nstep_deg = 90.0\ninterval = \"1s\"\n"
-      "settle = \"50ms\"\n";
+      "settle = \"50ms\"\n" + capture_extra;
   return test::WriteConfig(t.path(), extra, 1.0, capture);
 }
 
@@ -86,6 +87,36 @@ TEST(ModbusDaemon, SilentPeerFaultsTheCaptureWithTheActionableMessage) {
                 "no answer from Modbus unit 1 at 127.0.0.1:" + std::to_string(server->port())),
             std::string::npos)
       << last.dump();
+}
+
+// A move that comes to rest outside the in-position window (a drive whose
+// following error is larger than the default 0.05 deg = 4.4 steps): the
+// fault says where the platter stood and which key sets the window.
+TEST(ModbusDaemon, RestOutsideTheWindowSaysHowFarOffAndWhichKey) {
+  auto server = testing::ModbusTestServer::StartTcp({});
+  server->SetRestErrorSteps(8);  // 0.090 deg at 32000 steps per turn
+  TempDir t;
+  Daemon d(WriteModbusConfig(t, *server, "move_timeout = \"2s\"\n"), t.path());
+  ASSERT_TRUE(d.ok()) << ReadAll(d.log());
+  int code = 0;
+  d.Post("/api/v1/samples", R"({"id": "rock-off"})", &code);
+  ASSERT_EQ(code, 200);
+  d.Post("/api/v1/button", "{}", &code);
+  ASSERT_EQ(code, 200);
+  json last;
+  ASSERT_TRUE(d.WaitFor([](const json& st) { return StateOf(st) == "faulted"; }, 30, &last))
+      << last.dump() << ReadAll(d.log());
+  EXPECT_EQ(last["fault"]["class"], "timeout") << last.dump();
+  const std::string m = last["fault"]["message"].get<std::string>();
+  // Homing ends at 0 exactly; the first step, to 90 deg, rests 8 steps past.
+  EXPECT_NE(m.find("move to 90.00 deg did not finish within 2s: the platter came to rest at "
+                   "90.090 deg, +0.090 deg from the target (+8 steps at 32000 steps per turn), "
+                   "outside turntable.modbus.in_position_window_deg = 0.050 deg: if the drive "
+                   "cannot settle closer, raise turntable.modbus.in_position_window_deg above "
+                   "0.090 deg"),
+            std::string::npos)
+      << m;
+  EXPECT_EQ(server->rest_positions().size(), 1u);
 }
 
 }  // namespace

@@ -6,6 +6,7 @@
 #include <fcntl.h>
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+#include <modbus/modbus.h>
 #include <netinet/in.h>
 #include <signal.h>
 #include <spawn.h>
@@ -16,13 +17,14 @@
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <memory>
 #include <string>
 #include <thread>
 #include <vector>
 
 #include "config/turntable_profile.h"
-#include "tests/drivers/modbus_test_server.h"
 #include "drivers/modbus/modbus_turntable.h"
+#include "tests/drivers/modbus_test_server.h"
 
 extern char** environ;
 
@@ -100,12 +102,7 @@ int FreePort() {
   return ntohs(a.sin_port);
 }
 
-TEST(ModbusPymodbus, HomesMovesAndReadsAnglesBack) {
-  const int port = FreePort();
-  const std::string log = ::testing::TempDir() + "/pymodbus_turntable.log";
-  PyServer server(port, log);
-  ASSERT_TRUE(server.started()) << g_python;
-
+TurntableConfig PyConfig(int port) {
   TurntableConfig c;
   c.backend = "modbus-tcp";
   c.max_speed_deg_s = 360.0;
@@ -117,11 +114,18 @@ TEST(ModbusPymodbus, HomesMovesAndReadsAnglesBack) {
   c.modbus.microsteps = 16;
   c.modbus.gear_ratio = 10.0;  // 32000 steps per turn, as the server is told
   c.modbus.response_timeout = 500 * kNsPerMs;
-  Result<TurntableProfile> profile = FindTurntableProfile(c.modbus.profile, "");
-  ASSERT_TRUE(profile.ok()) << profile.error().ToString();
-  modbus::ModbusTurntable t(modbus::Transport::kTcp, c, std::move(*profile));
+  return c;
+}
 
-  // Python and pymodbus take a moment to start listening.
+std::unique_ptr<modbus::ModbusTurntable> MakeTurntable(const TurntableConfig& c) {
+  Result<TurntableProfile> profile = FindTurntableProfile(c.modbus.profile, "");
+  EXPECT_TRUE(profile.ok()) << profile.error().ToString();
+  if (!profile.ok()) return nullptr;
+  return std::make_unique<modbus::ModbusTurntable>(modbus::Transport::kTcp, c, std::move(*profile));
+}
+
+// Python and pymodbus take a moment to start listening.
+Status OpenWhenListening(PyServer& server, Turntable& t) {
   Status open = MakeError(ErrorClass::kInternal, "not tried");
   const auto deadline = Clock::now() + std::chrono::seconds(20);
   while (Clock::now() < deadline && !server.exited()) {
@@ -129,6 +133,18 @@ TEST(ModbusPymodbus, HomesMovesAndReadsAnglesBack) {
     if (open.ok()) break;
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
   }
+  return open;
+}
+
+TEST(ModbusPymodbus, HomesMovesAndReadsAnglesBack) {
+  const int port = FreePort();
+  const std::string log = ::testing::TempDir() + "/pymodbus_turntable.log";
+  PyServer server(port, log);
+  ASSERT_TRUE(server.started()) << g_python;
+  auto tp = MakeTurntable(PyConfig(port));
+  ASSERT_TRUE(tp);
+  modbus::ModbusTurntable& t = *tp;
+  Status open = OpenWhenListening(server, t);
   ASSERT_TRUE(open.ok()) << open.error().ToString() << "; server log: " << log;
 
   Result<TurntableStatus> st = t.ReadStatus();
@@ -174,6 +190,97 @@ TEST(ModbusPymodbus, HomesMovesAndReadsAnglesBack) {
   t.Close();
 }
 
+// The test's own connection to the peer's control registers
+// (pymodbus_turntable.py: 10 late command ms, 11 late status ms, 12 stops,
+// 13 commands).
+class PeerControl {
+ public:
+  explicit PeerControl(int port) : ctx_(modbus_new_tcp("127.0.0.1", port)) {
+    modbus_set_slave(ctx_, 1);
+    modbus_set_response_timeout(ctx_, 5, 0);  // it waits behind late answers
+    connected_ = modbus_connect(ctx_) == 0;
+  }
+  ~PeerControl() {
+    modbus_close(ctx_);
+    modbus_free(ctx_);
+  }
+  bool connected() const { return connected_; }
+  bool Set(int reg, int value) { return modbus_write_register(ctx_, reg, value) == 1; }
+  int Get(int reg) {
+    uint16_t v = 0;
+    return modbus_read_registers(ctx_, reg, 1, &v) == 1 ? v : -1;
+  }
+
+ private:
+  modbus_t* ctx_;
+  bool connected_ = false;
+};
+
+// One answer after response_timeout (the desynchronised link): the
+// backend re-opens the connection before the retry, so every later request
+// still gets its own answer, and an unanswered stop is not sent again once
+// the state shows the platter stopped.
+TEST(ModbusPymodbus, LateAnswersKeepTheLinkInStepAndAStopIsSentOnce) {
+  const int port = FreePort();
+  const std::string log = ::testing::TempDir() + "/pymodbus_turntable_late.log";
+  PyServer server(port, log);
+  ASSERT_TRUE(server.started()) << g_python;
+  TurntableConfig c = PyConfig(port);
+  c.modbus.response_timeout = 300 * kNsPerMs;
+  c.modbus.retries = 2;
+  auto tp = MakeTurntable(c);
+  ASSERT_TRUE(tp);
+  modbus::ModbusTurntable& t = *tp;
+  Status open = OpenWhenListening(server, t);
+  ASSERT_TRUE(open.ok()) << open.error().ToString() << "; server log: " << log;
+  PeerControl control(port);
+  ASSERT_TRUE(control.connected());
+  ASSERT_TRUE(t.StartHome().ok());
+  Result<TurntableStatus> st = testing::WaitInPosition(t);
+  ASSERT_TRUE(st.ok() && st->in_position) << (st.ok() ? "" : st.error().ToString());
+
+  // A status read answered 450 ms late: one retry on a new connection.
+  ASSERT_TRUE(control.Set(11, 450));
+  int sent = t.requests_sent();
+  st = t.ReadStatus();
+  ASSERT_TRUE(st.ok()) << st.error().ToString();
+  EXPECT_TRUE(st->homed);
+  EXPECT_NEAR(st->angle_deg, 0.0, 1e-9);
+  EXPECT_EQ(t.requests_sent() - sent, 2);
+
+  // A stop answered 450 ms late, mid-move.
+  const double step = 360.0 / 32000;
+  ASSERT_TRUE(t.StartMoveTo(300.0).ok());
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  const int commands = control.Get(13);
+  ASSERT_TRUE(control.Set(10, 450));
+  Status stop = t.Stop();
+  ASSERT_TRUE(stop.ok()) << stop.error().ToString();
+  EXPECT_EQ(control.Get(12), 1);             // stops the peer received
+  EXPECT_EQ(control.Get(13) - commands, 1);  // and nothing else was commanded
+  st = t.ReadStatus();
+  ASSERT_TRUE(st.ok()) << st.error().ToString();
+  EXPECT_FALSE(st->moving);
+  EXPECT_GT(st->angle_deg, 10.0);
+  EXPECT_LT(st->angle_deg, 290.0);
+  const double stopped_at = st->angle_deg;
+
+  // In step: every read answered at the first try, with the peer's angle.
+  sent = t.requests_sent();
+  for (int i = 0; i < 20; ++i) {
+    st = t.ReadStatus();
+    ASSERT_TRUE(st.ok()) << i << ": " << st.error().ToString();
+    EXPECT_EQ(st->angle_deg, stopped_at) << i;
+  }
+  EXPECT_EQ(t.requests_sent() - sent, 20);
+  ASSERT_TRUE(t.StartMoveTo(123.4).ok());
+  st = testing::WaitInPosition(t);
+  ASSERT_TRUE(st.ok() && st->in_position) << (st.ok() ? "" : st.error().ToString());
+  EXPECT_NEAR(st->angle_deg, 123.4, step);
+  EXPECT_EQ(control.Get(12), 1);
+  t.Close();
+}
+
 }  // namespace
 }  // namespace aggscan
 
@@ -191,7 +298,8 @@ int main(int argc, char** argv) {
   }
   if (aggscan::g_python.empty()) {
     std::fprintf(stderr,
-                 "SKIP: no python3 with pymodbus (Debian: apt-get install python3-pymodbus)\n");
+                 "SKIP: no python3 with pymodbus.server (Debian: apt-get install python3-pymodbus "
+                 "python3-serial-asyncio)\n");
     return 77;
   }
   return RUN_ALL_TESTS();

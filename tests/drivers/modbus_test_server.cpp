@@ -15,6 +15,7 @@
 #include <chrono>
 #include <cmath>
 #include <stdexcept>
+#include <thread>
 
 namespace aggscan::testing {
 namespace {
@@ -160,7 +161,7 @@ void ModbusTestServer::Loop() {
 void ModbusTestServer::Handle(const uint8_t* req, int len) {
   const int hl = modbus_get_header_length(ctx_);
   if (req[hl - 1] != opt_.unit_id) return;  // another unit's request: no answer
-  std::lock_guard<std::mutex> l(mu_);
+  std::unique_lock<std::mutex> l(mu_);
   ++requests_;
   if (silent_) return;
   const int function = req[hl];
@@ -177,9 +178,48 @@ void ModbusTestServer::Handle(const uint8_t* req, int len) {
   const int64_t now = NowNs();
   Advance(now);
   UpdateRegisters(now);
-  if (modbus_reply(ctx_, req, len, map_->m) > 0 && function == MODBUS_FC_WRITE_SINGLE_COIL) ++coil_writes_;
+  if (ignore_function_ && (*ignore_function_ == 0 || *ignore_function_ == function)) {
+    ignore_function_.reset();
+    return;
+  }
+  const bool late = late_seconds_ > 0 && (late_function_ == 0 || late_function_ == function);
+  const bool wrong_tid = wrong_tid_ && pty_master_ < 0;
+  if (!late && !wrong_tid) {
+    if (modbus_reply(ctx_, req, len, map_->m) > 0 && function == MODBUS_FC_WRITE_SINGLE_COIL) ++coil_writes_;
+    ApplyCommands(now);
+    UpdateRegisters(now);
+    return;
+  }
+  // Executed now, answered as injected: the answer is built into a socket
+  // pair, held or altered, and then written to the link the request came by.
+  const double delay = late ? late_seconds_ : 0.0;
+  if (late) late_seconds_ = 0;
+  int pair[2];
+  if (socketpair(AF_UNIX, SOCK_STREAM, 0, pair) != 0) return;
+  const int link = modbus_get_socket(ctx_);
+  modbus_set_socket(ctx_, pair[0]);
+  const int n = modbus_reply(ctx_, req, len, map_->m);
+  modbus_set_socket(ctx_, link);
+  uint8_t answer[MODBUS_TCP_MAX_ADU_LENGTH];
+  const ssize_t got = n > 0 ? read(pair[1], answer, sizeof(answer)) : 0;
+  close(pair[0]);
+  close(pair[1]);
   ApplyCommands(now);
   UpdateRegisters(now);
+  if (wrong_tid && got >= 2) answer[1] ^= 0x5A;  // MBAP bytes 0-1: the transaction id
+  if (delay > 0) {
+    l.unlock();  // observers and fault injection go on meanwhile
+    std::this_thread::sleep_for(std::chrono::duration<double>(delay));
+    l.lock();
+  }
+  if (got > 0) {
+    // The client may have closed the connection meanwhile: no SIGPIPE.
+    if (pty_master_ >= 0) {
+      (void)!write(link, answer, static_cast<size_t>(got));
+    } else {
+      (void)send(link, answer, static_cast<size_t>(got), MSG_NOSIGNAL);
+    }
+  }
 }
 
 void ModbusTestServer::StartMotion(int64_t now, double target, double v, double a) {
@@ -293,6 +333,7 @@ void ModbusTestServer::ApplyCommands(int64_t now) {
   if (opt_.map == ServerMap::kGeneric) {
     const int cmd = map_->at(generic::kCommand);
     if (cmd == 0) return;
+    commands_.push_back(cmd);
     map_->at(generic::kCommand) = 0;
     const uint16_t w0 = map_->at(generic::kTarget), w1 = map_->at(generic::kTarget + 1);
     const auto target =
@@ -331,6 +372,7 @@ void ModbusTestServer::ApplyCommands(int64_t now) {
   }
   if (trig == 0) return;
   map_->at(leadshine::kTrigger) = 0;
+  commands_.push_back(trig);
   if (trig == 0x10) {
     const int mode = map_->at(leadshine::kPr0);
     if ((mode & 0xF) != 1 || alarm_) return;  // only position moves are modelled
@@ -373,6 +415,27 @@ void ModbusTestServer::RaiseAlarm(int code) {
   alarm_code_ = code;
   moving_ = homing_ = in_position_ = false;
   UpdateRegisters(NowNs());
+}
+
+void ModbusTestServer::AnswerNextLate(double seconds, int function) {
+  std::lock_guard<std::mutex> l(mu_);
+  late_seconds_ = seconds;
+  late_function_ = function;
+}
+
+void ModbusTestServer::IgnoreNext(int function) {
+  std::lock_guard<std::mutex> l(mu_);
+  ignore_function_ = function;
+}
+
+void ModbusTestServer::SetWrongTransactionId(bool on) {
+  std::lock_guard<std::mutex> l(mu_);
+  wrong_tid_ = on;
+}
+
+std::vector<int> ModbusTestServer::commands() {
+  std::lock_guard<std::mutex> l(mu_);
+  return commands_;
 }
 
 void ModbusTestServer::RejectRegister(int address) {

@@ -59,6 +59,17 @@ class ModbusTestServer {
   void RaiseAlarm(int code);                           // stops motion, alarm bit and code set
   void RejectRegister(int address);                    // requests touching it get exception 2
   void DropClient();                                   // TCP: closes the connection
+  // The next request with Modbus function code `function` (0: any request) is
+  // executed when it arrives but answered `seconds` later, on the connection
+  // it came by (a controller or gateway that answers after the client's
+  // response_timeout). The server handles nothing else meanwhile: a retry
+  // waits behind the late answer, as on a single-threaded controller.
+  void AnswerNextLate(double seconds, int function = 0);
+  // The next request with function code `function` (0: any) is read and
+  // dropped: neither carried out nor answered (lost on the line).
+  void IgnoreNext(int function = 0);
+  // TCP: answers carry another transaction id than their request's.
+  void SetWrongTransactionId(bool on);
   // Moves come to rest this many steps past their target, in position (a
   // drive's following error inside its in-position window).
   void SetRestErrorSteps(int64_t steps);
@@ -72,6 +83,9 @@ class ModbusTestServer {
   bool homed();
   int requests();                       // requests received (answered or not)
   std::vector<int64_t> move_targets();  // targets of accepted move commands, in order
+  // Values written to the command register (kGeneric: 1 move, 2 home, 3 stop,
+  // 4 reset; kLeadshine: the trigger values), in order, each write counted.
+  std::vector<int> commands();
   std::vector<int64_t> rest_positions();  // where each of those moves came to rest, in order
   int64_t min_steps_since_last_move();  // lowest position since the last move command
   int64_t max_steps_since_last_move();
@@ -111,6 +125,11 @@ class ModbusTestServer {
   std::vector<int64_t> targets_;
   std::vector<int64_t> rests_;
   int64_t rest_error_ = 0;
+  double late_seconds_ = 0;  // AnswerNextLate: armed when > 0
+  int late_function_ = 0;
+  bool wrong_tid_ = false;
+  std::optional<int> ignore_function_;
+  std::vector<int> commands_;
   // Motion model (steps, seconds on CLOCK_MONOTONIC).
   double pos_ = 0, start_pos_ = 0, goal_ = 0, v_ = 1, a_ = 1;
   int64_t t0_ = 0;

@@ -6,11 +6,13 @@
 #include "drivers/modbus/modbus_turntable.h"
 
 #include <gmock/gmock.h>
+#include <modbus/modbus.h>
 #include <gtest/gtest.h>
 #include <netinet/in.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <fstream>
@@ -404,6 +406,151 @@ TEST(ModbusTurntable, Rs485ModeIsOptionalWhereThePortLacksIt) {
   c.modbus.rs485 = true;
   auto t = Make(c);
   OpenHome(*t);
+}
+
+// Link hygiene: one answer that comes after response_timeout. The peer
+// handles nothing meanwhile (the retry waits behind the late answer), so a
+// master that sends the retry into the same stream reads each request's
+// predecessor's answer from then on.
+constexpr TimeNs kHygieneTimeout = 300 * kNsPerMs;
+constexpr double kLateSeconds = 0.45;  // 1.5 x kHygieneTimeout
+
+int Count(const std::vector<int>& commands, int value) {
+  return static_cast<int>(std::count(commands.begin(), commands.end(), value));
+}
+
+// After the late answer: every request is answered at the first try (the
+// backend's own count of requests sent rises by exactly one per read) and
+// the angles read back are the peer's.
+void ExpectInStep(ModbusTestServer& server, modbus::ModbusTurntable& t) {
+  TurntableStatus st;
+  MoveTo(t, 90.0, &st);
+  EXPECT_NEAR(st.angle_deg, 90.0, kStepDeg);
+  const int sent = t.requests_sent();
+  const int received = server.requests();
+  for (int i = 0; i < 20; ++i) {
+    Result<TurntableStatus> r = t.ReadStatus();
+    ASSERT_TRUE(r.ok()) << i << ": " << r.error().ToString();
+    EXPECT_NEAR(r->angle_deg, 90.0, kStepDeg) << i;
+    EXPECT_TRUE(r->in_position) << i;
+  }
+  EXPECT_EQ(t.requests_sent() - sent, 20);
+  EXPECT_EQ(server.requests() - received, 20);
+  EXPECT_EQ(server.position_steps(), 8000);
+}
+
+class ModbusLink : public ::testing::TestWithParam<bool> {  // true: TCP
+ protected:
+  void SetUp() override {
+    server_ = GetParam() ? ModbusTestServer::StartTcp({}) : ModbusTestServer::StartRtu({});
+    TurntableConfig c = testing::ModbusConfigFor(*server_, GetParam());
+    c.modbus.response_timeout = kHygieneTimeout;
+    c.modbus.retries = 2;
+    t_ = Make(c);
+    OpenHome(*t_);
+  }
+  std::unique_ptr<ModbusTestServer> server_;
+  std::unique_ptr<modbus::ModbusTurntable> t_;
+};
+
+TEST_P(ModbusLink, LateAnswerToAReadDoesNotDesynchroniseTheLink) {
+  server_->AnswerNextLate(kLateSeconds, MODBUS_FC_READ_HOLDING_REGISTERS);
+  const int sent = t_->requests_sent();
+  Result<TurntableStatus> st = t_->ReadStatus();
+  ASSERT_TRUE(st.ok()) << st.error().ToString();
+  EXPECT_TRUE(st->homed);
+  EXPECT_NEAR(st->angle_deg, 0.0, kStepDeg);
+  EXPECT_EQ(t_->requests_sent() - sent, 2);  // the late one and one retry
+  ExpectInStep(*server_, *t_);
+}
+
+TEST_P(ModbusLink, UnansweredStopIsNotSentAgainWhenTheStateShowsItStopped) {
+  ASSERT_TRUE(t_->StartMoveTo(300.0).ok());
+  std::this_thread::sleep_for(std::chrono::milliseconds(150));
+  server_->AnswerNextLate(kLateSeconds, MODBUS_FC_WRITE_SINGLE_REGISTER);
+  Status s = t_->Stop();
+  ASSERT_TRUE(s.ok()) << s.error().ToString();
+  EXPECT_EQ(Count(server_->commands(), 3), 1);  // generic map: 3 = stop
+  Result<TurntableStatus> st = t_->ReadStatus();
+  ASSERT_TRUE(st.ok()) << st.error().ToString();
+  EXPECT_FALSE(st->moving);
+  EXPECT_GT(st->angle_deg, 1.0);
+  EXPECT_LT(st->angle_deg, 299.0);
+  ExpectInStep(*server_, *t_);
+  EXPECT_EQ(Count(server_->commands(), 3), 1);
+}
+
+TEST_P(ModbusLink, UnansweredMoveAndHomeAreNotSentAgain) {
+  server_->AnswerNextLate(kLateSeconds, MODBUS_FC_WRITE_SINGLE_REGISTER);
+  Status s = t_->StartMoveTo(45.0);
+  ASSERT_TRUE(s.ok()) << s.error().ToString();
+  Result<TurntableStatus> st = testing::WaitInPosition(*t_);
+  ASSERT_TRUE(st.ok()) << st.error().ToString();
+  EXPECT_TRUE(st->in_position);
+  EXPECT_NEAR(st->angle_deg, 45.0, kStepDeg);
+  EXPECT_EQ(Count(server_->commands(), 1), 1);  // 1 = move
+  EXPECT_EQ(server_->move_targets(), std::vector<int64_t>{4000});
+
+  server_->AnswerNextLate(kLateSeconds, MODBUS_FC_WRITE_SINGLE_REGISTER);
+  s = t_->StartHome();
+  ASSERT_TRUE(s.ok()) << s.error().ToString();
+  st = testing::WaitInPosition(*t_);
+  ASSERT_TRUE(st.ok()) << st.error().ToString();
+  EXPECT_TRUE(st->in_position && st->homed);
+  EXPECT_EQ(Count(server_->commands(), 2), 2);  // 2 = home: OpenHome's and this one
+  ExpectInStep(*server_, *t_);
+}
+
+// A command that never got through (lost on its way) is sent again, once the
+// state shows it did not take effect.
+TEST_P(ModbusLink, CommandThatDidNotTakeEffectIsSentAgain) {
+  server_->IgnoreNext(MODBUS_FC_WRITE_SINGLE_REGISTER);
+  Status s = t_->StartMoveTo(45.0);
+  ASSERT_TRUE(s.ok()) << s.error().ToString();
+  Result<TurntableStatus> st = testing::WaitInPosition(*t_);
+  ASSERT_TRUE(st.ok()) << st.error().ToString();
+  EXPECT_NEAR(st->angle_deg, 45.0, kStepDeg);
+  EXPECT_EQ(Count(server_->commands(), 1), 1);
+  EXPECT_EQ(server_->move_targets(), std::vector<int64_t>{4000});
+
+  ASSERT_TRUE(t_->StartMoveTo(300.0).ok());
+  std::this_thread::sleep_for(std::chrono::milliseconds(150));
+  server_->IgnoreNext(MODBUS_FC_WRITE_SINGLE_REGISTER);
+  s = t_->Stop();
+  ASSERT_TRUE(s.ok()) << s.error().ToString();
+  st = t_->ReadStatus();
+  ASSERT_TRUE(st.ok()) << st.error().ToString();
+  EXPECT_FALSE(st->moving);
+  EXPECT_LT(st->angle_deg, 299.0);
+  EXPECT_EQ(Count(server_->commands(), 3), 1);
+}
+
+INSTANTIATE_TEST_SUITE_P(TcpAndRtu, ModbusLink, ::testing::Bool(),
+                         [](const ::testing::TestParamInfo<bool>& i) {
+                           return std::string(i.param ? "Tcp" : "Rtu");
+                         });
+
+// libmodbus refuses an answer whose MBAP transaction id is not its
+// request's; after every try the message fits a TCP link (no serial advice).
+TEST(ModbusTurntable, TcpAnswerWithAnotherTransactionIdIsRefused) {
+  auto server = ModbusTestServer::StartTcp({});
+  TurntableConfig c = testing::ModbusConfigFor(*server, true);
+  auto t = Make(c);
+  ASSERT_TRUE(t->Open().ok());
+  server->SetWrongTransactionId(true);
+  Result<TurntableStatus> st = t->ReadStatus();
+  ASSERT_FALSE(st.ok());
+  EXPECT_EQ(st.error().cls, ErrorClass::kTimeout);
+  EXPECT_THAT(st.error().message,
+              HasSubstr("no valid answer from Modbus unit 1 at 127.0.0.1:" +
+                        std::to_string(server->port())));
+  EXPECT_THAT(st.error().message, HasSubstr("speaking Modbus/TCP"));
+  EXPECT_THAT(st.error().message, ::testing::Not(HasSubstr("termination")));
+  EXPECT_THAT(st.error().message, ::testing::Not(HasSubstr("line settings")));
+  EXPECT_THAT(st.error().detail, HasSubstr("2 tries"));
+  server->SetWrongTransactionId(false);
+  st = t->ReadStatus();
+  EXPECT_TRUE(st.ok()) << st.error().ToString();
 }
 
 TEST(ModbusTurntable, InfoNamesBackendAndLink) {

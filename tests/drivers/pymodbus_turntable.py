@@ -9,6 +9,12 @@ Holding registers, 0-based: 0-1 target (int32 steps, high word first),
 1 moving, 2 in position, 3 homed, 4 alarm), 4-5 actual position, 6 alarm
 code, 7 speed (0.1 deg/s), 8 acceleration (0.1 deg/s^2).
 
+Test control, registers a client of the test writes or reads: 10 answers the
+next write to the command register this many ms late, 11 the next read of the
+status register (both executed at once, answered late, nothing else served
+meanwhile: a controller slower than the master's response_timeout); 12 counts
+stop commands, 13 every command written.
+
 The platter moves at constant speed (a move takes |distance| / speed; the
 acceleration register is only kept), computed from time.monotonic() whenever
 the registers are read, so what a client reads is where the platter is.
@@ -23,6 +29,7 @@ from pymodbus.datastore import (ModbusSequentialDataBlock, ModbusServerContext,
 from pymodbus.server import StartAsyncTcpServer
 
 TARGET, COMMAND, STATUS, ACTUAL, ALARM, SPEED, ACCEL = 0, 2, 3, 4, 6, 7, 8
+LATE_COMMAND_MS, LATE_STATUS_MS, STOPS, COMMANDS = 10, 11, 12, 13
 
 
 class Platter:
@@ -80,19 +87,38 @@ class Registers(ModbusSequentialDataBlock):
         super().setValues(ACTUAL, [steps >> 16, steps & 0xFFFF])
         super().setValues(ALARM, [0])
 
+    def _late(self, register):
+        """The delay armed in `register` (ms), disarmed; 0 when none."""
+        ms = super().getValues(register, 1)[0]
+        if ms:
+            super().setValues(register, [0])
+        return ms / 1000.0
+
     def getValues(self, address, count=1):
         with self.lock:
             self._refresh()
-            return super().getValues(address, count)
+            values = super().getValues(address, count)
+            delay = self._late(LATE_STATUS_MS) if address <= STATUS < address + count else 0
+        if delay:
+            time.sleep(delay)  # blocks the server's loop: the answer is late
+        return values
 
     def setValues(self, address, values):
+        delay = 0
         with self.lock:
             if not isinstance(values, list):
                 values = [values]
             super().setValues(address, values)
             if address <= COMMAND < address + len(values):
-                self._command(values[COMMAND - address])
+                cmd = values[COMMAND - address]
+                self._command(cmd)
+                super().setValues(COMMANDS, [super().getValues(COMMANDS, 1)[0] + 1])
+                if cmd == 3:
+                    super().setValues(STOPS, [super().getValues(STOPS, 1)[0] + 1])
+                delay = self._late(LATE_COMMAND_MS)
             self._refresh()
+        if delay:
+            time.sleep(delay)
 
     def _command(self, cmd):
         p = self.platter
