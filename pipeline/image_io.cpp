@@ -1,16 +1,15 @@
 #include "pipeline/image_io.h"
 
 #include <sys/stat.h>
+#include <turbojpeg.h>
 
 #include <algorithm>
 #include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <memory>
-#include <vector>
-
 #include <opencv2/imgcodecs.hpp>
-#include <turbojpeg.h>
+#include <vector>
 
 #include "common/fsutil.h"
 
@@ -35,12 +34,14 @@ bool IsSof(unsigned m) {
 Result<ImageHeader> JpegHeader(const unsigned char* d, size_t n, const std::string& what) {
   size_t pos = 2;
   while (pos < n) {
-    if (d[pos] != 0xFF) return Bad(what, "malformed JPEG: no marker at byte " + std::to_string(pos));
+    if (d[pos] != 0xFF)
+      return Bad(what, "malformed JPEG: no marker at byte " + std::to_string(pos));
     while (pos < n && d[pos] == 0xFF) ++pos;  // fill bytes
     if (pos >= n) break;
     const unsigned m = d[pos++];
     if (m == 0x01 || (m >= 0xD0 && m <= 0xD8)) continue;  // no length
-    if (m == 0xD9 || m == 0xDA) return Bad(what, "malformed JPEG: no frame header before the image data");
+    if (m == 0xD9 || m == 0xDA)
+      return Bad(what, "malformed JPEG: no frame header before the image data");
     if (pos + 2 > n) break;
     const uint32_t len = Be16(d + pos);
     if (len < 2 || pos + len > n) break;
@@ -51,7 +52,8 @@ Result<ImageHeader> JpegHeader(const unsigned char* d, size_t n, const std::stri
       h.height = static_cast<int>(Be16(d + pos + 3));
       h.width = static_cast<int>(Be16(d + pos + 5));
       h.channels = d[pos + 7];
-      if (h.height == 0) return Bad(what, "JPEG whose height is given after the image data (DNL) is not supported");
+      if (h.height == 0)
+        return Bad(what, "JPEG whose height is given after the image data (DNL) is not supported");
       return h;
     }
     pos += len;
@@ -140,19 +142,25 @@ struct TjDeleter {
   void operator()(void* h) const { tjDestroy(h); }
 };
 
-Result<cv::Mat> DecodeJpeg(std::string_view bytes, const ImageHeader& hdr, ImageMode mode, const std::string& what) {
+Result<cv::Mat> DecodeJpeg(std::string_view bytes, const ImageHeader& hdr, ImageMode mode,
+                           const std::string& what) {
   std::unique_ptr<void, TjDeleter> tj(tjInitDecompress());
-  if (!tj) return MakeError(ErrorClass::kInternal, "cannot start the JPEG decoder", tjGetErrorStr2(nullptr));
+  if (!tj)
+    return MakeError(ErrorClass::kInternal, "cannot start the JPEG decoder",
+                     tjGetErrorStr2(nullptr));
   auto* src = reinterpret_cast<const unsigned char*>(bytes.data());
   const auto size = static_cast<unsigned long>(bytes.size());
   int w = 0, h = 0, subsamp = 0, colorspace = 0;
   if (tjDecompressHeader3(tj.get(), src, size, &w, &h, &subsamp, &colorspace) != 0)
     return Bad(what, "malformed JPEG header", tjGetErrorStr2(tj.get()));
-  if (w != hdr.width || h != hdr.height) return Bad(what, "malformed JPEG: two frame headers disagree");
-  if (colorspace == TJCS_CMYK || colorspace == TJCS_YCCK) return Bad(what, "CMYK JPEG is not supported");
+  if (w != hdr.width || h != hdr.height)
+    return Bad(what, "malformed JPEG: two frame headers disagree");
+  if (colorspace == TJCS_CMYK || colorspace == TJCS_YCCK)
+    return Bad(what, "CMYK JPEG is not supported");
   const bool gray_src = colorspace == TJCS_GRAY;
   int pf = TJPF_BGR;
-  if (mode == ImageMode::kGray || mode == ImageMode::kGrayHalf || (mode == ImageMode::kUnchanged && gray_src))
+  if (mode == ImageMode::kGray || mode == ImageMode::kGrayHalf ||
+      (mode == ImageMode::kUnchanged && gray_src))
     pf = TJPF_GRAY;
   if (mode == ImageMode::kGrayHalf) {
     const tjscalingfactor half{1, 2};
@@ -162,10 +170,13 @@ Result<cv::Mat> DecodeJpeg(std::string_view bytes, const ImageHeader& hdr, Image
   cv::Mat out(h, w, pf == TJPF_GRAY ? CV_8UC1 : CV_8UC3);
   // Warnings are errors: libjpeg reports a truncated file or damaged
   // entropy-coded data only as a warning and decodes grey in their place.
-  if (tjDecompress2(tj.get(), src, size, out.data, w, static_cast<int>(out.step), h, pf, TJFLAG_STOPONWARNING) != 0) {
+  if (tjDecompress2(tj.get(), src, size, out.data, w, static_cast<int>(out.step), h, pf,
+                    TJFLAG_STOPONWARNING) != 0) {
     const std::string msg = tjGetErrorStr2(tj.get());
     const bool warning = tjGetErrorCode(tj.get()) == TJERR_WARNING;
-    return Bad(what, std::string(warning ? "damaged JPEG data" : "JPEG cannot be decoded") + " (libjpeg: " + msg + ")",
+    return Bad(what,
+               std::string(warning ? "damaged JPEG data" : "JPEG cannot be decoded") +
+                   " (libjpeg: " + msg + ")",
                msg);
   }
   return out;
@@ -177,8 +188,10 @@ Result<ImageHeader> ReadImageHeader(std::string_view bytes, const std::string& w
   const auto* d = reinterpret_cast<const unsigned char*>(bytes.data());
   const size_t n = bytes.size();
   if (n >= 3 && d[0] == 0xFF && d[1] == 0xD8 && d[2] == 0xFF) return JpegHeader(d, n, what);
-  if (n >= 8 && bytes.substr(0, 8) == std::string_view("\x89PNG\r\n\x1a\n", 8)) return PngHeader(d, n, what);
-  if (n >= 3 && d[0] == 'P' && d[1] >= '1' && d[1] <= '6' && std::isspace(d[2])) return PnmHeader(d, n, what);
+  if (n >= 8 && bytes.substr(0, 8) == std::string_view("\x89PNG\r\n\x1a\n", 8))
+    return PngHeader(d, n, what);
+  if (n >= 3 && d[0] == 'P' && d[1] >= '1' && d[1] <= '6' && std::isspace(d[2]))
+    return PnmHeader(d, n, what);
   if (n >= 2 && d[0] == 'B' && d[1] == 'M') return BmpHeader(d, n, what);
   if (n == 0) return Bad(what, "the file is empty");
   return Bad(what, "not a JPEG, PNG, PNM or BMP file");
@@ -188,10 +201,11 @@ Status CheckImageLimits(const ImageHeader& h, const ImageLimits& limits, const s
   const std::string dims = std::to_string(h.width) + "x" + std::to_string(h.height);
   const int64_t px = int64_t{h.width} * h.height;
   if (h.width < limits.min_side_px || h.height < limits.min_side_px) {
-    return Bad(what, "is " + dims + ": too small to measure (at least " + std::to_string(limits.min_side_px) +
-                         " px a side)");
+    return Bad(what, "is " + dims + ": too small to measure (at least " +
+                         std::to_string(limits.min_side_px) + " px a side)");
   }
-  const double aspect = static_cast<double>(std::max(h.width, h.height)) / std::min(h.width, h.height);
+  const double aspect =
+      static_cast<double>(std::max(h.width, h.height)) / std::min(h.width, h.height);
   if (aspect > limits.max_aspect) {
     char a[32];
     std::snprintf(a, sizeof a, "%.0f", limits.max_aspect);
@@ -199,9 +213,10 @@ Status CheckImageLimits(const ImageHeader& h, const ImageLimits& limits, const s
   }
   if (px > limits.max_pixels) {
     char m[64];
-    std::snprintf(m, sizeof m, "%.1f MP, more than the %.1f MP limit", static_cast<double>(px) / 1e6,
-                  static_cast<double>(limits.max_pixels) / 1e6);
-    return Bad(what, "is " + dims + " (" + m + "): a corrupt header, or a photo to be scaled down first");
+    std::snprintf(m, sizeof m, "%.1f MP, more than the %.1f MP limit",
+                  static_cast<double>(px) / 1e6, static_cast<double>(limits.max_pixels) / 1e6);
+    return Bad(what,
+               "is " + dims + " (" + m + "): a corrupt header, or a photo to be scaled down first");
   }
   return OkStatus();
 }
@@ -247,12 +262,17 @@ Result<cv::Mat> LoadImage(const std::string& path, ImageMode mode, const ImageLi
     // plus headers; a larger file is not read into memory at all.
     const double most = static_cast<double>(limits.max_pixels) * 8 + (1 << 20);
     if (static_cast<double>(st.st_size) > most) {
-      return Bad(path, "the file is " + std::to_string(st.st_size) + " bytes, larger than any image within the " +
+      return Bad(path, "the file is " + std::to_string(st.st_size) +
+                           " bytes, larger than any image within the " +
                            std::to_string(limits.max_pixels / 1000000) + " MP limit");
     }
   }
   auto bytes = ReadFile(path);
-  if (!bytes) return bytes.error();
+  if (!bytes) {
+    Error e = bytes.error();
+    e.message = "cannot read image " + path + ": " + e.message;
+    return e;
+  }
   return DecodeImage(*bytes, mode, path, limits);
 }
 

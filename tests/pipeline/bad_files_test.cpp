@@ -3,6 +3,7 @@
 // sizes, truncated and bit-flipped JPEGs. Each is a clear error with exit
 // code != 0 from the real `aggscan morph` / `aggscan morph2d`, never an abort,
 // and an image header is judged before anything is allocated for it.
+#include <gtest/gtest.h>
 #include <sys/resource.h>
 #include <sys/wait.h>
 
@@ -11,13 +12,11 @@
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <opencv2/imgcodecs.hpp>
 #include <random>
 #include <sstream>
 #include <string>
 #include <vector>
-
-#include <gtest/gtest.h>
-#include <opencv2/imgcodecs.hpp>
 
 #include "pipeline/image_io.h"
 #include "synth_scene.h"
@@ -40,8 +39,8 @@ std::string Slurp(const std::string& p) {
 
 // Runs the real binary; rc is its exit code, or 128 + the signal that ended it.
 CliRun Aggscan(const std::string& args, const std::string& dir) {
-  const std::string cmd = std::string(AGGSCAN_BINARY_DIR) + "/cli/aggscan " + args + " >" + dir + "/out.txt 2>" +
-                          dir + "/err.txt";
+  const std::string cmd = std::string(AGGSCAN_BINARY_DIR) + "/cli/aggscan " + args + " >" + dir +
+                          "/out.txt 2>" + dir + "/err.txt";
   const int st = std::system(cmd.c_str());
   CliRun r;
   r.rc = WIFEXITED(st) ? WEXITSTATUS(st) : 128 + (WIFSIGNALED(st) ? WTERMSIG(st) : 0);
@@ -72,7 +71,8 @@ std::string TrianglePly(const std::string& vertices, const std::string& faces) {
 
 // A closed tetrahedron as ASCII PLY with vertex 3's x set to `x3`.
 std::string TetraPly(const std::string& x3) {
-  return "ply\nformat ascii 1.0\nelement vertex 4\nproperty double x\nproperty double y\nproperty double z\n"
+  return "ply\nformat ascii 1.0\nelement vertex 4\nproperty double x\nproperty double y\nproperty "
+         "double z\n"
          "element face 4\nproperty list uchar int vertex_indices\nend_header\n"
          "0 0 0\n10 0 0\n0 10 0\n" +
          x3 + " 0 10\n3 0 2 1\n3 0 1 3\n3 1 2 3\n3 2 0 3\n";
@@ -100,10 +100,12 @@ TEST(BadMeshFiles, AbsurdPlyCountsAreRefusedNamingElementCountAndSize) {
     EXPECT_NE(rf.err.find("element face has " + n + " rows"), std::string::npos) << rf.err;
   }
   // A count beyond int64 is not a count.
-  const std::string huge = Write(tmp.path() + "/huge.ply", TrianglePly("18446744073709551615", "1"));
+  const std::string huge =
+      Write(tmp.path() + "/huge.ply", TrianglePly("18446744073709551615", "1"));
   CliRun r = Aggscan("morph " + huge, tmp.path());
   EXPECT_EQ(r.rc, 2);
-  EXPECT_NE(r.err.find("element vertex has count \"18446744073709551615\""), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("element vertex has count \"18446744073709551615\""), std::string::npos)
+      << r.err;
   // The header says a little more than the file holds.
   const std::string more = Write(tmp.path() + "/more.ply", TrianglePly("3", "2"));
   r = Aggscan("morph " + more, tmp.path());
@@ -112,17 +114,21 @@ TEST(BadMeshFiles, AbsurdPlyCountsAreRefusedNamingElementCountAndSize) {
   const std::string more2 = Write(tmp.path() + "/more2.ply", TrianglePly("5", "1"));
   r = Aggscan("morph " + more2, tmp.path());
   EXPECT_EQ(r.rc, 2);
-  EXPECT_NE(r.err.find("element vertex has 5 rows of at least 12 bytes each, but the file holds only 49 bytes"),
-            std::string::npos)
+  EXPECT_NE(
+      r.err.find(
+          "element vertex has 5 rows of at least 12 bytes each, but the file holds only 49 bytes"),
+      std::string::npos)
       << r.err;
   // ASCII: at least two bytes a value.
-  const std::string ascii = Write(tmp.path() + "/ascii.ply",
-                                  "ply\nformat ascii 1.0\nelement vertex 2147483647\nproperty float x\nproperty "
-                                  "float y\nproperty float z\nelement face 1\nproperty list uchar int "
-                                  "vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n");
+  const std::string ascii =
+      Write(tmp.path() + "/ascii.ply",
+            "ply\nformat ascii 1.0\nelement vertex 2147483647\nproperty float x\nproperty "
+            "float y\nproperty float z\nelement face 1\nproperty list uchar int "
+            "vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n");
   r = Aggscan("morph " + ascii, tmp.path());
   EXPECT_EQ(r.rc, 2);
-  EXPECT_NE(r.err.find("element vertex has 2147483647 rows of at least 6 bytes each (ASCII)"), std::string::npos)
+  EXPECT_NE(r.err.find("element vertex has 2147483647 rows of at least 6 bytes each (ASCII)"),
+            std::string::npos)
       << r.err;
   // Binary STL claiming 2^32-1 triangles with one stored.
   std::string stl(80, ' ');
@@ -154,8 +160,9 @@ TEST(BadMeshFiles, NonFiniteAndHugeCoordinatesAreRefusedNamingTheVertex) {
   r = Aggscan("morph --unit m " + Write(tmp.path() + "/m.ply", TetraPly("1e5")), tmp.path());
   EXPECT_EQ(r.rc, 2);
   EXPECT_NE(r.err.find("farther than 10 km"), std::string::npos) << r.err;
-  r = Aggscan("morph " + Write(tmp.path() + "/c.obj", "v 0 0 0\nv 1 0 0\nv 0 1e308 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\n"
-                                                          "f 2 3 4\nf 3 1 4\n"),
+  r = Aggscan("morph " + Write(tmp.path() + "/c.obj",
+                               "v 0 0 0\nv 1 0 0\nv 0 1e308 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\n"
+                               "f 2 3 4\nf 3 1 4\n"),
               tmp.path());
   EXPECT_EQ(r.rc, 2);
   EXPECT_NE(r.err.find("vertex 2 has coordinate 1e+308"), std::string::npos) << r.err;
@@ -181,7 +188,8 @@ std::string PngHeaderOnly(uint32_t w, uint32_t h) {
   for (uint32_t v : {w, h}) {
     for (int sh = 24; sh >= 0; sh -= 8) s.push_back(static_cast<char>((v >> sh) & 0xFF));
   }
-  s += std::string("\x08\x02\0\0\0", 5) + "CRC!" + std::string("\0\0\0\x10IDAT", 8) + std::string(20, 'x');
+  s += std::string("\x08\x02\0\0\0", 5) + "CRC!" + std::string("\0\0\0\x10IDAT", 8) +
+       std::string(20, 'x');
   return s;
 }
 
@@ -217,11 +225,13 @@ TEST(BadImageFiles, HeadersAreJudgedBeforeDecoding) {
   for (const std::string& big : {JpegHeaderOnly(40000, 20000), PngHeaderOnly(40000, 20000)}) {
     auto r = DecodeImage(big, ImageMode::kColor, "big");
     ASSERT_FALSE(r);
-    EXPECT_NE(r.error().message.find("is 40000x20000 (800.0 MP, more than the 100.0 MP limit)"), std::string::npos)
+    EXPECT_NE(r.error().message.find("is 40000x20000 (800.0 MP, more than the 100.0 MP limit)"),
+              std::string::npos)
         << r.error().message;
   }
   EXPECT_LT(MaxRssKb(RUSAGE_SELF) - rss0, 100 * 1024) << "peak RSS growth (kB)";
-  std::printf("peak RSS growth over two 40000x20000 headers: %ld kB\n", MaxRssKb(RUSAGE_SELF) - rss0);
+  std::printf("peak RSS growth over two 40000x20000 headers: %ld kB\n",
+              MaxRssKb(RUSAGE_SELF) - rss0);
   // A larger limit lets a 12 MP header through to the decoder, whose failure
   // on the fake scan data is an error too.
   ImageLimits wide;
@@ -251,7 +261,9 @@ TEST(BadImageFiles, HeadersAreJudgedBeforeDecoding) {
 // (after the start-of-scan header, before the end marker): same size.
 std::string FlipScanBytes(std::string jpeg, int n, uint32_t seed) {
   const size_t sos = jpeg.find("\xFF\xDA");
-  const size_t start = sos + 2 + ((static_cast<unsigned char>(jpeg[sos + 2]) << 8) | static_cast<unsigned char>(jpeg[sos + 3]));
+  const size_t start = sos + 2 +
+                       ((static_cast<unsigned char>(jpeg[sos + 2]) << 8) |
+                        static_cast<unsigned char>(jpeg[sos + 3]));
   const size_t end = jpeg.size() - 2;
   std::mt19937 rng(seed);
   // A run in the first half of the scan, where the rock is (rows decode top
@@ -270,7 +282,8 @@ TEST(BadImageFiles, DamagedJpegsAreErrorsNotGreyPhotos) {
   // Truncated: libjpeg would warn and fill the rest with grey.
   auto tr = DecodeImage(photo.substr(0, photo.size() * 6 / 10), ImageMode::kColor, "cut.jpg");
   ASSERT_FALSE(tr);
-  EXPECT_NE(tr.error().message.find("damaged JPEG data (libjpeg: Premature end of JPEG file)"), std::string::npos)
+  EXPECT_NE(tr.error().message.find("damaged JPEG data (libjpeg: Premature end of JPEG file)"),
+            std::string::npos)
       << tr.error().message;
   const std::string flipped = FlipScanBytes(photo, 200, 1);
   ASSERT_EQ(flipped.size(), photo.size());
@@ -300,7 +313,8 @@ TEST(BadImageFiles, Morph2dRefusesThemWithExitCode2) {
       {png(65500, 1), "is 65500x1: too small to measure"},
       {Write(tmp.path() + "/big.jpg", JpegHeaderOnly(40000, 20000)), "is 40000x20000 (800.0 MP"},
       {Write(tmp.path() + "/big.png", PngHeaderOnly(40000, 20000)), "is 40000x20000 (800.0 MP"},
-      {Write(tmp.path() + "/cut.jpg", photo.substr(0, photo.size() / 2)), "Premature end of JPEG file"},
+      {Write(tmp.path() + "/cut.jpg", photo.substr(0, photo.size() / 2)),
+       "Premature end of JPEG file"},
       {Write(tmp.path() + "/flip.jpg", FlipScanBytes(photo, 200, 1)), "damaged JPEG data"},
       {Write(tmp.path() + "/empty.jpg", ""), "the file is empty"},
   };
@@ -319,7 +333,8 @@ TEST(BadImageFiles, Morph2dRefusesThemWithExitCode2) {
   EXPECT_NE(r.out.find("\"fer_2d\""), std::string::npos);
   r = Aggscan("morph2d --max-megapixels 0.1 " + good, tmp.path());
   EXPECT_EQ(r.rc, 2);
-  EXPECT_NE(r.err.find("is 640x480 (0.3 MP, more than the 0.1 MP limit)"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("is 640x480 (0.3 MP, more than the 0.1 MP limit)"), std::string::npos)
+      << r.err;
 }
 
 }  // namespace
