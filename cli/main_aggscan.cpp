@@ -40,7 +40,7 @@ void Usage(std::ostream& o) {
        "  aggscan morph MESH [--unit mm|cm|m] [--json]\n"
        "      3D morphology of a closed mesh (PLY/OBJ/STL): volume, area, a<=b<=c of the\n"
        "      minimum-volume box, FER, sphericity; open or non-manifold meshes are refused\n"
-       "  aggscan morph2d IMAGE_OR_MASK [--text]\n"
+       "  aggscan morph2d IMAGE_OR_MASK [--text] [--max-megapixels N (100)]\n"
        "      2D morphology of the largest silhouette (JSON: l_max_px, l_min_px, fer_2d,\n"
        "      area_px, perimeter_px, circularity); a photo is segmented first\n"
        "  aggscan sim capture (--seed N | --mesh FILE --unit mm|cm|m) --out DIR\n"
@@ -131,9 +131,19 @@ int main(int argc, char** argv) {
   if (cmd == "morph2d") {
     std::string path;
     bool json = true;
+    aggscan::ImageLimits limits;
     for (size_t i = 1; i < args.size(); ++i) {
       if (args[i] == "--text") json = false;
       else if (args[i] == "--json") json = true;
+      else if (args[i] == "--max-megapixels" && i + 1 < args.size()) {
+        char* end = nullptr;
+        const double mp = std::strtod(args[++i].c_str(), &end);
+        if (end == args[i].c_str() || *end != '\0' || !(mp > 0 && mp <= 10000)) {
+          std::cerr << "aggscan morph2d: --max-megapixels expects a number from 0 to 10000, got '" << args[i] << "'\n";
+          return 2;
+        }
+        limits.max_pixels = static_cast<int64_t>(mp * 1e6);
+      }
       else if (path.empty()) path = args[i];
       else {
         std::cerr << "aggscan morph2d: unexpected argument '" << args[i] << "'\n";
@@ -144,7 +154,7 @@ int main(int argc, char** argv) {
       std::cerr << "aggscan morph2d: give an image or mask file\n";
       return 2;
     }
-    return aggscan::RunMorph2dCommand(path, json, std::cout, std::cerr);
+    return aggscan::RunMorph2dCommand(path, json, std::cout, std::cerr, limits);
   }
   if (cmd == "morph") {
     std::string path, unit = "mm";

@@ -1,6 +1,9 @@
 #include "cli/morph_command.h"
 
+#include <cmath>
 #include <cstdio>
+#include <exception>
+#include <utility>
 #include <nlohmann/json.hpp>
 
 #include "common/mesh.h"
@@ -9,8 +12,25 @@
 
 namespace aggscan {
 
+namespace {
+int Morph(const std::string& path, const std::string& unit, bool json, std::ostream& out, std::ostream& err);
+}  // namespace
+
 int RunMorphCommand(const std::string& path, const std::string& unit, bool json, std::ostream& out,
                     std::ostream& err) {
+  // Any library exception (an allocation the loader's checks did not
+  // foresee, say) is this file's error, never the end of the process.
+  try {
+    return Morph(path, unit, json, out, err);
+  } catch (const std::exception& e) {
+    err << "aggscan morph: " << path << ": cannot be measured (" << e.what() << ")\n";
+    return 2;
+  }
+}
+
+namespace {
+
+int Morph(const std::string& path, const std::string& unit, bool json, std::ostream& out, std::ostream& err) {
   double factor = 0;
   if (!UnitToMm(unit, &factor)) {
     err << "aggscan morph: unknown unit '" << unit << "': use mm, cm or m\n";
@@ -37,6 +57,17 @@ int RunMorphCommand(const std::string& path, const std::string& unit, bool json,
     return 1;
   }
   const MeshProps p = ComputeMeshProps(*mesh);
+  // The loader bounds the coordinates, so this is a last guard: a figure that
+  // is not a finite number is never printed as a result.
+  for (auto [name, v] : {std::pair{"volume", p.volume_mm3}, std::pair{"surface area", p.surface_area_mm2},
+                         std::pair{"a", p.a_mm}, std::pair{"b", p.b_mm}, std::pair{"c", p.c_mm},
+                         std::pair{"sphericity", p.sphericity}, std::pair{"FER", p.fer_3d}}) {
+    if (!std::isfinite(v)) {
+      err << "aggscan morph: " << path << ": the " << name
+          << " is not a finite number; the mesh's coordinates are degenerate or out of range\n";
+      return 1;
+    }
+  }
   nlohmann::json j = {{"file", path},
                       {"unit", unit},
                       {"vertices", mesh->vertices.size()},
@@ -71,5 +102,7 @@ int RunMorphCommand(const std::string& path, const std::string& unit, bool json,
   if (topo.components > 1) out << "note: " << topo.components << " separate pieces\n";
   return 0;
 }
+
+}  // namespace
 
 }  // namespace aggscan

@@ -12,7 +12,9 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <map>
 #include <optional>
 #include <string_view>
@@ -22,6 +24,12 @@
 
 namespace aggscan {
 namespace {
+
+// Scanned rocks are a few MB; the file is read whole.
+constexpr uint64_t kMaxMeshFileBytes = 1ULL << 30;
+// Beyond this a coordinate is no rock's (mm; 10 km), and cubing it for the
+// volume would lose every digit of the result.
+constexpr double kMaxMeshCoordinateMm = 1e7;
 
 // std::byteswap is C++23.
 template <typename U>
@@ -123,6 +131,9 @@ struct PlyElement {
 };
 
 enum class PlyFormat { kAscii, kBinaryLe, kBinaryBe };
+
+// Vertex indices are ints; a rock's mesh has ~50k vertices.
+constexpr int64_t kMaxMeshElements = 100'000'000;
 
 // Reads PLY body values one at a time, ASCII tokens or binary scalars.
 class PlyReader {
@@ -227,6 +238,48 @@ class PlyReader {
   bool bad_token_ = false;
 };
 
+// The fewest bytes one row of `el` can take in the body: binary, every
+// scalar's size and every list's count (an empty list); ASCII, one digit and
+// one separator per scalar or list count.
+uint64_t PlyMinRowBytes(const PlyElement& el, PlyFormat fmt) {
+  uint64_t n = 0;
+  for (const PlyProperty& p : el.props) {
+    n += fmt == PlyFormat::kAscii ? 2 : PlyTypeSize(p.is_list ? p.count_type : p.type);
+  }
+  return n;
+}
+
+// Refuses element counts the body cannot hold before anything is allocated
+// for them: a header claiming 2^31 vertices in a small file is corrupt (or
+// hostile), and reserving for it would exhaust memory. Vertex and face counts
+// beyond what an int index addresses are refused too.
+Status CheckPlyCounts(const std::string& path, const std::vector<PlyElement>& elements, PlyFormat fmt,
+                      size_t body_bytes) {
+  uint64_t need = 0;
+  // ASCII: the last value needs no separator after it.
+  const uint64_t avail = body_bytes + (fmt == PlyFormat::kAscii ? 1 : 0);
+  for (const PlyElement& el : elements) {
+    const uint64_t row = PlyMinRowBytes(el, fmt);
+    if (row == 0) continue;
+    const uint64_t count = static_cast<uint64_t>(el.count);
+    const uint64_t left = avail > need ? avail - need : 0;
+    if (count > left / row) {
+      return Corrupt(path, "header says element " + el.name + " has " + std::to_string(el.count) +
+                               " rows of at least " + std::to_string(row) + " bytes each" +
+                               (fmt == PlyFormat::kAscii ? " (ASCII)" : "") + ", but the file holds only " +
+                               std::to_string(body_bytes) + " bytes after its header (" +
+                               std::to_string(left / row) +
+                               " such rows at most): the header is corrupt or the file is truncated");
+    }
+    if ((el.name == "vertex" || el.name == "face") && el.count > kMaxMeshElements) {
+      return Corrupt(path, "element " + el.name + " has " + std::to_string(el.count) + " rows, more than the " +
+                               std::to_string(kMaxMeshElements) + " a mesh may have");
+    }
+    need += count * row;
+  }
+  return OkStatus();
+}
+
 Result<Mesh> LoadPly(const std::string& path, const std::string& data) {
   // Header: lines up to "end_header". Line ends are LF, CRLF or (Rhino
   // exports) a bare CR; the first line's ending is used throughout so that
@@ -272,8 +325,10 @@ Result<Mesh> LoadPly(const std::string& path, const std::string& data) {
         return Corrupt(path, where + ": unknown format \"" + std::string(tok[1]) + "\"");
     } else if (tok[0] == "element") {
       int64_t n = 0;
-      if (tok.size() != 3 || !ParseInt64(tok[2], &n) || n < 0)
-        return Corrupt(path, where + ": malformed element line");
+      if (tok.size() != 3) return Corrupt(path, where + ": malformed element line");
+      if (!ParseInt64(tok[2], &n) || n < 0)
+        return Corrupt(path, where + ": element " + std::string(tok[1]) + " has count \"" + std::string(tok[2]) +
+                                 "\", not a count from 0 to " + std::to_string(INT64_MAX));
       elements.push_back({std::string(tok[1]), n, {}});
     } else if (tok[0] == "property") {
       if (elements.empty()) return Corrupt(path, where + ": property before any element");
@@ -305,6 +360,9 @@ Result<Mesh> LoadPly(const std::string& path, const std::string& data) {
   if (!ended) return Corrupt(path, "truncated header (no end_header)");
   if (!fmt) return Corrupt(path, "header has no format line");
 
+  const size_t body_bytes = data.size() - pos;
+  if (Status s = CheckPlyCounts(path, elements, *fmt, body_bytes); !s) return s.error();
+
   PlyReader rd(std::string_view(data).substr(pos), *fmt);
   Mesh m;
   bool have_vertices = false, have_faces = false;
@@ -333,6 +391,8 @@ Result<Mesh> LoadPly(const std::string& path, const std::string& data) {
       have_faces = true;
       m.faces.reserve(static_cast<size_t>(el.count));
     }
+    // An element without properties holds no bytes; nothing to read.
+    if (el.props.empty()) continue;
     std::vector<int> poly;
     for (int64_t r = 0; r < el.count; ++r) {
       std::array<double, 3> v{};
@@ -346,15 +406,19 @@ Result<Mesh> LoadPly(const std::string& path, const std::string& data) {
         if (p.is_list) {
           double cnt_d;
           if (!rd.Read(p.count_type, &cnt_d)) return truncated();
+          // A count beyond what the rest of the file could hold is caught by
+          // the reads; this keeps the conversion to an integer defined.
+          if (!(cnt_d >= 0 && cnt_d <= 4294967295.0))
+            return Corrupt(path, "bad list count in " + el.name + " " + std::to_string(r));
           const int64_t cnt = static_cast<int64_t>(cnt_d);
-          if (cnt < 0 || cnt_d != static_cast<double>(cnt))
+          if (cnt_d != static_cast<double>(cnt))
             return Corrupt(path, "bad list count in " + el.name + " " + std::to_string(r));
           if (is_face && static_cast<int>(k) == ilist) {
             poly.clear();
             for (int64_t q = 0; q < cnt; ++q) {
               double idx;
               if (!rd.Read(p.type, &idx)) return truncated();
-              poly.push_back(static_cast<int>(std::clamp(idx, -1.0, 2147483647.0)));
+              poly.push_back(idx >= 0 ? static_cast<int>(std::min(idx, 2147483647.0)) : -1);
             }
           } else if (!rd.Skip(p.type, cnt)) {
             return truncated();
@@ -406,6 +470,8 @@ Result<Mesh> LoadObj(const std::string& path, const std::string& data) {
       if (tok.size() < 4 || !ParseDouble(tok[1], &v[0]) || !ParseDouble(tok[2], &v[1]) ||
           !ParseDouble(tok[3], &v[2]))
         return Corrupt(path, where + ": malformed vertex");
+      if (static_cast<int64_t>(m.vertices.size()) >= kMaxMeshElements)
+        return Corrupt(path, where + ": more than " + std::to_string(kMaxMeshElements) + " vertices");
       m.vertices.push_back(v);
     } else if (line[0] == 'f' && (line[1] == ' ' || line[1] == '\t')) {
       auto tok = Tokens(line);
@@ -426,6 +492,8 @@ Result<Mesh> LoadObj(const std::string& path, const std::string& data) {
         poly.push_back(static_cast<int>(zero_based));
       }
       if (poly.size() < 3) return Corrupt(path, where + ": face with fewer than 3 vertices");
+      if (static_cast<int64_t>(m.faces.size() + poly.size()) > kMaxMeshElements)
+        return Corrupt(path, where + ": more than " + std::to_string(kMaxMeshElements) + " faces");
       AddPolygon(poly, &m);
     }
     // vt, vn, g, o, s, usemtl, mtllib, l, comments: not needed for geometry.
@@ -470,8 +538,12 @@ Result<Mesh> LoadStlBinary(const std::string& path, const std::string& data) {
   std::memcpy(&n, data.data() + 80, 4);
   if constexpr (std::endian::native == std::endian::big) n = ByteSwap(n);
   if (data.size() < 84 + 50ULL * n)
-    return Corrupt(path, "truncated binary STL: header says " + std::to_string(n) +
-                             " triangles, file holds " + std::to_string((data.size() - 84) / 50));
+    return Corrupt(path, "truncated binary STL: header says " + std::to_string(n) + " triangles of 50 bytes, the " +
+                             std::to_string(data.size()) + "-byte file holds " +
+                             std::to_string((data.size() - 84) / 50));
+  if (static_cast<int64_t>(n) > kMaxMeshElements)
+    return Corrupt(path, "binary STL has " + std::to_string(n) + " triangles, more than the " +
+                             std::to_string(kMaxMeshElements) + " a mesh may have");
   Mesh m;
   m.faces.reserve(n);
   VertexMerger merge(&m);
@@ -566,6 +638,15 @@ Result<Mesh> LoadMesh(const std::string& path, const std::string& unit) {
     return MakeError(
         ErrorClass::kInvalidArgument,
         "mesh file " + path + " has unknown extension \"" + ext + "\"; use .ply, .obj or .stl");
+  {
+    std::error_code ec;
+    const auto size = std::filesystem::file_size(path, ec);
+    if (!ec && size > kMaxMeshFileBytes) {
+      return Corrupt(path, "is " + std::to_string(size) + " bytes, more than the " +
+                               std::to_string(kMaxMeshFileBytes >> 20) +
+                               " MiB a mesh file may have (a rock's mesh is a few MB): decimate it first");
+    }
+  }
   Result<std::string> data = ReadFile(path);
   if (!data) {
     Error e = data.error();
@@ -580,9 +661,16 @@ Result<Mesh> LoadMesh(const std::string& path, const std::string& unit) {
   if (m.faces.empty()) return Corrupt(path, "has no faces");
   for (size_t i = 0; i < m.vertices.size(); ++i) {
     for (double& c : m.vertices[i]) {
-      if (!std::isfinite(c))
-        return Corrupt(path, "vertex " + std::to_string(i) + " has a non-finite coordinate");
+      const double raw = c;
       c *= scale;
+      if (!std::isfinite(c) || std::abs(c) > kMaxMeshCoordinateMm) {
+        char v[64];
+        std::snprintf(v, sizeof v, "%g", raw);
+        return Corrupt(path, "vertex " + std::to_string(i) + " has coordinate " + v + " " + unit + ": " +
+                                 (std::isfinite(c) ? "farther than 10 km from the origin"
+                                                   : "not a finite number") +
+                                 "; a rock's mesh must have finite coordinates near the origin");
+      }
     }
   }
   return r;

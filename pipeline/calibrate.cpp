@@ -18,6 +18,7 @@
 #include "common/clock.h"
 #include "common/fsutil.h"
 #include "pipeline/aruco_scale.h"
+#include "pipeline/image_io.h"
 #include "store/layout.h"
 
 namespace aggscan {
@@ -205,10 +206,12 @@ Result<BoardView> DetectBoardInImage(const std::string& image_path, const Calibr
                                      int* width, int* height) {
   auto board = MakeBoard(b);
   if (!board) return board.error();
-  cv::Mat img = cv::imread(image_path, cv::IMREAD_GRAYSCALE);
-  if (img.empty()) {
-    return MakeError(ErrorClass::kCorrupt, "cannot read image " + image_path + " (missing or damaged)");
+  auto loaded = LoadImage(image_path, ImageMode::kGray);
+  if (!loaded) {
+    return MakeError(loaded.error().cls, "cannot read image " + image_path + ": " + loaded.error().message,
+                     loaded.error().detail);
   }
+  cv::Mat img = std::move(*loaded);
   if (width) *width = img.cols;
   if (height) *height = img.rows;
   BoardView view;

@@ -21,6 +21,7 @@
 
 #include "common/fsutil.h"
 #include "common/log.h"
+#include "pipeline/image_io.h"
 #include "pipeline/subprocess.h"
 
 namespace aggscan {
@@ -1117,8 +1118,9 @@ Status SfmRun::PrepareWorkspace() {
 }
 
 Status SfmRun::ResolveCamera() {
-  const cv::Mat first = cv::imread(o_.images[0], cv::IMREAD_UNCHANGED);
-  if (first.empty()) return MakeError(ErrorClass::kCorrupt, "cannot read image " + o_.images[0]);
+  auto loaded = LoadImage(o_.images[0], ImageMode::kUnchanged);
+  if (!loaded) return MakeError(ErrorClass::kCorrupt, "cannot read image " + o_.images[0] + ": " + loaded.error().message);
+  const cv::Mat first = std::move(*loaded);
   const int w = first.cols, h = first.rows;
   if (o_.fixed_camera) {
     CameraModel cam = *o_.fixed_camera;

@@ -7,6 +7,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "pipeline/image_io.h"
 #include "pipeline/mask.h"
 #include "pipeline/morph2d.h"
 
@@ -30,20 +31,30 @@ cv::Mat AsBinaryMask(const cv::Mat& img) {
   return gray;
 }
 
+int Morph2d(const std::string& path, bool json, std::ostream& out, std::ostream& err, const ImageLimits& limits);
+
 }  // namespace
 
-int RunMorph2dCommand(const std::string& path, bool json, std::ostream& out, std::ostream& err) {
-  cv::Mat img;
+int RunMorph2dCommand(const std::string& path, bool json, std::ostream& out, std::ostream& err,
+                      const ImageLimits& limits) {
+  // Any library exception is this file's error, never the end of the process.
   try {
-    img = cv::imread(path, cv::IMREAD_UNCHANGED);
-  } catch (const cv::Exception& e) {
-    err << "morph2d: cannot read " << path << ": " << e.what() << "\n";
+    return Morph2d(path, json, out, err, limits);
+  } catch (const std::exception& e) {
+    err << "morph2d: " << path << ": cannot be measured (" << e.what() << ")\n";
     return 2;
   }
-  if (img.empty()) {
-    err << "morph2d: cannot read " << path << " as an image (missing file or unsupported format)\n";
+}
+
+namespace {
+
+int Morph2d(const std::string& path, bool json, std::ostream& out, std::ostream& err, const ImageLimits& limits) {
+  auto loaded = LoadImage(path, ImageMode::kUnchanged, limits);
+  if (!loaded) {
+    err << "morph2d: " << loaded.error().ToString() << "\n";
     return 2;
   }
+  cv::Mat img = std::move(*loaded);
   if (img.depth() == CV_16U) img.convertTo(img, CV_8U, 1.0 / 257.0);
   cv::Mat mask = AsBinaryMask(img);
   const bool segmented = mask.empty();
@@ -79,5 +90,7 @@ int RunMorph2dCommand(const std::string& path, bool json, std::ostream& out, std
   }
   return 0;
 }
+
+}  // namespace
 
 }  // namespace aggscan

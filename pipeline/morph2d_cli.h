@@ -6,11 +6,16 @@
 #include <ostream>
 #include <string>
 
+#include "pipeline/image_io.h"
+
 namespace aggscan {
 
 /// Prints {l_max_px, l_min_px, fer_2d, area_px, perimeter_px, circularity} as
 /// JSON (json = true) or as text to `out`. Returns 0 on success, 2 when the
 /// file cannot be read as an image, 1 when no object is found; messages go to `err`.
-int RunMorph2dCommand(const std::string& path, bool json, std::ostream& out, std::ostream& err);
+/// Images outside `limits` (pixel count, smallest side, shape) and damaged
+/// JPEGs are refused (2) before or instead of being measured.
+int RunMorph2dCommand(const std::string& path, bool json, std::ostream& out, std::ostream& err,
+                      const ImageLimits& limits = {});
 
 }  // namespace aggscan

@@ -18,6 +18,7 @@
 #include "common/mesh_check.h"
 #include "common/mesh_props.h"
 #include "common/rig_calibration.h"
+#include "pipeline/image_io.h"
 #include "pipeline/morph2d.h"
 #include "pipeline/stitch_stage.h"
 #include "store/layout.h"
@@ -294,9 +295,13 @@ Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int sid
       std::vector<double> measured;
       for (const auto& v : jviews) measured.push_back(v["angle_deg"].get<double>());
       auto load = [&](int i, cv::Mat* bgr, cv::Mat* mask) {
-        *bgr = cv::imread(side_dir + "/" + jviews[i].value("image", ""), cv::IMREAD_COLOR);
-        *mask = cv::imread(ResultsPath(sample_dir, jviews[i].value("mask", "")), cv::IMREAD_GRAYSCALE);
-        return !bgr->empty() && !mask->empty() && bgr->size() == mask->size();
+        auto img = LoadImage(side_dir + "/" + jviews[i].value("image", ""), ImageMode::kColor, opts.worker.image_limits);
+        auto m = LoadImage(ResultsPath(sample_dir, jviews[i].value("mask", "")), ImageMode::kGray,
+                           opts.worker.image_limits);
+        if (!img || !m) return false;
+        *bgr = std::move(*img);
+        *mask = std::move(*m);
+        return bgr->size() == mask->size();
       };
       const BundleAdjustResult ba =
           BundleAdjustSideImages(static_cast<int>(jviews.size()), load, measured, *cal, opts.ba);
@@ -349,7 +354,8 @@ Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int sid
 // those where it lies well inside the silhouette.
 Result<VertexColors> ColourVertices(const Mesh& mesh, const std::vector<ViewInput>& views,
                                     const std::vector<Eigen::Isometry3d>& cam_from_object,
-                                    const std::vector<cv::Mat>& masks, const CameraModel& cam) {
+                                    const std::vector<cv::Mat>& masks, const CameraModel& cam,
+                                    const ImageLimits& limits) {
   const size_t nv = mesh.vertices.size();
   std::vector<Eigen::Vector3d> normals(nv, Eigen::Vector3d::Zero());
   for (const auto& f : mesh.faces) {
@@ -384,10 +390,9 @@ Result<VertexColors> ColourVertices(const Mesh& mesh, const std::vector<ViewInpu
     bool any = false;
     for (size_t i = 0; i < nv && !any; ++i) any = best[i] == static_cast<int>(vi);
     if (!any) continue;
-    const cv::Mat img = cv::imread(views[vi].image, cv::IMREAD_COLOR);
-    if (img.empty()) {
-      return MakeError(ErrorClass::kCorrupt, "surface stage: image " + views[vi].image + " cannot be decoded");
-    }
+    auto loaded = LoadImage(views[vi].image, ImageMode::kColor, limits);
+    if (!loaded) return MakeError(loaded.error().cls, "surface stage: " + loaded.error().message, loaded.error().detail);
+    const cv::Mat& img = *loaded;
     for (size_t i = 0; i < nv; ++i) {
       if (best[i] != static_cast<int>(vi)) continue;
       cv::Mat patch;
@@ -442,6 +447,101 @@ struct SurfaceOut {
   json record;
 };
 
+double Median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  const size_t n = v.size();
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+// Per view, the volume that view alone carves away from what every other view
+// (and the floors) holds to be rock, sampled on a grid over the hull's region
+// grown by half its size each way. A mask that lost part of the rock (a photo
+// decoded half grey, a segmentation that failed) carves that part out of the
+// hull, and in that view the hull then fits the mask well: the view's IoU
+// does not show it, the other views' IoUs do. Its sole carving does, and
+// names it. Good views carve alone only a thin shell at their outline.
+struct SoleCarving {
+  std::vector<double> volume_mm3;  // per view
+  double agreed_mm3 = 0;           // inside every view and floor
+};
+
+SoleCarving SoleCarvingVolumes(const std::vector<SilhouetteView>& sv, const std::vector<HalfSpace>& floors,
+                               const Eigen::AlignedBox3d& hull_box, const Eigen::AlignedBox3d& search) {
+  SoleCarving out;
+  out.volume_mm3.assign(sv.size(), 0.0);
+  const Eigen::Vector3d ext = hull_box.sizes();
+  Eigen::AlignedBox3d box(hull_box.min() - 0.5 * ext, hull_box.max() + 0.5 * ext);
+  box = box.intersection(search);
+  if (box.isEmpty()) return out;
+  // About 2 million samples: a few per cent of a rock's volume is thousands.
+  const double step = std::max(0.25, std::cbrt(box.volume() / 2e6));
+  const int nx = static_cast<int>(box.sizes().x() / step) + 1, ny = static_cast<int>(box.sizes().y() / step) + 1,
+            nz = static_cast<int>(box.sizes().z() / step) + 1;
+  std::vector<std::vector<int64_t>> veto(2, std::vector<int64_t>(sv.size(), 0));
+  int64_t agreed[2] = {0, 0};
+  auto inside = [&](size_t k, const Eigen::Vector3d& p) {
+    const Eigen::Vector3d pc = sv[k].cam_from_object * p;
+    double u = 0, v = 0;
+    if (pc.z() <= 0 || !sv[k].camera.Project({pc.x(), pc.y(), pc.z()}, &u, &v)) return false;
+    const int x = static_cast<int>(std::lround(u)), y = static_cast<int>(std::lround(v));
+    if (x < 0 || y < 0 || x >= sv[k].mask.cols || y >= sv[k].mask.rows) return false;
+    return sv[k].mask.at<uint8_t>(y, x) > 127;
+  };
+  auto work = [&](int t) {
+    for (int iz = t; iz < nz; iz += 2) {
+      for (int iy = 0; iy < ny; ++iy) {
+        for (int ix = 0; ix < nx; ++ix) {
+          const Eigen::Vector3d p = box.min() + step * Eigen::Vector3d(ix + 0.5, iy + 0.5, iz + 0.5);
+          bool below = false;
+          for (const HalfSpace& h : floors) below = below || h.normal.dot(p) + h.offset < 0;
+          if (below) continue;
+          int outside = 0;
+          size_t first = 0;
+          for (size_t k = 0; k < sv.size() && outside < 2; ++k) {
+            if (!inside(k, p)) {
+              if (outside == 0) first = k;
+              ++outside;
+            }
+          }
+          if (outside == 0) ++agreed[t];
+          if (outside == 1) ++veto[t][first];
+        }
+      }
+    }
+  };
+  std::thread th(work, 1);
+  work(0);
+  th.join();
+  const double cell = step * step * step;
+  out.agreed_mm3 = static_cast<double>(agreed[0] + agreed[1]) * cell;
+  for (size_t k = 0; k < sv.size(); ++k) out.volume_mm3[k] = static_cast<double>(veto[0][k] + veto[1][k]) * cell;
+  return out;
+}
+
+// Robust outliers above: more than kMadOutlier scaled MADs above the median
+// and more than `floor` in absolute terms (so a set of near-identical good
+// values, whose MAD is almost 0, flags nothing).
+constexpr double kMadOutlier = 5.0;
+std::vector<size_t> HighOutliers(const std::vector<double>& v, double floor) {
+  const double med = Median(v);
+  std::vector<double> dev;
+  for (double x : v) dev.push_back(std::abs(x - med));
+  const double mad = 1.4826 * Median(dev);
+  std::vector<size_t> out;
+  for (size_t i = 0; i < v.size(); ++i) {
+    if (v[i] > med + kMadOutlier * mad && v[i] > floor) out.push_back(i);
+  }
+  return out;
+}
+
+// A view whose carving alone removes more than this fraction of the rock the
+// other views agree on is left out.
+constexpr double kSoleCarvingMaxFraction = 0.05;
+// A view whose mask has an IoU with the model's silhouette below this, and
+// far below the other views', is named as disagreeing.
+constexpr double kIouFloor = 0.90;
+
 // When the hull fails: the views whose mask is far smaller than their side's
 // largest (a rock's outline changes by a factor of 2-3 with the angle, not
 // 7), where the segmentation most likely lost the rock: ashlar 923 scaled to
@@ -478,9 +578,11 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
   std::vector<cv::Mat> masks;
   std::vector<Eigen::Isometry3d> cam_from_object;
   for (const ViewInput& v : views) {
-    cv::Mat m = cv::imread(v.mask, cv::IMREAD_GRAYSCALE);
+    auto loaded = LoadImage(v.mask, ImageMode::kGray, opts.worker.image_limits);
+    const cv::Mat m = loaded ? *loaded : cv::Mat();
     if (m.empty()) {
-      return MakeError(ErrorClass::kCorrupt, "surface stage: mask " + v.mask + " is missing or unreadable; delete " +
+      return MakeError(ErrorClass::kCorrupt, "surface stage: mask " + v.mask + " is missing or unreadable (" +
+                                                 loaded.error().message + "); delete " +
                                                  "results/" + layout::SideDirName(v.side) +
                                                  "_morph2d.json to recompute the side's masks");
     }
@@ -513,6 +615,79 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
     return MakeError(hull.error().cls, "surface stage: " + hull.error().message + SuspectMasks(views, masks),
                      hull.error().detail);
   }
+  // Views that disagree with the others: left out and the hull carved again
+  // without them; a side that would lose more than a third of its views is
+  // refused (the capture itself is in doubt).
+  json left_out = json::array();
+  json consistency = json::object();
+  std::vector<ViewInput> kept_views = views;
+  {
+    const auto tsc = std::chrono::steady_clock::now();
+    const SoleCarving sc = SoleCarvingVolumes(sv, floors, hull->box, Eigen::AlignedBox3d(lo, hi));
+    json per_view = json::array();
+    for (size_t k = 0; k < views.size(); ++k) {
+      per_view.push_back({{"side", views[k].side}, {"view", views[k].view}, {"sole_carving_mm3", sc.volume_mm3[k]}});
+    }
+    consistency = {{"method",
+                    "per view, the volume its mask alone carves from what every other view and the floors hold to "
+                    "be rock; a view far above the others (median + 5 MAD) and above 5 % of that agreed volume is "
+                    "left out and the hull carved again"},
+                   {"agreed_mm3", sc.agreed_mm3},
+                   {"views", per_view},
+                   {"seconds", Seconds(tsc)}};
+    const std::vector<size_t> bad = HighOutliers(sc.volume_mm3, kSoleCarvingMaxFraction * sc.agreed_mm3);
+    if (!bad.empty()) {
+      std::map<int, int> per_side_total, per_side_bad;
+      for (const ViewInput& v : views) ++per_side_total[v.side];
+      std::string names;
+      for (size_t k : bad) {
+        ++per_side_bad[views[k].side];
+        const double frac = sc.volume_mm3[k] / std::max(1e-9, sc.agreed_mm3 + sc.volume_mm3[k]);
+        char why[256];
+        std::snprintf(why, sizeof why,
+                      "its mask alone carves away %.0f mm3 (%.1f %%) of what every other view holds to be rock "
+                      "(median of all views %.0f mm3): the photo or its mask lost part of the rock",
+                      sc.volume_mm3[k], 100 * frac, Median(sc.volume_mm3));
+        left_out.push_back({{"side", views[k].side}, {"view", views[k].view}, {"reason", why},
+                            {"sole_carving_mm3", sc.volume_mm3[k]}});
+        names += (names.empty() ? "" : ", ") + layout::SideDirName(views[k].side) + " view " +
+                 std::to_string(views[k].view);
+      }
+      for (const auto& [side, n] : per_side_bad) {
+        if (3 * n > per_side_total[side]) {
+          return MakeError(ErrorClass::kCorrupt,
+                           "surface stage: " + std::to_string(n) + " of the " + std::to_string(per_side_total[side]) +
+                               " views of " + layout::SideDirName(side) +
+                               " disagree with the others (" + names +
+                               "): too many to leave out; check the photos and masks and re-shoot the side");
+        }
+      }
+      LogLine(LogLevel::kWarning, kCat, sample_id,
+              "surface: left out " + names + ": each carves away rock every other view sees; carving again");
+      std::vector<SilhouetteView> sv2;
+      std::vector<cv::Mat> masks2;
+      std::vector<Eigen::Isometry3d> cfo2;
+      kept_views.clear();
+      for (size_t k = 0; k < views.size(); ++k) {
+        if (std::find(bad.begin(), bad.end(), k) != bad.end()) continue;
+        sv2.push_back(sv[k]);
+        masks2.push_back(masks[k]);
+        cfo2.push_back(cam_from_object[k]);
+        kept_views.push_back(views[k]);
+      }
+      sv = std::move(sv2);
+      masks = std::move(masks2);
+      cam_from_object = std::move(cfo2);
+      const double first_s = hull->seconds;
+      hull = CarveVisualHull(sv, floors, Eigen::AlignedBox3d(lo, hi), opts.hull);
+      if (!hull) {
+        return MakeError(hull.error().cls, "surface stage (without " + names + "): " + hull.error().message,
+                         hull.error().detail);
+      }
+      hull->seconds += first_s;
+    }
+  }
+  const std::vector<ViewInput>& used_views = kept_views;
   const double carve_s = hull->seconds;
   // Photo-consistency: the hull is an upper bound; concavities are recovered
   // where the textured photos agree on a deeper surface.
@@ -529,11 +704,16 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
     const bool half = scale <= 0.5;
     PhotoRefineOptions po = opts.photo;
     po.image_scale = scale;
-    std::vector<PhotoView> pv(views.size());
-    std::vector<std::string> unreadable;
+    std::vector<PhotoView> pv(used_views.size());
+    std::vector<std::string> unreadable(used_views.size());
     auto load = [&](size_t begin, size_t step) {
-      for (size_t i = begin; i < views.size(); i += step) {
-        pv[i].image = cv::imread(views[i].image, half ? cv::IMREAD_REDUCED_GRAYSCALE_2 : cv::IMREAD_GRAYSCALE);
+      for (size_t i = begin; i < used_views.size(); i += step) {
+        auto img = LoadImage(used_views[i].image, half ? ImageMode::kGrayHalf : ImageMode::kGray, opts.worker.image_limits);
+        if (img) {
+          pv[i].image = std::move(*img);
+        } else {
+          unreadable[i] = img.error().message;
+        }
         pv[i].camera = half ? cal.camera.Resized(pv[i].image.cols, pv[i].image.rows) : cal.camera;
         pv[i].cam_from_object = cam_from_object[i];
         pv[i].mask = masks[i];  // full size: the refinement brings it to its working scale
@@ -543,10 +723,10 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
     load(0, 2);
     lt.join();
     if (half) po.image_scale = std::min(1.0, scale * 2);
-    for (size_t i = 0; i < views.size(); ++i) {
+    for (size_t i = 0; i < used_views.size(); ++i) {
       if (pv[i].image.empty()) {
-        return MakeError(ErrorClass::kCorrupt, "surface stage: image " + views[i].image +
-                                                   " cannot be decoded for the photo refinement; restore it, or turn "
+        return MakeError(ErrorClass::kCorrupt, "surface stage: " + unreadable[i] +
+                                                   " (the photo refinement needs it); restore it, or turn "
                                                    "the refinement off");
       }
     }
@@ -575,7 +755,7 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
   // search's noise) inflate the area: a few Taubin passes remove them.
   if (opts.surface_smooth_iterations > 0) TaubinSmooth(&hull->mesh, opts.surface_smooth_iterations);
   const auto tc = std::chrono::steady_clock::now();
-  auto colors = ColourVertices(hull->mesh, views, cam_from_object, masks, cal.camera);
+  auto colors = ColourVertices(hull->mesh, used_views, cam_from_object, masks, cal.camera, opts.worker.image_limits);
   if (!colors) return colors.error();
   const double colour_s = Seconds(tc);
   const auto ti = std::chrono::steady_clock::now();
@@ -588,8 +768,24 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
     if (!st) return st.error();
   }
   json jiou = json::array();
-  for (size_t i = 0; i < views.size(); ++i) {
-    jiou.push_back({{"side", views[i].side}, {"view", views[i].view}, {"iou", iou[i]}});
+  for (size_t i = 0; i < used_views.size(); ++i) {
+    jiou.push_back({{"side", used_views[i].side}, {"view", used_views[i].view}, {"iou", iou[i]}});
+  }
+  // A mask far larger than the model's silhouette in it (a leak, a pose that
+  // does not fit) does not carve the model, but it disagrees: named.
+  json disagreeing = json::array();
+  {
+    std::vector<double> neg;
+    for (double x : iou) neg.push_back(-x);
+    for (size_t k : HighOutliers(neg, -kIouFloor)) {
+      char why[200];
+      std::snprintf(why, sizeof why,
+                    "its mask's IoU with the model's silhouette is %.3f, the views' median %.3f: the mask or the "
+                    "view's pose disagrees with the others; check its photo and mask",
+                    iou[k], Median(iou));
+      disagreeing.push_back({{"side", used_views[k].side}, {"view", used_views[k].view}, {"iou", iou[k]},
+                             {"reason", why}});
+    }
   }
   json j = {{"method", opts.photo_refine ? "visual-hull+photo" : "visual-hull"},
             {"method_detail",
@@ -602,8 +798,11 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
             {"voxel_mm", hull->voxel_mm},
             {"vertices", hull->mesh.vertices.size()},
             {"faces", hull->mesh.faces.size()},
-            {"views", views.size()},
+            {"views", used_views.size()},
             {"silhouette_iou", jiou},
+            {"views_left_out", left_out},
+            {"consistency", consistency},
+            {"views_disagreeing", disagreeing},
             {"files", {{"ply", results::kMeshPly}, {"obj", results::kMeshObj}, {"stl", results::kMeshStl}}},
             {"timings_s", {{"carve", carve_s}, {"photo_refine", photo_s}, {"colour", colour_s}, {"silhouette_check", iou_s}, {"export", Seconds(te)}}},
             {"stage_seconds", Seconds(t0)}};
@@ -732,10 +931,11 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
     if (side1) mask_method = side1->value("mask_method", mask_method);
     if (!side1) return side1.error();
     for (const auto& v : side1->value("views", json::array())) {
-      const cv::Mat m = cv::imread(sample_dir + "/" + layout::kResultsDir + "/" + v.value("mask", ""),
-                                   cv::IMREAD_GRAYSCALE);
-      if (!m.empty()) {
-        image_size = m.size();
+      if (!v.value("ok", false)) continue;
+      auto m = LoadImage(sample_dir + "/" + layout::kResultsDir + "/" + v.value("mask", ""), ImageMode::kGray,
+                         opts.worker.image_limits);
+      if (m) {
+        image_size = m->size();
         break;
       }
     }
@@ -868,6 +1068,12 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
   if (!mesh) return mesh.error();
   const Status watertight = CheckClosedManifold(*mesh, "reconstructed mesh");
   const MeshProps p = ComputeMeshProps(*mesh);
+  for (double v : {p.volume_mm3, p.surface_area_mm2, p.a_mm, p.b_mm, p.c_mm, p.sphericity}) {
+    if (!std::isfinite(v)) {
+      return MakeError(ErrorClass::kInternal, "morphology stage: the reconstructed mesh's figures are not finite "
+                                              "numbers; delete results/ to reconstruct again and report it");
+    }
+  }
   Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
   for (const auto& v : mesh->vertices) centroid += Eigen::Vector3d(v.data());
   centroid /= std::max<size_t>(1, mesh->vertices.size());
@@ -981,6 +1187,25 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
     }
     poses_detail.push_back(std::move(e));
   }
+  // Everything left out or doubtful, with what to do: a figure computed
+  // without some views is still a figure, but the operator must know.
+  json warnings = json::array();
+  for (int side : sides) {
+    auto sr = ReadJson(SideResultPath(sample_dir, side), "side result");
+    if (!sr) return sr.error();
+    for (const char* k : {"image_problems", "mask_problems"}) {
+      const std::string w = sr->value(k, "");
+      if (!w.empty()) warnings.push_back(layout::SideDirName(side) + ": " + w);
+    }
+  }
+  for (const auto& v : surface->value("views_left_out", json::array())) {
+    warnings.push_back(layout::SideDirName(v.value("side", 0)) + " view " + std::to_string(v.value("view", 0)) +
+                       " left out of the model: " + v.value("reason", ""));
+  }
+  for (const auto& v : surface->value("views_disagreeing", json::array())) {
+    warnings.push_back(layout::SideDirName(v.value("side", 0)) + " view " + std::to_string(v.value("view", 0)) +
+                       " disagrees with the model: " + v.value("reason", ""));
+  }
   json morphology_3d = MeshPropsJson(p);
   morphology_3d["watertight"] = watertight.ok();
   json out = {
@@ -1009,6 +1234,7 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
         {"circularity_mean", circ_mean},
         {"circularity_mean_minus_sphericity", circ_mean - p.sphericity}}},
       {"quality", quality},
+      {"warnings", warnings},
       {"timings_s", timings},
       {"files",
        {{"mesh_ply", results::kMeshPly},

@@ -9,6 +9,7 @@
 #include "pipeline/aruco_scale.h"
 #include "pipeline/colmap_sfm.h"
 #include "pipeline/geometry.h"
+#include "pipeline/image_io.h"
 #include "pipeline/markers.h"
 #include "store/layout.h"
 
@@ -120,8 +121,10 @@ Result<json> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts) {
       continue;
     }
     if (in.cancel && in.cancel->load()) return MakeError(ErrorClass::kInvalidState, what + "interrupted");
-    const cv::Mat bgr = cv::imread(in.views[i].image, cv::IMREAD_COLOR);
-    const cv::Mat mask = cv::imread(in.views[i].mask, cv::IMREAD_GRAYSCALE);
+    auto loaded = LoadImage(in.views[i].image, ImageMode::kColor);
+    auto loaded_mask = LoadImage(in.views[i].mask, ImageMode::kGray);
+    const cv::Mat bgr = loaded ? *loaded : cv::Mat();
+    const cv::Mat mask = loaded_mask ? *loaded_mask : cv::Mat();
     if (bgr.empty() || mask.empty() || mask.size() != bgr.size()) {
       return MakeError(ErrorClass::kCorrupt, what + "photo " + in.views[i].image + " or its mask " + in.views[i].mask +
                                                  " is unreadable or of different sizes; the sample's photos must not "

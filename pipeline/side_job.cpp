@@ -12,6 +12,7 @@
 #include "common/clock.h"
 #include "common/fsutil.h"
 #include "common/log.h"
+#include "pipeline/image_io.h"
 #include "pipeline/morph2d.h"
 #include "store/layout.h"
 
@@ -170,7 +171,9 @@ std::string CheckSideMasks(json* jviews) {
 }
 
 Status SideHasEnoughWholeViews(const json& side_result) {
-  const std::string problems = side_result.value("mask_problems", "");
+  std::string problems = side_result.value("mask_problems", "");
+  const std::string damaged = side_result.value("image_problems", "");
+  if (!damaged.empty()) problems += (problems.empty() ? "" : "; ") + damaged;
   const int total = side_result.value("views_total", 0), ok = side_result.value("views_ok", 0);
   if (problems.empty() || 3 * ok >= 2 * total) return OkStatus();
   return MakeError(ErrorClass::kCorrupt, "side " + std::to_string(side_result.value("side", 0)) + ": only " +
@@ -213,6 +216,8 @@ Status ProcessSide(const std::string& sample_dir, int side, const WorkerOptions&
   json jviews = json::array();
   std::map<std::string, std::vector<double>> values;
   int reused = 0;
+  std::vector<int> image_problems;  // views whose photo cannot be decoded or is of an unusable size
+  std::string image_reasons;
   for (const ManifestView& v : *views) {
     if (opts.cancel && opts.cancel->load())
       return MakeError(ErrorClass::kInvalidState, "interrupted: side " + std::to_string(side) + " of " + sample_id +
@@ -221,24 +226,41 @@ Status ProcessSide(const std::string& sample_dir, int side, const WorkerOptions&
     const std::string mask_path = ViewMaskPath(sample_dir, side, v.view);
     cv::Mat mask;
     if (opts.reuse_masks && PathExists(mask_path)) {
-      mask = cv::imread(mask_path, cv::IMREAD_GRAYSCALE);
-      if (!mask.empty()) ++reused;
+      auto reuse = LoadImage(mask_path, ImageMode::kGray, opts.image_limits);
+      if (reuse) {
+        mask = std::move(*reuse);
+        ++reused;
+      }
     }
     cv::Size image_size = mask.size();
     if (mask.empty()) {
       auto bytes = ReadFile(side_dir + "/" + v.image);
       if (!bytes.ok()) return bytes.error();
-      const std::vector<unsigned char> buf(bytes->begin(), bytes->end());
-      const cv::Mat img = cv::imdecode(buf, cv::IMREAD_COLOR);
-      if (img.empty())
-        return MakeError(ErrorClass::kCorrupt, "image " + side_dir + "/" + v.image + " cannot be decoded");
-      image_size = img.size();
+      auto img = DecodeImage(*bytes, ImageMode::kColor, layout::SideDirName(side) + "/" + v.image, opts.image_limits);
+      if (!img.ok()) {
+        // A photo damaged in the camera, on the link or in storage: the view
+        // is left out (a grey, half-decoded photo would carve rock away) and
+        // named with what to do.
+        image_problems.push_back(v.view);
+        image_reasons += (image_reasons.empty() ? "" : "; ") + img.error().message;
+        json jv = {{"view", v.view},
+                   {"image", v.image},
+                   {"ok", false},
+                   {"image_problem", img.error().message},
+                   {"error", img.error().message + ": re-shoot the side (arm the sample again) and check the camera's "
+                                                   "link and the storage"}};
+        LogLine(LogLevel::kWarning, kCat, sample_id,
+                "side " + std::to_string(side) + " view " + std::to_string(v.view) + ": " + img.error().ToString());
+        jviews.push_back(std::move(jv));
+        continue;
+      }
+      image_size = img->size();
       if (opts.mask_net) {
-        auto m = opts.mask_net->Mask(img, opts.mask);
+        auto m = opts.mask_net->Mask(*img, opts.mask);
         if (!m.ok()) return m.error();
         mask = std::move(*m);
       } else {
-        mask = ComputeForegroundMask(img, opts.mask);
+        mask = ComputeForegroundMask(*img, opts.mask);
       }
       std::vector<unsigned char> png;
       if (!cv::imencode(".png", mask, png))
@@ -289,6 +311,13 @@ Status ProcessSide(const std::string& sample_dir, int side, const WorkerOptions&
   if (!lost.empty()) {
     LogLine(LogLevel::kWarning, kCat, sample_id, "side " + std::to_string(side) + ": " + lost);
   }
+  std::string damaged;
+  if (!image_problems.empty()) {
+    damaged = "the photo of view" + std::string(image_problems.size() > 1 ? "s " : " ") + ViewList(image_problems) +
+              " cannot be used (" + image_reasons +
+              "; left out): re-shoot the side (arm the sample again) and check the camera's link and the storage";
+    LogLine(LogLevel::kWarning, kCat, sample_id, "side " + std::to_string(side) + ": " + damaged);
+  }
   for (const json& jv : jviews) {
     if (!jv.value("ok", false)) continue;
     values["fer_2d"].push_back(jv["fer_2d"].get<double>());
@@ -300,7 +329,8 @@ Status ProcessSide(const std::string& sample_dir, int side, const WorkerOptions&
   if (ok_views == 0)
     return MakeError(ErrorClass::kCorrupt, "side " + std::to_string(side) + " of " + sample_id +
                                                ": no rock found in any view (empty turntable or wrong exposure?)" +
-                                               (lost.empty() ? "" : "; " + lost));
+                                               (lost.empty() ? "" : "; " + lost) +
+                                               (damaged.empty() ? "" : "; " + damaged));
   const double total_ms = static_cast<double>(MonotonicNs() - t_start) / 1e6;
   json out = {{"sample_id", sample_id},
               {"side", side},
@@ -308,6 +338,7 @@ Status ProcessSide(const std::string& sample_dir, int side, const WorkerOptions&
               {"views_total", static_cast<int>(views->size())},
               {"views_ok", ok_views},
               {"mask_problems", lost},
+              {"image_problems", damaged},
               {"stats", StatsBlock(values)},
               {"std_kind", "sample"},
               {"mask_method", opts.mask_net ? "onnx" : "classical"},

@@ -20,6 +20,7 @@
 #include <nlohmann/json.hpp>
 
 #include "common/error.h"
+#include "pipeline/image_io.h"
 #include "pipeline/mask.h"
 #include "pipeline/mask_net.h"
 
@@ -29,6 +30,7 @@ struct WorkerOptions {
   MaskOptions mask;                           // segmentation parameters (and the network's refinement)
   std::shared_ptr<MaskNet> mask_net;          // set ([mask] method = "onnx"): its output seeds the mask
   bool reuse_masks = true;                    // reuse results/masks/... PNGs written by an earlier attempt
+  ImageLimits image_limits;                   // photos outside these are refused before decoding
   const std::atomic<bool>* cancel = nullptr;  // checked between views; set -> kInvalidState "interrupted"
 };
 

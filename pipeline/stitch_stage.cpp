@@ -10,6 +10,7 @@
 #include "common/clock.h"
 #include "pipeline/aruco_scale.h"
 #include "pipeline/geometry.h"
+#include "pipeline/image_io.h"
 #include "pipeline/markers.h"
 #include "pipeline/stitch.h"
 
@@ -172,13 +173,16 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side, const std:
     for (size_t i = (*next)++; i < views.size(); i = (*next)++) {
       ViewOut& o = out[i];
       const TimeNs t_decode = MonotonicNs();
-      const cv::Mat bgr = cv::imread(views[i].image, cv::IMREAD_COLOR);
-      if (bgr.empty()) {
-        o.error = MakeError(ErrorClass::kCorrupt, "stitch stage: image " + views[i].image +
-                                                      " cannot be decoded; the sample's photos must not change");
+      auto loaded = LoadImage(views[i].image, ImageMode::kColor);
+      if (!loaded) {
+        o.error = MakeError(ErrorClass::kCorrupt,
+                            "stitch stage: " + loaded.error().message + "; the sample's photos must not change",
+                            loaded.error().detail);
         continue;
       }
-      const cv::Mat mask = cv::imread(views[i].mask, cv::IMREAD_GRAYSCALE);
+      const cv::Mat bgr = std::move(*loaded);
+      auto loaded_mask = LoadImage(views[i].mask, ImageMode::kGray);
+      const cv::Mat mask = loaded_mask ? *loaded_mask : cv::Mat();
       if (mask.empty() || mask.size() != bgr.size()) {
         o.error = MakeError(ErrorClass::kCorrupt, "stitch stage: mask " + views[i].mask +
                                                       " is missing, unreadable or not the photo's size; delete the "

@@ -68,7 +68,7 @@ TEST(Morph2dCli, UnreadableInputReturns2) {
   EXPECT_EQ(RunMorph2dCommand(p, false, out, err), 2);
   fs::remove(p);
   // An empty mask: readable, but nothing to measure.
-  ASSERT_TRUE(cv::imwrite(p, cv::Mat::zeros(50, 50, CV_8UC1)));
+  ASSERT_TRUE(cv::imwrite(p, cv::Mat::zeros(100, 100, CV_8UC1)));
   EXPECT_EQ(RunMorph2dCommand(p, false, out, err), 1);
   fs::remove(p);
 }

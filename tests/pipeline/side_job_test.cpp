@@ -253,6 +253,44 @@ TEST_F(SideJobTest, BadManifestsAreRefused) {
   EXPECT_FALSE(ProcessSide(dir_, 0).ok());
 }
 
+// Photos that cannot be used (truncated, a 1x1 frame, a strip) are left
+// out of the side and named with what to do; the side is still measured
+// from the others, and refused for its model when too few are left.
+TEST_F(SideJobTest, UnusablePhotosAreLeftOutAndNamed) {
+  MakeSide(1, 6);
+  const std::string sd = dir_ + "/side1/";
+  auto replace = [&](int v, const std::string& bytes) {
+    Write(sd + layout::ViewImageName(v), bytes);
+    manifest_["views"][v]["bytes"] = bytes.size();
+  };
+  const std::string good = *ReadFile(sd + layout::ViewImageName(1));
+  replace(1, good.substr(0, good.size() / 2));
+  std::vector<unsigned char> tiny;
+  ASSERT_TRUE(cv::imencode(".jpg", cv::Mat(1, 1, CV_8UC3, cv::Scalar(128, 128, 128)), tiny));
+  replace(3, std::string(tiny.begin(), tiny.end()));
+  Write(sd + layout::kManifest, manifest_.dump());
+  Status st = ProcessSide(dir_, 1);
+  ASSERT_TRUE(st.ok()) << st.error().ToString();
+  const json r = ReadJson(SideResultPath(dir_, 1));
+  EXPECT_EQ(r["views_ok"].get<int>(), 4);
+  EXPECT_FALSE(r["views"][1]["ok"].get<bool>());
+  EXPECT_NE(r["views"][1]["error"].get<std::string>().find("Premature end of JPEG file"), std::string::npos)
+      << r["views"][1].dump();
+  EXPECT_NE(r["views"][3]["error"].get<std::string>().find("is 1x1: too small to measure"), std::string::npos)
+      << r["views"][3].dump();
+  const std::string problems = r["image_problems"].get<std::string>();
+  EXPECT_NE(problems.find("the photo of views 1, 3 cannot be used"), std::string::npos) << problems;
+  EXPECT_NE(problems.find("re-shoot the side"), std::string::npos) << problems;
+  EXPECT_FALSE(PathExists(ViewMaskPath(dir_, 1, 1)));
+  // 4 of 6 left: enough (two thirds); one more lost is not.
+  EXPECT_TRUE(SideHasEnoughWholeViews(r).ok());
+  json fewer = r;
+  fewer["views_ok"] = 3;
+  Status s = SideHasEnoughWholeViews(fewer);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().message.find("the photo of views 1, 3 cannot be used"), std::string::npos) << s.error().message;
+}
+
 TEST_F(SideJobTest, SampleWithoutSidesIsNotFound) {
   Status s = ProcessSample(dir_);
   ASSERT_FALSE(s.ok());
