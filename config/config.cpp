@@ -11,6 +11,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cctype>
 #include <charconv>
 #include <cmath>
 #include <cstdio>
@@ -138,6 +139,13 @@ const std::vector<Field<Config>>& Fields() {
       D(daemon.health_probe_interval, Range(0, 3600 * kSec),
         "read the turntable's status this often while no side runs, so health notices a lost "
         "controller before a capture does (0 = off)"),
+      F(daemon.allowed_hosts, Any(),
+        "Host names the API answers to besides localhost, 127.0.0.1, [::1] and listen_address "
+        "(DNS-rebinding defence): comma-separated, each with or without :port, e.g. "
+        "\"rig.local, 192.168.1.20\""),
+      F(daemon.allowed_origins, Any(),
+        "web origins allowed to change state (POST) besides those of the allowed hosts: "
+        "comma-separated, e.g. \"http://console.local:8080\""),
 
       F(capture.profile, OneOf(Profiles()),
         "paper (fixes sides 2, views_per_side 30, step_deg 30, interval 2s) | "
@@ -158,11 +166,11 @@ const std::vector<Field<Config>>& Fields() {
         "moving but position unchanged this long = stalled"),
       F(capture.comm_retries, Range(0, 10), "turntable communication retries before a fault"),
 
-      F(camera.backend, Backend("camera"),
-        "camera backend: sim | v4l2 | libcamera"),
+      F(camera.backend, Backend("camera"), "camera backend: sim | v4l2 | libcamera"),
       F(camera.id, NonEmpty(), "camera id recorded in every sidecar"),
       F(camera.device, Any(),
-        "device path or udev name for real backends, e.g. /dev/aggscan/camera or a /dev/v4l/by-id name"),
+        "device path or udev name for real backends, e.g. /dev/aggscan/camera or a /dev/v4l/by-id "
+        "name"),
       F(camera.width, Range(16, 16384), "still width, pixels"),
       F(camera.height, Range(16, 16384), "still height, pixels"),
       F(camera.jpeg_quality, Range(1, 100), "1..100, when the driver encodes JPEG itself"),
@@ -192,7 +200,8 @@ const std::vector<Field<Config>>& Fields() {
         "refuse to configure when the device lacks a control for a locked setting"),
       F(camera.libcamera.camera_id, Any(),
         "libcamera camera id as `cam -l` lists it; empty = the camera at index"),
-      F(camera.libcamera.index, Range(0, 63), "position in libcamera's camera list (camera_id empty)"),
+      F(camera.libcamera.index, Range(0, 63),
+        "position in libcamera's camera list (camera_id empty)"),
       F(camera.libcamera.role, OneOf({"still", "raw", "video", "viewfinder"}),
         "stream role asked of the pipeline: still | raw | video | viewfinder"),
       F(camera.libcamera.pixel_format,
@@ -270,7 +279,8 @@ const std::vector<Field<Config>>& Fields() {
       F(turntable.usb.home, OneOf({"reverse", "forward", "here"}),
         "reverse | forward: the Tic's homing run toward its limit switch; here: the platter's "
         "place when homing is angle 0"),
-      D(turntable.usb.timeout, Above(0, 10 * kSec), "one USB control transfer must end within this"),
+      D(turntable.usb.timeout, Above(0, 10 * kSec),
+        "one USB control transfer must end within this"),
       F(turntable.usb.shortest_path, Any(),
         "go to the target's position modulo 360 the shorter way round (angles stay cumulative)"),
       F(turntable.usb.backlash_comp_deg, Range(0, 10),
@@ -298,7 +308,8 @@ const std::vector<Field<Config>>& Fields() {
       F(button.modbus.host, Any(), "modbus tcp: controller or gateway address"),
       F(button.modbus.port, Range(1, 65535), "modbus tcp: port"),
       F(button.modbus.device, Any(), "modbus rtu: serial device, e.g. /dev/ttyUSB1"),
-      F(button.modbus.baud, Range(300, 4'000'000), "modbus rtu: line speed, bit/s (8 data, 1 stop)"),
+      F(button.modbus.baud, Range(300, 4'000'000),
+        "modbus rtu: line speed, bit/s (8 data, 1 stop)"),
       F(button.modbus.parity, OneOf({"none", "even", "odd"}), "modbus rtu: none | even | odd"),
       F(button.modbus.unit_id, Range(0, 255), "modbus: unit (slave) id"),
       D(button.modbus.response_timeout, Above(0, 10 * kSec),
@@ -313,7 +324,8 @@ const std::vector<Field<Config>>& Fields() {
       F(light.gpio.chip, NonEmpty(), "gpio: chip name, path, number or label"),
       F(light.gpio.line, NonEmpty(), "gpio: line offset or line name"),
       F(light.gpio.active_low, Any(), "gpio: lit = low level"),
-      F(light.gpio.bias, OneOf({"as-is", "pull-up", "pull-down", "disable"}), "gpio: unused for an output"),
+      F(light.gpio.bias, OneOf({"as-is", "pull-up", "pull-down", "disable"}),
+        "gpio: unused for an output"),
       F(light.modbus.link, OneOf({"turntable", "button"}),
         "modbus: turntable ([turntable.modbus], modbus-tcp) | button ([button.modbus]'s link)"),
       F(light.modbus.coil, Range(0, 65535), "modbus: coil address, 0-based as on the wire"),
@@ -378,8 +390,10 @@ const std::vector<Field<Config>>& Fields() {
       D(worker.poll_interval, Above(0, 60 * kSec), "queue polling period when idle"),
       F(worker.nice, Range(0, 19), "CPU priority below the capture daemon (0..19)"),
       F(worker.poses, OneOf({"auto", "turntable", "sfm"}),
-        "poses: turntable (rig calibration + measured angles) | sfm (full SfM through COLMAP, scaled by "
-        "the background labels; minutes a side) | auto (turntable with a calibration, sfm without)"),
+        "poses: turntable (rig calibration + measured angles) | sfm (full SfM through COLMAP, "
+        "scaled by "
+        "the background labels; minutes a side) | auto (turntable with a calibration, sfm "
+        "without)"),
   };
   return k;
 }
@@ -782,6 +796,39 @@ std::string Leaf(const std::string& key) {
 // ---------------------------------------------------------------------------
 // Validation shared by the loader (with lines) and ValidateConfig (without).
 
+// "name", "name:port", "[v6]" or "[v6]:port", as a Host header carries it.
+bool IsHostEntry(const std::string& s) {
+  std::string host = s, port;
+  if (!s.empty() && s[0] == '[') {
+    const size_t close = s.find(']');
+    if (close == std::string::npos || close < 3) return false;
+    host = s.substr(1, close - 1);
+    if (host.find_first_not_of("0123456789abcdefABCDEF:.") != std::string::npos) return false;
+    if (close + 1 < s.size()) {
+      if (s[close + 1] != ':') return false;
+      port = s.substr(close + 2);
+      if (port.empty()) return false;
+    }
+  } else {
+    const size_t colon = s.find(':');
+    if (colon != std::string::npos) {
+      host = s.substr(0, colon);
+      port = s.substr(colon + 1);
+      if (port.empty()) return false;
+    }
+    if (host.empty() || host.size() > 253) return false;
+    for (unsigned char ch : host) {
+      if (!std::isalnum(ch) && ch != '.' && ch != '-' && ch != '_') return false;
+    }
+  }
+  if (!port.empty()) {
+    if (port.size() > 5 || port.find_first_not_of("0123456789") != std::string::npos) return false;
+    const int p = std::stoi(port);
+    if (p < 1 || p > 65535) return false;
+  }
+  return true;
+}
+
 using LineMap = std::map<std::string, int>;
 
 class Validator {
@@ -803,6 +850,23 @@ class Validator {
     for (const auto& f : Fields()) {
       std::string msg = CheckValue(f.ref(c), f.check);
       if (!msg.empty()) Add(f.key, msg);
+    }
+    for (const std::string& h : SplitCommaList(c.daemon.allowed_hosts)) {
+      if (!IsHostEntry(h)) {
+        Add("daemon.allowed_hosts",
+            "\"" + h +
+                "\" is not a host name or address with an optional :port (IPv6 in "
+                "brackets, e.g. [fe80::1]:8470)");
+      }
+    }
+    for (const std::string& o : SplitCommaList(c.daemon.allowed_origins)) {
+      const bool http = o.rfind("http://", 0) == 0;
+      const bool https = o.rfind("https://", 0) == 0;
+      if ((!http && !https) || !IsHostEntry(o.substr(http ? 7 : 8))) {
+        Add("daemon.allowed_origins", "\"" + o +
+                                          "\" is not an origin: use http://host[:port] or "
+                                          "https://host[:port], without a path");
+      }
     }
     std::set<std::string> colors;
     for (size_t i = 0; i < c.rig.markers.size(); ++i) {
@@ -1476,6 +1540,21 @@ void ValidateConfig(const Config& c, const std::string& file,
                     std::vector<ConfigProblem>* problems) {
   if (!problems) return;
   Validator(file, nullptr, problems).Run(c);
+}
+
+std::vector<std::string> SplitCommaList(const std::string& list) {
+  std::vector<std::string> out;
+  size_t pos = 0;
+  while (pos <= list.size()) {
+    size_t end = list.find(',', pos);
+    if (end == std::string::npos) end = list.size();
+    std::string item = list.substr(pos, end - pos);
+    const size_t a = item.find_first_not_of(" \t");
+    const size_t b = item.find_last_not_of(" \t");
+    if (a != std::string::npos) out.push_back(item.substr(a, b - a + 1));
+    pos = end + 1;
+  }
+  return out;
 }
 
 void ApplyProfile(Config* c) {

@@ -25,6 +25,11 @@ struct DaemonConfig {
   TimeNs reopen_backoff_min = 1 * kNsPerSec;   // first retry of a device that failed to open (real time)
   TimeNs reopen_backoff_max = 30 * kNsPerSec;  // retries double up to this; reset when the device opens
   TimeNs health_probe_interval = 5 * kNsPerSec;  // turntable status read while no side runs (0 = off)
+  // Host names (or addresses, IPv6 in brackets) the API answers to besides localhost,
+  // 127.0.0.1, [::1] and listen_address, comma-separated, each with or without ":port"
+  std::string allowed_hosts;
+  // Origins ("http://host:port", comma-separated) allowed to POST besides the allowed hosts
+  std::string allowed_origins;
 
   bool operator==(const DaemonConfig&) const = default;
 };
@@ -422,6 +427,8 @@ Result<Config> LoadConfigString(const std::string& toml, const std::string& file
 /// steps, a step must fit in the interval, unique marker colours, ...); appends
 /// problems (line 0: a struct has no lines).
 void ValidateConfig(const Config& c, const std::string& file, std::vector<ConfigProblem>* problems);
+/// The entries of a comma-separated list (daemon.allowed_hosts), trimmed, empty ones left out.
+std::vector<std::string> SplitCommaList(const std::string& list);
 /// Applies the capture profile: paper = 2x30x30deg@2s, full-turn = 360/N steps,
 /// custom = unchanged (see the rule above CaptureConfig).
 void ApplyProfile(Config* c);

@@ -1,8 +1,10 @@
 #include "daemon/capture_service.h"
 
 #include <algorithm>
-#include <cmath>
+#include <atomic>
 #include <chrono>
+#include <cmath>
+#include <cstdio>
 #include <future>
 #include <sstream>
 
@@ -21,8 +23,10 @@ namespace {
 constexpr TimeNs kOverrunTolerance = 50 * kNsPerMs;
 // Motion smaller than this between polls counts as "not advancing" (stall detection).
 constexpr double kStallEpsilonDeg = 0.01;
-// How long an API call waits for the loop before answering 503.
-constexpr auto kApiWait = std::chrono::seconds(10);
+// The longest an API call waits for the loop (a call's own deadline may be
+// sooner): below the CLI's 30 s read timeout, so a client always learns
+// whether its command ran.
+constexpr auto kApiWait = std::chrono::seconds(5);
 
 SamplePlan PlanFromConfig(const Config& c) {
   SamplePlan p;
@@ -112,28 +116,79 @@ R Unavailable() {
   }
 }
 
+// What an API call answers when it was dropped without running: `why` says why.
+template <typename R>
+R NotRun(ErrorClass cls, const std::string& why) {
+  if constexpr (std::is_same_v<R, json>) {
+    return json{{"state", "unavailable"}, {"status_line", why}};
+  } else if constexpr (std::is_same_v<R, std::string>) {
+    return "# " + why + "\n";
+  } else {
+    return MakeError(cls, why);
+  }
+}
+
 template <typename F>
-auto CaptureService::OnLoop(F fn) -> decltype(fn()) {
+auto CaptureService::OnLoop(F fn, const CallContext& ctx) -> decltype(fn()) {
   using R = decltype(fn());
-  auto prom = std::make_shared<std::promise<R>>();
-  std::future<R> fut = prom->get_future();
-  if (loop_.stopped()) return Unavailable<R>();
-  loop_.Post([prom, fn]() mutable {
+  using Clock = std::chrono::steady_clock;
+  // The closure and the waiter race for the call: whichever moves it out of
+  // kPending decides whether it runs. A waiter that gave up has moved it to
+  // kDropped, so the closure, however late the loop gets to it, never runs fn.
+  enum Stage : int { kPending, kStarted, kDropped };
+  struct Call {
+    std::atomic<int> stage{kPending};
+    std::promise<R> prom;
+  };
+  if (loop_.stopped())
+    return NotRun<R>(ErrorClass::kInternal, "aggscand is stopping: the request was not run");
+  const auto deadline = std::min(Clock::now() + kApiWait, ctx.deadline);
+  const double budget_s = std::chrono::duration<double>(deadline - Clock::now()).count();
+  char budget[32];
+  std::snprintf(budget, sizeof budget, "%.1f", std::max(0.0, budget_s));
+  const std::string late =
+      std::string("the capture loop was busy and did not start this request within ") + budget +
+      " s: it was dropped and will not run later; check the status and try again";
+  auto call = std::make_shared<Call>();
+  std::future<R> fut = call->prom.get_future();
+  loop_.Post([call, fn, deadline, late, gone = ctx.client_gone]() mutable {
+    int expected = kPending;
+    if (!call->stage.compare_exchange_strong(expected, kStarted))
+      return;  // the waiter gave up on it
+    if (Clock::now() >= deadline) {
+      call->prom.set_value(NotRun<R>(ErrorClass::kTimeout, late));
+      return;
+    }
+    if (gone && gone()) {
+      call->prom.set_value(NotRun<R>(
+          ErrorClass::kTimeout, "the client disconnected before the request ran: it was dropped"));
+      return;
+    }
     try {
-      prom->set_value(fn());
+      call->prom.set_value(fn());
     } catch (const std::exception& e) {
       // A bug must not take the capture loop down with it.
       AGG_LOGE("capture", "API call failed with an exception: %s", e.what());
-      prom->set_value(Unavailable<R>());
+      call->prom.set_value(Unavailable<R>());
     }
   });
   // Wait in slices: a daemon that is stopping answers at once.
-  const auto deadline = std::chrono::steady_clock::now() + kApiWait;
-  while (fut.wait_for(std::chrono::milliseconds(100)) != std::future_status::ready) {
-    if (!loop_.stopped() && std::chrono::steady_clock::now() < deadline) continue;
-    return Unavailable<R>();
+  for (;;) {
+    const auto slice = std::min(deadline, Clock::now() + std::chrono::milliseconds(100));
+    if (fut.wait_until(slice) == std::future_status::ready) return fut.get();
+    if (!loop_.stopped() && Clock::now() < deadline) continue;
+    int expected = kPending;
+    if (call->stage.compare_exchange_strong(expected, kDropped)) {
+      return loop_.stopped()
+                 ? NotRun<R>(ErrorClass::kInternal, "aggscand is stopping: the request was not run")
+                 : NotRun<R>(ErrorClass::kTimeout, late);
+    }
+    // Started just now: it runs to the end on the loop, so its answer is the truth.
+    if (fut.wait_for(kApiWait) == std::future_status::ready) return fut.get();
+    return NotRun<R>(
+        ErrorClass::kTimeout,
+        "the request started but gave no answer in time; check the status before repeating it");
   }
-  return fut.get();
 }
 
 // ---------------------------------------------------------------- devices --
@@ -850,8 +905,8 @@ json CaptureService::GetHealth() {
   return OnLoop([this] { return HealthOnLoop(); });
 }
 
-Result<json> CaptureService::Arm(const std::string& sample_id) {
-  return OnLoop([this, sample_id] { return ArmOnLoop(sample_id); });
+Result<json> CaptureService::Arm(const std::string& sample_id, const CallContext& ctx) {
+  return OnLoop([this, sample_id] { return ArmOnLoop(sample_id); }, ctx);
 }
 
 Result<json> CaptureService::PressOnLoop(const std::string& source) {
@@ -871,16 +926,16 @@ Result<json> CaptureService::PressOnLoop(const std::string& source) {
   return out;
 }
 
-Result<json> CaptureService::Press(const std::string& source) {
-  return OnLoop([this, source] { return PressOnLoop(source); });
+Result<json> CaptureService::Press(const std::string& source, const CallContext& ctx) {
+  return OnLoop([this, source] { return PressOnLoop(source); }, ctx);
 }
 
-Result<json> CaptureService::Abort() {
-  return OnLoop([this] { return AbortOnLoop(); });
+Result<json> CaptureService::Abort(const CallContext& ctx) {
+  return OnLoop([this] { return AbortOnLoop(); }, ctx);
 }
 
-Result<json> CaptureService::Reset() {
-  return OnLoop([this] { return ResetOnLoop(); });
+Result<json> CaptureService::Reset(const CallContext& ctx) {
+  return OnLoop([this] { return ResetOnLoop(); }, ctx);
 }
 
 Result<json> CaptureService::ListSamples() { return store_.List(); }

@@ -58,10 +58,10 @@ class CaptureService final : public DaemonControl {
   // DaemonControl (any thread).
   nlohmann::json GetStatus() override;
   nlohmann::json GetHealth() override;
-  Result<nlohmann::json> Arm(const std::string& sample_id) override;
-  Result<nlohmann::json> Press(const std::string& source) override;
-  Result<nlohmann::json> Abort() override;
-  Result<nlohmann::json> Reset() override;
+  Result<nlohmann::json> Arm(const std::string& sample_id, const CallContext& ctx) override;
+  Result<nlohmann::json> Press(const std::string& source, const CallContext& ctx) override;
+  Result<nlohmann::json> Abort(const CallContext& ctx) override;
+  Result<nlohmann::json> Reset(const CallContext& ctx) override;
   Result<nlohmann::json> ListSamples() override;
   Result<nlohmann::json> GetSample(const std::string& sample_id) override;
   Result<std::string> ResultFile(const std::string& sample_id, const std::string& name) override;
@@ -103,8 +103,11 @@ class CaptureService final : public DaemonControl {
     FramePtr frame;
   };
 
+  /// Runs `fn` on the loop and waits for its answer until ctx.deadline (at most
+  /// the service's own limit). If the loop has not started it by then, or
+  /// ctx.client_gone() says nobody waits for it, it is dropped and never runs.
   template <typename F>
-  auto OnLoop(F fn) -> decltype(fn());
+  auto OnLoop(F fn, const CallContext& ctx = {}) -> decltype(fn());
   void Dispatch(capture::Event e);
   void Execute(const capture::Effect& eff);
   void PollMotion(uint64_t epoch);

@@ -5,6 +5,8 @@
 // (kInvalidArgument 400, kNotFound 404, kConflict/kInvalidState 409, others 500/503).
 #pragma once
 
+#include <chrono>
+#include <functional>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
@@ -19,6 +21,24 @@ inline const std::vector<std::string>& ResultFileNames() {
   return names;
 }
 
+/// What a state-changing call carries from its transport. A command that the
+/// capture loop has not started by `deadline`, or whose client is gone, is
+/// dropped (kTimeout / kConflict) and never runs afterwards: a press the
+/// operator saw fail must not move the turntable later.
+struct CallContext {
+  using Clock = std::chrono::steady_clock;
+  /// The latest moment the loop may start the command; max() = the service's own limit.
+  Clock::time_point deadline = Clock::time_point::max();
+  /// Optional; true once the requester has disconnected. Called on the loop
+  /// thread just before the command would run, so it must be cheap and non-blocking.
+  std::function<bool()> client_gone;
+
+  /// A context whose deadline is `budget` from now.
+  static CallContext Within(Clock::duration budget) {
+    return CallContext{Clock::now() + budget, {}};
+  }
+};
+
 class DaemonControl {
  public:
   virtual ~DaemonControl() = default;
@@ -31,11 +51,11 @@ class DaemonControl {
   ///   "last_ok_utc", "retries", "next_retry_utc", "next_retry_in_s"}}, "checked_utc"}
   virtual nlohmann::json GetHealth() = 0;
   /// Arms a new sample (or resumes an unfinished one with that id).
-  virtual Result<nlohmann::json> Arm(const std::string& sample_id) = 0;
+  virtual Result<nlohmann::json> Arm(const std::string& sample_id, const CallContext& ctx) = 0;
   /// Same as pressing the physical start button. `source` e.g. "api".
-  virtual Result<nlohmann::json> Press(const std::string& source) = 0;
-  virtual Result<nlohmann::json> Abort() = 0;
-  virtual Result<nlohmann::json> Reset() = 0;
+  virtual Result<nlohmann::json> Press(const std::string& source, const CallContext& ctx) = 0;
+  virtual Result<nlohmann::json> Abort(const CallContext& ctx) = 0;
+  virtual Result<nlohmann::json> Reset(const CallContext& ctx) = 0;
   /// [{"id","state","created_utc","sides_done","views"}...]
   virtual Result<nlohmann::json> ListSamples() = 0;
   /// The sample record plus per-side view lists and job states.

@@ -1,19 +1,24 @@
 #include "daemon/http_api.h"
 
-#include <httplib.h>
+#include <fcntl.h>
+#include <microhttpd.h>
 #include <netdb.h>
+#include <poll.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cctype>
 #include <cerrno>
-#include <chrono>
+#include <condition_variable>
+#include <cstdarg>
 #include <cstring>
+#include <deque>
 #include <exception>
-#include <functional>
+#include <mutex>
 #include <nlohmann/json.hpp>
-#include <string_view>
-#include <utility>
+#include <thread>
+#include <unordered_set>
 
 #include "common/fsutil.h"
 #include "common/log.h"
@@ -24,42 +29,123 @@ namespace aggscan {
 namespace {
 
 using json = nlohmann::json;
+using SteadyClock = std::chrono::steady_clock;
 
 constexpr const char* kCat = "api";
-// A client that streams a body past the limit is drained up to this many bytes
-// (so the connection stays in sync for the 413), then cut off.
-constexpr size_t kDrainLimitBytes = 1 << 20;
-// Worker threads: the CLI and dashboards hold keep-alive connections, each of
-// which occupies a worker until it closes or idles out.
-constexpr size_t kWorkerThreads = 16;
-// Short keep-alive so Stop() (daemon shutdown) never waits long on idle clients.
-constexpr time_t kKeepAliveSec = 2;
 constexpr const char* kJsonType = "application/json";
 constexpr const char* kMetricsType = "text/plain; version=0.0.4; charset=utf-8";
 constexpr const char* kSamplesPrefix = "/api/v1/samples/";
-// Matches every path, including ones whose percent-decoding produced control
-// characters ('.' would not match a decoded "%0a", leaving it unrouted).
-constexpr const char* kAnyPath = "[\\s\\S]*";
+// Threads that run routed requests (each may wait up to kRequestBudget on the
+// capture loop); the polling thread hands them complete requests only, so a
+// slow client never occupies one.
+constexpr size_t kHandlerThreads = 4;
+// Per-connection memory of libmicrohttpd (read buffer and parsed head): above
+// ApiLimits' header and URI limits, so those are answered with our JSON
+// errors; a head larger than the pool gets libmicrohttpd's own 431 or 414.
+constexpr size_t kConnectionMemory = 64 * 1024;
+// A body over the limit is still read (and dropped) up to this size, so that
+// the client is in a state to read the 413; a larger one is cut off.
+constexpr size_t kDrainLimitBytes = 1 << 20;
+// How often the watchdog looks for connections past their receive or send limit.
+constexpr auto kWatchdogPeriod = std::chrono::milliseconds(200);
 
 // Never throws on invalid UTF-8 (a daemon message or an echoed id may hold any bytes).
 std::string Dump(const json& j) {
   return j.dump(-1, ' ', false, json::error_handler_t::replace) + "\n";
 }
 
-void SetJson(httplib::Response& res, int status, const json& body) {
-  res.status = status;
-  res.set_content(Dump(body), kJsonType);
+ApiResponse JsonResponse(int status, const json& body) {
+  ApiResponse r;
+  r.status = status;
+  r.content_type = kJsonType;
+  r.body = Dump(body);
+  return r;
 }
 
-void SetError(httplib::Response& res, int status, ErrorClass cls, const std::string& message,
-              const std::string& detail = {}) {
-  json err = {{"class", ErrorClassName(cls)}, {"message", message}};
-  if (!detail.empty()) err["detail"] = detail;
-  SetJson(res, status, json{{"error", std::move(err)}});
+ApiResponse ErrorFrom(const Error& e) {
+  return ErrorResponse(HttpStatusFor(e.cls), e.cls, e.message, e.detail);
 }
 
-void SetError(httplib::Response& res, const Error& e) {
-  SetError(res, HttpStatusFor(e.cls), e.cls, e.message, e.detail);
+std::string Lower(std::string_view s) {
+  std::string out(s);
+  for (char& c : out) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return out;
+}
+
+bool IEquals(std::string_view a, std::string_view b) {
+  if (a.size() != b.size()) return false;
+  for (size_t i = 0; i < a.size(); ++i) {
+    if (std::tolower(static_cast<unsigned char>(a[i])) !=
+        std::tolower(static_cast<unsigned char>(b[i])))
+      return false;
+  }
+  return true;
+}
+
+int HexDigit(char c) {
+  if (c >= '0' && c <= '9') return c - '0';
+  if (c >= 'a' && c <= 'f') return c - 'a' + 10;
+  if (c >= 'A' && c <= 'F') return c - 'A' + 10;
+  return -1;
+}
+
+// Percent-decodes a path once ("%252e" becomes "%2e"); '+' stays '+' in a path,
+// and a '%' not followed by two hex digits is kept as it is.
+std::string PercentDecode(std::string_view s) {
+  std::string out;
+  out.reserve(s.size());
+  for (size_t i = 0; i < s.size(); ++i) {
+    if (s[i] == '%' && i + 2 < s.size()) {
+      const int hi = HexDigit(s[i + 1]);
+      const int lo = HexDigit(s[i + 2]);
+      if (hi >= 0 && lo >= 0) {
+        out += static_cast<char>(hi * 16 + lo);
+        i += 2;
+        continue;
+      }
+    }
+    out += s[i];
+  }
+  return out;
+}
+
+// Splits "host[:port]" ("[v6]:port" for IPv6). False when it is not of that form.
+bool SplitHostPort(std::string_view s, std::string* host, int* port, bool* port_given) {
+  *port = 0;
+  *port_given = false;
+  std::string_view rest;
+  if (!s.empty() && s[0] == '[') {
+    const size_t close = s.find(']');
+    if (close == std::string_view::npos) return false;
+    *host = std::string(s.substr(0, close + 1));
+    rest = s.substr(close + 1);
+  } else {
+    const size_t colon = s.find(':');
+    *host = std::string(s.substr(0, colon));
+    rest = colon == std::string_view::npos ? std::string_view{} : s.substr(colon);
+  }
+  if (host->empty() || host->size() > 255) return false;
+  for (unsigned char c : *host) {
+    if (!(std::isalnum(c) || c == '.' || c == '-' || c == '_' || c == ':' || c == '[' || c == ']'))
+      return false;
+  }
+  if (rest.empty()) return true;
+  if (rest[0] != ':' || rest.size() < 2 || rest.size() > 6) return false;
+  int p = 0;
+  for (char c : rest.substr(1)) {
+    if (c < '0' || c > '9') return false;
+    p = p * 10 + (c - '0');
+  }
+  if (p < 1 || p > 65535) return false;
+  *port = p;
+  *port_given = true;
+  return true;
+}
+
+bool IsSafeMethod(const std::string& m) { return m == "GET" || m == "HEAD" || m == "OPTIONS"; }
+
+bool IsKnownMethod(const std::string& m) {
+  return IsSafeMethod(m) || m == "POST" || m == "PUT" || m == "PATCH" || m == "DELETE";
 }
 
 // Paths and ids echoed into logs and messages: printable ASCII only, capped.
@@ -78,7 +164,18 @@ std::string Printable(std::string_view s, size_t max_len = 200) {
   return out;
 }
 
-enum class Endpoint { kNone, kStatus, kHealth, kSamples, kSample, kSampleFile, kButton, kAbort, kReset, kMetrics };
+enum class Endpoint {
+  kNone,
+  kStatus,
+  kHealth,
+  kSamples,
+  kSample,
+  kSampleFile,
+  kButton,
+  kAbort,
+  kReset,
+  kMetrics
+};
 
 // Methods each endpoint accepts (HEAD is answered wherever GET is).
 const char* AllowedMethods(Endpoint ep) {
@@ -113,7 +210,7 @@ bool MethodAllowed(Endpoint ep, const std::string& method) {
   return false;
 }
 
-// `path` is already percent-decoded by cpp-httplib; `id` gets whatever follows
+// `path` is already percent-decoded (once); `id` gets whatever follows
 // the samples prefix up to the next '/', unvalidated, and `file` what follows
 // that ("results" or a mesh file name).
 Endpoint Match(const std::string& path, std::string* id, std::string* file) {
@@ -134,7 +231,8 @@ Endpoint Match(const std::string& path, std::string* id, std::string* file) {
       *file = "morphology.json";
       return Endpoint::kSampleFile;
     }
-    if (*file == "mesh.ply" || *file == "mesh.obj" || *file == "mesh.stl") return Endpoint::kSampleFile;
+    if (*file == "mesh.ply" || *file == "mesh.obj" || *file == "mesh.stl")
+      return Endpoint::kSampleFile;
     // Anything else is not a sub-resource: the whole rest is the (invalid) id.
     *id = path.substr(std::strlen(kSamplesPrefix));
     file->clear();
@@ -148,52 +246,9 @@ std::string InvalidIdMessage(const std::string& id) {
          "\": use 1-64 characters from A-Z a-z 0-9 . _ -, not starting with '.' or '-'";
 }
 
-enum class BodyRead { kOk, kTooLarge, kBroken };
-
-bool IsChunked(const httplib::Request& req) {
-  std::string te = req.get_header_value("Transfer-Encoding");
-  for (char& c : te) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return te.find("chunked") != std::string::npos;
-}
-
-// Reads the request body through the content reader, keeping at most
-// kMaxBodyBytes. A request without Content-Length or chunked encoding has no
-// body (cpp-httplib would otherwise wait for the peer to close).
-BodyRead ReadBody(const httplib::Request& req, httplib::Response& res,
-                  const httplib::ContentReader& reader, std::string* body) {
-  const bool chunked = IsChunked(req);
-  if (!req.has_header("Content-Length") && !chunked) return BodyRead::kOk;
-  if (!chunked) {
-    // cpp-httplib would saturate an unparsable or absurd length and then try to
-    // skip that many bytes, holding a worker until its read timeout.
-    const std::string len = req.get_header_value("Content-Length");
-    const bool digits = !len.empty() && len.size() <= 18 &&
-                        len.find_first_not_of("0123456789") == std::string::npos;
-    if (!digits) return BodyRead::kBroken;
-  }
-  size_t total = 0;
-  bool over = false;
-  const bool ok = reader([&](const char* data, size_t n) {
-    total += n;
-    if (total > kDrainLimitBytes) return false;
-    if (!over && body->size() + n > HttpApi::kMaxBodyBytes) {
-      over = true;
-      body->clear();
-    }
-    if (!over) body->append(data, n);
-    return true;
-  });
-  // cpp-httplib sets 413 itself when Content-Length exceeds the payload limit.
-  if (over || res.status == 413 || total > HttpApi::kMaxBodyBytes) return BodyRead::kTooLarge;
-  return ok ? BodyRead::kOk : BodyRead::kBroken;
-}
-
-void Reply(httplib::Response& res, const Result<json>& r) {
-  if (!r.ok()) {
-    SetError(res, r.error());
-    return;
-  }
-  SetJson(res, 200, r.value().is_null() ? json::object() : r.value());
+ApiResponse Reply(const Result<json>& r) {
+  if (!r.ok()) return ErrorFrom(r.error());
+  return JsonResponse(200, r.value().is_null() ? json::object() : r.value());
 }
 
 }  // namespace
@@ -224,174 +279,293 @@ int HttpStatusFor(ErrorClass cls) {
   return 500;
 }
 
-// Routes one request to DaemonControl. Runs on cpp-httplib worker threads.
-struct HttpApi::Impl {
-  DaemonControl& control;
+const std::string* ApiRequest::Header(std::string_view name) const {
+  for (const auto& [k, v] : headers) {
+    if (IEquals(k, name)) return &v;
+  }
+  return nullptr;
+}
 
-  // `reader` is null for methods that carry no body (GET, HEAD, OPTIONS).
-  void Handle(const httplib::Request& req, httplib::Response& res,
-              const httplib::ContentReader* reader) {
-    try {
-      HandleUnsafe(req, res, reader);
-    } catch (const std::exception& e) {
-      AGG_LOGE(kCat, "%s %s: unhandled exception: %s", req.method.c_str(),
-               Printable(req.path).c_str(), e.what());
-      res.headers.erase("Allow");
-      SetError(res, 500, ErrorClass::kInternal, "internal error in the HTTP API; report it",
-               e.what());
-    } catch (...) {
-      AGG_LOGE(kCat, "%s %s: unhandled non-standard exception", req.method.c_str(),
-               Printable(req.path).c_str());
-      SetError(res, 500, ErrorClass::kInternal, "internal error in the HTTP API; report it");
+ApiResponse ErrorResponse(int status, ErrorClass cls, const std::string& message,
+                          const std::string& detail) {
+  json err = {{"class", ErrorClassName(cls)}, {"message", message}};
+  if (!detail.empty()) err["detail"] = detail;
+  return JsonResponse(status, json{{"error", std::move(err)}});
+}
+
+// ------------------------------------------------------------ HostPolicy --
+
+HostPolicy::HostPolicy(const std::vector<std::string>& names,
+                       const std::vector<std::string>& origins, int port)
+    : port_(port) {
+  for (const std::string& n : names) {
+    std::string host;
+    int p = 0;
+    bool given = false;
+    if (SplitHostPort(Lower(n), &host, &p, &given)) names_.emplace_back(host, p);
+  }
+  for (const std::string& o : origins) origins_.push_back(Lower(o));
+}
+
+HostPolicy HostPolicy::ForListen(const std::string& listen_address,
+                                 const std::vector<std::string>& extra_names,
+                                 const std::vector<std::string>& origins, int port) {
+  std::vector<std::string> names = {"localhost", "127.0.0.1", "[::1]"};
+  if (!listen_address.empty()) {
+    const bool v6 = listen_address.find(':') != std::string::npos && listen_address[0] != '[';
+    names.push_back(v6 ? "[" + listen_address + "]" : listen_address);
+  }
+  names.insert(names.end(), extra_names.begin(), extra_names.end());
+  return HostPolicy(names, origins, port);
+}
+
+bool HostPolicy::Allowed(std::string_view name, int port, bool port_given) const {
+  for (const auto& [n, p] : names_) {
+    if (n != name) continue;
+    // No port in a Host header means the scheme's default, 80 here.
+    if (!port_given) return p == 0 || p == 80;
+    if (p == 0 ? port == port_ : port == p) return true;
+  }
+  return false;
+}
+
+bool HostPolicy::HostAllowed(std::string_view host) const {
+  std::string name;
+  int port = 0;
+  bool given = false;
+  if (!SplitHostPort(Lower(host), &name, &port, &given)) return false;
+  return Allowed(name, port, given);
+}
+
+bool HostPolicy::OriginAllowed(std::string_view origin) const {
+  const std::string o = Lower(origin);
+  if (std::find(origins_.begin(), origins_.end(), o) != origins_.end()) return true;
+  int default_port = 0;
+  std::string_view rest = o;
+  if (rest.starts_with("http://")) {
+    default_port = 80;
+    rest.remove_prefix(7);
+  } else if (rest.starts_with("https://")) {
+    default_port = 443;
+    rest.remove_prefix(8);
+  } else {
+    return false;  // "null", file://, anything else
+  }
+  std::string name;
+  int port = 0;
+  bool given = false;
+  if (!SplitHostPort(rest, &name, &port, &given)) return false;
+  // An origin always has a port (the scheme's default when not written).
+  return Allowed(name, given ? port : default_port, true);
+}
+
+// ------------------------------------------------------------- ApiRouter --
+
+ApiRouter::ApiRouter(DaemonControl& control, HostPolicy policy)
+    : control_(control), policy_(std::move(policy)) {}
+
+std::optional<ApiResponse> ApiRouter::CheckHead(const ApiRequest& head) {
+  if (!IsKnownMethod(head.method)) {
+    ApiResponse r = ErrorResponse(400, ErrorClass::kInvalidArgument,
+                                  "unsupported method " + Printable(head.method, 16) +
+                                      ": the API answers GET, HEAD, POST and OPTIONS");
+    r.close = true;
+    return r;
+  }
+  if (head.target.size() > ApiLimits::kMaxUriBytes) {
+    ApiResponse r = ErrorResponse(414, ErrorClass::kInvalidArgument,
+                                  "request URI too long: " + std::to_string(head.target.size()) +
+                                      " bytes, at most " + std::to_string(ApiLimits::kMaxUriBytes));
+    r.close = true;
+    return r;
+  }
+  size_t bytes = 0;
+  for (const auto& [k, v] : head.headers) bytes += k.size() + v.size();
+  if (head.headers.size() > ApiLimits::kMaxHeaderCount || bytes > ApiLimits::kMaxHeaderBytes) {
+    ApiResponse r =
+        ErrorResponse(431, ErrorClass::kInvalidArgument,
+                      "request header fields too large: " + std::to_string(head.headers.size()) +
+                          " fields of " + std::to_string(bytes) + " bytes; at most " +
+                          std::to_string(ApiLimits::kMaxHeaderCount) + " fields of " +
+                          std::to_string(ApiLimits::kMaxHeaderBytes) + " bytes together");
+    r.close = true;
+    return r;
+  }
+  if (const std::string* len = head.Header("Content-Length")) {
+    const bool digits = !len->empty() && len->find_first_not_of("0123456789") == std::string::npos;
+    if (!digits) {
+      ApiResponse r = ErrorResponse(400, ErrorClass::kInvalidArgument,
+                                    "could not read the request body (bad Content-Length)");
+      r.close = true;
+      return r;
+    }
+    if (len->size() > 18 || std::stoull(*len) > ApiLimits::kMaxBodyBytes) {
+      ApiResponse r = ErrorResponse(
+          413, ErrorClass::kInvalidArgument,
+          "request body too large: at most " + std::to_string(ApiLimits::kMaxBodyBytes) + " bytes");
+      r.close = true;
+      return r;
+    }
+  }
+  return std::nullopt;
+}
+
+ApiResponse ApiRouter::Handle(const ApiRequest& req) {
+  try {
+    return HandleUnsafe(req);
+  } catch (const std::exception& e) {
+    AGG_LOGE(kCat, "%s %s: unhandled exception: %s", Printable(req.method, 16).c_str(),
+             Printable(req.target).c_str(), e.what());
+    return ErrorResponse(500, ErrorClass::kInternal, "internal error in the HTTP API; report it",
+                         e.what());
+  } catch (...) {
+    AGG_LOGE(kCat, "%s %s: unhandled non-standard exception", Printable(req.method, 16).c_str(),
+             Printable(req.target).c_str());
+    return ErrorResponse(500, ErrorClass::kInternal, "internal error in the HTTP API; report it");
+  }
+}
+
+ApiResponse ApiRouter::HandleUnsafe(const ApiRequest& req) {
+  if (std::optional<ApiResponse> refused = CheckHead(req)) return *refused;
+  if (req.body.size() > ApiLimits::kMaxBodyBytes) {
+    ApiResponse r = ErrorResponse(
+        413, ErrorClass::kInvalidArgument,
+        "request body too large: at most " + std::to_string(ApiLimits::kMaxBodyBytes) + " bytes");
+    r.close = true;
+    return r;
+  }
+  // DNS rebinding: a page of another site whose name now resolves to this rig
+  // reaches it with that name as Host.
+  const std::string* host = req.Header("Host");
+  if (host == nullptr) {
+    return ErrorResponse(400, ErrorClass::kInvalidArgument,
+                         "missing Host header (HTTP/1.1 requires one)");
+  }
+  if (!policy_.HostAllowed(*host)) {
+    return ErrorResponse(
+        421, ErrorClass::kInvalidArgument,
+        "Host \"" + Printable(*host, 80) +
+            "\" is not a name of this rig's API (a defence against DNS rebinding): add it to "
+            "daemon.allowed_hosts");
+  }
+  // A browser names the page that sent a request; the CLI and curl send none.
+  if (!IsSafeMethod(req.method)) {
+    if (const std::string* origin = req.Header("Origin");
+        origin != nullptr && !policy_.OriginAllowed(*origin)) {
+      return ErrorResponse(
+          403, ErrorClass::kInvalidArgument,
+          "Origin \"" + Printable(*origin, 80) +
+              "\" may not change the rig's state: add it to daemon.allowed_origins");
     }
   }
 
-  void HandleUnsafe(const httplib::Request& req, httplib::Response& res,
-                    const httplib::ContentReader* reader) {
-    // Read (or drain) the body first, whatever the route: an unread body would
-    // be parsed as the next request on a keep-alive connection.
-    std::string body;
-    if (reader != nullptr) {
-      switch (ReadBody(req, res, *reader, &body)) {
-        case BodyRead::kOk:
-          break;
-        case BodyRead::kTooLarge:
-          res.set_header("Connection", "close");
-          SetError(res, 413, ErrorClass::kInvalidArgument,
-                   "request body too large: at most " + std::to_string(kMaxBodyBytes) + " bytes");
-          return;
-        case BodyRead::kBroken:
-          res.set_header("Connection", "close");
-          SetError(res, 400, ErrorClass::kInvalidArgument,
-                   "could not read the request body (bad Content-Length or chunked encoding)");
-          return;
-      }
-    }
-
-    std::string id, file;
-    const Endpoint ep = Match(req.path, &id, &file);
-    if (ep == Endpoint::kNone) {
-      SetError(
-          res, 404, ErrorClass::kNotFound,
-          "no such endpoint: " + req.method + " " + Printable(req.path) + " (see /api/v1/status)");
-      return;
-    }
-    if (req.method == "OPTIONS") {
-      res.status = 204;
-      res.set_header("Allow", std::string(AllowedMethods(ep)) + ", OPTIONS");
-      return;
-    }
-    if (!MethodAllowed(ep, req.method)) {
-      res.set_header("Allow", AllowedMethods(ep));
-      SetError(res, 405, ErrorClass::kInvalidArgument,
-               "method " + req.method + " not allowed on " + Printable(req.path) +
-                   "; allowed: " + AllowedMethods(ep));
-      return;
-    }
-
-    const bool get = req.method == "GET" || req.method == "HEAD";
-    switch (ep) {
-      case Endpoint::kStatus:
-        SetJson(res, 200, control.GetStatus());
-        return;
-      case Endpoint::kHealth: {
-        // 200 only when every device is healthy, else 503 with the same body:
-        // a monitor or `curl -f` needs only the code, an operator reads the
-        // body (which device, what to check, when the next retry is).
-        const json h = control.GetHealth();
-        const bool ok = h.is_object() && h.value("status", "") == "ok";
-        SetJson(res, ok ? 200 : 503, h);
-        return;
-      }
-      case Endpoint::kSamples:
-        if (get) {
-          Reply(res, control.ListSamples());
-        } else {
-          ArmFromBody(body, res);
-        }
-        return;
-      case Endpoint::kSample:
-        if (!layout::IsValidSampleId(id)) {
-          SetError(res, 400, ErrorClass::kInvalidArgument, InvalidIdMessage(id));
-          return;
-        }
-        Reply(res, control.GetSample(id));
-        return;
-      case Endpoint::kSampleFile:
-        if (!layout::IsValidSampleId(id)) {
-          SetError(res, 400, ErrorClass::kInvalidArgument, InvalidIdMessage(id));
-          return;
-        }
-        ServeResultFile(id, file, res);
-        return;
-      case Endpoint::kButton:
-        Reply(res, control.Press("api"));
-        return;
-      case Endpoint::kAbort:
-        Reply(res, control.Abort());
-        return;
-      case Endpoint::kReset:
-        Reply(res, control.Reset());
-        return;
-      case Endpoint::kMetrics:
-        res.status = 200;
-        res.set_content(control.Metrics(), kMetricsType);
-        return;
-      case Endpoint::kNone:
-        break;
-    }
-    SetError(res, 500, ErrorClass::kInternal, "unrouted endpoint; report it");
+  const std::string raw_path = req.target.substr(0, req.target.find('?'));
+  const std::string path = PercentDecode(raw_path);
+  std::string id, file;
+  const Endpoint ep = Match(path, &id, &file);
+  if (ep == Endpoint::kNone) {
+    return ErrorResponse(
+        404, ErrorClass::kNotFound,
+        "no such endpoint: " + req.method + " " + Printable(path) + " (see /api/v1/status)");
+  }
+  if (req.method == "OPTIONS") {
+    ApiResponse r;
+    r.status = 204;
+    r.headers.emplace_back("Allow", std::string(AllowedMethods(ep)) + ", OPTIONS");
+    return r;
+  }
+  if (!MethodAllowed(ep, req.method)) {
+    ApiResponse r = ErrorResponse(405, ErrorClass::kInvalidArgument,
+                                  "method " + req.method + " not allowed on " + Printable(path) +
+                                      "; allowed: " + AllowedMethods(ep));
+    r.headers.emplace_back("Allow", AllowedMethods(ep));
+    return r;
   }
 
-  void ServeResultFile(const std::string& id, const std::string& name, httplib::Response& res) {
-    Result<std::string> path = control.ResultFile(id, name);
-    if (!path) {
-      SetError(res, path.error());
-      return;
+  const bool get = req.method == "GET" || req.method == "HEAD";
+  switch (ep) {
+    case Endpoint::kStatus:
+      return JsonResponse(200, control_.GetStatus());
+    case Endpoint::kHealth: {
+      // 200 only when every device is healthy, else 503 with the same body:
+      // a monitor or `curl -f` needs only the code, an operator reads the
+      // body (which device, what to check, when the next retry is).
+      const json h = control_.GetHealth();
+      const bool ok = h.is_object() && h.value("status", "") == "ok";
+      return JsonResponse(ok ? 200 : 503, h);
     }
-    Result<std::string> bytes = ReadFile(*path);
-    if (!bytes) {
-      SetError(res, bytes.error());
-      return;
+    case Endpoint::kSamples:
+      if (get) return Reply(control_.ListSamples());
+      return ArmFromBody(req.body, req.ctx);
+    case Endpoint::kSample:
+      if (!layout::IsValidSampleId(id))
+        return ErrorResponse(400, ErrorClass::kInvalidArgument, InvalidIdMessage(id));
+      return Reply(control_.GetSample(id));
+    case Endpoint::kSampleFile:
+      if (!layout::IsValidSampleId(id))
+        return ErrorResponse(400, ErrorClass::kInvalidArgument, InvalidIdMessage(id));
+      return ServeResultFile(id, file);
+    case Endpoint::kButton:
+      return Reply(control_.Press("api", req.ctx));
+    case Endpoint::kAbort:
+      return Reply(control_.Abort(req.ctx));
+    case Endpoint::kReset:
+      return Reply(control_.Reset(req.ctx));
+    case Endpoint::kMetrics: {
+      ApiResponse r;
+      r.status = 200;
+      r.content_type = kMetricsType;
+      r.body = control_.Metrics();
+      return r;
     }
-    const bool is_json = name.size() > 5 && name.compare(name.size() - 5, 5, ".json") == 0;
-    res.status = 200;
-    if (!is_json) {
-      res.set_header("Content-Disposition", "attachment; filename=\"" + id + "_" + name + "\"");
-    }
-    res.set_content(std::move(*bytes), is_json                       ? kJsonType
-                                       : name.ends_with(".obj")      ? "text/plain; charset=utf-8"
-                                       : name.ends_with(".stl")      ? "model/stl"
-                                                                     : "application/octet-stream");
+    case Endpoint::kNone:
+      break;
   }
+  return ErrorResponse(500, ErrorClass::kInternal, "unrouted endpoint; report it");
+}
 
-  void ArmFromBody(const std::string& body, httplib::Response& res) {
-    static const std::string kExpected = R"(expected a JSON object {"id": "<sample id>"})";
-    const json doc = json::parse(body, nullptr, /*allow_exceptions=*/false);
-    if (doc.is_discarded()) {
-      SetError(res, 400, ErrorClass::kInvalidArgument,
-               "request body is not valid JSON: " + kExpected);
-      return;
-    }
-    if (!doc.is_object()) {
-      SetError(res, 400, ErrorClass::kInvalidArgument,
-               "request body is not a JSON object: " + kExpected);
-      return;
-    }
-    const auto it = doc.find("id");
-    if (it == doc.end() || !it->is_string()) {
-      SetError(res, 400, ErrorClass::kInvalidArgument,
-               "missing or non-string \"id\": " + kExpected);
-      return;
-    }
-    const std::string id = it->get<std::string>();
-    if (!layout::IsValidSampleId(id)) {
-      SetError(res, 400, ErrorClass::kInvalidArgument, InvalidIdMessage(id));
-      return;
-    }
-    Reply(res, control.Arm(id));
+ApiResponse ApiRouter::ServeResultFile(const std::string& id, const std::string& name) {
+  Result<std::string> path = control_.ResultFile(id, name);
+  if (!path) return ErrorFrom(path.error());
+  Result<std::string> bytes = ReadFile(*path);
+  if (!bytes) return ErrorFrom(bytes.error());
+  const bool is_json = name.size() > 5 && name.compare(name.size() - 5, 5, ".json") == 0;
+  ApiResponse r;
+  r.status = 200;
+  if (!is_json)
+    r.headers.emplace_back("Content-Disposition",
+                           "attachment; filename=\"" + id + "_" + name + "\"");
+  r.content_type = is_json                  ? kJsonType
+                   : name.ends_with(".obj") ? "text/plain; charset=utf-8"
+                   : name.ends_with(".stl") ? "model/stl"
+                                            : "application/octet-stream";
+  r.body = std::move(*bytes);
+  return r;
+}
+
+ApiResponse ApiRouter::ArmFromBody(const std::string& body, const CallContext& ctx) {
+  static const std::string kExpected = R"(expected a JSON object {"id": "<sample id>"})";
+  const json doc = json::parse(body, nullptr, /*allow_exceptions=*/false);
+  if (doc.is_discarded()) {
+    return ErrorResponse(400, ErrorClass::kInvalidArgument,
+                         "request body is not valid JSON: " + kExpected);
   }
-};
+  if (!doc.is_object()) {
+    return ErrorResponse(400, ErrorClass::kInvalidArgument,
+                         "request body is not a JSON object: " + kExpected);
+  }
+  const auto it = doc.find("id");
+  if (it == doc.end() || !it->is_string()) {
+    return ErrorResponse(400, ErrorClass::kInvalidArgument,
+                         "missing or non-string \"id\": " + kExpected);
+  }
+  const std::string id = it->get<std::string>();
+  if (!layout::IsValidSampleId(id))
+    return ErrorResponse(400, ErrorClass::kInvalidArgument, InvalidIdMessage(id));
+  return Reply(control_.Arm(id, ctx));
+}
+
+// -------------------------------------------------------------- transport --
 
 namespace {
 
@@ -400,48 +574,338 @@ std::string HostPort(const std::string& host, int port) {
   return (v6 ? "[" + host + "]" : host) + ":" + std::to_string(port);
 }
 
-// cpp-httplib reports a failed bind as a bare false. Repeat the bind on a
-// scratch socket to learn why. Returns 0 if it now succeeds; sets *gai_text
-// when the address does not resolve.
-int ProbeBindErrno(const std::string& host, int port, std::string* gai_text) {
+std::string LowerFirst(std::string s) {
+  if (!s.empty()) s[0] = static_cast<char>(std::tolower(static_cast<unsigned char>(s[0])));
+  return s;
+}
+
+// Our own listen socket: SO_REUSEADDR (a restart finds the port free at once)
+// but never SO_REUSEPORT (a second aggscand must fail, not share the port),
+// our backlog, and the errno of a failed bind for the operator.
+Result<int> OpenListenSocket(const std::string& address, int port) {
+  const std::string where = "cannot listen on " + HostPort(address, port);
   addrinfo hints{};
   hints.ai_family = AF_UNSPEC;
   hints.ai_socktype = SOCK_STREAM;
   hints.ai_flags = AI_PASSIVE;
   addrinfo* list = nullptr;
   const std::string service = std::to_string(port);
-  const int rc = getaddrinfo(host.empty() ? nullptr : host.c_str(), service.c_str(), &hints, &list);
+  const int rc =
+      getaddrinfo(address.empty() ? nullptr : address.c_str(), service.c_str(), &hints, &list);
   if (rc != 0) {
-    *gai_text = gai_strerror(rc);
-    return EINVAL;
+    return MakeError(ErrorClass::kInvalidConfig,
+                     where + ": address does not resolve — check daemon.listen_address",
+                     gai_strerror(rc));
   }
   int err = EADDRNOTAVAIL;
-  for (addrinfo* ai = list; ai != nullptr; ai = ai->ai_next) {
-    const int fd = ::socket(ai->ai_family, ai->ai_socktype | SOCK_CLOEXEC, ai->ai_protocol);
-    if (fd < 0) {
+  int fd = -1;
+  for (addrinfo* ai = list; ai != nullptr && fd < 0; ai = ai->ai_next) {
+    const int s =
+        ::socket(ai->ai_family, ai->ai_socktype | SOCK_CLOEXEC | SOCK_NONBLOCK, ai->ai_protocol);
+    if (s < 0) {
       err = errno;
       continue;
     }
     const int yes = 1;
-    ::setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &yes, sizeof yes);
-    const bool bound = ::bind(fd, ai->ai_addr, ai->ai_addrlen) == 0;
-    err = bound ? 0 : errno;
-    ::close(fd);
-    if (bound) break;
+    ::setsockopt(s, SOL_SOCKET, SO_REUSEADDR, &yes, sizeof yes);
+    if (::bind(s, ai->ai_addr, ai->ai_addrlen) != 0 || ::listen(s, HttpApi::kListenBacklog) != 0) {
+      err = errno;
+      ::close(s);
+      continue;
+    }
+    fd = s;
   }
   freeaddrinfo(list);
-  return err;
+  if (fd >= 0) return fd;
+  const std::string why = std::strerror(err);
+  if (err == EADDRINUSE) {
+    return MakeError(
+        ErrorClass::kConflict,
+        where + ": " + LowerFirst(why) + " — is another aggscand running? set daemon.listen_port",
+        why);
+  }
+  return MakeError(
+      ErrorClass::kInvalidConfig,
+      where + ": " + LowerFirst(why) + " — check daemon.listen_address and daemon.listen_port",
+      why);
 }
 
-std::string LowerFirst(std::string s) {
-  if (!s.empty()) s[0] = static_cast<char>(std::tolower(static_cast<unsigned char>(s[0])));
-  return s;
+// libmicrohttpd would percent-decode the path itself, and a decoded "%00"
+// would cut it short; the router decodes it once, on the bytes as sent.
+size_t KeepEscaped(void*, MHD_Connection*, char* s) { return std::strlen(s); }
+
+void LogMhd(void*, const char* fmt, va_list ap) {
+  char buf[512];
+  std::vsnprintf(buf, sizeof buf, fmt, ap);
+  size_t n = std::strlen(buf);
+  while (n > 0 && (buf[n - 1] == '\n' || buf[n - 1] == '\r')) buf[--n] = '\0';
+  AGG_LOGD(kCat, "libmicrohttpd: %s", buf);
 }
 
 }  // namespace
 
-HttpApi::HttpApi(DaemonControl& control, std::string address, int port)
-    : control_(control), address_(std::move(address)), requested_port_(port) {}
+struct HttpApi::Server {
+  // One TCP connection, from accept to close (libmicrohttpd's socket context).
+  struct Conn {
+    enum Phase { kReceiving, kProcessing, kSending };
+    int fd = -1;
+    Phase phase = kReceiving;
+    SteadyClock::time_point since;
+    bool cut = false;  // the watchdog has shut it down
+  };
+  // One request on a connection (libmicrohttpd's request context).
+  struct Exchange {
+    MHD_Connection* connection = nullptr;
+    Conn* conn = nullptr;
+    ApiRequest req;
+    bool queued = false;
+    bool refused = false;                // answered before its body was read
+    std::optional<ApiResponse> refusal;  // a 413 to send once the body is drained
+    size_t drained = 0;                  // body bytes read and dropped
+    std::optional<ApiResponse> answer;   // set by a handler thread, sent after resume
+  };
+
+  Server(DaemonControl& control, HostPolicy policy) : router(control, std::move(policy)) {}
+
+  ApiRouter router;
+  MHD_Daemon* daemon = nullptr;
+
+  std::mutex mu;
+  std::condition_variable work_cv;
+  std::condition_variable watchdog_cv;
+  std::deque<Exchange*> work;       // complete requests, their connections suspended
+  std::unordered_set<Conn*> conns;  // every open connection
+  bool stopping = false;
+  std::vector<std::thread> handlers;
+  std::thread watchdog;
+
+  static MHD_Result Queue(MHD_Connection* c, const ApiResponse& r) {
+    MHD_Response* resp = MHD_create_response_from_buffer(
+        r.body.size(), const_cast<char*>(r.body.data()), MHD_RESPMEM_MUST_COPY);
+    if (resp == nullptr) return MHD_NO;
+    if (!r.content_type.empty())
+      MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, r.content_type.c_str());
+    for (const auto& [k, v] : r.headers) MHD_add_response_header(resp, k.c_str(), v.c_str());
+    if (r.close) MHD_add_response_header(resp, MHD_HTTP_HEADER_CONNECTION, "close");
+    const MHD_Result ret = MHD_queue_response(c, static_cast<unsigned>(r.status), resp);
+    MHD_destroy_response(resp);
+    return ret;
+  }
+
+  static MHD_Result CollectHeader(void* cls, MHD_ValueKind, const char* key, const char* value) {
+    auto* ex = static_cast<Exchange*>(cls);
+    ex->req.headers.emplace_back(key, value ? value : "");
+    // One over the limit is enough to refuse; the rest need not be copied.
+    return ex->req.headers.size() > ApiLimits::kMaxHeaderCount ? MHD_NO : MHD_YES;
+  }
+  static MHD_Result CollectArgument(void* cls, MHD_ValueKind, const char* key, const char* value) {
+    auto* target = static_cast<std::string*>(cls);
+    *target += target->find('?') == std::string::npos ? '?' : '&';
+    *target += key;
+    if (value != nullptr) *target += std::string("=") + value;
+    return target->size() > ApiLimits::kMaxUriBytes ? MHD_NO : MHD_YES;
+  }
+
+  void SetPhase(Conn* c, Conn::Phase phase) {
+    if (c == nullptr) return;
+    std::lock_guard<std::mutex> lock(mu);
+    c->phase = phase;
+    c->since = SteadyClock::now();
+  }
+
+  static MHD_Result OnRequest(void* cls, MHD_Connection* connection, const char* url,
+                              const char* method, const char*, const char* upload,
+                              size_t* upload_size, void** req_cls) {
+    auto* self = static_cast<Server*>(cls);
+    auto* ex = static_cast<Exchange*>(*req_cls);
+    if (ex == nullptr) {
+      // The head is complete: check it before reading any body.
+      ex = new Exchange;
+      *req_cls = ex;
+      ex->connection = connection;
+      const MHD_ConnectionInfo* info =
+          MHD_get_connection_info(connection, MHD_CONNECTION_INFO_SOCKET_CONTEXT);
+      ex->conn = info != nullptr ? static_cast<Conn*>(info->socket_context) : nullptr;
+      ex->req.method = method;
+      ex->req.target = url;
+      MHD_get_connection_values(connection, MHD_GET_ARGUMENT_KIND, &CollectArgument,
+                                &ex->req.target);
+      MHD_get_connection_values(connection, MHD_HEADER_KIND, &CollectHeader, ex);
+      if (std::optional<ApiResponse> refused = ApiRouter::CheckHead(ex->req)) {
+        // A body a little too large is read and dropped before the 413, so a
+        // client that sends it whole before reading gets the answer, not a reset.
+        const std::string* len = ex->req.Header("Content-Length");
+        if (refused->status == 413 && len != nullptr && len->size() < 10 &&
+            std::stoull(*len) <= kDrainLimitBytes) {
+          ex->refusal = std::move(refused);
+          return MHD_YES;
+        }
+        ex->refused = true;
+        self->SetPhase(ex->conn, Conn::kSending);
+        return Queue(connection, *refused);
+      }
+      return MHD_YES;
+    }
+    if (ex->answer) {
+      self->SetPhase(ex->conn, Conn::kSending);
+      return Queue(connection, *ex->answer);
+    }
+    if (ex->refused) {
+      *upload_size = 0;  // the answer is out; the rest of the body is not wanted
+      return MHD_YES;
+    }
+    if (*upload_size > 0 && !ex->refusal &&
+        ex->req.body.size() + *upload_size > ApiLimits::kMaxBodyBytes) {
+      // A chunked body (no Content-Length to refuse it by) that grew past the limit.
+      ex->refusal = ErrorResponse(
+          413, ErrorClass::kInvalidArgument,
+          "request body too large: at most " + std::to_string(ApiLimits::kMaxBodyBytes) + " bytes");
+      ex->refusal->close = true;
+      ex->drained = ex->req.body.size();
+      ex->req.body.clear();
+    }
+    if (ex->refusal) {
+      const bool body_done = *upload_size == 0;
+      ex->drained += *upload_size;
+      *upload_size = 0;
+      if (!body_done && ex->drained <= kDrainLimitBytes) return MHD_YES;
+      ex->refused = true;
+      self->SetPhase(ex->conn, Conn::kSending);
+      return Queue(connection, *ex->refusal);
+    }
+    if (*upload_size > 0) {
+      ex->req.body.append(upload, *upload_size);
+      *upload_size = 0;
+      return MHD_YES;
+    }
+    if (ex->queued) return MHD_YES;
+    // The whole request is in: its time budget starts now.
+    ex->queued = true;
+    ex->req.ctx.deadline = SteadyClock::now() + kRequestBudget;
+    const int fd = ex->conn != nullptr ? ex->conn->fd : -1;
+    // The connection stays suspended (its fd open) until the handler thread
+    // is done with the request, so the loop may look at the fd meanwhile.
+    ex->req.ctx.client_gone = [fd] {
+      if (fd < 0) return false;
+      pollfd p{fd, POLLRDHUP, 0};
+      return ::poll(&p, 1, 0) > 0 && (p.revents & (POLLRDHUP | POLLHUP | POLLERR)) != 0;
+    };
+    {
+      std::lock_guard<std::mutex> lock(self->mu);
+      if (!self->stopping) {
+        if (ex->conn != nullptr) {
+          ex->conn->phase = Conn::kProcessing;
+          ex->conn->since = SteadyClock::now();
+        }
+        MHD_suspend_connection(connection);
+        self->work.push_back(ex);
+        self->work_cv.notify_one();
+        return MHD_YES;
+      }
+    }
+    ApiResponse r =
+        ErrorResponse(503, ErrorClass::kInternal, "aggscand is stopping: the request was not run");
+    r.close = true;
+    return Queue(connection, r);
+  }
+
+  static void OnCompleted(void* cls, MHD_Connection* connection, void** req_cls,
+                          MHD_RequestTerminationCode) {
+    auto* self = static_cast<Server*>(cls);
+    auto* ex = static_cast<Exchange*>(*req_cls);
+    *req_cls = nullptr;
+    Conn* conn = ex != nullptr ? ex->conn : nullptr;
+    if (conn == nullptr) {
+      const MHD_ConnectionInfo* info =
+          MHD_get_connection_info(connection, MHD_CONNECTION_INFO_SOCKET_CONTEXT);
+      conn = info != nullptr ? static_cast<Conn*>(info->socket_context) : nullptr;
+    }
+    delete ex;
+    self->SetPhase(conn, Conn::kReceiving);  // the next request on a keep-alive connection
+  }
+
+  static void OnConnection(void* cls, MHD_Connection* connection, void** socket_context,
+                           MHD_ConnectionNotificationCode code) {
+    auto* self = static_cast<Server*>(cls);
+    if (code == MHD_CONNECTION_NOTIFY_STARTED) {
+      auto* c = new Conn;
+      const MHD_ConnectionInfo* info =
+          MHD_get_connection_info(connection, MHD_CONNECTION_INFO_CONNECTION_FD);
+      c->fd = info != nullptr ? info->connect_fd : -1;
+      c->since = SteadyClock::now();
+      std::lock_guard<std::mutex> lock(self->mu);
+      self->conns.insert(c);
+      *socket_context = c;
+      return;
+    }
+    auto* c = static_cast<Conn*>(*socket_context);
+    if (c == nullptr) return;
+    // libmicrohttpd closes the fd after this: the watchdog must not touch it then.
+    std::lock_guard<std::mutex> lock(self->mu);
+    self->conns.erase(c);
+    delete c;
+    *socket_context = nullptr;
+  }
+
+  void HandlerThread() {
+    for (;;) {
+      Exchange* ex = nullptr;
+      bool stop = false;
+      {
+        std::unique_lock<std::mutex> lock(mu);
+        work_cv.wait(lock, [this] { return stopping || !work.empty(); });
+        if (work.empty()) return;
+        ex = work.front();
+        work.pop_front();
+        stop = stopping;
+      }
+      ApiResponse r;
+      if (stop) {
+        r = ErrorResponse(503, ErrorClass::kInternal,
+                          "aggscand is stopping: the request was not run");
+        r.close = true;
+      } else if (SteadyClock::now() >= ex->req.ctx.deadline) {
+        r = ErrorResponse(
+            503, ErrorClass::kTimeout,
+            "the API was too busy to start this request in time: it was dropped and will not run "
+            "later; try again");
+      } else {
+        r = router.Handle(ex->req);
+      }
+      ex->answer = std::move(r);
+      MHD_resume_connection(ex->connection);
+    }
+  }
+
+  // Cuts connections whose request has not arrived, or whose answer has not
+  // been taken, in time: libmicrohttpd's own timeout is reset by every byte.
+  void WatchdogThread() {
+    std::unique_lock<std::mutex> lock(mu);
+    while (!stopping) {
+      watchdog_cv.wait_for(lock, kWatchdogPeriod);
+      const auto now = SteadyClock::now();
+      for (Conn* c : conns) {
+        if (c->cut || c->fd < 0) continue;
+        const bool late = (c->phase == Conn::kReceiving && now - c->since > kReceiveLimit) ||
+                          (c->phase == Conn::kSending && now - c->since > kSendLimit);
+        if (!late) continue;
+        // libmicrohttpd sees the end of the stream and closes the connection itself.
+        ::shutdown(c->fd, SHUT_RDWR);
+        c->cut = true;
+        AGG_LOGD(kCat, "closed a connection whose %s took longer than %lld s",
+                 c->phase == Conn::kReceiving ? "request" : "answer",
+                 static_cast<long long>(c->phase == Conn::kReceiving ? kReceiveLimit.count()
+                                                                     : kSendLimit.count()));
+      }
+    }
+  }
+};
+
+HttpApi::HttpApi(DaemonControl& control, std::string address, int port, HttpApiOptions options)
+    : control_(control),
+      address_(std::move(address)),
+      requested_port_(port),
+      options_(std::move(options)) {}
 
 HttpApi::~HttpApi() { Stop(); }
 
@@ -452,140 +916,67 @@ Status HttpApi::Start() {
                                                      std::to_string(requested_port_) +
                                                      ": use 1-65535, or 0 for any free port");
   }
-  impl_ = std::make_unique<Impl>(Impl{control_});
-  server_ = std::make_unique<httplib::Server>();
-  httplib::Server& svr = *server_;
-
-  svr.new_task_queue = [] { return new httplib::ThreadPool(kWorkerThreads); };
-  // SO_REUSEADDR only: cpp-httplib's default also sets SO_REUSEPORT, which would
-  // let a second aggscand silently share the port instead of failing.
-  svr.set_socket_options([](socket_t sock) {
-    const int yes = 1;
-    ::setsockopt(sock, SOL_SOCKET, SO_REUSEADDR, &yes, sizeof yes);
-  });
-  svr.set_keep_alive_timeout(kKeepAliveSec);
-  // Headers and body go out in separate writes; with Nagle on, a keep-alive
-  // client waits for its delayed ACK (40 ms) on every answer.
-  svr.set_tcp_nodelay(true);
-  svr.set_payload_max_length(kMaxBodyBytes);
-
-  Impl* impl = impl_.get();
-  const httplib::Server::Handler plain = [impl](const httplib::Request& req,
-                                                httplib::Response& res) {
-    impl->Handle(req, res, nullptr);
-  };
-  const httplib::Server::HandlerWithContentReader with_body =
-      [impl](const httplib::Request& req, httplib::Response& res,
-             const httplib::ContentReader& reader) { impl->Handle(req, res, &reader); };
-  svr.Get(kAnyPath, plain);
-  svr.Options(kAnyPath, plain);
-  svr.Post(kAnyPath, with_body);
-  svr.Put(kAnyPath, with_body);
-  svr.Patch(kAnyPath, with_body);
-  svr.Delete(kAnyPath, with_body);
-
-  // Answers cpp-httplib produces itself (unparseable request, unknown method,
-  // oversized URI) get the same JSON error shape; ours already have a body.
-  const httplib::Server::HandlerWithResponse on_error = [](const httplib::Request&,
-                                                           httplib::Response& res) {
-    if (!res.body.empty()) return httplib::Server::HandlerResponse::Unhandled;
-    ErrorClass cls = ErrorClass::kInvalidArgument;
-    std::string message = "bad request";
-    if (res.status == 404) {
-      cls = ErrorClass::kNotFound;
-      message = "no such endpoint";
-    } else if (res.status == 413) {
-      message = "request body too large: at most " + std::to_string(kMaxBodyBytes) + " bytes";
-    } else if (res.status == 414) {
-      message = "request URI too long";
-    } else if (res.status >= 500) {
-      cls = ErrorClass::kInternal;
-      message = "internal error in the HTTP API; report it";
-    }
-    SetError(res, res.status, cls, message);
-    return httplib::Server::HandlerResponse::Handled;
-  };
-  svr.set_error_handler(on_error);
-  svr.set_exception_handler([](const httplib::Request& req, httplib::Response& res,
-                               const std::exception_ptr& ep) {
-    std::string what = "unknown exception";
-    try {
-      if (ep) std::rethrow_exception(ep);
-    } catch (const std::exception& e) {
-      what = e.what();
-    } catch (...) {
-    }
-    AGG_LOGE(kCat, "%s %s: exception: %s", req.method.c_str(), Printable(req.path).c_str(),
-             what.c_str());
-    SetError(res, 500, ErrorClass::kInternal, "internal error in the HTTP API; report it", what);
-  });
-  svr.set_logger([](const httplib::Request& req, const httplib::Response& res) {
-    AGG_LOGD(kCat, "%s %s -> %d", Printable(req.method, 16).c_str(), Printable(req.path).c_str(),
-             res.status);
-  });
-
+  Result<int> fd = OpenListenSocket(address_, requested_port_);
+  if (!fd) return fd.error();
+  sockaddr_storage addr{};
+  socklen_t len = sizeof addr;
   int port = requested_port_;
-  bool bound = false;
-  if (requested_port_ == 0) {
-    port = svr.bind_to_any_port(address_);
-    bound = port > 0;
-  } else {
-    bound = svr.bind_to_port(address_, requested_port_);
+  if (::getsockname(*fd, reinterpret_cast<sockaddr*>(&addr), &len) == 0) {
+    port = addr.ss_family == AF_INET6 ? ntohs(reinterpret_cast<sockaddr_in6*>(&addr)->sin6_port)
+                                      : ntohs(reinterpret_cast<sockaddr_in*>(&addr)->sin_port);
   }
-  if (!bound) {
-    server_.reset();
-    impl_.reset();
-    std::string gai_text;
-    const int err = ProbeBindErrno(address_, requested_port_, &gai_text);
-    const std::string where = "cannot listen on " + HostPort(address_, requested_port_);
-    if (!gai_text.empty()) {
-      return MakeError(ErrorClass::kInvalidConfig,
-                       where + ": address does not resolve — check daemon.listen_address",
-                       gai_text);
-    }
-    const std::string why = err != 0 ? std::strerror(err) : "bind failed";
-    if (err == EADDRINUSE) {
-      return MakeError(
-          ErrorClass::kConflict,
-          where + ": " + LowerFirst(why) + " — is another aggscand running? set daemon.listen_port",
-          why);
-    }
-    return MakeError(
-        ErrorClass::kInvalidConfig,
-        where + ": " + LowerFirst(why) + " — check daemon.listen_address and daemon.listen_port",
-        why);
+  auto server = std::make_unique<Server>(
+      control_,
+      HostPolicy::ForListen(address_, options_.allowed_hosts, options_.allowed_origins, port));
+  Server* s = server.get();
+  s->daemon = MHD_start_daemon(
+      MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_EPOLL | MHD_ALLOW_SUSPEND_RESUME |
+          MHD_USE_ERROR_LOG,
+      0, nullptr, nullptr, &Server::OnRequest, s,
+      // First, or libmicrohttpd prints what it says about the earlier options itself.
+      MHD_OPTION_EXTERNAL_LOGGER, &LogMhd, nullptr,            //
+      MHD_OPTION_LISTEN_SOCKET, static_cast<MHD_socket>(*fd),  //
+      MHD_OPTION_CONNECTION_LIMIT, kMaxConnections,            //
+      MHD_OPTION_CONNECTION_MEMORY_LIMIT, kConnectionMemory,   //
+      MHD_OPTION_CONNECTION_TIMEOUT, kIdleTimeoutSec,          //
+      MHD_OPTION_NOTIFY_COMPLETED, &Server::OnCompleted, s,    //
+      MHD_OPTION_NOTIFY_CONNECTION, &Server::OnConnection, s,  //
+      MHD_OPTION_UNESCAPE_CALLBACK, &KeepEscaped, nullptr,     //
+      MHD_OPTION_END);
+  if (s->daemon == nullptr) {
+    ::close(*fd);
+    return MakeError(ErrorClass::kInternal, "cannot start the HTTP server on " +
+                                                HostPort(address_, port) +
+                                                " (libmicrohttpd refused its options); report it");
   }
+  for (size_t i = 0; i < kHandlerThreads; ++i)
+    s->handlers.emplace_back([s] { s->HandlerThread(); });
+  s->watchdog = std::thread([s] { s->WatchdogThread(); });
+  server_ = std::move(server);
   bound_port_ = port;
-
-  listener_done_ = false;
-  listener_ = std::thread([this] {
-    if (!server_->listen_after_bind()) AGG_LOGE(kCat, "HTTP listener stopped unexpectedly");
-    listener_done_ = true;
-  });
-  // Stop() can only interrupt a listener that has started; wait for it.
-  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(5);
-  while (!server_->is_running() && !listener_done_ && std::chrono::steady_clock::now() < deadline) {
-    std::this_thread::sleep_for(std::chrono::milliseconds(1));
-  }
   AGG_LOGI(kCat, "HTTP API listening on http://%s", HostPort(address_, bound_port_).c_str());
   return OkStatus();
 }
 
 void HttpApi::Stop() {
   if (!server_) return;
-  if (listener_.joinable()) {
-    // Server::stop() is a no-op until the listener runs, and must be called once.
-    while (!listener_done_) {
-      if (server_->is_running()) {
-        server_->stop();
-        break;
-      }
-      std::this_thread::sleep_for(std::chrono::milliseconds(1));
-    }
-    listener_.join();
+  Server& s = *server_;
+  {
+    std::lock_guard<std::mutex> lock(s.mu);
+    s.stopping = true;
   }
+  s.work_cv.notify_all();
+  s.watchdog_cv.notify_all();
+  // Handler threads answer what is queued with 503 and finish the calls in
+  // flight (each bounded by kRequestBudget, and at once when the loop has
+  // stopped), resuming every suspended connection.
+  for (std::thread& t : s.handlers) t.join();
+  s.watchdog.join();
+  // Closes the listen socket and every connection, whatever their clients do.
+  const MHD_socket listen_fd = MHD_quiesce_daemon(s.daemon);
+  MHD_stop_daemon(s.daemon);
+  if (listen_fd != MHD_INVALID_SOCKET) ::close(listen_fd);
   server_.reset();
-  impl_.reset();
   bound_port_ = 0;
 }
 

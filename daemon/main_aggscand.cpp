@@ -203,7 +203,9 @@ int main(int argc, char** argv) {
   service.SetStatusListener([&notifier](const std::string& line) { notifier.Status(line); });
   service.Start();
 
-  HttpApi api(service, config.daemon.listen_address, config.daemon.listen_port);
+  HttpApi api(service, config.daemon.listen_address, config.daemon.listen_port,
+              HttpApiOptions{SplitCommaList(config.daemon.allowed_hosts),
+                             SplitCommaList(config.daemon.allowed_origins)});
   if (Status s = api.Start(); !s) {
     AGG_LOGE("main", "%s", s.error().ToString().c_str());
     service.Shutdown();

@@ -13,6 +13,8 @@ PACKAGES=(
   googletest libgtest-dev libgmock-dev libbenchmark-dev
   # common / config / daemon
   nlohmann-json3-dev libtomlplusplus-dev libcpp-httplib-dev
+  # the daemon's HTTP server (cpp-httplib stays for the CLI and the test clients)
+  libmicrohttpd-dev
   libsystemd-dev libsqlite3-dev libturbojpeg0-dev
   # convex hulls (minimum-volume box of a mesh)
   libqhull-dev

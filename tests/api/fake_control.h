@@ -68,23 +68,29 @@ class FakeControl : public DaemonControl {
     Record("status");
     return status;
   }
-  Result<nlohmann::json> Arm(const std::string& id) override {
-    Record("arm:" + id);
+  /// Every state-changing call's context, in order.
+  std::vector<CallContext> Contexts() {
+    std::lock_guard<std::mutex> lock(mu_);
+    return contexts_;
+  }
+
+  Result<nlohmann::json> Arm(const std::string& id, const CallContext& ctx) override {
+    Record("arm:" + id, &ctx);
     if (fail) return *fail;
     return nlohmann::json{{"state", "armed"}, {"sample_id", id}};
   }
-  Result<nlohmann::json> Press(const std::string& source) override {
-    Record("press:" + source);
+  Result<nlohmann::json> Press(const std::string& source, const CallContext& ctx) override {
+    Record("press:" + source, &ctx);
     if (fail) return *fail;
     return nlohmann::json{{"state", "homing"}, {"sample_id", "rock-12"}};
   }
-  Result<nlohmann::json> Abort() override {
-    Record("abort");
+  Result<nlohmann::json> Abort(const CallContext& ctx) override {
+    Record("abort", &ctx);
     if (fail) return *fail;
     return nlohmann::json{{"state", "idle"}};
   }
-  Result<nlohmann::json> Reset() override {
-    Record("reset");
+  Result<nlohmann::json> Reset(const CallContext& ctx) override {
+    Record("reset", &ctx);
     if (fail) return *fail;
     return nlohmann::json{{"state", "idle"}};
   }
@@ -117,14 +123,16 @@ class FakeControl : public DaemonControl {
   }
 
  private:
-  void Record(std::string call) {
+  void Record(std::string call, const CallContext* ctx = nullptr) {
     if (throw_all) throw std::runtime_error("fake failure in " + call);
     std::lock_guard<std::mutex> lock(mu_);
     calls_.push_back(std::move(call));
+    if (ctx != nullptr) contexts_.push_back(*ctx);
   }
 
   std::mutex mu_;
   std::vector<std::string> calls_;
+  std::vector<CallContext> contexts_;
 };
 
 /// A loopback port with nothing listening on it (bound, then released).
