@@ -253,6 +253,21 @@ TEST_F(SideJobTest, BadManifestsAreRefused) {
   EXPECT_FALSE(ProcessSide(dir_, 0).ok());
 }
 
+// A photo OpenCV cannot take (an empty file the manifest agrees with: its
+// decoder asserts) is an error of the side naming the view, not an exception.
+TEST_F(SideJobTest, PhotoALibraryThrowsOnIsANamedError) {
+  MakeSide(1);
+  const std::string sd = dir_ + "/" + layout::SideDirName(1);
+  Write(sd + "/" + layout::ViewImageName(1), "");
+  manifest_["views"][1]["bytes"] = 0;
+  Write(sd + "/" + layout::kManifest, manifest_.dump());
+  Status s = ProcessSide(dir_, 1);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().message.find("view 1"), std::string::npos) << s.error().ToString();
+  EXPECT_FALSE(PathExists(SideResultPath(dir_, 1)));
+  EXPECT_TRUE(PathExists(ViewMaskPath(dir_, 1, 0)));  // the views before it are kept
+}
+
 TEST_F(SideJobTest, SampleWithoutSidesIsNotFound) {
   Status s = ProcessSample(dir_);
   ASSERT_FALSE(s.ok());
