@@ -78,7 +78,19 @@ std::string Printable(std::string_view s, size_t max_len = 200) {
   return out;
 }
 
-enum class Endpoint { kNone, kStatus, kHealth, kSamples, kSample, kSampleFile, kButton, kAbort, kReset, kMetrics };
+enum class Endpoint {
+  kNone,
+  kStatus,
+  kHealth,
+  kSamples,
+  kSample,
+  kSampleFile,
+  kSampleRetry,
+  kButton,
+  kAbort,
+  kReset,
+  kMetrics
+};
 
 // Methods each endpoint accepts (HEAD is answered wherever GET is).
 const char* AllowedMethods(Endpoint ep) {
@@ -91,6 +103,7 @@ const char* AllowedMethods(Endpoint ep) {
       return "GET, HEAD";
     case Endpoint::kSamples:
       return "GET, HEAD, POST";
+    case Endpoint::kSampleRetry:
     case Endpoint::kButton:
     case Endpoint::kAbort:
     case Endpoint::kReset:
@@ -135,6 +148,7 @@ Endpoint Match(const std::string& path, std::string* id, std::string* file) {
       return Endpoint::kSampleFile;
     }
     if (*file == "mesh.ply" || *file == "mesh.obj" || *file == "mesh.stl") return Endpoint::kSampleFile;
+    if (*file == "retry") return Endpoint::kSampleRetry;
     // Anything else is not a sub-resource: the whole rest is the (invalid) id.
     *id = path.substr(std::strlen(kSamplesPrefix));
     file->clear();
@@ -323,6 +337,13 @@ struct HttpApi::Impl {
           return;
         }
         ServeResultFile(id, file, res);
+        return;
+      case Endpoint::kSampleRetry:
+        if (!layout::IsValidSampleId(id)) {
+          SetError(res, 400, ErrorClass::kInvalidArgument, InvalidIdMessage(id));
+          return;
+        }
+        Reply(res, control.Retry(id));
         return;
       case Endpoint::kButton:
         Reply(res, control.Press("api"));
