@@ -172,6 +172,7 @@ TEST_F(WorkerSupervisionTest, OneByOnePhotosFailTheJobByNameAndTheQueueMovesOn) 
   // Exit 1: a job failed for good.
   EXPECT_EQ(RunOnce(), 1) << ReadText(log_);
   const Job bad = JobOf("bad-1x1", 1);
+  RecordProperty("reason", bad.error);
   EXPECT_EQ(bad.state, "failed");
   EXPECT_EQ(bad.attempts, 3);
   EXPECT_EQ(bad.interruptions, 0);
@@ -202,6 +203,7 @@ TEST_F(WorkerSupervisionTest, ZeroBytePhotosFailTheJobByName) {
   Write(root_ + "/worker.toml", "[worker]\nmax_attempts = 2\n");
   EXPECT_EQ(RunOnce({"--config", root_ + "/worker.toml"}), 1) << ReadText(log_);
   const Job bad = JobOf("empty", 1);
+  RecordProperty("reason", bad.error);
   EXPECT_EQ(bad.state, "failed");
   EXPECT_EQ(bad.attempts, 2);  // [worker] max_attempts
   EXPECT_NE(bad.error.find("view"), std::string::npos) << bad.error;
@@ -223,6 +225,7 @@ TEST_F(WorkerSupervisionTest, CrashingJobIsCountedAndFailedNotLooped) {
   EXPECT_EQ(RunOnce({}, {"AGGSCAN_WORKER_TEST_ABORT=crash/masks side 1 view 1"}), 1)
       << ReadText(log_);
   const Job bad = JobOf("crash", 1);
+  RecordProperty("reason", bad.error);
   EXPECT_EQ(bad.state, "failed");
   EXPECT_EQ(bad.attempts, 3);
   EXPECT_NE(bad.error.find("crashed with SIGABRT"), std::string::npos) << bad.error;
