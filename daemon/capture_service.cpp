@@ -737,7 +737,11 @@ json CaptureService::StatusOnLoop() const {
                           {"updated_utc", j.updated_utc}});
       }
     }
-    if (auto n = queue_->FailedCount()) failed_total = *n;
+    failed_total = static_cast<int>(failed.size());
+    // Counted only when the list is cut: the status is polled on the loop.
+    if (failed_total == kStatusFailedJobs) {
+      if (auto n = queue_->FailedCount()) failed_total = *n;
+    }
   }
   return {{"state", cs::PhaseName(state_.phase)},
           {"sample_id", state_.sample_id.empty() ? json(nullptr) : json(state_.sample_id)},
