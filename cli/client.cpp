@@ -273,6 +273,23 @@ void PrintStatus(const json& st, std::ostream& out) {
   }
   if (HasNumber(st, "queue_depth"))
     out << "queue: " << Scalar(st["queue_depth"]) << " job(s) waiting\n";
+  if (st.contains("failed_jobs") && st["failed_jobs"].is_array() && !st["failed_jobs"].empty()) {
+    const json& failed = st["failed_jobs"];
+    size_t total = failed.size();
+    if (HasNumber(st, "failed_jobs_total") &&
+        st["failed_jobs_total"].get<double>() > static_cast<double>(total))
+      total = static_cast<size_t>(st["failed_jobs_total"].get<double>());
+    out << "failed jobs: " << total
+        << " (the worker gave up on them; fix the cause, then `aggscan retry ID`):\n";
+    for (const json& j : failed) {
+      if (!j.is_object()) continue;
+      const bool sample_stage = HasNumber(j, "side") && j["side"].get<double>() == 0;
+      out << "  " << FieldText(j, "sample_id") << " "
+          << (sample_stage ? std::string("sample stage") : "side " + FieldText(j, "side")) << ", "
+          << FieldText(j, "attempts") << " attempt(s): " << FieldText(j, "error") << "\n";
+    }
+    if (failed.size() < total) out << "  ... and " << total - failed.size() << " older\n";
+  }
   if (st.contains("calibration") && st["calibration"].is_object()) {
     const json& c = st["calibration"];
     out << "calibration: " << FieldText(c, "state");
@@ -427,8 +444,8 @@ struct Command {
 }  // namespace
 
 bool IsClientCommand(const std::string& word) {
-  static const char* const kCommands[] = {"status", "selftest", "arm",     "press",
-                                          "abort",  "reset",    "samples", "show"};
+  static const char* const kCommands[] = {"status", "selftest", "arm",  "press", "abort",
+                                          "reset",  "samples",  "show", "retry"};
   return std::any_of(std::begin(kCommands), std::end(kCommands),
                      [&](const char* c) { return word == c; });
 }
@@ -444,6 +461,9 @@ void PrintClientUsage(std::ostream& out) {
          "  aggscan [--url URL] [--json] reset      clear a fault and return to idle\n"
          "  aggscan [--url URL] [--json] samples    list the samples\n"
          "  aggscan [--url URL] [--json] show ID    one sample: sides, views, jobs\n"
+         "  aggscan [--url URL] [--json] retry ID   put the sample's failed jobs back in the\n"
+         "                                         worker's queue (after fixing the cause that\n"
+         "                                         `aggscan status` names)\n"
          "options:\n"
          "  --url URL   daemon address (default $AGGSCAN_URL, else "
       << kDefaultDaemonUrl
@@ -479,7 +499,7 @@ int RunClientCommand(const std::vector<std::string>& args, std::ostream& out, st
   if (words.empty()) return Usage(err, "missing command");
   const std::string& name = words[0];
   if (!IsClientCommand(name)) return Usage(err, "unknown command \"" + name + "\"");
-  const bool needs_id = name == "arm" || name == "show";
+  const bool needs_id = name == "arm" || name == "show" || name == "retry";
   const size_t want = needs_id ? 2 : 1;
   if (words.size() < want) return Usage(err, name + " needs a sample id");
   if (words.size() > want)
@@ -513,6 +533,7 @@ int RunClientCommand(const std::vector<std::string>& args, std::ostream& out, st
   if (name == "samples") cmd = {name, "GET", "/samples", {}};
   if (name == "selftest") cmd = {name, "GET", "/health", {}};
   if (name == "show") cmd = {name, "GET", "/samples/" + id, {}};
+  if (name == "retry") cmd = {name, "POST", "/samples/" + id + "/retry", "{}"};
 
   httplib::Client client(target->origin);
   client.set_connection_timeout(kConnectTimeoutSec, 0);
@@ -569,6 +590,10 @@ int RunClientCommand(const std::vector<std::string>& args, std::ostream& out, st
     PrintSamples(answer, out);
   } else if (name == "show") {
     PrintSample(answer, out);
+  } else if (name == "retry") {
+    out << "sample " << id << ": " << FieldText(answer, "requeued")
+        << " failed job(s) back in the worker's queue; follow them with `aggscan show " << id
+        << "`\n";
   } else {
     if (name == "arm") out << "armed sample " << id << "\n";
     if (name == "press") out << "button pressed\n";

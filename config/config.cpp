@@ -390,10 +390,12 @@ const std::vector<Field<Config>>& Fields() {
       D(worker.poll_interval, Above(0, 60 * kSec), "queue polling period when idle"),
       F(worker.nice, Range(0, 19), "CPU priority below the capture daemon (0..19)"),
       F(worker.poses, OneOf({"auto", "turntable", "sfm"}),
-        "poses: turntable (rig calibration + measured angles) | sfm (full SfM through COLMAP, "
-        "scaled by "
-        "the background labels; minutes a side) | auto (turntable with a calibration, sfm "
-        "without)"),
+        "poses: turntable (rig calibration + measured angles) | sfm (full SfM through COLMAP, scaled by "
+        "the background labels; minutes a side) | auto (turntable with a calibration, sfm without)"),
+      F(worker.max_attempts, Range(1, 100),
+        "failed or crashed runs after which a job is marked failed (retry it with `aggscan retry ID`)"),
+      F(worker.max_interruptions, Range(1, 1000),
+        "starts in a row that find a job cut off (worker killed, power lost) before it is marked failed"),
   };
   return k;
 }

@@ -381,6 +381,13 @@ struct WorkerConfig {
   /// auto (turntable with a rig calibration, sfm without). Not auto by
   /// default: SfM costs minutes a side on the rig's CPU.
   std::string poses = "turntable";
+  /// A job whose run fails or crashes this many times is marked failed (the
+  /// queue moves on; `aggscan retry ID` puts it back after a fix).
+  int max_attempts = 3;
+  /// A job found running at start-up this many times in a row (the whole
+  /// worker killed or powered off during it each time, e.g. by the OOM
+  /// killer) is marked failed.
+  int max_interruptions = 10;
 
   bool operator==(const WorkerConfig&) const = default;
 };

@@ -27,6 +27,8 @@ constexpr double kStallEpsilonDeg = 0.01;
 // sooner): below the CLI's 30 s read timeout, so a client always learns
 // whether its command ran.
 constexpr auto kApiWait = std::chrono::seconds(5);
+// Failed jobs listed in the status (newest first); the total is counted too.
+constexpr int kStatusFailedJobs = 20;
 
 SamplePlan PlanFromConfig(const Config& c) {
   SamplePlan p;
@@ -819,9 +821,26 @@ json CaptureService::StatusOnLoop() const {
     fault = {{"class", ErrorClassName(state_.fault_class)}, {"message", state_.fault_message}};
   }
   int depth = -1;
+  json failed = json::array();
+  int failed_total = 0;
   if (queue_) {
     auto d = queue_->Depth();
     if (d) depth = *d;
+    // Failed jobs wait for an operator: shown until retried.
+    if (auto f = queue_->FailedJobs(kStatusFailedJobs)) {
+      for (const Job& j : *f) {
+        failed.push_back({{"sample_id", j.sample_id},
+                          {"side", j.side},
+                          {"attempts", j.attempts},
+                          {"error", j.error},
+                          {"updated_utc", j.updated_utc}});
+      }
+    }
+    failed_total = static_cast<int>(failed.size());
+    // Counted only when the list is cut: the status is polled on the loop.
+    if (failed_total == kStatusFailedJobs) {
+      if (auto n = queue_->FailedCount()) failed_total = *n;
+    }
   }
   return {{"state", cs::PhaseName(state_.phase)},
           {"sample_id", state_.sample_id.empty() ? json(nullptr) : json(state_.sample_id)},
@@ -838,6 +857,8 @@ json CaptureService::StatusOnLoop() const {
           {"status_line", StatusLine()},
           {"devices", devices},
           {"queue_depth", depth},
+          {"failed_jobs", failed},
+          {"failed_jobs_total", failed_total},
           {"views_captured", views_captured_},
           {"time_scale", loop_.clock().Scale()},
           {"uptime_s", static_cast<double>(MonotonicNs() - started_real_) / 1e9},
@@ -950,12 +971,35 @@ Result<json> CaptureService::GetSample(const std::string& sample_id) {
     if (jobs) {
       json js = json::array();
       for (const Job& j : *jobs) {
-        js.push_back({{"side", j.side}, {"state", j.state}, {"attempts", j.attempts}, {"error", j.error}});
+        js.push_back({{"side", j.side},
+                      {"state", j.state},
+                      {"attempts", j.attempts},
+                      {"interruptions", j.interruptions},
+                      {"error", j.error}});
       }
       out["jobs"] = js;
     }
   }
   return out;
+}
+
+Result<json> CaptureService::Retry(const std::string& sample_id) {
+  Result<json> d = store_.Describe(sample_id);
+  if (!d) return d.error();
+  if (!queue_) return MakeError(ErrorClass::kInvalidState, "this daemon runs without a job queue: nothing to retry");
+  return OnLoop([this, sample_id]() -> Result<json> {
+    auto n = queue_->Retry(sample_id);
+    if (!n) return n.error();
+    LogLine(LogLevel::kNotice, "capture", sample_id,
+            "retry: " + std::to_string(*n) + " failed job(s) back in the worker's queue");
+    json out = {{"sample_id", sample_id}, {"requeued", *n}, {"jobs", json::array()}};
+    if (auto jobs = queue_->JobsForSample(sample_id)) {
+      for (const Job& j : *jobs) {
+        out["jobs"].push_back({{"side", j.side}, {"state", j.state}, {"attempts", j.attempts}, {"error", j.error}});
+      }
+    }
+    return out;
+  });
 }
 
 Result<std::string> CaptureService::ResultFile(const std::string& sample_id, const std::string& name) {
@@ -1002,14 +1046,19 @@ std::string CaptureService::Metrics() {
       m << "aggscan_faults_total{class=\"" << cls << "\"} " << (it == faults_by_class_.end() ? 0 : it->second)
         << "\n";
     }
-    int depth = 0;
+    int depth = 0, failed = 0;
     if (queue_) {
       auto d = queue_->Depth();
       if (d) depth = *d;
+      auto f = queue_->FailedCount();
+      if (f) failed = *f;
     }
     m << "# HELP aggscan_queue_depth Side and sample jobs waiting for or in the worker.\n"
       << "# TYPE aggscan_queue_depth gauge\n"
       << "aggscan_queue_depth " << depth << "\n"
+      << "# HELP aggscan_jobs_failed Jobs the worker gave up on, waiting for `aggscan retry`.\n"
+      << "# TYPE aggscan_jobs_failed gauge\n"
+      << "aggscan_jobs_failed " << failed << "\n"
       << "# HELP aggscan_state Current capture state (1 for the active one).\n"
       << "# TYPE aggscan_state gauge\n";
     for (auto p : {cs::Phase::kIdle, cs::Phase::kArmed, cs::Phase::kHoming, cs::Phase::kRotating, cs::Phase::kSettling,

@@ -62,6 +62,7 @@ class CaptureService final : public DaemonControl {
   Result<nlohmann::json> Press(const std::string& source, const CallContext& ctx) override;
   Result<nlohmann::json> Abort(const CallContext& ctx) override;
   Result<nlohmann::json> Reset(const CallContext& ctx) override;
+  Result<nlohmann::json> Retry(const std::string& sample_id) override;
   Result<nlohmann::json> ListSamples() override;
   Result<nlohmann::json> GetSample(const std::string& sample_id) override;
   Result<std::string> ResultFile(const std::string& sample_id, const std::string& name) override;

@@ -44,7 +44,8 @@ class DaemonControl {
   virtual ~DaemonControl() = default;
   /// {"state": "idle|armed|homing|...", "sample_id", "side", "view" (1-based, 0 = none), "views_per_side",
   ///  "sides", "fault": {"class","message"} | null, "status_line", "devices": {...},
-  ///  "queue_depth", "uptime_s"}
+  ///  "queue_depth", "failed_jobs": [{"sample_id", "side", "attempts", "error", "updated_utc"}...] (newest
+  ///  first, at most 20), "failed_jobs_total", "uptime_s"}
   virtual nlohmann::json GetStatus() = 0;
   /// {"status": "ok|unhealthy", "state", "fault", "devices": {"camera"|"turntable"|"button":
   ///  {"backend", "id", "state": "ok|opening|<ErrorClassName>", "healthy", "message", "since_utc",
@@ -60,6 +61,10 @@ class DaemonControl {
   virtual Result<nlohmann::json> ListSamples() = 0;
   /// The sample record plus per-side view lists and job states.
   virtual Result<nlohmann::json> GetSample(const std::string& sample_id) = 0;
+  /// Puts the sample's failed jobs back in the worker's queue with their
+  /// attempts reset (after the cause was fixed): {"sample_id", "requeued",
+  /// "jobs"}. kNotFound when the sample does not exist or has no failed job.
+  virtual Result<nlohmann::json> Retry(const std::string& sample_id) = 0;
   /// Path of one of a sample's result files, written by the worker: name is
   /// "morphology.json", "mesh.ply", "mesh.obj" or "mesh.stl" (ResultFileNames()).
   /// kNotFound when the sample does not exist or has no such result yet.

@@ -171,6 +171,7 @@ enum class Endpoint {
   kSamples,
   kSample,
   kSampleFile,
+  kSampleRetry,
   kButton,
   kAbort,
   kReset,
@@ -188,6 +189,7 @@ const char* AllowedMethods(Endpoint ep) {
       return "GET, HEAD";
     case Endpoint::kSamples:
       return "GET, HEAD, POST";
+    case Endpoint::kSampleRetry:
     case Endpoint::kButton:
     case Endpoint::kAbort:
     case Endpoint::kReset:
@@ -233,6 +235,7 @@ Endpoint Match(const std::string& path, std::string* id, std::string* file) {
     }
     if (*file == "mesh.ply" || *file == "mesh.obj" || *file == "mesh.stl")
       return Endpoint::kSampleFile;
+    if (*file == "retry") return Endpoint::kSampleRetry;
     // Anything else is not a sub-resource: the whole rest is the (invalid) id.
     *id = path.substr(std::strlen(kSamplesPrefix));
     file->clear();
@@ -505,6 +508,10 @@ ApiResponse ApiRouter::HandleUnsafe(const ApiRequest& req) {
       if (!layout::IsValidSampleId(id))
         return ErrorResponse(400, ErrorClass::kInvalidArgument, InvalidIdMessage(id));
       return ServeResultFile(id, file);
+    case Endpoint::kSampleRetry:
+      if (!layout::IsValidSampleId(id))
+        return ErrorResponse(400, ErrorClass::kInvalidArgument, InvalidIdMessage(id));
+      return Reply(control_.Retry(id));
     case Endpoint::kButton:
       return Reply(control_.Press("api", req.ctx));
     case Endpoint::kAbort:

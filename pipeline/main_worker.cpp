@@ -3,12 +3,26 @@
 // masks and 2D figures of one side; a sample job, when the sample recorded a
 // rig calibration at arm time (samples/<id>/calibration.json), runs every
 // stage to the 3D model and morphology (pipeline/reconstruct.h), else only
-// the 2D figures, saying how to calibrate. Niced below the capture daemon. SIGTERM/SIGINT: the
-// current side stops between views (resumes there next time, the job stays
-// "running" and is requeued at the next start without counting an attempt).
+// the 2D figures, saying how to calibrate. Niced below the capture daemon.
+//
+// Each job runs in a child process forked for it, so that nothing a library
+// does to the process (an abort, SIGSEGV, std::terminate from a thread, the
+// OOM killer) can take the queue down with it: the parent sees how the child
+// ended. A named failure (an error value, or a library exception caught at a
+// stage boundary, pipeline/stage.h) and a crash (with the stage it was in)
+// count an attempt; [worker] max_attempts of them mark the job failed and the
+// queue moves on. SIGTERM/SIGINT: forwarded to the child, whose side stops
+// between views (it resumes there next time); the job goes back to the queue
+// without counting. A job found running at start-up (the whole worker was
+// killed or lost power) is requeued uncounted, [worker] max_interruptions
+// times in a row at most.
 //
 //   aggscan-worker --state-dir DIR [--config FILE] [--once] [--poll-ms N] [--log-level L]
+#include <sys/mman.h>
+#include <sys/prctl.h>
 #include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
@@ -27,6 +41,7 @@
 #include "common/fsutil.h"
 #include "pipeline/reconstruct.h"
 #include "pipeline/side_job.h"
+#include "pipeline/stage.h"
 #include "store/layout.h"
 #include "store/queue.h"
 
@@ -35,7 +50,42 @@ namespace {
 using namespace aggscan;
 
 constexpr const char* kCat = "worker";
-constexpr int kMaxAttempts = 3;  // a job failing this many times stays failed
+
+// Exit codes of a job's child process; any other end is a crash.
+constexpr int kChildDone = 0;
+constexpr int kChildFailed = 1;   // a named failure, described in the report
+constexpr int kChildStopped = 3;  // stopped between views on request
+
+// What a child leaves for the parent, in memory shared across fork(): the
+// stage it is in (kept current while it runs, so it survives a crash) and
+// its failure. Written only by the child, read by the parent after the
+// child ended.
+struct ChildReport {
+  char stage[256];
+  char error_class[32];
+  char message[16384];
+};
+
+ChildReport* g_report = nullptr;
+
+void CopyText(char* dst, size_t size, const std::string& s) {
+  const size_t n = std::min(size - 1, s.size());
+  std::memcpy(dst, s.data(), n);
+  dst[n] = '\0';
+}
+
+// Test hook for the supervision tests: AGGSCAN_WORKER_TEST_ABORT =
+// "SAMPLE_ID/STAGE_PREFIX" makes the child of that sample's job abort when
+// it enters a matching stage, as a library's failed assertion would.
+char g_abort_stage[256];
+
+extern "C" void ChildStageObserver(const char* stage) {
+  const size_t n = std::min(std::strlen(stage), sizeof g_report->stage - 1);
+  std::memcpy(g_report->stage, stage, n);
+  g_report->stage[n] = '\0';
+  if (g_abort_stage[0] != '\0' && std::strncmp(stage, g_abort_stage, std::strlen(g_abort_stage)) == 0)
+    std::abort();
+}
 
 std::atomic<bool> g_stop{false};
 
@@ -141,6 +191,105 @@ Status RunJob(const std::string& state_dir, const Job& job, const WorkerOptions&
   return job.side > 0 ? ProcessSide(dir, job.side, opts) : RunSampleStage(dir, state_dir, opts, poses);
 }
 
+// How a child process ended.
+struct ChildEnd {
+  enum Kind { kDone, kFailed, kStopped, kCrashed } kind = kCrashed;
+  std::string reason;  // kFailed: the error; kCrashed: signal or exit code, and the stage
+};
+
+std::string SignalText(int sig) {
+  const char* abbrev = ::sigabbrev_np(sig);
+  return (abbrev ? "SIG" + std::string(abbrev) : "signal " + std::to_string(sig)) + " (" + ::strsignal(sig) + ")";
+}
+
+// Runs fn() -> exit code in a forked child and waits for it; a stop request
+// to this process is forwarded to the child once.
+template <typename F>
+Result<ChildEnd> RunInChild(F&& fn) {
+  std::memset(g_report, 0, sizeof *g_report);
+  std::fflush(nullptr);  // buffered output must not be written twice
+  const pid_t parent = ::getpid();
+  const pid_t pid = ::fork();
+  if (pid < 0) return ErrnoError("cannot fork the job's process", errno);
+  if (pid == 0) {
+    // The child must not outlive a killed parent: a new worker would run the
+    // same job beside it.
+    ::prctl(PR_SET_PDEATHSIG, SIGKILL);
+    if (::getppid() != parent) ::_exit(kChildStopped);
+    SetStageObserver(ChildStageObserver);
+    const int code = fn();
+    std::fflush(nullptr);
+    // No exit handlers: the parent's queue connection and the libraries'
+    // static state belong to the parent.
+    ::_exit(code);
+  }
+  bool forwarded = false;
+  int status = 0;
+  for (;;) {
+    const pid_t r = ::waitpid(pid, &status, WNOHANG);
+    if (r == pid) break;
+    if (r < 0 && errno != EINTR) return ErrnoError("cannot wait for the job's process", errno);
+    if (g_stop.load() && !forwarded) {
+      ::kill(pid, SIGTERM);
+      forwarded = true;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  const std::string stage(g_report->stage, strnlen(g_report->stage, sizeof g_report->stage));
+  const std::string in_stage = stage.empty() ? "" : " in stage \"" + stage + "\"";
+  ChildEnd end;
+  if (WIFEXITED(status) && WEXITSTATUS(status) == kChildDone) {
+    end.kind = ChildEnd::kDone;
+  } else if (WIFEXITED(status) && WEXITSTATUS(status) == kChildStopped) {
+    end.kind = ChildEnd::kStopped;
+  } else if (WIFEXITED(status) && WEXITSTATUS(status) == kChildFailed && g_report->message[0] != '\0') {
+    end.kind = ChildEnd::kFailed;
+    end.reason = std::string(g_report->message, strnlen(g_report->message, sizeof g_report->message));
+  } else if (WIFSIGNALED(status) && forwarded && (WTERMSIG(status) == SIGTERM || WTERMSIG(status) == SIGKILL)) {
+    end.kind = ChildEnd::kStopped;  // stopped with us (systemd stops the whole unit)
+  } else if (WIFSIGNALED(status)) {
+    const int sig = WTERMSIG(status);
+    end.reason = (sig == SIGKILL ? "killed by " : "crashed with ") + SignalText(sig) + in_stage +
+                 (sig == SIGKILL ? ": out of memory? check the kernel log for the OOM killer (journalctl -k)"
+                                 : ": a library failed on this sample's data (the worker log has its message); "
+                                   "check that stage's files, fix or re-capture them");
+  } else {
+    end.reason = "the job's process ended with exit code " + std::to_string(WEXITSTATUS(status)) + in_stage +
+                 " without a failure record; see the worker log";
+  }
+  return end;
+}
+
+// The child's side of a job: exit code for RunInChild.
+int ChildRunJob(const std::string& state_dir, const Job& job, const Config& cfg, PosesPath poses) {
+  if (const char* hook = std::getenv("AGGSCAN_WORKER_TEST_ABORT")) {
+    const std::string h = hook;
+    const size_t slash = h.find('/');
+    if (slash != std::string::npos && h.substr(0, slash) == job.sample_id) {
+      CopyText(g_abort_stage, sizeof g_abort_stage, h.substr(slash + 1));
+    }
+  }
+  Status st = RunStage("job", [&]() -> Status {
+    // Loaded here, not in the parent: its check pass starts OpenCV's thread
+    // pool, which a process that forks must never have.
+    auto mask_net = LoadMaskNet(cfg.mask);
+    if (!mask_net.ok()) return mask_net.error();
+    WorkerOptions opts;
+    opts.cancel = &g_stop;
+    opts.mask_net = *mask_net;
+    return RunJob(state_dir, job, opts, poses);
+  });
+  if (st.ok()) return kChildDone;
+  if (g_stop.load() && st.error().cls == ErrorClass::kInvalidState) return kChildStopped;
+  CopyText(g_report->error_class, sizeof g_report->error_class, ErrorClassName(st.error().cls));
+  // One line: the reason is shown in status listings.
+  std::string reason = st.error().ToString();
+  std::replace(reason.begin(), reason.end(), '\n', ' ');
+  while (!reason.empty() && reason.back() == ' ') reason.pop_back();
+  CopyText(g_report->message, sizeof g_report->message, reason);
+  return kChildFailed;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -175,18 +324,17 @@ int main(int argc, char** argv) {
   if (errno == 0 && current != cfg.worker.nice && setpriority(PRIO_PROCESS, 0, cfg.worker.nice) != 0)
     AGG_LOGW(kCat, "cannot set nice %d (staying at %d): %s", cfg.worker.nice, current, std::strerror(errno));
 
-  // The mask network (if configured) is loaded once, at start: a missing or
-  // broken model is a config error, reported before any job is claimed.
-  auto mask_net = LoadMaskNet(cfg.mask);
-  if (!mask_net.ok()) {
-    std::fprintf(stderr, "aggscan-worker: %s\n", mask_net.error().ToString().c_str());
-    return 2;
-  }
-  if (*mask_net) AGG_LOGI(kCat, "masks: ONNX network %s", cfg.mask.model.c_str());
   PosesPath poses = PosesPath::kTurntable;
   ParsePosesPath(cfg.worker.poses, &poses);  // validated with the config
 
   if (!args.sample_dir.empty()) {
+    // One sample in this process: the stages' boundaries catch what the
+    // libraries throw; there is no queue to protect from a crash.
+    auto mask_net = LoadMaskNet(cfg.mask);
+    if (!mask_net.ok()) {
+      std::fprintf(stderr, "aggscan-worker: %s\n", mask_net.error().ToString().c_str());
+      return 2;
+    }
     WorkerOptions one;
     one.mask_net = *mask_net;
     Status st = RunSampleStage(args.sample_dir, "", one, poses);
@@ -204,20 +352,48 @@ int main(int argc, char** argv) {
   sigaction(SIGTERM, &sa, nullptr);
   sigaction(SIGINT, &sa, nullptr);
 
+  void* shared = ::mmap(nullptr, sizeof(ChildReport), PROT_READ | PROT_WRITE, MAP_SHARED | MAP_ANONYMOUS, -1, 0);
+  if (shared == MAP_FAILED) {
+    AGG_LOGE(kCat, "cannot map the job report page: %s", std::strerror(errno));
+    return 1;
+  }
+  g_report = static_cast<ChildReport*>(shared);
+
+  // The mask network (if configured) is checked once, at start, in a child
+  // of its own: a missing or broken model is a config error, reported before
+  // any job is claimed.
+  if (cfg.mask.method == "onnx") {
+    auto probe = RunInChild([&] {
+      auto net = LoadMaskNet(cfg.mask);
+      if (net.ok()) return kChildDone;
+      CopyText(g_report->message, sizeof g_report->message, net.error().ToString());
+      return kChildFailed;
+    });
+    if (!probe.ok() || probe->kind != ChildEnd::kDone) {
+      std::fprintf(stderr, "aggscan-worker: %s\n",
+                   !probe.ok() ? probe.error().ToString().c_str()
+                   : probe->kind == ChildEnd::kStopped ? "stopped while checking the mask network"
+                                                       : probe->reason.c_str());
+      return 2;
+    }
+    AGG_LOGI(kCat, "masks: ONNX network %s", cfg.mask.model.c_str());
+  }
+
   auto q = JobQueue::Open(layout::QueuePath(args.state_dir));
   if (!q.ok()) {
     AGG_LOGE(kCat, "cannot open the job queue in %s: %s", args.state_dir.c_str(), q.error().ToString().c_str());
     return 1;
   }
   JobQueue& queue = **q;
-  if (auto n = queue.RequeueRunning(); !n.ok())
+  if (auto n = queue.RequeueRunning(cfg.worker.max_interruptions); !n.ok()) {
     AGG_LOGE(kCat, "requeue of interrupted jobs failed: %s", n.error().ToString().c_str());
-  else if (*n > 0)
-    AGG_LOGI(kCat, "requeued %d job(s) interrupted by an earlier stop or crash", *n);
-
-  WorkerOptions opts;
-  opts.cancel = &g_stop;
-  opts.mask_net = *mask_net;
+  } else {
+    if (n->requeued > 0)
+      AGG_LOGI(kCat, "requeued %d job(s) cut off when the worker was killed or lost power", n->requeued);
+    if (n->failed > 0)
+      AGG_LOGE(kCat, "%d job(s) failed: interrupted %d times in a row (see `aggscan status`)", n->failed,
+               cfg.worker.max_interruptions);
+  }
   AGG_LOGI(kCat, "started: state dir %s, poll %ld ms%s", args.state_dir.c_str(), poll_ms, args.once ? ", once" : "");
   bool failed_for_good = false;
   while (!g_stop.load()) {
@@ -235,26 +411,39 @@ int main(int argc, char** argv) {
     }
     const Job job = **next;
     const std::string what = job.side > 0 ? "side " + std::to_string(job.side) : std::string("sample stage");
-    LogLine(LogLevel::kInfo, kCat, job.sample_id, "job " + std::to_string(job.id) + ": " + what + ", attempt " +
-                                                      std::to_string(job.attempts));
-    Status st = RunJob(args.state_dir, job, opts, poses);
-    if (!st.ok() && g_stop.load() && st.error().cls == ErrorClass::kInvalidState) {
-      // Interrupted by a stop request: leave it running; the next start requeues it.
-      LogLine(LogLevel::kNotice, kCat, job.sample_id, "job " + std::to_string(job.id) + " interrupted, will resume");
-      break;
+    const std::string name = "job " + std::to_string(job.id);
+    LogLine(LogLevel::kInfo, kCat, job.sample_id,
+            name + ": " + what + ", attempt " + std::to_string(job.attempts + 1) + " of " +
+                std::to_string(cfg.worker.max_attempts));
+    auto end = RunInChild([&] { return ChildRunJob(args.state_dir, job, cfg, poses); });
+    if (!end.ok()) {
+      // No process for the job (out of processes or memory): not its fault.
+      LogLine(LogLevel::kError, kCat, job.sample_id, name + ": " + end.error().ToString() + "; will retry");
+      if (Status r = queue.Release(job.id); !r.ok())
+        LogLine(LogLevel::kError, kCat, job.sample_id, "cannot put the job back: " + r.error().ToString());
+      IdleWait(poll_ms);
+      continue;
     }
-    if (st.ok()) {
+    if (end->kind == ChildEnd::kDone) {
       if (Status c = queue.Complete(job.id); !c.ok())
         LogLine(LogLevel::kError, kCat, job.sample_id, "cannot mark job done: " + c.error().ToString());
       else
-        LogLine(LogLevel::kInfo, kCat, job.sample_id, "job " + std::to_string(job.id) + " done");
+        LogLine(LogLevel::kInfo, kCat, job.sample_id, name + " done");
+    } else if (end->kind == ChildEnd::kStopped) {
+      LogLine(LogLevel::kNotice, kCat, job.sample_id, name + " interrupted, will resume");
+      if (Status r = queue.Release(job.id); !r.ok())
+        LogLine(LogLevel::kError, kCat, job.sample_id, "cannot put the job back: " + r.error().ToString());
+      if (g_stop.load()) break;
     } else {
-      const bool requeue = job.attempts < kMaxAttempts;
+      const bool requeue = job.attempts + 1 < cfg.worker.max_attempts;
+      const std::string kind = end->kind == ChildEnd::kCrashed ? " crashed: " : " failed: ";
       LogLine(LogLevel::kError, kCat, job.sample_id,
-              "job " + std::to_string(job.id) + " failed (" + ErrorClassName(st.error().cls) +
-                  "): " + st.error().ToString() + (requeue ? "; will retry" : "; giving up"));
+              name + kind + end->reason +
+                  (requeue ? "; will retry"
+                           : "; giving up after " + std::to_string(job.attempts + 1) +
+                                 " attempts: fix the cause, then run `aggscan retry " + job.sample_id + "`"));
       if (!requeue) failed_for_good = true;
-      if (Status f = queue.Fail(job.id, st.error().ToString(), requeue); !f.ok())
+      if (Status f = queue.Fail(job.id, end->reason, requeue); !f.ok())
         LogLine(LogLevel::kError, kCat, job.sample_id, "cannot record the failure: " + f.error().ToString());
     }
   }

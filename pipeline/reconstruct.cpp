@@ -20,6 +20,7 @@
 #include "common/rig_calibration.h"
 #include "pipeline/image_io.h"
 #include "pipeline/morph2d.h"
+#include "pipeline/stage.h"
 #include "pipeline/stitch_stage.h"
 #include "store/layout.h"
 
@@ -901,7 +902,9 @@ Result<json> ReadMorphology(const std::string& sample_dir) {
   return ReadJson(path, "results");
 }
 
-Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions& opts) {
+namespace {
+
+Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructOptions& opts) {
   const auto t_all = std::chrono::steady_clock::now();
   const std::string sample_id = SampleIdOf(sample_dir);
   const std::string morph_path = ResultsPath(sample_dir, results::kMorphology);
@@ -963,7 +966,7 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
   if (!use_sfm) return use_sfm.error();
   std::optional<RigCalibration> cal;
   if (!*use_sfm || HasCalibration(sample_dir, opts)) {
-    auto c = CalibrationStage(sample_dir, opts, image_size, &timings);
+    auto c = RunStage("calibration", [&] { return CalibrationStage(sample_dir, opts, image_size, &timings); });
     if (!c) return c.error();
     cal = std::move(*c);
   }
@@ -1005,8 +1008,10 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
       sfm_setup.camera_source = "sfm " + layout::SideDirName(sides[0]);
     }
     std::string method;
-    auto v = PosesStage(sample_dir, side, cal ? &*cal : nullptr, *use_sfm ? &sfm_setup : nullptr, opts, &timings,
+    auto v = RunStage("poses side " + std::to_string(side), [&] {
+      return PosesStage(sample_dir, side, cal ? &*cal : nullptr, *use_sfm ? &sfm_setup : nullptr, opts, &timings,
                         &method);
+    });
     poses_methods[side] = method;
     if (!v) return v.error();
     side_views[side] = *v;
@@ -1036,7 +1041,7 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
   }
   const std::string stitch_path = ResultsPath(sample_dir, results::kStitch);
   if (!PathExists(stitch_path)) {
-    auto st = RunStitchStage(sin);
+    auto st = RunStage("stitch", [&] { return RunStitchStage(sin); });
     if (!st) return st.error();
     if (Status s = WriteJson(stitch_path, *st); !s) return s;
   }
@@ -1057,12 +1062,15 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
   timings["stitch_s"] = stitch->value("stage_seconds", 0.0);
 
   if (opts.cancel && opts.cancel->load()) return MakeError(ErrorClass::kInvalidState, "interrupted before the surface");
-  auto surface = SurfaceStage(sample_dir, all_views, table_from_object, *cal, opts, sample_id);
+  auto surface = RunStage("surface", [&] {
+    return SurfaceStage(sample_dir, all_views, table_from_object, *cal, opts, sample_id);
+  });
   if (!surface) return surface.error();
   timings["surface_s"] = surface->value("stage_seconds", 0.0);
   timings["surface_detail_s"] = surface->value("timings_s", json::object());
 
-  // Morphology.
+  // Morphology (to the end: ReconstructSample's own boundary catches it).
+  const StageScope morphology_stage("morphology");
   const auto t_m = std::chrono::steady_clock::now();
   auto mesh = LoadMesh(ResultsPath(sample_dir, results::kMeshPly), "mm");
   if (!mesh) return mesh.error();
@@ -1248,6 +1256,12 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
           "reconstructed: V " + std::to_string(static_cast<long>(p.volume_mm3)) + " mm3, a/b/c " +
               std::to_string(p.a_mm) + "/" + std::to_string(p.b_mm) + "/" + std::to_string(p.c_mm) + " mm");
   return AppendLibraryRow(opts.state_dir, out);
+}
+
+}  // namespace
+
+Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions& opts) {
+  return RunStage("reconstruction", [&] { return ReconstructSampleStages(sample_dir, opts); });
 }
 
 }  // namespace aggscan

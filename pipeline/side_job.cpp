@@ -14,6 +14,7 @@
 #include "common/log.h"
 #include "pipeline/image_io.h"
 #include "pipeline/morph2d.h"
+#include "pipeline/stage.h"
 #include "store/layout.h"
 
 namespace aggscan {
@@ -195,7 +196,9 @@ std::string ViewMaskPath(const std::string& sample_dir, int side, int view) {
   return MasksDir(sample_dir, side) + "/" + layout::ViewStem(view) + ".png";
 }
 
-Status ProcessSide(const std::string& sample_dir, int side, const WorkerOptions& opts) {
+namespace {
+
+Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOptions& opts) {
   const std::string sample_id = SampleIdOf(sample_dir);
   if (side < 1) return MakeError(ErrorClass::kInvalidArgument, "side must be >= 1, got " + std::to_string(side));
   const std::string result_path = SideResultPath(sample_dir, side);
@@ -222,6 +225,7 @@ Status ProcessSide(const std::string& sample_dir, int side, const WorkerOptions&
     if (opts.cancel && opts.cancel->load())
       return MakeError(ErrorClass::kInvalidState, "interrupted: side " + std::to_string(side) + " of " + sample_id +
                                                       " will resume from view " + std::to_string(v.view));
+    const StageScope view_stage("masks side " + std::to_string(side) + " view " + std::to_string(v.view));
     const TimeNs t0 = MonotonicNs();
     const std::string mask_path = ViewMaskPath(sample_dir, side, v.view);
     cv::Mat mask;
@@ -351,7 +355,7 @@ Status ProcessSide(const std::string& sample_dir, int side, const WorkerOptions&
   return OkStatus();
 }
 
-Status ProcessSample(const std::string& sample_dir, const WorkerOptions& opts) {
+Status ProcessSampleStage(const std::string& sample_dir, const WorkerOptions& opts) {
   const std::string sample_id = SampleIdOf(sample_dir);
   const std::string result_path = SampleResultPath(sample_dir);
   if (PathExists(result_path)) {
@@ -404,6 +408,16 @@ Status ProcessSample(const std::string& sample_dir, const WorkerOptions& opts) {
   LogLine(LogLevel::kInfo, kCat, sample_id,
           "sample morphology written: " + std::to_string(sides.size()) + " sides, " + std::to_string(views_ok) + " views");
   return OkStatus();
+}
+
+}  // namespace
+
+Status ProcessSide(const std::string& sample_dir, int side, const WorkerOptions& opts) {
+  return RunStage("masks side " + std::to_string(side), [&] { return ProcessSideStage(sample_dir, side, opts); });
+}
+
+Status ProcessSample(const std::string& sample_dir, const WorkerOptions& opts) {
+  return RunStage("2D figures", [&] { return ProcessSampleStage(sample_dir, opts); });
 }
 
 }  // namespace aggscan

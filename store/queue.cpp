@@ -40,7 +40,7 @@ Error DbError(sqlite3* db, const std::string& what) {
 }
 
 constexpr const char* kJobColumns =
-    "id, sample_id, side, state, attempts, COALESCE(error,''), created_utc, updated_utc";
+    "id, sample_id, side, state, attempts, COALESCE(error,''), created_utc, updated_utc, interruptions";
 
 Job ReadJob(Stmt& st) {
   Job j;
@@ -52,6 +52,7 @@ Job ReadJob(Stmt& st) {
   j.error = st.Text(5);
   j.created_utc = st.Text(6);
   j.updated_utc = st.Text(7);
+  j.interruptions = static_cast<int>(st.Int(8));
   return j;
 }
 
@@ -85,7 +86,33 @@ Result<std::unique_ptr<JobQueue>> JobQueue::Open(const std::string& path) {
     Status s = q->Exec(sql);
     if (!s) return s.error();
   }
+  if (Status s = q->Migrate(); !s) return s.error();
   return q;
+}
+
+// Columns added after the first release: a queue written by an older build
+// gets them (the daemon and the worker may both open it first, so the check
+// and the change are one write transaction).
+Status JobQueue::Migrate() {
+  if (Status s = Exec("BEGIN IMMEDIATE"); !s) return s;
+  bool has_interruptions = false;
+  {
+    Stmt info(db_, "PRAGMA table_info(jobs)");
+    while (info.Step() == SQLITE_ROW) {
+      if (info.Text(1) == "interruptions") has_interruptions = true;
+    }
+  }
+  if (!has_interruptions) {
+    if (Status s = Exec("ALTER TABLE jobs ADD COLUMN interruptions INTEGER NOT NULL DEFAULT 0"); !s) {
+      (void)Exec("ROLLBACK");
+      return s;
+    }
+  }
+  if (Status s = Exec("COMMIT"); !s) {
+    (void)Exec("ROLLBACK");
+    return s;
+  }
+  return OkStatus();
 }
 
 JobQueue::~JobQueue() { sqlite3_close(db_); }
@@ -145,7 +172,7 @@ Result<std::optional<Job>> JobQueue::ClaimNext() {
     if (sel.Step() == SQLITE_ROW) job = ReadJob(sel);
   }
   if (job) {
-    Stmt upd(db_, "UPDATE jobs SET state='running', attempts=attempts+1, updated_utc=? WHERE id=?");
+    Stmt upd(db_, "UPDATE jobs SET state='running', updated_utc=? WHERE id=?");
     upd.Bind(1, NowUtcString());
     upd.Bind(2, job->id);
     if (upd.Step() != SQLITE_DONE) {
@@ -154,7 +181,6 @@ Result<std::optional<Job>> JobQueue::ClaimNext() {
       return e;
     }
     job->state = "running";
-    job->attempts += 1;
   }
   s = Exec("COMMIT");
   if (!s) {
@@ -165,7 +191,7 @@ Result<std::optional<Job>> JobQueue::ClaimNext() {
 }
 
 Status JobQueue::Complete(int64_t job_id) {
-  Stmt upd(db_, "UPDATE jobs SET state='done', error=NULL, updated_utc=? WHERE id=?");
+  Stmt upd(db_, "UPDATE jobs SET state='done', error=NULL, interruptions=0, updated_utc=? WHERE id=?");
   upd.Bind(1, NowUtcString());
   upd.Bind(2, job_id);
   if (upd.Step() != SQLITE_DONE) return DbError(db_, "cannot complete job");
@@ -174,7 +200,7 @@ Status JobQueue::Complete(int64_t job_id) {
 }
 
 Status JobQueue::Fail(int64_t job_id, const std::string& error, bool requeue) {
-  Stmt upd(db_, "UPDATE jobs SET state=?, error=?, updated_utc=? WHERE id=?");
+  Stmt upd(db_, "UPDATE jobs SET state=?, error=?, attempts=attempts+1, interruptions=0, updated_utc=? WHERE id=?");
   upd.Bind(1, std::string(requeue ? "queued" : "failed"));
   upd.Bind(2, error);
   upd.Bind(3, NowUtcString());
@@ -184,11 +210,72 @@ Status JobQueue::Fail(int64_t job_id, const std::string& error, bool requeue) {
   return OkStatus();
 }
 
-Result<int> JobQueue::RequeueRunning() {
-  Stmt upd(db_, "UPDATE jobs SET state='queued', updated_utc=? WHERE state='running'");
+Status JobQueue::Release(int64_t job_id) {
+  Stmt upd(db_, "UPDATE jobs SET state='queued', updated_utc=? WHERE id=? AND state='running'");
   upd.Bind(1, NowUtcString());
-  if (upd.Step() != SQLITE_DONE) return DbError(db_, "cannot requeue running jobs");
-  return sqlite3_changes(db_);
+  upd.Bind(2, job_id);
+  if (upd.Step() != SQLITE_DONE) return DbError(db_, "cannot put job back in the queue");
+  if (sqlite3_changes(db_) != 1)
+    return MakeError(ErrorClass::kNotFound, "job " + std::to_string(job_id) + " is not running");
+  return OkStatus();
+}
+
+Result<JobQueue::Requeued> JobQueue::RequeueRunning(int max_interruptions) {
+  Status s = Exec("BEGIN IMMEDIATE");
+  if (!s) return s.error();
+  Requeued out;
+  const std::string now = NowUtcString();
+  auto rollback = [&](const std::string& what) {
+    Error e = DbError(db_, what);
+    (void)Exec("ROLLBACK");
+    return e;
+  };
+  {
+    Stmt inc(db_, "UPDATE jobs SET interruptions=interruptions+1, updated_utc=? WHERE state='running'");
+    inc.Bind(1, now);
+    if (inc.Step() != SQLITE_DONE) return rollback("cannot requeue running jobs");
+  }
+  {
+    Stmt fail(db_,
+              "UPDATE jobs SET state='failed', error='interrupted ' || interruptions || ' times in a row while "
+              "running (the worker was killed or the machine lost power each time): out of memory or killed? "
+              "Check the kernel log for the OOM killer (journalctl -k) and the worker log, then retry the "
+              "sample', updated_utc=? WHERE state='running' AND interruptions>=?");
+    fail.Bind(1, now);
+    fail.Bind(2, static_cast<int64_t>(max_interruptions));
+    if (fail.Step() != SQLITE_DONE) return rollback("cannot fail interrupted jobs");
+    out.failed = sqlite3_changes(db_);
+  }
+  {
+    Stmt upd(db_, "UPDATE jobs SET state='queued', updated_utc=? WHERE state='running'");
+    upd.Bind(1, now);
+    if (upd.Step() != SQLITE_DONE) return rollback("cannot requeue running jobs");
+    out.requeued = sqlite3_changes(db_);
+  }
+  if (Status c = Exec("COMMIT"); !c) {
+    (void)Exec("ROLLBACK");
+    return c.error();
+  }
+  return out;
+}
+
+Result<int> JobQueue::Retry(const std::string& sample_id) {
+  // A failed job with a live twin (queued or running) is left as it is: the
+  // twin already does its work.
+  Stmt upd(db_,
+           "UPDATE jobs SET state='queued', attempts=0, interruptions=0, error=NULL, updated_utc=? "
+           "WHERE sample_id=? AND state='failed' AND NOT EXISTS (SELECT 1 FROM jobs AS t WHERE "
+           "t.sample_id=jobs.sample_id AND t.side=jobs.side AND t.state IN ('queued','running'))");
+  upd.Bind(1, NowUtcString());
+  upd.Bind(2, sample_id);
+  if (upd.Step() != SQLITE_DONE) return DbError(db_, "cannot requeue the failed jobs of " + sample_id);
+  const int n = sqlite3_changes(db_);
+  if (n == 0) {
+    return MakeError(ErrorClass::kNotFound, "sample " + sample_id +
+                                                " has no failed job to retry (see its jobs with `aggscan show " +
+                                                sample_id + "`)");
+  }
+  return n;
 }
 
 Result<int> JobQueue::Depth() {
@@ -205,6 +292,22 @@ Result<std::vector<Job>> JobQueue::JobsForSample(const std::string& sample_id) {
   while ((rc = sel.Step()) == SQLITE_ROW) out.push_back(ReadJob(sel));
   if (rc != SQLITE_DONE) return DbError(db_, "cannot list jobs of " + sample_id);
   return out;
+}
+
+Result<std::vector<Job>> JobQueue::FailedJobs(int limit) {
+  Stmt sel(db_, (std::string("SELECT ") + kJobColumns + " FROM jobs WHERE state='failed' ORDER BY id DESC LIMIT ?").c_str());
+  sel.Bind(1, static_cast<int64_t>(limit));
+  std::vector<Job> out;
+  int rc;
+  while ((rc = sel.Step()) == SQLITE_ROW) out.push_back(ReadJob(sel));
+  if (rc != SQLITE_DONE) return DbError(db_, "cannot list failed jobs");
+  return out;
+}
+
+Result<int> JobQueue::FailedCount() {
+  Stmt sel(db_, "SELECT COUNT(*) FROM jobs WHERE state='failed'");
+  if (sel.Step() != SQLITE_ROW) return DbError(db_, "cannot count failed jobs");
+  return static_cast<int>(sel.Int(0));
 }
 
 }  // namespace aggscan

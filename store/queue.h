@@ -21,7 +21,8 @@ struct Job {
   std::string sample_id;
   int side = 0;             // 1..N for a side job, 0 for the sample job
   std::string state;        // queued | running | done | failed
-  int attempts = 0;
+  int attempts = 0;         // runs that ended in a failure or a crash (not kills or stops)
+  int interruptions = 0;    // consecutive runs cut off with the whole worker (kill, power loss)
   std::string error;        // last failure message
   std::string created_utc;
   std::string updated_utc;
@@ -38,19 +39,40 @@ class JobQueue {
   /// Queues a job unless an identical one (sample, side) is queued or running.
   Result<int64_t> Enqueue(const std::string& sample_id, int side);
   /// Takes the oldest queued job and marks it running; nullopt when empty.
+  /// Claiming counts nothing: a run that is killed or stopped is no attempt.
   Result<std::optional<Job>> ClaimNext();
   Status Complete(int64_t job_id);
-  /// Marks failed with the reason; requeue=true puts it back (bounded by caller).
+  /// One attempt of the job failed (an error or a crash): counts it and
+  /// records the reason; requeue=true puts it back, false marks it failed.
   Status Fail(int64_t job_id, const std::string& error, bool requeue);
-  /// Worker start-up: jobs left running by a crashed worker go back to queued.
-  Result<int> RequeueRunning();
+  /// The worker was asked to stop during the job: back to queued, uncounted.
+  Status Release(int64_t job_id);
+
+  struct Requeued {
+    int requeued = 0;  // back to queued
+    int failed = 0;    // failed: interrupted max_interruptions times in a row
+  };
+  /// Worker start-up: jobs left running by a worker that was killed (or lost
+  /// power) go back to queued without counting an attempt; each such return
+  /// counts an interruption, and a job interrupted `max_interruptions` times
+  /// in a row (a job that gets the worker OOM-killed every time) is failed.
+  Result<Requeued> RequeueRunning(int max_interruptions);
+  /// Puts the failed jobs of a sample back in the queue with their attempts
+  /// reset (after the cause was fixed); the number requeued. kNotFound when
+  /// the sample has no failed job.
+  Result<int> Retry(const std::string& sample_id);
   /// Number of queued + running jobs.
   Result<int> Depth();
   Result<std::vector<Job>> JobsForSample(const std::string& sample_id);
+  /// The failed jobs, newest first, at most `limit`.
+  Result<std::vector<Job>> FailedJobs(int limit);
+  /// Number of failed jobs.
+  Result<int> FailedCount();
 
  private:
   explicit JobQueue(sqlite3* db) : db_(db) {}
   Status Exec(const char* sql);
+  Status Migrate();
   sqlite3* db_;
 };
 

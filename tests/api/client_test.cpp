@@ -119,6 +119,50 @@ TEST_F(ClientTest, ShowSample) {
   EXPECT_EQ(fake_.Calls(), std::vector<std::string>{"get:rock-11"});
 }
 
+TEST_F(ClientTest, StatusListsFailedJobsWithWhatToDo) {
+  fake_.status["failed_jobs"] =
+      json::array({{{"sample_id", "rock-9"},
+                    {"side", 1},
+                    {"attempts", 3},
+                    {"error", "stage \"masks side 1 view 4\" failed: OpenCV refused its data"},
+                    {"updated_utc", "2026-01-01T10:00:00.000Z"}},
+                   {{"sample_id", "rock-8"},
+                    {"side", 0},
+                    {"attempts", 3},
+                    {"error", "crashed with SIGABRT (Aborted)"}}});
+  fake_.status["failed_jobs_total"] = 5;
+  ASSERT_EQ(Run({"status"}), kClientExitOk) << err_.str();
+  const std::string out = out_.str();
+  EXPECT_NE(
+      out.find(
+          "failed jobs: 5 (the worker gave up on them; fix the cause, then `aggscan retry ID`)"),
+      std::string::npos)
+      << out;
+  EXPECT_NE(out.find("  rock-9 side 1, 3 attempt(s): stage \"masks side 1 view 4\" failed: OpenCV "
+                     "refused its data\n"),
+            std::string::npos)
+      << out;
+  EXPECT_NE(out.find("  rock-8 sample stage, 3 attempt(s): crashed with SIGABRT (Aborted)\n"),
+            std::string::npos)
+      << out;
+  EXPECT_NE(out.find("  ... and 3 older\n"), std::string::npos) << out;
+}
+
+TEST_F(ClientTest, RetryPostsToTheSample) {
+  ASSERT_EQ(Run({"retry", "rock-9"}), kClientExitOk) << err_.str();
+  EXPECT_NE(out_.str().find("sample rock-9: 1 failed job(s) back in the worker's queue"),
+            std::string::npos)
+      << out_.str();
+  EXPECT_EQ(fake_.Calls(), std::vector<std::string>{"retry:rock-9"});
+  EXPECT_EQ(Run({"retry"}), kClientExitUsage);
+  EXPECT_NE(err_.str().find("retry needs a sample id"), std::string::npos) << err_.str();
+  fake_.fail = MakeError(ErrorClass::kNotFound, "sample rock-9 has no failed job to retry");
+  EXPECT_EQ(Run({"retry", "rock-9"}), kClientExitDaemonError);
+  EXPECT_NE(err_.str().find("retry failed: sample rock-9 has no failed job to retry [not_found]"),
+            std::string::npos)
+      << err_.str();
+}
+
 TEST_F(ClientTest, DaemonErrorExits1WithItsMessage) {
   fake_.fail =
       MakeError(ErrorClass::kInvalidState, "cannot arm while capturing rock-12; abort first");

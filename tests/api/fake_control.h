@@ -109,6 +109,14 @@ class FakeControl : public DaemonControl {
                           {"created_utc", "2026-01-01T10:00:00.000Z"},
                           {"sides", {{{"side", 1}, {"job", "done"}, {"views", views}}}}};
   }
+  Result<nlohmann::json> Retry(const std::string& id) override {
+    Record("retry:" + id);
+    if (fail) return *fail;
+    return nlohmann::json{
+        {"sample_id", id},
+        {"requeued", 1},
+        {"jobs", {{{"side", 1}, {"state", "queued"}, {"attempts", 0}, {"error", ""}}}}};
+  }
   std::map<std::string, std::string> result_files;  // "id/name" -> path
   Result<std::string> ResultFile(const std::string& id, const std::string& name) override {
     Record("result:" + id + "/" + name);

@@ -166,6 +166,25 @@ TEST_F(HttpApiTest, ButtonAbortReset) {
   EXPECT_EQ(fake_.Calls(), (std::vector<std::string>{"press:api", "abort", "reset"}));
 }
 
+TEST_F(HttpApiTest, RetryIsAPostOnTheSample) {
+  auto r = client_->Post("/api/v1/samples/rock-9/retry", "{}", "application/json");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 200) << r->body;
+  EXPECT_EQ(json::parse(r->body)["requeued"], 1);
+  auto g = client_->Get("/api/v1/samples/rock-9/retry");
+  ASSERT_TRUE(g);
+  EXPECT_EQ(g->status, 405);
+  EXPECT_EQ(g->get_header_value("Allow"), "POST");
+  auto bad = client_->Post("/api/v1/samples/.x/retry", "{}", "application/json");
+  ASSERT_TRUE(bad);
+  EXPECT_EQ(bad->status, 400);
+  fake_.fail = MakeError(ErrorClass::kNotFound, "sample rock-9 has no failed job to retry");
+  auto none = client_->Post("/api/v1/samples/rock-9/retry", "{}", "application/json");
+  ASSERT_TRUE(none);
+  EXPECT_EQ(none->status, 404);
+  EXPECT_EQ(fake_.Calls(), (std::vector<std::string>{"retry:rock-9", "retry:rock-9"}));
+}
+
 TEST_F(HttpApiTest, MetricsIsPrometheusText) {
   auto r = client_->Get("/metrics");
   ASSERT_TRUE(r);

@@ -278,6 +278,8 @@ TEST(Config, OutOfRangeHasLine) {
       {"[turntable.faults]\ndisconnect_after = \"0s\"\n", "turntable.faults.disconnect_after",
        "must be > 0s"},
       {"[worker]\nnice = 20\n", "worker.nice", "0..19"},
+      {"[worker]\nmax_attempts = 0\n", "worker.max_attempts", "1..100, got 0"},
+      {"[worker]\nmax_interruptions = 0\n", "worker.max_interruptions", "1..1000, got 0"},
       {"[mask]\nmethod = \"dnn\"\n", "mask.method", "classical | onnx"},
       {"[mask]\noutput = \"softmax\"\n", "mask.output", "probability | logits"},
       {"[mask]\ninput_width = 4\n", "mask.input_width", "8..4096"},

@@ -405,6 +405,72 @@ TEST(CaptureScenario, LostQueueIsRebuiltAtStartUp) {
   EXPECT_NE(ReadAll(d.log()).find("re-queued side 1"), std::string::npos);
 }
 
+// A side whose photos a library cannot use: the worker gives up on its jobs
+// with a named reason, the status lists them, `retry` refuses a sample with
+// nothing failed and, after the photos are fixed, puts the jobs back; the
+// worker then completes them.
+TEST(CaptureScenario, FailedJobsAreShownAndRetriedAfterAFix) {
+  TempDir t;
+  const std::string cfg = WriteConfig(t.path(), "", 20, kTinyPlan);
+  Daemon d(cfg, t.path());
+  ASSERT_TRUE(d.ok()) << ReadAll(d.log());
+  int code = 0;
+  d.Post("/api/v1/samples", R"({"id": "bad-photo"})", &code);
+  ASSERT_EQ(code, 200);
+  d.Post("/api/v1/button", "{}", &code);
+  json last;
+  ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "idle"; }, 30, &last)) << last.dump();
+  // Every photo of the side replaced by a zero-byte file the manifest agrees with.
+  const std::string side = t.path() + "/state/samples/bad-photo/side1";
+  json manifest = json::parse(ReadAll(side + "/manifest.json"));
+  std::vector<std::string> photos;
+  for (json& v : manifest["views"]) {
+    photos.push_back(ReadAll(side + "/" + v["image"].get<std::string>()));
+    std::ofstream(side + "/" + v["image"].get<std::string>(), std::ios::trunc);
+    v["bytes"] = 0;
+  }
+  const std::string good_manifest = ReadAll(side + "/manifest.json");
+  std::ofstream(side + "/manifest.json", std::ios::trunc) << manifest.dump();
+  const std::vector<std::string> worker = {Bin("pipeline/aggscan-worker"), "--state-dir", t.path() + "/state",
+                                           "--once", "--poll-ms", "20"};
+  EXPECT_EQ(WaitExit(Spawn(worker, t.path() + "/worker.log")), 1) << ReadAll(t.path() + "/worker.log");
+
+  json s = d.Get("/api/v1/status");
+  ASSERT_EQ(s["failed_jobs"].size(), 2u) << s.dump();  // side 1 and the sample stage
+  EXPECT_EQ(s["failed_jobs_total"], 2);
+  for (const json& j : s["failed_jobs"]) {
+    EXPECT_EQ(j["sample_id"], "bad-photo");
+    EXPECT_EQ(j["attempts"], 3);
+    EXPECT_NE(j["error"].get<std::string>().find("view"), std::string::npos) << j.dump();
+  }
+  EXPECT_EQ(d.Get("/api/v1/samples/bad-photo")["jobs"][0]["state"], "failed");
+  EXPECT_NE(d.Get("/metrics").get<std::string>().find("aggscan_jobs_failed 2\n"), std::string::npos);
+  json none = d.Post("/api/v1/samples/nothing-here/retry", "{}", &code);
+  EXPECT_EQ(code, 404) << none.dump();
+
+  // Fixed: the original photos back.
+  for (size_t i = 0; i < photos.size(); ++i) {
+    std::ofstream(side + "/" + manifest["views"][i]["image"].get<std::string>(), std::ios::binary | std::ios::trunc)
+        << photos[i];
+  }
+  std::ofstream(side + "/manifest.json", std::ios::trunc) << good_manifest;
+  json retried = d.Post("/api/v1/samples/bad-photo/retry", "{}", &code);
+  ASSERT_EQ(code, 200) << retried.dump();
+  EXPECT_EQ(retried["requeued"], 2);
+  json again = d.Post("/api/v1/samples/bad-photo/retry", "{}", &code);
+  EXPECT_EQ(code, 404) << again.dump();
+  EXPECT_NE(again["error"]["message"].get<std::string>().find("no failed job"), std::string::npos) << again.dump();
+  EXPECT_EQ(WaitExit(Spawn(worker, t.path() + "/worker.log")), 0) << ReadAll(t.path() + "/worker.log");
+  s = d.Get("/api/v1/status");
+  EXPECT_TRUE(s["failed_jobs"].empty()) << s.dump();
+  for (const json& j : d.Get("/api/v1/samples/bad-photo")["jobs"]) {
+    EXPECT_EQ(j["state"], "done") << j.dump();
+    EXPECT_EQ(j["attempts"], 0) << j.dump();
+  }
+  EXPECT_TRUE(fs::exists(t.path() + "/state/samples/bad-photo/results/morph2d.json"));
+  EXPECT_EQ(d.Stop(), 0);
+}
+
 // A damaged sample record is reported to the operator; the daemon keeps running.
 TEST(CaptureScenario, DamagedRecordIsAClearErrorNotACrash) {
   TempDir t;

@@ -1,4 +1,5 @@
 #include <gtest/gtest.h>
+#include <sqlite3.h>
 #include <unistd.h>
 
 #include <filesystem>
@@ -208,12 +209,16 @@ TEST(JobQueue, OrderClaimCompleteAndRequeue) {
   ASSERT_TRUE(j1.ok() && j1->has_value());
   EXPECT_EQ((*j1)->side, 1);
   EXPECT_EQ((*j1)->state, "running");
-  EXPECT_EQ((*j1)->attempts, 1);
-  // The worker crashes: the running job goes back to the queue.
-  EXPECT_EQ(*queue.RequeueRunning(), 1);
+  EXPECT_EQ((*j1)->attempts, 0);  // claiming is no attempt
+  // The worker is killed: the running job goes back to the queue, uncounted.
+  auto rq = queue.RequeueRunning(10);
+  ASSERT_TRUE(rq.ok());
+  EXPECT_EQ(rq->requeued, 1);
+  EXPECT_EQ(rq->failed, 0);
   auto j1b = queue.ClaimNext();
   EXPECT_EQ((*j1b)->id, (*j1)->id);
-  EXPECT_EQ((*j1b)->attempts, 2);
+  EXPECT_EQ((*j1b)->attempts, 0);
+  EXPECT_EQ((*j1b)->interruptions, 1);
   ASSERT_TRUE(queue.Complete((*j1b)->id));
   auto j2 = queue.ClaimNext();
   EXPECT_EQ((*j2)->side, 2);
@@ -225,9 +230,144 @@ TEST(JobQueue, OrderClaimCompleteAndRequeue) {
   EXPECT_EQ(*queue.Depth(), 0);
   auto jobs = queue.JobsForSample("r1");
   ASSERT_EQ(jobs->size(), 3u);
+  EXPECT_EQ((*jobs)[0].interruptions, 0);  // completion ends the run of interruptions
   EXPECT_EQ((*jobs)[1].state, "failed");
   EXPECT_EQ((*jobs)[1].error, "bad image");
+  EXPECT_EQ((*jobs)[1].attempts, 1);
   EXPECT_EQ(queue.Complete(999).error().cls, ErrorClass::kNotFound);
+}
+
+// Attempts count failures and crashes; stops and kills do not.
+TEST(JobQueue, AttemptsCountFailuresNotStopsOrKills) {
+  TempDir t;
+  auto q = JobQueue::Open(t.path() + "/queue.db");
+  ASSERT_TRUE(q.ok()) << q.error().ToString();
+  auto& queue = **q;
+  const int64_t id = queue.Enqueue("r1", 1).value();
+  for (int i = 0; i < 5; ++i) {  // stopped by SIGTERM five times
+    auto j = queue.ClaimNext();
+    ASSERT_TRUE(j.ok() && j->has_value());
+    ASSERT_TRUE(queue.Release(id));
+  }
+  for (int i = 0; i < 5; ++i) {  // the whole worker killed five times
+    ASSERT_TRUE(queue.ClaimNext()->has_value());
+    ASSERT_EQ(queue.RequeueRunning(10)->requeued, 1);
+  }
+  auto j = queue.ClaimNext();
+  ASSERT_TRUE(j->has_value());
+  EXPECT_EQ((*j)->attempts, 0);
+  EXPECT_EQ((*j)->interruptions, 5);
+  // A release of a job that is not running is refused.
+  ASSERT_TRUE(queue.Fail(id, "crashed with SIGABRT in stage masks side 1", /*requeue=*/true));
+  EXPECT_EQ(queue.Release(id).error().cls, ErrorClass::kNotFound);
+  j = queue.ClaimNext();
+  EXPECT_EQ((*j)->attempts, 1);
+  EXPECT_EQ((*j)->interruptions, 0);  // an attempt that ended resets the interruptions
+  EXPECT_EQ((*j)->error, "crashed with SIGABRT in stage masks side 1");
+  ASSERT_TRUE(queue.Fail(id, "second", true));
+  ASSERT_TRUE(queue.ClaimNext()->has_value());
+  ASSERT_TRUE(queue.Fail(id, "third", false));
+  auto jobs = queue.JobsForSample("r1");
+  ASSERT_EQ(jobs->size(), 1u);
+  EXPECT_EQ((*jobs)[0].state, "failed");
+  EXPECT_EQ((*jobs)[0].attempts, 3);
+  EXPECT_EQ((*jobs)[0].error, "third");
+}
+
+// A job that gets the whole worker killed every time (OOM) is failed after
+// max_interruptions starts in a row, and the queue moves on.
+TEST(JobQueue, RepeatedInterruptionsFailTheJob) {
+  TempDir t;
+  auto q = JobQueue::Open(t.path() + "/queue.db");
+  ASSERT_TRUE(q.ok()) << q.error().ToString();
+  auto& queue = **q;
+  const int64_t id = queue.Enqueue("r1", 1).value();
+  queue.Enqueue("r2", 1).value();
+  for (int i = 1; i <= 4; ++i) {
+    auto j = queue.ClaimNext();
+    ASSERT_TRUE(j->has_value());
+    EXPECT_EQ((*j)->id, id);
+    auto rq = queue.RequeueRunning(4);
+    ASSERT_TRUE(rq.ok());
+    EXPECT_EQ(rq->requeued, i < 4 ? 1 : 0) << i;
+    EXPECT_EQ(rq->failed, i < 4 ? 0 : 1) << i;
+  }
+  auto jobs = queue.JobsForSample("r1");
+  EXPECT_EQ((*jobs)[0].state, "failed");
+  EXPECT_EQ((*jobs)[0].attempts, 0);
+  EXPECT_NE((*jobs)[0].error.find("interrupted 4 times"), std::string::npos) << (*jobs)[0].error;
+  EXPECT_NE((*jobs)[0].error.find("out of memory"), std::string::npos) << (*jobs)[0].error;
+  auto next = queue.ClaimNext();
+  ASSERT_TRUE(next->has_value());
+  EXPECT_EQ((*next)->sample_id, "r2");
+}
+
+TEST(JobQueue, RetryRequeuesFailedJobsWithAttemptsReset) {
+  TempDir t;
+  auto q = JobQueue::Open(t.path() + "/queue.db");
+  ASSERT_TRUE(q.ok()) << q.error().ToString();
+  auto& queue = **q;
+  const int64_t s1 = queue.Enqueue("r1", 1).value();
+  const int64_t s2 = queue.Enqueue("r1", 2).value();
+  queue.Enqueue("r2", 1).value();
+  ASSERT_TRUE(queue.ClaimNext()->has_value());
+  ASSERT_TRUE(queue.Fail(s1, "bad photo", false));
+  ASSERT_TRUE(queue.ClaimNext()->has_value());
+  ASSERT_TRUE(queue.Complete(s2));
+  EXPECT_EQ(*queue.FailedCount(), 1);
+  auto failed = queue.FailedJobs(10);
+  ASSERT_TRUE(failed.ok());
+  ASSERT_EQ(failed->size(), 1u);
+  EXPECT_EQ((*failed)[0].sample_id, "r1");
+  EXPECT_EQ((*failed)[0].side, 1);
+  EXPECT_EQ((*failed)[0].error, "bad photo");
+  // Nothing failed for r2: refused, saying so.
+  auto none = queue.Retry("r2");
+  ASSERT_FALSE(none.ok());
+  EXPECT_EQ(none.error().cls, ErrorClass::kNotFound);
+  EXPECT_NE(none.error().message.find("no failed job"), std::string::npos) << none.error().message;
+  auto n = queue.Retry("r1");
+  ASSERT_TRUE(n.ok()) << n.error().ToString();
+  EXPECT_EQ(*n, 1);
+  EXPECT_EQ(*queue.FailedCount(), 0);
+  auto jobs = queue.JobsForSample("r1");
+  EXPECT_EQ((*jobs)[0].state, "queued");
+  EXPECT_EQ((*jobs)[0].attempts, 0);
+  EXPECT_EQ((*jobs)[0].error, "");
+  EXPECT_EQ((*jobs)[1].state, "done");  // untouched
+  EXPECT_FALSE(queue.Retry("r1").ok());  // nothing failed any more
+}
+
+// A queue written before the interruption counter existed opens, keeps its
+// jobs, and gets the column.
+TEST(JobQueue, OldQueueDatabaseIsMigrated) {
+  TempDir t;
+  const std::string path = t.path() + "/queue.db";
+  {
+    sqlite3* db = nullptr;
+    ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+    ASSERT_EQ(sqlite3_exec(db,
+                           "CREATE TABLE jobs (id INTEGER PRIMARY KEY AUTOINCREMENT, sample_id TEXT NOT NULL,"
+                           " side INTEGER NOT NULL, state TEXT NOT NULL CHECK (state IN "
+                           "('queued','running','done','failed')), attempts INTEGER NOT NULL DEFAULT 0, error TEXT,"
+                           " created_utc TEXT NOT NULL, updated_utc TEXT NOT NULL);"
+                           "INSERT INTO jobs(sample_id, side, state, attempts, created_utc, updated_utc) VALUES "
+                           "('old', 1, 'running', 2, 'x', 'x');",
+                           nullptr, nullptr, nullptr),
+              SQLITE_OK);
+    sqlite3_close(db);
+  }
+  for (int open = 0; open < 2; ++open) {  // the second open finds the column there
+    auto q = JobQueue::Open(path);
+    ASSERT_TRUE(q.ok()) << q.error().ToString();
+    auto jobs = (*q)->JobsForSample("old");
+    ASSERT_TRUE(jobs.ok()) << jobs.error().ToString();
+    ASSERT_EQ(jobs->size(), 1u);
+    EXPECT_EQ((*jobs)[0].attempts, 2);
+    EXPECT_EQ((*jobs)[0].interruptions, open);
+    ASSERT_EQ((*q)->RequeueRunning(10)->requeued, 1);
+    ASSERT_TRUE((*q)->ClaimNext()->has_value());
+  }
 }
 
 TEST(JobQueue, TwoProcessesShareTheQueue) {

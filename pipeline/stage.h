@@ -1,0 +1,58 @@
+// Stage boundaries of the reconstruction: every stage runs through RunStage,
+// which names the stage for whoever watches the worker (the job supervisor
+// reads the stage a crashed job was in) and turns whatever the libraries
+// throw (cv::Exception, std::bad_alloc, std::length_error, Ceres and Eigen
+// through std::exception, anything else) into an Error naming the stage, the
+// library's message and what to do. Inside a stage, errors stay values; no
+// try/catch is needed around each library call.
+#pragma once
+
+#include <exception>
+#include <string>
+#include <type_traits>
+#include <utility>
+
+#include "common/error.h"
+
+namespace aggscan {
+
+/// Called with the innermost running stage ("" when none) each time a stage
+/// starts or ends. Runs on the stage's thread, so it must be cheap; it must
+/// not throw. nullptr: none (the default).
+using StageObserver = void (*)(const char* stage);
+void SetStageObserver(StageObserver observer);
+
+/// The innermost running stage ("" outside any), e.g. "masks side 1 view 7".
+std::string CurrentStage();
+
+/// Marks a stage for its lifetime (nested stages name the innermost). When an
+/// exception unwinds through it, it remembers itself as the stage that threw
+/// (RunStage reports that one, not the outermost).
+class StageScope {
+ public:
+  explicit StageScope(std::string name);
+  ~StageScope();
+  StageScope(const StageScope&) = delete;
+  StageScope& operator=(const StageScope&) = delete;
+
+ private:
+  int uncaught_;
+};
+
+/// The error for the exception `e` caught at the boundary of `stage` (or of
+/// the innermost stage it unwound through).
+Error StageExceptionError(const std::string& stage, std::exception_ptr e);
+
+/// Runs fn() (returning Status or Result<T>) as the stage `name`; an
+/// exception from it becomes its error value.
+template <typename F>
+auto RunStage(const std::string& name, F&& fn) -> decltype(fn()) {
+  try {
+    StageScope scope(name);
+    return std::forward<F>(fn)();
+  } catch (...) {
+    return StageExceptionError(name, std::current_exception());
+  }
+}
+
+}  // namespace aggscan
