@@ -31,10 +31,11 @@ sample (it resumes at its first side without a manifest) or arms a new one.
 The last boot is not cut: the driver completes every sample, and the disk is
 checked once more after a clean stop.
 
-Cut moments rotate through three phases: during the views (a random delay
-after a random stored view), around a manifest (0-150 ms after a side's last
-view is stored: manifest, record update, enqueue) and during the worker's
-output (a random delay into a job).
+Cut moments rotate through three phases (--phases): during the views (a
+random delay after a random stored view), around a manifest (0-150 ms after a
+side's last view is stored: manifest, record update, enqueue; the first and
+the last side in turn) and during the worker's output (a random delay into a
+job).
 
 Exit status: 0 no finding, 1 findings (listed), 77 skip (no qemu, kernel
 with virtio_blk/ext4, nbdkit, e2fsprogs or busybox-static; the VM does not
@@ -414,6 +415,10 @@ def host_run(args):
     # Inode tables and journal initialised now: no lazy init writes in the guest.
     subprocess.run([mkfs, "-q", "-F", "-E", "lazy_itable_init=0,lazy_journal_init=0", disk], check=True)
     rng = random.Random(args.seed)
+    phases = args.phases.split(",")
+    if any(p not in PHASES for p in phases):
+        log(f"--phases {args.phases}: use a comma list of {', '.join(PHASES)}")
+        return 2
     findings, trials, expect = [], [], []
     totals = {"views_checked": 0, "json_checked": 0, "manifests_checked": 0, "png_checked": 0,
               "expected_checked": 0, "temp_seen": 0, "fsck_fixed": 0}
@@ -421,7 +426,9 @@ def host_run(args):
         findings.append(problem)
     for boot in range(args.trials + 1):
         final = boot == args.trials
-        phase = PHASES[boot % len(PHASES)]
+        phase = phases[boot % len(phases)]
+        # Manifest cuts alternate between the first side's and the last side's.
+        manifest_side = 1 if sum(1 for t in trials if t["phase"] == "manifest") % 2 == 0 else 2
         with open(os.path.join(work, "expect.txt"), "w") as f:
             f.write("\n".join(expect) + ("\n" if expect else ""))
         out = os.path.join(work, f"boot-{boot:02d}")
@@ -446,7 +453,7 @@ def host_run(args):
                     if cut_at is None and not final:
                         if phase == "views" and views_this_boot > target_view:
                             cut_at, moment = now + delay, f"{delay * 1000:.0f} ms after view {v} of {sid} side {side}"
-                        elif phase == "manifest" and v == args.views - 1:
+                        elif phase == "manifest" and v == args.views - 1 and side == manifest_side:
                             cut_at = now + delay
                             moment = f"{delay * 1000:.0f} ms after the last view ({v}) of {sid} side {side}"
             for line in wtail.lines():
@@ -488,6 +495,9 @@ def host_run(args):
             totals["png_checked"] += int(kv["png"])
             totals["expected_checked"] += int(kv["expected"])
             totals["temp_seen"] += int(kv["temp"])
+        rec["resumed"] = len(re.findall(r"armed \S+ \(state before: interrupted\)", drive))
+        rec["samples_ended"] = len(re.findall(r"sample \S+ ended idle", drive))
+        totals["resumed"] = totals.get("resumed", 0) + rec["resumed"]
         if m := re.search(r"check queue: (.*)", qchk):
             rec["check_queue"] = m[1]
         where = f"boot {boot} (after the cut of boot {boot - 1}: {trials[-1]['cut'] if trials else 'none'})"
@@ -522,6 +532,7 @@ def host_run(args):
         log(json.dumps(rec))
         expect = state.expect
     by_phase = {p: sum(1 for t in trials if t["phase"] == p) for p in PHASES}
+    by_phase["manifest_side2"] = sum(1 for t in trials if t["phase"] == "manifest" and " side 2" in (t["cut"] or ""))
     summary = {"trials": args.trials, "cuts_by_phase": by_phase, "totals": totals, "findings": findings,
                "boots": trials}
     with open(os.path.join(work, "summary.json"), "w") as f:
@@ -548,6 +559,7 @@ def main():
     p.add_argument("--work-dir")
     p.add_argument("--trials", type=int, default=3)
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--phases", default=",".join(PHASES), help="cut phases to rotate through")
     p.add_argument("--views", type=int, default=8, help="views per side (two sides)")
     p.add_argument("--width", type=int, default=320)
     p.add_argument("--height", type=int, default=240)
