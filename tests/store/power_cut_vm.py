@@ -419,7 +419,7 @@ def host_run(args):
     if any(p not in PHASES for p in phases):
         log(f"--phases {args.phases}: use a comma list of {', '.join(PHASES)}")
         return 2
-    findings, trials, expect = [], [], []
+    findings, trials, expect, seen_drive = [], [], [], set()
     totals = {"views_checked": 0, "json_checked": 0, "manifests_checked": 0, "png_checked": 0,
               "expected_checked": 0, "temp_seen": 0, "fsck_fixed": 0}
     if problem := probe_cache_model(work, build, disk, args):
@@ -513,8 +513,10 @@ def host_run(args):
             if l.startswith("problem"):
                 findings.append(f"{where}: after aggscand's start-up recovery: {l}")
         for l in drive.splitlines():
-            if "FINDING" in l:
-                findings.append(f"{where}: {l.split('FINDING', 1)[1].strip()}")
+            text = l.split("FINDING", 1)[1].strip() if "FINDING" in l else None
+            if text and text not in seen_drive:  # a stuck sample is refused again in every later boot
+                seen_drive.add(text)
+                findings.append(f"{where}: {text}")
         if not final and cut_at is None:
             findings.append(f"boot {boot}: no cut happened (the VM ended first: {vm_out.strip()[-400:]})")
         if final:
