@@ -49,6 +49,10 @@ PACKAGES=(
   # (tests/vm/build-test-modules.sh); the headers of that exact kernel are
   # installed below
   linux-source-6.1 bc
+  # tests only: the power-cut VM test (tests/store/power_cut_vm.py): an ext4
+  # disk image (e2fsprogs: mkfs, e2fsck, debugfs) served by nbdkit, whose
+  # cache filter is the disk's volatile write cache
+  e2fsprogs nbdkit
   # USB turntable controllers (libusb), start buttons (libgpiod v1, evdev),
   # the libcamera camera backend (and its IPA modules, which vimc needs)
   libusb-1.0-0-dev libgpiod-dev libevdev-dev libcamera-dev libcamera-ipa

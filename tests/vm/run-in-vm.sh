@@ -3,7 +3,8 @@
 # kernel, with kernel test drivers loaded, and returns its exit status and
 # output to the host.
 #
-#   tests/vm/run-in-vm.sh [--modprobe "vivid n_devs=1 node_types=0x1"]... [--modules DIR] [--udev] [--timeout S] -- CMD [ARG]...
+#   tests/vm/run-in-vm.sh [--modprobe "vivid n_devs=1 node_types=0x1"]... [--modules DIR] [--udev] [--timeout S]
+#                         [--smp N] [--drive SPEC] [--pidfile FILE] [--out DIR] -- CMD [ARG]...
 #
 # --modules DIR: a private module tree from tests/vm/build-test-modules.sh
 # (out-of-tree vimc, gpio-sim, irq_sim, raw_gadget beside the installed
@@ -20,6 +21,13 @@
 # the shared root. TCG only: the nested /dev/kvm here hangs the stock kernel
 # (../shared/notes/kernel-test-drivers.md), and a boot takes ~7 s.
 #
+# --smp N: emulated CPUs (default 2). --drive SPEC: one more QEMU `-drive`
+# (a virtual disk, /dev/vda for if=virtio). --pidfile FILE: QEMU writes its
+# pid there (a caller can cut the VM off with SIGKILL, like a power cut).
+# --out DIR: the writable share is DIR (created if needed, emptied first), not
+# a temp dir, so the caller can read what the guest writes there while it runs
+# and after the VM is gone; the guest sees it as /tmp/vm-out.
+#
 # Exit status: CMD's; 77 (skip) when qemu, a Debian kernel with its modules,
 # busybox-static or a requested module is missing, or the VM does not boot.
 set -eu
@@ -28,6 +36,10 @@ modprobes=""
 timeout_s=120
 moddir_extra=""
 udev=0
+smp=2
+drive=""
+pidfile=""
+outdir=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --modprobe) modprobes="$modprobes$2
@@ -35,11 +47,15 @@ while [ $# -gt 0 ]; do
     --timeout) timeout_s=$2; shift 2 ;;
     --modules) moddir_extra=$2; shift 2 ;;
     --udev) udev=1; shift ;;
+    --smp) smp=$2; shift 2 ;;
+    --drive) drive=$2; shift 2 ;;
+    --pidfile) pidfile=$2; shift 2 ;;
+    --out) outdir=$2; shift 2 ;;
     --) shift; break ;;
     *) break ;;
   esac
 done
-[ $# -gt 0 ] || { echo "usage: $0 [--modprobe 'MOD ARGS']... [--modules DIR] [--udev] [--timeout S] -- CMD [ARG]..." >&2; exit 2; }
+[ $# -gt 0 ] || { echo "usage: $0 [--modprobe 'MOD ARGS']... [--modules DIR] [--udev] [--timeout S] [--smp N] [--drive SPEC] [--pidfile FILE] [--out DIR] -- CMD [ARG]..." >&2; exit 2; }
 
 skip() { echo "run-in-vm: SKIP: $*" >&2; exit 77; }
 
@@ -82,7 +98,14 @@ done || exit 77
 
 work=$(mktemp -d /tmp/aggscan-vm.XXXXXX)
 trap 'rm -rf "$work"' EXIT INT TERM
-mkdir -p "$work/initrd/bin" "$work/initrd/mods" "$work/initrd/newroot" "$work/out"
+mkdir -p "$work/initrd/bin" "$work/initrd/mods" "$work/initrd/newroot"
+if [ -n "$outdir" ]; then
+  mkdir -p "$outdir"
+  find "$outdir" -mindepth 1 -delete
+  ln -s "$(cd "$outdir" && pwd)" "$work/out"
+else
+  mkdir -p "$work/out"
+fi
 cp "$busybox" "$work/initrd/bin/busybox"
 i=0
 for m in virtio_ring virtio virtio_pci_modern_dev virtio_pci_legacy_dev virtio_pci 9pnet 9pnet_virtio netfs fscache 9p; do
@@ -145,13 +168,16 @@ mpopt=""
 
 start=$(date +%s.%N)
 set +e
-timeout "$timeout_s" qemu-system-x86_64 \
-  -machine pc -accel tcg -cpu max -m 2048 -smp 2 -bios /usr/share/qemu/qboot.rom \
+set --  # CMD is in guest.sh already: "$@" now collects extra QEMU arguments
+[ -z "$drive" ] || set -- "$@" -drive "$drive"
+[ -z "$pidfile" ] || set -- "$@" -pidfile "$pidfile"
+timeout "$timeout_s" qemu-system-x86_64 "$@" \
+  -machine pc -accel tcg -cpu max -m 2048 -smp "$smp" -bios /usr/share/qemu/qboot.rom \
   -nographic -no-reboot -monitor none -serial "file:$work/console.log" \
   -kernel "/boot/vmlinuz-$kver" -initrd "$work/initrd.gz" \
-  -append "console=ttyS0 quiet panic=-1 loglevel=4" \
+  -append "console=ttyS0 quiet panic=-1 loglevel=4 no_timer_check" \
   -virtfs local,path=/,mount_tag=hostroot,security_model=none,readonly=on,multidevs=remap \
-  -virtfs "local,path=$work/out,mount_tag=vmout,security_model=none,multidevs=remap" \
+  -virtfs "local,path=$(cd "$work/out" && pwd -P),mount_tag=vmout,security_model=none,multidevs=remap" \
   </dev/null >"$work/qemu.log" 2>&1
 qrc=$?
 set -e
