@@ -616,7 +616,7 @@ void CaptureService::Execute(const cs::Effect& eff) {
           auto fail = [&](const std::string& what, const Error& err) {
             pending_events_.push_back(cs::StoreFailed{err.cls, what + ": " + err.ToString() + again});
           };
-          if (Status s = store_.FinishSide(id, e.side); !s) return fail("cannot write " + side + "'s manifest", s.error());
+          if (Status s = store_.FinishSide(id, e.side); !s) return fail("cannot store " + side + "'s manifest and record", s.error());
           if (queue_) {
             auto q = queue_->Enqueue(id, e.side);
             if (!q) return fail("cannot queue " + side + " for the worker", q.error());
