@@ -1,14 +1,14 @@
 #include "daemon/capture_service.h"
 
+#include <sys/statvfs.h>
+
 #include <algorithm>
 #include <cerrno>
+#include <chrono>
 #include <cmath>
 #include <cstring>
-#include <chrono>
 #include <future>
 #include <sstream>
-
-#include <sys/statvfs.h>
 
 #include "common/fsutil.h"
 #include "common/log.h"
@@ -315,7 +315,8 @@ StorageHealth CaptureService::CheckStorage() const {
     }
   }
   h.side_needs_bytes =
-      static_cast<int64_t>(kSideMargin * static_cast<double>(views * (per_view + kSidecarBytes))) + kSideFixedBytes;
+      static_cast<int64_t>(kSideMargin * static_cast<double>(views * (per_view + kSidecarBytes))) +
+      kSideFixedBytes;
   // Each view is two files (image, sidecar), each written to a temporary name first.
   h.side_needs_files = 2 * views + 16;
   const std::string& dir = c.daemon.state_dir;
@@ -329,16 +330,18 @@ StorageHealth CaptureService::CheckStorage() const {
     h.total_bytes = static_cast<int64_t>(vfs.f_blocks) * static_cast<int64_t>(vfs.f_frsize);
     // Filesystems without an inode limit (btrfs, some tmpfs) report 0 files.
     h.free_inodes = vfs.f_files == 0 ? -1 : static_cast<int64_t>(vfs.f_favail);
-    const std::string need = "a side needs about " + Mb(h.side_needs_bytes) + " (" + std::to_string(views) +
-                             " views of ~" + std::to_string(per_view / 1000) + " kB " + basis + ", with margin)";
+    const std::string need = "a side needs about " + Mb(h.side_needs_bytes) + " (" +
+                             std::to_string(views) + " views of ~" +
+                             std::to_string(per_view / 1000) + " kB " + basis + ", with margin)";
     if (h.free_bytes < h.side_needs_bytes) {
       h.cls = ErrorClass::kDiskFull;
       h.message = "storage: " + Mb(h.free_bytes) + " free on " + dir + ", " + need +
                   "; free space (move finished samples off the rig)";
     } else if (h.free_inodes >= 0 && h.free_inodes < h.side_needs_files) {
       h.cls = ErrorClass::kDiskFull;
-      h.message = "storage: only " + std::to_string(h.free_inodes) + " more files can be created on " + dir +
-                  ", a side needs " + std::to_string(h.side_needs_files) +
+      h.message = "storage: only " + std::to_string(h.free_inodes) +
+                  " more files can be created on " + dir + ", a side needs " +
+                  std::to_string(h.side_needs_files) +
                   "; free space (move finished samples off the rig)";
     } else {
       h.healthy = true;
@@ -370,28 +373,32 @@ Status CaptureService::CompleteAndQueue(const std::string& sample_id) {
                                            "\": " + done.error().ToString());
   }
   for (int side : done->sides_completed) {
-    LogLine(LogLevel::kNotice, "capture", sample_id,
-            "side " + std::to_string(side) + " had every view stored: manifest written, not re-shot");
+    LogLine(
+        LogLevel::kNotice, "capture", sample_id,
+        "side " + std::to_string(side) + " had every view stored: manifest written, not re-shot");
   }
   if (queue_) {
-    for (const auto& [id, side] : store_.CapturedWork()) {
-      if (id != sample_id) continue;
+    for (const auto& [id, side] : store_.CapturedWork(sample_id)) {
       auto jobs = queue_->JobsForSample(id);
-      if (!jobs) return MakeError(jobs.error().cls, "cannot read the job queue: " + jobs.error().ToString());
+      if (!jobs)
+        return MakeError(jobs.error().cls, "cannot read the job queue: " + jobs.error().ToString());
       bool have = false;
       for (const Job& j : *jobs) have = have || j.side == side;
       if (have) continue;
       auto q = queue_->Enqueue(id, side);
-      if (!q) return MakeError(q.error().cls, "cannot queue \"" + id + "\" for the worker: " + q.error().ToString());
+      if (!q)
+        return MakeError(q.error().cls,
+                         "cannot queue \"" + id + "\" for the worker: " + q.error().ToString());
       LogLine(LogLevel::kNotice, "capture", id,
               "queued " + (side ? "side " + std::to_string(side) : std::string("the sample job")));
     }
   }
   if (done->sample_captured) {
     if (done->sample_completed_now) ++samples_completed_;
-    return MakeError(ErrorClass::kConflict, "sample \"" + sample_id +
-                                                "\" is complete: every side is stored and it is queued for the "
-                                                "worker; choose a new id for a new rock");
+    return MakeError(ErrorClass::kConflict,
+                     "sample \"" + sample_id +
+                         "\" is complete: every side is stored and it is queued for the "
+                         "worker; choose a new id for a new rock");
   }
   return OkStatus();
 }
@@ -423,7 +430,8 @@ void CaptureService::Dispatch(cs::Event e) {
                   r.reason);
       continue;
     }
-    if (const auto* f = std::get_if<cs::StoreFailed>(&ev)) store_fault_ = *f;  // storage health shows it
+    if (const auto* f = std::get_if<cs::StoreFailed>(&ev))
+      store_fault_ = *f;  // storage health shows it
     const cs::Phase before = state_.phase;
     const std::string sample = state_.sample_id.empty() ? r.next.sample_id : state_.sample_id;
     state_ = r.next;
@@ -611,12 +619,14 @@ void CaptureService::Execute(const cs::Effect& eff) {
           // never posted), and what is already stored is completed by arming
           // the sample again or by the next start-up.
           const std::string side = "side " + std::to_string(e.side);
-          const std::string again = ": free space or fix the state directory, reset, then arm " + id +
-                                    " again to complete it (its views are stored)";
+          const std::string again = ": free space or fix the state directory, reset, then arm " +
+                                    id + " again to complete it (its views are stored)";
           auto fail = [&](const std::string& what, const Error& err) {
-            pending_events_.push_back(cs::StoreFailed{err.cls, what + ": " + err.ToString() + again});
+            pending_events_.push_back(
+                cs::StoreFailed{err.cls, what + ": " + err.ToString() + again});
           };
-          if (Status s = store_.FinishSide(id, e.side); !s) return fail("cannot store " + side + "'s manifest and record", s.error());
+          if (Status s = store_.FinishSide(id, e.side); !s)
+            return fail("cannot store " + side + "'s manifest and record", s.error());
           if (queue_) {
             auto q = queue_->Enqueue(id, e.side);
             if (!q) return fail("cannot queue " + side + " for the worker", q.error());
@@ -846,14 +856,15 @@ json CaptureService::HealthOnLoop() const {
     all_ok = false;
     fault = {{"class", ErrorClassName(state_.fault_class)}, {"message", state_.fault_message}};
   }
-  return {{"status", all_ok ? "ok" : (state_.phase == cs::Phase::kFaulted ? "faulted" : "unhealthy")},
-          {"state", cs::PhaseName(state_.phase)},
-          {"fault", fault},
-          {"devices", devices},
-          {"checked_utc", FormatUtc(now_utc)},
-          {"reopen_backoff_s",
-           {{"min", static_cast<double>(config_.daemon.reopen_backoff_min) / 1e9},
-            {"max", static_cast<double>(config_.daemon.reopen_backoff_max) / 1e9}}}};
+  return {
+      {"status", all_ok ? "ok" : (state_.phase == cs::Phase::kFaulted ? "faulted" : "unhealthy")},
+      {"state", cs::PhaseName(state_.phase)},
+      {"fault", fault},
+      {"devices", devices},
+      {"checked_utc", FormatUtc(now_utc)},
+      {"reopen_backoff_s",
+       {{"min", static_cast<double>(config_.daemon.reopen_backoff_min) / 1e9},
+        {"max", static_cast<double>(config_.daemon.reopen_backoff_max) / 1e9}}}};
 }
 
 json CaptureService::StatusOnLoop() const {
@@ -1069,9 +1080,10 @@ std::string CaptureService::Metrics() {
       << "aggscan_queue_depth " << depth << "\n"
       << "# HELP aggscan_state Current capture state (1 for the active one).\n"
       << "# TYPE aggscan_state gauge\n";
-    for (auto p : {cs::Phase::kIdle, cs::Phase::kArmed, cs::Phase::kHoming, cs::Phase::kRotating, cs::Phase::kSettling,
-                   cs::Phase::kWaitingDue, cs::Phase::kCapturing, cs::Phase::kStoring, cs::Phase::kFinishing,
-                   cs::Phase::kAwaitingPose, cs::Phase::kFaulted}) {
+    for (auto p :
+         {cs::Phase::kIdle, cs::Phase::kArmed, cs::Phase::kHoming, cs::Phase::kRotating,
+          cs::Phase::kSettling, cs::Phase::kWaitingDue, cs::Phase::kCapturing, cs::Phase::kStoring,
+          cs::Phase::kFinishing, cs::Phase::kAwaitingPose, cs::Phase::kFaulted}) {
       m << "aggscan_state{state=\"" << cs::PhaseName(p) << "\"} " << (state_.phase == p ? 1 : 0) << "\n";
     }
     return m.str();

@@ -42,7 +42,7 @@ struct StorageHealth {
   bool healthy = false;
   ErrorClass cls = ErrorClass::kIo;  // meaningful when unhealthy
   std::string message;
-  int64_t free_bytes = -1;       // available to aggscand (statvfs f_bavail), -1 = unknown
+  int64_t free_bytes = -1;  // available to aggscand (statvfs f_bavail), -1 = unknown
   int64_t total_bytes = -1;
   int64_t free_inodes = -1;      // files that can still be created, -1 = unknown
   int64_t side_needs_bytes = 0;  // estimate for the next side, margin included

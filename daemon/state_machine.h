@@ -99,8 +99,8 @@ struct DeviceFault { ErrorClass cls; std::string message; };
 struct StoreFailed { ErrorClass cls; std::string message; };
 struct Abort {};
 struct Reset {};
-using Event = std::variant<Arm, ButtonPressed, HomeDone, MoveDone, SettleDone, ViewDue, FrameReady, ViewStored,
-                           SideFinished, DeviceFault, StoreFailed, Abort, Reset>;
+using Event = std::variant<Arm, ButtonPressed, HomeDone, MoveDone, SettleDone, ViewDue, FrameReady,
+                           ViewStored, SideFinished, DeviceFault, StoreFailed, Abort, Reset>;
 const char* EventName(const Event& e);
 
 // ---- Effects ------------------------------------------------------------
@@ -114,15 +114,18 @@ struct TriggerCapture { int side; int view; double commanded_deg; };
 struct StoreView { int side; int view; };
 // Manifest, record, side job; last_side: also the sample "captured" and its
 // sample job. Answered by SideFinished or StoreFailed.
-struct FinishSide { int side; bool last_side = false; };
+struct FinishSide {
+  int side;
+  bool last_side = false;
+};
 struct StopMotion {};
 struct MarkInterrupted { int side; };        // side (0 = none in progress) and sample interrupted
 struct MarkAborted { int side; };
 struct RecordFault { ErrorClass cls; std::string message; };
 struct ClearFault {};
-using Effect = std::variant<CreateSample, Home, MoveTo, StartSettle, BeginSide, WaitUntilDue, TriggerCapture,
-                            StoreView, FinishSide, StopMotion, MarkInterrupted, MarkAborted,
-                            RecordFault, ClearFault>;
+using Effect = std::variant<CreateSample, Home, MoveTo, StartSettle, BeginSide, WaitUntilDue,
+                            TriggerCapture, StoreView, FinishSide, StopMotion, MarkInterrupted,
+                            MarkAborted, RecordFault, ClearFault>;
 const char* EffectName(const Effect& e);
 
 struct StepResult {

@@ -173,7 +173,8 @@ Result<RecoveryReport> SampleStore::Recover() {
     rep.sides_completed += static_cast<int>(done->sides_completed.size());
     if (done->sample_completed_now) {
       rep.completed_samples.push_back(id);
-    } else if (!done->sample_captured && r.value("state", "") == "interrupted" && st != "interrupted") {
+    } else if (!done->sample_captured && r.value("state", "") == "interrupted" &&
+               st != "interrupted") {
       rep.interrupted_samples.push_back(id);
     }
   }
@@ -198,7 +199,8 @@ Result<Completion> SampleStore::CompleteStored(const std::string& id) {
     // shot completely and only its manifest is missing.
     const std::vector<int> views = CompleteViews(side_dir);
     bool all = static_cast<int>(views.size()) >= views_planned;
-    for (int v = 0; all && v < views_planned; ++v) all = std::binary_search(views.begin(), views.end(), v);
+    for (int v = 0; all && v < views_planned; ++v)
+      all = std::binary_search(views.begin(), views.end(), v);
     if (!all) continue;
     Result<json> manifest = WriteManifest(id, side);
     if (!manifest) return manifest.error();
@@ -222,7 +224,8 @@ Result<Completion> SampleStore::CompleteStored(const std::string& id) {
     for (auto& sd : r["sides"]) {
       const int n = sd.value("side", 0);
       const std::string side_dir = dir + "/" + layout::SideDirName(n);
-      if (sd.value("state", "") == "done" || !PathExists(side_dir + "/" + layout::kManifest)) continue;
+      if (sd.value("state", "") == "done" || !PathExists(side_dir + "/" + layout::kManifest))
+        continue;
       sd["state"] = "done";
       sd["views"] = CompleteViews(side_dir).size();
       sd["completed_utc"] = NowUtcString();
@@ -409,10 +412,10 @@ Result<json> SampleStore::List() const {
   return out;
 }
 
-std::vector<std::pair<std::string, int>> SampleStore::CapturedWork() const {
+std::vector<std::pair<std::string, int>> SampleStore::CapturedWork(const std::string& only) const {
   std::vector<std::pair<std::string, int>> work;
   const std::string samples = layout::SamplesDir(state_dir_);
-  for (const auto& id : ListDir(samples)) {
+  for (const auto& id : only.empty() ? ListDir(samples) : std::vector<std::string>{only}) {
     if (!layout::IsValidSampleId(id) || !IsDir(samples + "/" + id)) continue;
     Result<json> rec = LoadRecord(id);
     if (!rec) continue;

@@ -40,9 +40,9 @@ struct RecoveryReport {
 
 /// What CompleteStored() found and did for one sample.
 struct Completion {
-  std::vector<int> sides_completed;  // manifests written now
-  bool sample_captured = false;      // every side has a manifest (the sample is "captured")
-  bool sample_completed_now = false; // ... and was not marked so before
+  std::vector<int> sides_completed;   // manifests written now
+  bool sample_captured = false;       // every side has a manifest (the sample is "captured")
+  bool sample_completed_now = false;  // ... and was not marked so before
 };
 
 class SampleStore {
@@ -88,7 +88,8 @@ class SampleStore {
   /// Work the worker must have: (id, side) for every side with a manifest and
   /// (id, 0) for every captured sample. Start-up re-queues any of it that the
   /// queue lacks (e.g. an enqueue that failed or was lost with the queue file).
-  std::vector<std::pair<std::string, int>> CapturedWork() const;
+  /// `only`: just that sample's work.
+  std::vector<std::pair<std::string, int>> CapturedWork(const std::string& only = "") const;
 
   /// Stored view images of `id` (every side and interrupted attempt): how
   /// many and their total bytes, for estimating what the next side needs.

@@ -12,14 +12,25 @@
 namespace aggscan::capture {
 namespace {
 
-constexpr Phase kAllPhases[] = {Phase::kIdle,      Phase::kArmed,     Phase::kHoming,  Phase::kRotating,
-                                Phase::kSettling,  Phase::kWaitingDue, Phase::kCapturing, Phase::kStoring,
-                                Phase::kFinishing, Phase::kAwaitingPose, Phase::kFaulted};
+constexpr Phase kAllPhases[] = {Phase::kIdle,         Phase::kArmed,    Phase::kHoming,
+                                Phase::kRotating,     Phase::kSettling, Phase::kWaitingDue,
+                                Phase::kCapturing,    Phase::kStoring,  Phase::kFinishing,
+                                Phase::kAwaitingPose, Phase::kFaulted};
 
 std::vector<Event> AllEvents() {
-  return {Arm{"rock-1", Plan{2, 3, 30.0}, 1}, ButtonPressed{}, HomeDone{}, MoveDone{}, SettleDone{}, ViewDue{},
-          FrameReady{}, ViewStored{}, SideFinished{}, DeviceFault{ErrorClass::kStalled, "stalled"},
-          StoreFailed{ErrorClass::kDiskFull, "disk full"}, Abort{}, Reset{}};
+  return {Arm{"rock-1", Plan{2, 3, 30.0}, 1},
+          ButtonPressed{},
+          HomeDone{},
+          MoveDone{},
+          SettleDone{},
+          ViewDue{},
+          FrameReady{},
+          ViewStored{},
+          SideFinished{},
+          DeviceFault{ErrorClass::kStalled, "stalled"},
+          StoreFailed{ErrorClass::kDiskFull, "disk full"},
+          Abort{},
+          Reset{}};
 }
 
 // A mid-sample state in the given phase: side 1, view 1 of 3, 2 sides.
@@ -84,8 +95,8 @@ TEST(StateMachine, EveryPhaseEventPair) {
   // Faults and aborts are accepted in every active phase.
   std::map<std::pair<Phase, std::string>, Row> table;
   for (const Row& r : kTable) table[{r.from, r.event}] = r;
-  for (Phase p : {Phase::kHoming, Phase::kRotating, Phase::kSettling, Phase::kWaitingDue, Phase::kCapturing,
-                  Phase::kStoring, Phase::kFinishing, Phase::kAwaitingPose}) {
+  for (Phase p : {Phase::kHoming, Phase::kRotating, Phase::kSettling, Phase::kWaitingDue,
+                  Phase::kCapturing, Phase::kStoring, Phase::kFinishing, Phase::kAwaitingPose}) {
     table[{p, "device_fault"}] = {p, "device_fault", Phase::kFaulted, "stop_motion,mark_interrupted,record_fault"};
     table[{p, "store_failed"}] = {p, "store_failed", Phase::kFaulted, "stop_motion,mark_interrupted,record_fault"};
     table[{p, "abort"}] = {p, "abort", Phase::kIdle, "stop_motion,mark_aborted"};
@@ -155,7 +166,8 @@ TEST(StateMachine, StoreFailureWhileFinishingIsAFaultOfThatSide) {
   State s = InPhase(Phase::kStoring);
   s.side = 2;
   s.view = 2;
-  StepResult r = Step(Step(s, ViewStored{}).next, StoreFailed{ErrorClass::kDiskFull, "cannot finish side 2: disk full"});
+  StepResult r = Step(Step(s, ViewStored{}).next,
+                      StoreFailed{ErrorClass::kDiskFull, "cannot finish side 2: disk full"});
   ASSERT_TRUE(r.accepted);
   EXPECT_EQ(r.next.phase, Phase::kFaulted);
   EXPECT_EQ(r.next.fault_class, ErrorClass::kDiskFull);

@@ -8,8 +8,8 @@
 // The full disk is a tmpfs with a small file (inode) budget, mounted in a
 // private mount namespace of this test process (root only), so the kernel
 // itself answers ENOSPC; the daemons inherit the namespace.
-#include <gtest/gtest.h>
 #include <fcntl.h>
+#include <gtest/gtest.h>
 #include <sched.h>
 #include <sqlite3.h>
 #include <sys/mount.h>
@@ -27,8 +27,9 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 // One side of three views: short cases, and a side's end is the sample's end.
-const char* kPlan = "profile = \"custom\"\nsides = 1\nviews_per_side = 3\nstep_deg = 30.0\ninterval = \"1s\"\n"
-                    "settle = \"50ms\"\n";
+const char* kPlan =
+    "profile = \"custom\"\nsides = 1\nviews_per_side = 3\nstep_deg = 30.0\ninterval = \"1s\"\n"
+    "settle = \"50ms\"\n";
 
 std::string StateOf(const json& s) { return s.is_object() ? s.value("state", "") : ""; }
 
@@ -44,7 +45,8 @@ std::set<uint64_t> StoredViews(const std::string& dir) {
   std::set<uint64_t> out;
   if (!fs::exists(dir)) return out;
   for (const auto& e : fs::recursive_directory_iterator(dir)) {
-    if (e.path().extension() != ".json" || e.path().filename().string().rfind("view_", 0) != 0) continue;
+    if (e.path().extension() != ".json" || e.path().filename().string().rfind("view_", 0) != 0)
+      continue;
     fs::path img = e.path();
     img.replace_extension(".jpg");
     if (fs::exists(img)) out.insert(HashFile(img));
@@ -59,14 +61,16 @@ int64_t FreeFiles(const std::string& dir) {
 
 int64_t FreePages(const std::string& dir) {
   struct statvfs v {};
-  return ::statvfs(dir.c_str(), &v) == 0 ? static_cast<int64_t>(v.f_bavail * v.f_frsize / 4096) : -1;
+  return ::statvfs(dir.c_str(), &v) == 0 ? static_cast<int64_t>(v.f_bavail * v.f_frsize / 4096)
+                                         : -1;
 }
 
 // 4 KiB pages the complete views of a side directory take on tmpfs.
 int64_t ViewPages(const std::string& side_dir) {
   int64_t pages = 0;
   for (const auto& e : fs::directory_iterator(side_dir)) {
-    if (e.path().filename().string().rfind("view_", 0) == 0) pages += (fs::file_size(e.path()) + 4095) / 4096;
+    if (e.path().filename().string().rfind("view_", 0) == 0)
+      pages += (fs::file_size(e.path()) + 4095) / 4096;
   }
   return pages;
 }
@@ -74,7 +78,8 @@ int64_t ViewPages(const std::string& side_dir) {
 // Which store step a fault message names (the failing file is in the error).
 std::string StepOf(const std::string& msg) {
   if (msg.find("cannot queue") != std::string::npos) return "queue";
-  if (msg.find("cannot start side") != std::string::npos) return "side directory or record at side start";
+  if (msg.find("cannot start side") != std::string::npos)
+    return "side directory or record at side start";
   if (msg.find("manifest.json") != std::string::npos) return "manifest";
   if (msg.find("sample.json") != std::string::npos) {
     return msg.find("manifest") != std::string::npos || msg.find("captured") != std::string::npos
@@ -82,7 +87,8 @@ std::string StepOf(const std::string& msg) {
                : "record";
   }
   if (msg.find(".jpg") != std::string::npos) return "view image";
-  if (msg.find("view_") != std::string::npos && msg.find(".json") != std::string::npos) return "view sidecar";
+  if (msg.find("view_") != std::string::npos && msg.find(".json") != std::string::npos)
+    return "view sidecar";
   return "other: " + msg;
 }
 
@@ -168,11 +174,13 @@ TEST(DiskFullScenario, EveryStoreStepIsANamedFaultAndNothingIsLost) {
     // Homing takes 1.5 s of sim time (the side directory comes after it):
     // stop the daemon there, fill the disk, go on.
     json homing;
-    ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) != "armed"; }, 30, &homing)) << homing.dump();
+    ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) != "armed"; }, 30, &homing))
+        << homing.dump();
     ASSERT_EQ(::kill(d.pid(), SIGSTOP), 0);
     if (b.files) {
       int n = 0;
-      while (FreeFiles(state) > k) std::ofstream(filler + "/f" + std::to_string(k) + "-" + std::to_string(n++));
+      while (FreeFiles(state) > k)
+        std::ofstream(filler + "/f" + std::to_string(k) + "-" + std::to_string(n++));
       ASSERT_EQ(FreeFiles(state), k);
     } else {
       const int fd = ::open((filler + "/blocks").c_str(), O_CREAT | O_WRONLY | O_CLOEXEC, 0644);
@@ -184,7 +192,8 @@ TEST(DiskFullScenario, EveryStoreStepIsANamedFaultAndNothingIsLost) {
     ASSERT_EQ(::kill(d.pid(), SIGCONT), 0);
 
     json last;
-    ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "faulted" || StateOf(s) == "idle"; }, 60, &last))
+    ASSERT_TRUE(d.WaitFor(
+        [](const json& s) { return StateOf(s) == "faulted" || StateOf(s) == "idle"; }, 60, &last))
         << last.dump() << ReadAll(d.log());
     std::set<uint64_t> before;
     if (StateOf(last) == "faulted") {
@@ -201,7 +210,8 @@ TEST(DiskFullScenario, EveryStoreStepIsANamedFaultAndNothingIsLost) {
       EXPECT_EQ(h["status"], "faulted") << h.dump();
       EXPECT_EQ(h["devices"]["storage"]["state"], "disk_full") << h.dump();
       EXPECT_FALSE(h["devices"]["storage"]["healthy"].get<bool>());
-      EXPECT_NE(h["devices"]["storage"]["message"].get<std::string>().find(msg), std::string::npos) << h.dump();
+      EXPECT_NE(h["devices"]["storage"]["message"].get<std::string>().find(msg), std::string::npos)
+          << h.dump();
       before = StoredViews(sample);
 
       // Free the space, reset, re-arm.
@@ -223,8 +233,9 @@ TEST(DiskFullScenario, EveryStoreStepIsANamedFaultAndNothingIsLost) {
         EXPECT_EQ(again["first_side"], 1);
         d.Post("/api/v1/button", "{}", &code);
         ASSERT_EQ(code, 200) << ReadAll(d.log());
-        ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "idle" || StateOf(s) == "faulted"; }, 60,
-                              &last));
+        ASSERT_TRUE(
+            d.WaitFor([](const json& s) { return StateOf(s) == "idle" || StateOf(s) == "faulted"; },
+                      60, &last));
         ASSERT_EQ(StateOf(last), "idle") << last.dump();
         ++reshot;
       }
@@ -243,12 +254,15 @@ TEST(DiskFullScenario, EveryStoreStepIsANamedFaultAndNothingIsLost) {
     for (const auto& j : m["jobs"]) jobs.insert(j["side"].get<int>());
     EXPECT_EQ(jobs, (std::set<int>{0, 1})) << m.dump();
     const std::set<uint64_t> after = StoredViews(sample);
-    for (uint64_t h : before) EXPECT_TRUE(after.count(h)) << "a stored view was lost after the disk filled";
+    for (uint64_t h : before)
+      EXPECT_TRUE(after.count(h)) << "a stored view was lost after the disk filled";
   }
   std::printf("disk full: ");
   for (const auto& [s, n] : steps) std::printf("%s x%d; ", s.c_str(), n);
-  std::printf("completed by re-arm %d, re-shot %d, finished %d\n", completed_by_rearm, reshot, finished);
-  for (const char* s : {"view image", "view sidecar", "manifest", "record after the manifest", "queue"}) {
+  std::printf("completed by re-arm %d, re-shot %d, finished %d\n", completed_by_rearm, reshot,
+              finished);
+  for (const char* s :
+       {"view image", "view sidecar", "manifest", "record after the manifest", "queue"}) {
     EXPECT_GE(steps[s], 1) << "no case failed at the " << s;
   }
   EXPECT_GE(finished, 1) << "the budget never let a side finish";
@@ -298,7 +312,8 @@ TEST(DiskFullScenario, PressNeedsRoomForASide) {
   const json st = h["devices"]["storage"];
   EXPECT_LT(st["free_bytes"].get<int64_t>(), st["side_needs_bytes"].get<int64_t>()) << h.dump();
   // 3 views x (0.102 B/px x 640 x 480 + 4 kB) x 1.5 + 1 MiB, within rounding.
-  EXPECT_NEAR(st["side_needs_bytes"].get<double>(), 3 * (0.1017 * 640 * 480 + 4096) * 1.5 + 1048576, 2000);
+  EXPECT_NEAR(st["side_needs_bytes"].get<double>(), 3 * (0.1017 * 640 * 480 + 4096) * 1.5 + 1048576,
+              2000);
   EXPECT_EQ(d.Stop(), 0);
 }
 
@@ -313,11 +328,13 @@ TEST(DiskFullScenario, QueueThatCannotBeWrittenIsANamedFault) {
   ASSERT_EQ(code, 200);
   sqlite3* db = nullptr;
   ASSERT_EQ(sqlite3_open((t.path() + "/state/queue.db").c_str(), &db), SQLITE_OK);
-  ASSERT_EQ(sqlite3_exec(db, "BEGIN IMMEDIATE", nullptr, nullptr, nullptr), SQLITE_OK) << sqlite3_errmsg(db);
+  ASSERT_EQ(sqlite3_exec(db, "BEGIN IMMEDIATE", nullptr, nullptr, nullptr), SQLITE_OK)
+      << sqlite3_errmsg(db);
   d.Post("/api/v1/button", "{}", &code);
   ASSERT_EQ(code, 200);
   json last;
-  ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "faulted" || StateOf(s) == "idle"; }, 60, &last))
+  ASSERT_TRUE(d.WaitFor(
+      [](const json& s) { return StateOf(s) == "faulted" || StateOf(s) == "idle"; }, 60, &last))
       << last.dump();
   ASSERT_EQ(StateOf(last), "faulted") << last.dump();
   const std::string msg = last["fault"]["message"].get<std::string>();

@@ -145,7 +145,8 @@ TEST(SampleStore, CrashAfterLastManifestCompletesTheSample) {
   ASSERT_TRUE(store.CreateOrResume("r", SmallPlan(), "cfg"));
   for (int side = 1; side <= 2; ++side) {
     ASSERT_TRUE(store.BeginSide("r", side));
-    for (int v = 0; v < 3; ++v) ASSERT_TRUE(store.WriteView("r", side, v, Bytes("s" + std::to_string(side)), {}));
+    for (int v = 0; v < 3; ++v)
+      ASSERT_TRUE(store.WriteView("r", side, v, Bytes("s" + std::to_string(side)), {}));
     ASSERT_TRUE(store.FinishSide("r", side));
     if (side == 1) {
       ASSERT_TRUE(store.SetSampleState("r", "awaiting_pose"));
@@ -182,10 +183,12 @@ TEST(SampleStore, SideWithEveryViewStoredIsCompletedNotReshot) {
   ASSERT_TRUE(store.Init());
   ASSERT_TRUE(store.CreateOrResume("r", SmallPlan(), "cfg"));
   ASSERT_TRUE(store.BeginSide("r", 1));
-  for (int v = 0; v < 3; ++v) ASSERT_TRUE(store.WriteView("r", 1, v, Bytes("a" + std::to_string(v)), {}));
+  for (int v = 0; v < 3; ++v)
+    ASSERT_TRUE(store.WriteView("r", 1, v, Bytes("a" + std::to_string(v)), {}));
   ASSERT_TRUE(store.FinishSide("r", 1));
   ASSERT_TRUE(store.BeginSide("r", 2));
-  for (int v = 0; v < 3; ++v) ASSERT_TRUE(store.WriteView("r", 2, v, Bytes("bb" + std::to_string(v)), {}));
+  for (int v = 0; v < 3; ++v)
+    ASSERT_TRUE(store.WriteView("r", 2, v, Bytes("bb" + std::to_string(v)), {}));
   // Manifest missing. The running daemon would have marked it interrupted on the fault.
   ASSERT_TRUE(store.SetSampleState("r", "interrupted", 2, "interrupted"));
   auto done = store.CompleteStored("r");
@@ -245,7 +248,8 @@ TEST(SampleStore, ManifestWithoutRecordUpdateIsDone) {
   {
     auto rec = *store.LoadRecord("r");
     rec["sides"][0]["state"] = "interrupted";
-    ASSERT_TRUE(WriteFileAtomic(store.SampleDir("r") + "/sample.json", std::string_view(rec.dump())));
+    ASSERT_TRUE(
+        WriteFileAtomic(store.SampleDir("r") + "/sample.json", std::string_view(rec.dump())));
   }
   auto rep = SampleStore(t.path()).Recover();
   ASSERT_TRUE(rep.ok());
