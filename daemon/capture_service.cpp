@@ -308,7 +308,12 @@ StorageHealth CaptureService::CheckStorage() const {
   std::string basis = "from the camera resolution " + std::to_string(c.camera.width) + "x" +
                       std::to_string(c.camera.height);
   if (!state_.sample_id.empty()) {
-    const auto [n, bytes] = store_.StoredViewBytes(state_.sample_id);
+    // The directory scan runs only between sides: status is polled while a
+    // side is shot, and its loop must keep the schedule.
+    if (!SideRunning() || view_bytes_.first != state_.sample_id) {
+      view_bytes_ = {state_.sample_id, store_.StoredViewBytes(state_.sample_id)};
+    }
+    const auto [n, bytes] = view_bytes_.second;
     if (n > 0) {
       per_view = bytes / n;
       basis = "from the " + std::to_string(n) + " views " + state_.sample_id + " has stored";

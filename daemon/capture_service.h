@@ -173,6 +173,8 @@ class CaptureService final : public DaemonControl {
   TimeNs side_t0_ = 0;
   std::map<std::string, DeviceHealth> health_;
   std::optional<capture::StoreFailed> store_fault_;  // the store failure the capture is faulted on
+  // CheckStorage()'s last scan: sample id -> (stored views, their bytes).
+  mutable std::pair<std::string, std::pair<int, int64_t>> view_bytes_;
   RateLimitedLog device_log_{"devices"};
   int probe_failures_ = 0;  // consecutive failed turntable status reads of the idle probe  // keys "device/class": one line per class until recovery
   TimeNs started_real_ = 0;
