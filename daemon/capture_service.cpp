@@ -1,10 +1,14 @@
 #include "daemon/capture_service.h"
 
+#include <sys/statvfs.h>
+
 #include <algorithm>
 #include <atomic>
+#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <future>
 #include <sstream>
 
@@ -82,6 +86,24 @@ std::string RestedOutOfPosition(const TurntableConfig& tt, double angle_deg, dou
   }
   return msg;
 }
+
+std::string Mb(int64_t bytes) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%.1f MB", static_cast<double>(bytes) / 1e6);
+  return b;
+}
+
+// JPEG bytes per pixel of a rig view: a side of 30 views at 2016x1512 takes
+// about 9.3 MB (sim rig, default quality), i.e. 0.102 B/px. Used until the
+// sample has views of its own to measure.
+constexpr double kJpegBytesPerPixel = 9.3e6 / (2016.0 * 1512.0 * 30.0);
+// A view's sidecar JSON (about 1 kB) rounded up to a filesystem block.
+constexpr int64_t kSidecarBytes = 4096;
+// JPEG size follows the scene (a textured rock, a flipped pose): the side is
+// only started with half as much again free, plus room for the manifest,
+// the record rewrites and the queue's journal.
+constexpr double kSideMargin = 1.5;
+constexpr int64_t kSideFixedBytes = 1 << 20;
 }  // namespace
 
 CaptureService::CaptureService(EventLoop& loop, Config config, std::string effective_config_toml, RigDevices devices,
@@ -284,6 +306,10 @@ Status CaptureService::OpenDevice(const std::string& name) {
           LogLine(LogLevel::kWarning, "capture", state_.sample_id, ok.error().message);
           return;
         }
+        if (Status room = CheckStorageForSide(); !room) {
+          LogLine(LogLevel::kWarning, "capture", state_.sample_id, room.error().message);
+          return;
+        }
       }
       Dispatch(cs::ButtonPressed{});
     });
@@ -368,6 +394,114 @@ void CaptureService::ScheduleReopen(const std::string& name) {
   });
 }
 
+StorageHealth CaptureService::CheckStorage() const {
+  StorageHealth h;
+  const Config& c = config_;
+  const int views = std::max(1, c.capture.views_per_side);
+  int64_t per_view = static_cast<int64_t>(kJpegBytesPerPixel * c.camera.width * c.camera.height);
+  std::string basis = "from the camera resolution " + std::to_string(c.camera.width) + "x" +
+                      std::to_string(c.camera.height);
+  if (!state_.sample_id.empty()) {
+    // The directory scan runs only between sides: status is polled while a
+    // side is shot, and its loop must keep the schedule.
+    if (!SideRunning() || view_bytes_.first != state_.sample_id) {
+      view_bytes_ = {state_.sample_id, store_.StoredViewBytes(state_.sample_id)};
+    }
+    const auto [n, bytes] = view_bytes_.second;
+    if (n > 0) {
+      per_view = bytes / n;
+      basis = "from the " + std::to_string(n) + " views " + state_.sample_id + " has stored";
+    }
+  }
+  h.side_needs_bytes =
+      static_cast<int64_t>(kSideMargin * static_cast<double>(views * (per_view + kSidecarBytes))) +
+      kSideFixedBytes;
+  // Each view is two files (image, sidecar), each written to a temporary name first.
+  h.side_needs_files = 2 * views + 16;
+  const std::string& dir = c.daemon.state_dir;
+  struct statvfs vfs {};
+  if (::statvfs(dir.c_str(), &vfs) != 0) {
+    const int err = errno;
+    h.cls = ErrorClass::kIo;
+    h.message = "storage: cannot read the free space of " + dir + ": " + std::strerror(err);
+  } else {
+    h.free_bytes = static_cast<int64_t>(vfs.f_bavail) * static_cast<int64_t>(vfs.f_frsize);
+    h.total_bytes = static_cast<int64_t>(vfs.f_blocks) * static_cast<int64_t>(vfs.f_frsize);
+    // Filesystems without an inode limit (btrfs, some tmpfs) report 0 files.
+    h.free_inodes = vfs.f_files == 0 ? -1 : static_cast<int64_t>(vfs.f_favail);
+    const std::string need = "a side needs about " + Mb(h.side_needs_bytes) + " (" +
+                             std::to_string(views) + " views of ~" +
+                             std::to_string(per_view / 1000) + " kB " + basis + ", with margin)";
+    if (h.free_bytes < h.side_needs_bytes) {
+      h.cls = ErrorClass::kDiskFull;
+      h.message = "storage: " + Mb(h.free_bytes) + " free on " + dir + ", " + need +
+                  "; free space (move finished samples off the rig)";
+    } else if (h.free_inodes >= 0 && h.free_inodes < h.side_needs_files) {
+      h.cls = ErrorClass::kDiskFull;
+      h.message = "storage: only " + std::to_string(h.free_inodes) +
+                  " more files can be created on " + dir + ", a side needs " +
+                  std::to_string(h.side_needs_files) +
+                  "; free space (move finished samples off the rig)";
+    } else {
+      h.healthy = true;
+      h.message = "storage: " + Mb(h.free_bytes) + " free on " + dir + ", " + need;
+    }
+  }
+  if (store_fault_) {
+    // The capture is faulted on the store: that is the storage's state until reset.
+    h.healthy = false;
+    h.cls = store_fault_->cls;
+    h.message = "storage: " + store_fault_->message;
+  }
+  return h;
+}
+
+Status CaptureService::CheckStorageForSide() const {
+  StorageHealth h = CheckStorage();
+  if (h.healthy) return OkStatus();
+  return MakeError(h.cls, "cannot start side " + std::to_string(state_.side) + ": " + h.message);
+}
+
+Status CaptureService::CompleteAndQueue(const std::string& sample_id) {
+  if (!PathExists(store_.SampleDir(sample_id) + "/" + layout::kSampleRecord)) return OkStatus();
+  Result<Completion> done = store_.CompleteStored(sample_id);
+  if (!done) {
+    // A damaged record is PrepareArm's to explain; anything else is a store failure.
+    if (done.error().cls == ErrorClass::kCorrupt) return OkStatus();
+    return MakeError(done.error().cls, "cannot complete the stored sides of \"" + sample_id +
+                                           "\": " + done.error().ToString());
+  }
+  for (int side : done->sides_completed) {
+    LogLine(
+        LogLevel::kNotice, "capture", sample_id,
+        "side " + std::to_string(side) + " had every view stored: manifest written, not re-shot");
+  }
+  if (queue_) {
+    for (const auto& [id, side] : store_.CapturedWork(sample_id)) {
+      auto jobs = queue_->JobsForSample(id);
+      if (!jobs)
+        return MakeError(jobs.error().cls, "cannot read the job queue: " + jobs.error().ToString());
+      bool have = false;
+      for (const Job& j : *jobs) have = have || j.side == side;
+      if (have) continue;
+      auto q = queue_->Enqueue(id, side);
+      if (!q)
+        return MakeError(q.error().cls,
+                         "cannot queue \"" + id + "\" for the worker: " + q.error().ToString());
+      LogLine(LogLevel::kNotice, "capture", id,
+              "queued " + (side ? "side " + std::to_string(side) : std::string("the sample job")));
+    }
+  }
+  if (done->sample_captured) {
+    if (done->sample_completed_now) ++samples_completed_;
+    return MakeError(ErrorClass::kConflict,
+                     "sample \"" + sample_id +
+                         "\" is complete: every side is stored and it is queued for the "
+                         "worker; choose a new id for a new rock");
+  }
+  return OkStatus();
+}
+
 Status CaptureService::CheckDevicesHealthy(std::initializer_list<const char*> names) const {
   for (const char* name : names) {
     auto it = health_.find(name);
@@ -395,6 +529,8 @@ void CaptureService::Dispatch(cs::Event e) {
                   r.reason);
       continue;
     }
+    if (const auto* f = std::get_if<cs::StoreFailed>(&ev))
+      store_fault_ = *f;  // storage health shows it
     const cs::Phase before = state_.phase;
     const std::string sample = state_.sample_id.empty() ? r.next.sample_id : state_.sample_id;
     state_ = r.next;
@@ -577,32 +713,43 @@ void CaptureService::Execute(const cs::Effect& eff) {
           pending_.frame.reset();  // hand the buffer back
           pending_events_.push_back(cs::ViewStored{});
         } else if constexpr (std::is_same_v<T, cs::FinishSide>) {
-          Status s = store_.FinishSide(id, e.side);
-          if (!s) {
-            pending_events_.push_back(cs::StoreFailed{s.error().cls, "cannot finish side: " + s.error().ToString()});
-            return;
-          }
-          ++sides_completed_;
+          // Every step that stores something must succeed before the side
+          // counts as finished: a failure is a named fault (SideFinished is
+          // never posted), and what is already stored is completed by arming
+          // the sample again or by the next start-up.
+          const std::string side = "side " + std::to_string(e.side);
+          const std::string again = ": free space or fix the state directory, reset, then arm " +
+                                    id + " again to complete it (its views are stored)";
+          auto fail = [&](const std::string& what, const Error& err) {
+            pending_events_.push_back(
+                cs::StoreFailed{err.cls, what + ": " + err.ToString() + again});
+          };
+          if (Status s = store_.FinishSide(id, e.side); !s)
+            return fail("cannot store " + side + "'s manifest and record", s.error());
           if (queue_) {
             auto q = queue_->Enqueue(id, e.side);
-            if (!q) LogLine(LogLevel::kError, "capture", id, "cannot queue side job: " + q.error().ToString());
+            if (!q) return fail("cannot queue " + side + " for the worker", q.error());
           }
-          if (e.side < state_.plan.sides) {
-            (void)store_.SetSampleState(id, "awaiting_pose");
+          ++sides_completed_;
+          if (!e.last_side) {
+            if (Status s = store_.SetSampleState(id, "awaiting_pose"); !s) {
+              return fail("cannot record " + side + " as done", s.error());
+            }
             LogLine(LogLevel::kInfo, "capture", id,
-                    "side " + std::to_string(e.side) + " done and queued: flip the rock and press the start button");
+                    side + " done and queued: flip the rock and press the start button");
           } else {
-            LogLine(LogLevel::kInfo, "capture", id, "side " + std::to_string(e.side) + " done and queued");
+            LogLine(LogLevel::kInfo, "capture", id, side + " done and queued");
+            if (Status s = store_.SetSampleState(id, "captured"); !s) {
+              return fail("cannot mark the sample captured", s.error());
+            }
+            if (queue_) {
+              auto q = queue_->Enqueue(id, 0);
+              if (!q) return fail("cannot queue the sample job", q.error());
+            }
+            ++samples_completed_;
+            LogLine(LogLevel::kInfo, "capture", id, "sample captured");
           }
-        } else if constexpr (std::is_same_v<T, cs::FinishSample>) {
-          Status s = store_.SetSampleState(id, "captured");
-          if (!s) LogLine(LogLevel::kError, "capture", id, "cannot mark sample captured: " + s.error().ToString());
-          if (queue_) {
-            auto q = queue_->Enqueue(id, 0);
-            if (!q) LogLine(LogLevel::kError, "capture", id, "cannot queue sample job: " + q.error().ToString());
-          }
-          ++samples_completed_;
-          LogLine(LogLevel::kInfo, "capture", id, "sample captured");
+          pending_events_.push_back(cs::SideFinished{});
         } else if constexpr (std::is_same_v<T, cs::StopMotion>) {
           ++epoch_;  // cancels every pending timer and late callback of this capture
           motion_.active = false;
@@ -637,6 +784,7 @@ void CaptureService::Execute(const cs::Effect& eff) {
           }
         } else if constexpr (std::is_same_v<T, cs::ClearFault>) {
           LogLine(LogLevel::kNotice, "capture", id, "fault cleared");
+          store_fault_.reset();
           OpenDevices();
         }
       },
@@ -734,6 +882,8 @@ LightPattern CaptureService::LightPatternFor() const {
     auto it = health_.find(name);
     if (it != health_.end() && it->second.tried && !it->second.healthy) return LightPattern::kFault;
   }
+  // Not under a running side: the light must not cost the schedule a directory scan.
+  if (!SideRunning() && !CheckStorage().healthy) return LightPattern::kFault;
   switch (state_.phase) {
     case cs::Phase::kIdle:
     case cs::Phase::kArmed: return LightPattern::kReady;
@@ -794,18 +944,33 @@ json CaptureService::HealthOnLoop() const {
     }
     devices[name] = std::move(d);
   }
+  const StorageHealth st = CheckStorage();
+  devices["storage"] = {{"state", st.healthy ? "ok" : ErrorClassName(st.cls)},
+                        {"healthy", st.healthy},
+                        {"message", st.message},
+                        {"backend", "filesystem"},
+                        {"id", config_.daemon.state_dir},
+                        {"free_bytes", st.free_bytes},
+                        {"total_bytes", st.total_bytes},
+                        {"free_files", st.free_inodes},
+                        {"side_needs_bytes", st.side_needs_bytes},
+                        {"side_needs_files", st.side_needs_files}};
+  all_ok = all_ok && st.healthy;
   json fault = nullptr;
   if (state_.phase == cs::Phase::kFaulted) {
+    // A capture stopped on a fault is not healthy, even once the device is back.
+    all_ok = false;
     fault = {{"class", ErrorClassName(state_.fault_class)}, {"message", state_.fault_message}};
   }
-  return {{"status", all_ok ? "ok" : "unhealthy"},
-          {"state", cs::PhaseName(state_.phase)},
-          {"fault", fault},
-          {"devices", devices},
-          {"checked_utc", FormatUtc(now_utc)},
-          {"reopen_backoff_s",
-           {{"min", static_cast<double>(config_.daemon.reopen_backoff_min) / 1e9},
-            {"max", static_cast<double>(config_.daemon.reopen_backoff_max) / 1e9}}}};
+  return {
+      {"status", all_ok ? "ok" : (state_.phase == cs::Phase::kFaulted ? "faulted" : "unhealthy")},
+      {"state", cs::PhaseName(state_.phase)},
+      {"fault", fault},
+      {"devices", devices},
+      {"checked_utc", FormatUtc(now_utc)},
+      {"reopen_backoff_s",
+       {{"min", static_cast<double>(config_.daemon.reopen_backoff_min) / 1e9},
+        {"max", static_cast<double>(config_.daemon.reopen_backoff_max) / 1e9}}}};
 }
 
 json CaptureService::StatusOnLoop() const {
@@ -813,6 +978,11 @@ json CaptureService::StatusOnLoop() const {
   for (const auto& [name, h] : health_) {
     devices[name] = {{"healthy", h.healthy}, {"state", HealthState(h)}, {"message", h.message}};
   }
+  const StorageHealth st = CheckStorage();
+  devices["storage"] = {{"healthy", st.healthy},
+                        {"state", st.healthy ? "ok" : ErrorClassName(st.cls)},
+                        {"message", st.message},
+                        {"free_bytes", st.free_bytes}};
   if (dev_.camera) devices["camera"]["backend"] = dev_.camera->Info().backend;
   if (dev_.turntable) devices["turntable"]["backend"] = dev_.turntable->Info().backend;
   if (dev_.button) devices["button"]["describe"] = dev_.button->Describe();
@@ -875,6 +1045,7 @@ Result<json> CaptureService::ArmOnLoop(const std::string& sample_id) {
   if (!healthy) return healthy.error();
   // The store copies the calibration into the sample: show what it copies.
   if (!calibration_.is_null()) RefreshCalibration();
+  if (Status c = CompleteAndQueue(sample_id); !c) return c.error();
   const SamplePlan plan = PlanFromConfig(config_);
   Result<int> first = store_.PrepareArm(sample_id, plan);
   if (!first) return first.error();
@@ -941,6 +1112,7 @@ Result<json> CaptureService::PressOnLoop(const std::string& source) {
     return MakeError(ErrorClass::kDeviceMissing, "button input is not available: " + health_["button"].message);
   }
   if (Status ok = CheckDevicesHealthy({"camera", "turntable"}); !ok) return ok.error();
+  if (Status room = CheckStorageForSide(); !room) return room.error();
   dev_.button->InjectPress(source);
   json out = StatusOnLoop();
   out["pressed"] = true;
@@ -1061,9 +1233,10 @@ std::string CaptureService::Metrics() {
       << "aggscan_jobs_failed " << failed << "\n"
       << "# HELP aggscan_state Current capture state (1 for the active one).\n"
       << "# TYPE aggscan_state gauge\n";
-    for (auto p : {cs::Phase::kIdle, cs::Phase::kArmed, cs::Phase::kHoming, cs::Phase::kRotating, cs::Phase::kSettling,
-                   cs::Phase::kWaitingDue, cs::Phase::kCapturing, cs::Phase::kStoring, cs::Phase::kAwaitingPose,
-                   cs::Phase::kFaulted}) {
+    for (auto p :
+         {cs::Phase::kIdle, cs::Phase::kArmed, cs::Phase::kHoming, cs::Phase::kRotating,
+          cs::Phase::kSettling, cs::Phase::kWaitingDue, cs::Phase::kCapturing, cs::Phase::kStoring,
+          cs::Phase::kFinishing, cs::Phase::kAwaitingPose, cs::Phase::kFaulted}) {
       m << "aggscan_state{state=\"" << cs::PhaseName(p) << "\"} " << (state_.phase == p ? 1 : 0) << "\n";
     }
     return m.str();

@@ -37,6 +37,18 @@ struct DeviceHealth {
   uint64_t retry_timer = 0;    // EventLoop timer of that attempt; 0 = none
 };
 
+/// The state directory's filesystem, shown as the "storage" device of health.
+struct StorageHealth {
+  bool healthy = false;
+  ErrorClass cls = ErrorClass::kIo;  // meaningful when unhealthy
+  std::string message;
+  int64_t free_bytes = -1;  // available to aggscand (statvfs f_bavail), -1 = unknown
+  int64_t total_bytes = -1;
+  int64_t free_inodes = -1;      // files that can still be created, -1 = unknown
+  int64_t side_needs_bytes = 0;  // estimate for the next side, margin included
+  int side_needs_files = 0;
+};
+
 class CaptureService final : public DaemonControl {
  public:
   CaptureService(EventLoop& loop, Config config, std::string effective_config_toml, RigDevices devices,
@@ -133,6 +145,16 @@ class CaptureService final : public DaemonControl {
   /// True while a side is being shot (homing .. storing): devices are not
   /// reopened or probed then.
   bool SideRunning() const;
+  /// Free space and files on the state directory's filesystem against what
+  /// the next side needs (from the armed sample's stored views, else from the
+  /// camera resolution), and the capture's storage fault if any.
+  StorageHealth CheckStorage() const;
+  /// kDiskFull naming free vs needed bytes when a side does not fit.
+  Status CheckStorageForSide() const;
+  /// Arming an existing sample: completes what is stored (manifests of sides
+  /// whose views are all there, "captured") and queues the work the queue
+  /// lacks. kConflict when that completed the whole sample.
+  Status CompleteAndQueue(const std::string& sample_id);
   /// kDeviceMissing/... naming the first unhealthy device of `names`, for refusing a capture.
   Status CheckDevicesHealthy(std::initializer_list<const char*> names) const;
   void NotifyStatus();
@@ -155,6 +177,9 @@ class CaptureService final : public DaemonControl {
   bool holding_ = false;
   TimeNs side_t0_ = 0;
   std::map<std::string, DeviceHealth> health_;
+  std::optional<capture::StoreFailed> store_fault_;  // the store failure the capture is faulted on
+  // CheckStorage()'s last scan: sample id -> (stored views, their bytes).
+  mutable std::pair<std::string, std::pair<int, int64_t>> view_bytes_;
   RateLimitedLog device_log_{"devices"};
   int probe_failures_ = 0;  // consecutive failed turntable status reads of the idle probe  // keys "device/class": one line per class until recovery
   TimeNs started_real_ = 0;

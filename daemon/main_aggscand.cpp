@@ -151,8 +151,16 @@ int main(int argc, char** argv) {
     AGG_LOGE("main", "start-up recovery failed: %s", rec.error().ToString().c_str());
     return 1;
   }
-  AGG_LOGI("main", "state dir %s: %d samples, %d temporary files removed, %d interrupted sides",
-           config.daemon.state_dir.c_str(), rec->samples, rec->temp_files_removed, rec->sides_interrupted);
+  AGG_LOGI("main",
+           "state dir %s: %d samples, %d temporary files removed, %d interrupted sides, %d sides "
+           "completed from "
+           "their stored views",
+           config.daemon.state_dir.c_str(), rec->samples, rec->temp_files_removed,
+           rec->sides_interrupted, rec->sides_completed);
+  for (const auto& id : rec->completed_samples) {
+    LogLine(LogLevel::kNotice, "main", id,
+            "had every side stored: marked captured and queued for the worker");
+  }
   for (const auto& id : rec->interrupted_samples) {
     LogLine(LogLevel::kNotice, "main", id, "was interrupted by a crash or power loss: arm it again to re-shoot");
   }

@@ -12,6 +12,8 @@ const char* PhaseName(Phase p) {
     case Phase::kWaitingDue: return "waiting";
     case Phase::kCapturing: return "capturing";
     case Phase::kStoring: return "storing";
+    case Phase::kFinishing:
+      return "finishing";
     case Phase::kAwaitingPose: return "awaiting_pose";
     case Phase::kFaulted: return "faulted";
   }
@@ -50,7 +52,9 @@ int SideInProgress(const State& s) {
     case Phase::kSettling:
     case Phase::kWaitingDue:
     case Phase::kCapturing:
-    case Phase::kStoring: return s.side;
+    case Phase::kStoring:
+    case Phase::kFinishing:
+      return s.side;
     default: return 0;
   }
 }
@@ -66,17 +70,19 @@ State Faulted(const State& s, ErrorClass cls, const std::string& msg) {
 }  // namespace
 
 const char* EventName(const Event& e) {
-  static const char* const kNames[] = {"arm",          "button",      "home_done",   "move_done",
-                                       "settle_done",  "view_due",    "frame_ready", "view_stored",
-                                       "device_fault", "store_failed", "abort",      "reset"};
+  static const char* const kNames[] = {
+      "arm",          "button",      "home_done",   "move_done",     "settle_done",
+      "view_due",     "frame_ready", "view_stored", "side_finished", "device_fault",
+      "store_failed", "abort",       "reset"};
   return kNames[e.index()];
 }
 
 const char* EffectName(const Effect& e) {
-  static const char* const kNames[] = {"create_sample", "home",          "move_to",      "start_settle",
-                                       "begin_side",    "wait_until_due", "trigger_capture", "store_view",
-                                       "finish_side",   "finish_sample", "stop_motion",  "mark_interrupted",
-                                       "mark_aborted",  "record_fault",  "clear_fault"};
+  static const char* const kNames[] = {
+      "create_sample", "home",           "move_to",          "start_settle",
+      "begin_side",    "wait_until_due", "trigger_capture",  "store_view",
+      "finish_side",   "stop_motion",    "mark_interrupted", "mark_aborted",
+      "record_fault",  "clear_fault"};
   return kNames[e.index()];
 }
 
@@ -147,17 +153,24 @@ StepResult Step(const State& s, const Event& e) {
               n.phase = Phase::kRotating;
               return Go(n, {MoveTo{n.view * s.plan.step_deg}});
             }
+            n.phase = Phase::kFinishing;
+            return Go(n, {FinishSide{s.side, s.side >= s.plan.sides}});
+          },
+          [&](const SideFinished&) -> StepResult {
+            if (s.phase != Phase::kFinishing) return Reject(s, e);
             if (s.side < s.plan.sides) {
+              State n = s;
               n.phase = Phase::kAwaitingPose;
               n.side = s.side + 1;
               n.view = 0;
-              return Go(n, {FinishSide{s.side}});
+              return Go(n, {});
             }
-            State idle;
-            return Go(idle, {FinishSide{s.side}, FinishSample{}});
+            return Go(State{}, {});
           },
           [&](const DeviceFault& f) -> StepResult {
-            if (!s.Active()) return Reject(s, e, std::string("device fault while ") + PhaseName(s.phase) + ": " + f.message);
+            if (!s.Active())
+              return Reject(
+                  s, e, std::string("device fault while ") + PhaseName(s.phase) + ": " + f.message);
             return Go(Faulted(s, f.cls, f.message),
                       {StopMotion{}, MarkInterrupted{SideInProgress(s)}, RecordFault{f.cls, f.message}});
           },
@@ -167,7 +180,8 @@ StepResult Step(const State& s, const Event& e) {
                       {StopMotion{}, MarkInterrupted{SideInProgress(s)}, RecordFault{f.cls, f.message}});
           },
           [&](const Abort&) -> StepResult {
-            if (s.phase == Phase::kIdle) return Reject(s, e, "nothing to abort: no sample is armed");
+            if (s.phase == Phase::kIdle)
+              return Reject(s, e, "nothing to abort: no sample is armed");
             if (s.phase == Phase::kFaulted) return Go(State{}, {ClearFault{}});
             return Go(State{}, {StopMotion{}, MarkAborted{SideInProgress(s)}});
           },

@@ -16,16 +16,25 @@
 //      │ └─────────┘      │                                          ▼           │
 //      │  ▲ DeviceFault / │            ViewStored, more views  ┌─────────┐  ┌──────────┐
 //      │  │ StoreFailed   └── (Settling)                       │ Storing │─▶│ Rotating │
-//      │  │ (any active state)                                 └─────────┘  └──────────┘
-//      │  │                                                 last view │
-//      │  │                                        ┌──────────────────┴──────────┐
-//      │  │                               more sides│                   last side │
-//      │  │                                         ▼                             │
-//      │  │  Button (operator flipped the rock) ┌──────────────┐                  │
-//      │  └──────────────── Homing ◀─────────── │ AwaitingPose │                  │
-//      │                                        └──────────────┘                  │
-//      └──────────────────────────────────────────────────────────────────────────┘
-//                                 sample done (FinishSample)
+//      │  │ (any active state,                                 └─────────┘  └──────────┘
+//      │  │  Finishing included)                   ViewStored, last view │
+//      │  │                                                        ┌───────────┐
+//      │  │                                                        │ Finishing │
+//      │  │                                                        └───────────┘
+//      │  │                                        SideFinished ┌───────┴──────┐
+//      │  │                                         more sides │     last side │
+//      │  │                                                    ▼               │
+//      │  │  Button (operator flipped the rock) ┌──────────────┐               │
+//      │  └──────────────── Homing ◀─────────── │ AwaitingPose │               │
+//      │                                        └──────────────┘               │
+//      └───────────────────────────────────────────────────────────────────────┘
+//                      sample done (its record and sample job are stored)
+//
+// Finishing waits for the store's answer to FinishSide (manifest, record,
+// side job and, on the last side, the sample's "captured" state and its
+// sample job): SideFinished leaves it, a StoreFailed faults the capture, so a
+// manifest that could not be written is a named fault, never a sample marked
+// captured without it.
 //
 // Per view i of a side: Rotating (to i*step; view 0 needs no move after
 // homing) → Settling → WaitingDue (view i is due at t0 + i*interval, t0 set
@@ -51,6 +60,7 @@ enum class Phase {
   kWaitingDue,
   kCapturing,
   kStoring,
+  kFinishing,
   kAwaitingPose,
   kFaulted,
 };
@@ -84,12 +94,13 @@ struct SettleDone {};
 struct ViewDue {};
 struct FrameReady {};
 struct ViewStored {};
+struct SideFinished {};  // FinishSide's files and jobs are stored
 struct DeviceFault { ErrorClass cls; std::string message; };
 struct StoreFailed { ErrorClass cls; std::string message; };
 struct Abort {};
 struct Reset {};
-using Event = std::variant<Arm, ButtonPressed, HomeDone, MoveDone, SettleDone, ViewDue, FrameReady, ViewStored,
-                           DeviceFault, StoreFailed, Abort, Reset>;
+using Event = std::variant<Arm, ButtonPressed, HomeDone, MoveDone, SettleDone, ViewDue, FrameReady,
+                           ViewStored, SideFinished, DeviceFault, StoreFailed, Abort, Reset>;
 const char* EventName(const Event& e);
 
 // ---- Effects ------------------------------------------------------------
@@ -101,16 +112,20 @@ struct BeginSide { int side; };              // side dir ready; t0 = end of the 
 struct WaitUntilDue { int side; int view; };
 struct TriggerCapture { int side; int view; double commanded_deg; };
 struct StoreView { int side; int view; };
-struct FinishSide { int side; };             // manifest + queue the side job
-struct FinishSample {};                      // sample captured + queue the sample job
+// Manifest, record, side job; last_side: also the sample "captured" and its
+// sample job. Answered by SideFinished or StoreFailed.
+struct FinishSide {
+  int side;
+  bool last_side = false;
+};
 struct StopMotion {};
 struct MarkInterrupted { int side; };        // side (0 = none in progress) and sample interrupted
 struct MarkAborted { int side; };
 struct RecordFault { ErrorClass cls; std::string message; };
 struct ClearFault {};
-using Effect = std::variant<CreateSample, Home, MoveTo, StartSettle, BeginSide, WaitUntilDue, TriggerCapture,
-                            StoreView, FinishSide, FinishSample, StopMotion, MarkInterrupted, MarkAborted,
-                            RecordFault, ClearFault>;
+using Effect = std::variant<CreateSample, Home, MoveTo, StartSettle, BeginSide, WaitUntilDue,
+                            TriggerCapture, StoreView, FinishSide, StopMotion, MarkInterrupted,
+                            MarkAborted, RecordFault, ClearFault>;
 const char* EffectName(const Effect& e);
 
 struct StepResult {

@@ -139,31 +139,104 @@ Result<RecoveryReport> SampleStore::Recover() {
     if (!rec) continue;  // a sample whose record never landed has no views either
     json r = *rec;
     const std::string st = r.value("state", "");
+    const int views_planned = r["plan"].value("views_per_side", 0);
     bool changed = false;
     for (auto& side : r["sides"]) {
       const int n = side.value("side", 0);
-      const bool has_manifest = PathExists(dir + "/" + layout::SideDirName(n) + "/" + layout::kManifest);
-      if (side.value("state", "") == "capturing" && !has_manifest) {
+      const std::string side_dir = dir + "/" + layout::SideDirName(n);
+      const bool has_manifest = PathExists(side_dir + "/" + layout::kManifest);
+      if (has_manifest) {
+        // Crashed (or failed) between the manifest and the record update.
+        if (side.value("state", "") != "done") {
+          side["state"] = "done";
+          changed = true;
+        }
+      } else if (side.value("state", "") == "capturing") {
+        const size_t found = CompleteViews(side_dir).size();
         side["state"] = "interrupted";
-        side["views_found"] = CompleteViews(dir + "/" + layout::SideDirName(n)).size();
-        ++rep.sides_interrupted;
+        side["views_found"] = found;
         changed = true;
-      } else if (side.value("state", "") == "capturing" && has_manifest) {
-        side["state"] = "done";  // crashed between manifest and record update
-        changed = true;
+        // A side with every view stored is completed below, not re-shot.
+        if (static_cast<int>(found) < views_planned) ++rep.sides_interrupted;
       }
     }
     if (st == "armed" || st == "capturing" || st == "awaiting_pose") {
       r["state"] = "interrupted";
       changed = true;
-      rep.interrupted_samples.push_back(id);
     }
     if (changed) {
       Status s = SaveRecord(id, r);
       if (!s) return s.error();
     }
+    Result<Completion> done = CompleteStored(id);
+    if (!done) return done.error();
+    rep.sides_completed += static_cast<int>(done->sides_completed.size());
+    if (done->sample_completed_now) {
+      rep.completed_samples.push_back(id);
+    } else if (!done->sample_captured && r.value("state", "") == "interrupted" &&
+               st != "interrupted") {
+      rep.interrupted_samples.push_back(id);
+    }
   }
   return rep;
+}
+
+Result<Completion> SampleStore::CompleteStored(const std::string& id) {
+  Result<json> rec = LoadRecord(id);
+  if (!rec) return rec.error();
+  Completion out;
+  const std::string dir = SampleDir(id);
+  const int views_planned = (*rec)["plan"].value("views_per_side", 0);
+  const int sides_planned = (*rec)["plan"].value("sides", 0);
+  int with_manifest = 0;
+  for (int side = 1; side <= sides_planned; ++side) {
+    const std::string side_dir = dir + "/" + layout::SideDirName(side);
+    if (PathExists(side_dir + "/" + layout::kManifest)) {
+      ++with_manifest;
+      continue;
+    }
+    // Every planned view 0..N-1, each with image and sidecar: the side was
+    // shot completely and only its manifest is missing.
+    const std::vector<int> views = CompleteViews(side_dir);
+    bool all = static_cast<int>(views.size()) >= views_planned;
+    for (int v = 0; all && v < views_planned; ++v)
+      all = std::binary_search(views.begin(), views.end(), v);
+    if (!all) continue;
+    Result<json> manifest = WriteManifest(id, side);
+    if (!manifest) return manifest.error();
+    out.sides_completed.push_back(side);
+    ++with_manifest;
+  }
+  out.sample_captured = with_manifest == sides_planned;
+  const bool was_captured = rec->value("state", "") == "captured";
+  out.sample_completed_now = out.sample_captured && !was_captured;
+  if (out.sides_completed.empty() && !out.sample_completed_now) {
+    // Still mend a record that lags behind the manifests (kept "done" below).
+    bool lag = false;
+    for (const auto& sd : (*rec)["sides"]) {
+      const int n = sd.value("side", 0);
+      lag = lag || (sd.value("state", "") != "done" &&
+                    PathExists(dir + "/" + layout::SideDirName(n) + "/" + layout::kManifest));
+    }
+    if (!lag) return out;
+  }
+  Status s = UpdateRecord(id, [&](json& r) {
+    for (auto& sd : r["sides"]) {
+      const int n = sd.value("side", 0);
+      const std::string side_dir = dir + "/" + layout::SideDirName(n);
+      if (sd.value("state", "") == "done" || !PathExists(side_dir + "/" + layout::kManifest))
+        continue;
+      sd["state"] = "done";
+      sd["views"] = CompleteViews(side_dir).size();
+      sd["completed_utc"] = NowUtcString();
+    }
+    if (out.sample_completed_now) {
+      r["state"] = "captured";
+      r["completed_from_store_utc"] = NowUtcString();
+    }
+  });
+  if (!s) return s.error();
+  return out;
 }
 
 Result<int> SampleStore::PrepareArm(const std::string& id, const SamplePlan& plan) const {
@@ -268,7 +341,7 @@ Status SampleStore::WriteView(const std::string& id, int side, int view, std::sp
   return WriteFileAtomic(side_dir + "/" + layout::ViewSidecarName(view), sidecar.dump(2) + "\n", true);
 }
 
-Status SampleStore::FinishSide(const std::string& id, int side) {
+Result<json> SampleStore::WriteManifest(const std::string& id, int side) {
   const std::string side_dir = SampleDir(id) + "/" + layout::SideDirName(side);
   json views = json::array();
   for (int v : CompleteViews(side_dir)) {
@@ -283,12 +356,18 @@ Status SampleStore::FinishSide(const std::string& id, int side) {
   }
   json manifest = {{"sample_id", id}, {"side", side}, {"views", views}, {"completed_utc", NowUtcString()}};
   Status s = WriteFileAtomic(side_dir + "/" + layout::kManifest, manifest.dump(2) + "\n", true);
-  if (!s) return s;
+  if (!s) return s.error();
+  return manifest;
+}
+
+Status SampleStore::FinishSide(const std::string& id, int side) {
+  Result<json> manifest = WriteManifest(id, side);
+  if (!manifest) return manifest.error();
   return UpdateRecord(id, [&](json& r) {
     ForSide(r, side, [&](json& sd) {
       sd["state"] = "done";
-      sd["views"] = views.size();
-      sd["completed_utc"] = manifest["completed_utc"];
+      sd["views"] = (*manifest)["views"].size();
+      sd["completed_utc"] = (*manifest)["completed_utc"];
     });
   });
 }
@@ -333,10 +412,10 @@ Result<json> SampleStore::List() const {
   return out;
 }
 
-std::vector<std::pair<std::string, int>> SampleStore::CapturedWork() const {
+std::vector<std::pair<std::string, int>> SampleStore::CapturedWork(const std::string& only) const {
   std::vector<std::pair<std::string, int>> work;
   const std::string samples = layout::SamplesDir(state_dir_);
-  for (const auto& id : ListDir(samples)) {
+  for (const auto& id : only.empty() ? ListDir(samples) : std::vector<std::string>{only}) {
     if (!layout::IsValidSampleId(id) || !IsDir(samples + "/" + id)) continue;
     Result<json> rec = LoadRecord(id);
     if (!rec) continue;
@@ -349,6 +428,22 @@ std::vector<std::pair<std::string, int>> SampleStore::CapturedWork() const {
     if (rec->value("state", "") == "captured") work.emplace_back(id, 0);
   }
   return work;
+}
+
+std::pair<int, int64_t> SampleStore::StoredViewBytes(const std::string& id) const {
+  std::pair<int, int64_t> out{0, 0};
+  if (!layout::IsValidSampleId(id)) return out;
+  const std::string dir = SampleDir(id);
+  for (const auto& sub : ListDir(dir)) {
+    if (sub.rfind("side", 0) != 0 || !IsDir(dir + "/" + sub)) continue;
+    for (int v : CompleteViews(dir + "/" + sub)) {
+      struct stat st {};
+      if (::stat((dir + "/" + sub + "/" + layout::ViewImageName(v)).c_str(), &st) != 0) continue;
+      ++out.first;
+      out.second += st.st_size;
+    }
+  }
+  return out;
 }
 
 Result<json> SampleStore::Describe(const std::string& id) const {

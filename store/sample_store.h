@@ -4,8 +4,10 @@
 // A view is complete when its sidecar exists (written after the image); a side
 // is complete when its manifest exists (written after every view). Images are
 // never overwritten: an interrupted side is moved aside, whole, before a
-// re-shoot. At start-up Recover() deletes temporary leftovers and marks any
-// side that was being captured as interrupted.
+// re-shoot. At start-up Recover() deletes temporary leftovers, completes
+// what a crash left one step short of complete (a side whose every planned
+// view is stored gets its manifest; a sample whose every side has one is
+// captured) and marks any other side that was being captured as interrupted.
 #pragma once
 
 #include <functional>
@@ -31,7 +33,16 @@ struct RecoveryReport {
   int samples = 0;
   int temp_files_removed = 0;
   int sides_interrupted = 0;   // sides that were being captured and are now marked interrupted
+  int sides_completed = 0;     // sides with every view stored whose manifest was written now
   std::vector<std::string> interrupted_samples;
+  std::vector<std::string> completed_samples;  // every side had its manifest: now "captured"
+};
+
+/// What CompleteStored() found and did for one sample.
+struct Completion {
+  std::vector<int> sides_completed;   // manifests written now
+  bool sample_captured = false;       // every side has a manifest (the sample is "captured")
+  bool sample_completed_now = false;  // ... and was not marked so before
 };
 
 class SampleStore {
@@ -47,6 +58,11 @@ class SampleStore {
   /// same plan resumes at its first side without a manifest. Errors:
   /// kInvalidArgument (bad id), kConflict (complete, or a different plan).
   Result<int> PrepareArm(const std::string& id, const SamplePlan& plan) const;
+  /// Completes what is stored but not marked complete: a side without a
+  /// manifest whose every planned view (image + sidecar) is stored gets its
+  /// manifest (and "done" in the record); when every side has a manifest the
+  /// sample becomes "captured". Nothing is moved or re-shot. Safe to repeat.
+  Result<Completion> CompleteStored(const std::string& id);
   /// Creates the sample directory, record and config copy (or reopens an
   /// unfinished one) and marks it armed.
   Status CreateOrResume(const std::string& id, const SamplePlan& plan, const std::string& config_toml);
@@ -72,7 +88,12 @@ class SampleStore {
   /// Work the worker must have: (id, side) for every side with a manifest and
   /// (id, 0) for every captured sample. Start-up re-queues any of it that the
   /// queue lacks (e.g. an enqueue that failed or was lost with the queue file).
-  std::vector<std::pair<std::string, int>> CapturedWork() const;
+  /// `only`: just that sample's work.
+  std::vector<std::pair<std::string, int>> CapturedWork(const std::string& only = "") const;
+
+  /// Stored view images of `id` (every side and interrupted attempt): how
+  /// many and their total bytes, for estimating what the next side needs.
+  std::pair<int, int64_t> StoredViewBytes(const std::string& id) const;
 
   std::string SampleDir(const std::string& id) const;
   const std::string& state_dir() const { return state_dir_; }
@@ -81,6 +102,8 @@ class SampleStore {
   Status SaveRecord(const std::string& id, const nlohmann::json& rec);
   /// Load, edit, save atomically (one writer: the capture loop).
   Status UpdateRecord(const std::string& id, const std::function<void(nlohmann::json&)>& edit);
+  /// Writes side<N>/manifest.json listing its complete views; returns the manifest.
+  Result<nlohmann::json> WriteManifest(const std::string& id, int side);
   std::string state_dir_;
 };
 

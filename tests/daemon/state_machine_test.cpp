@@ -12,14 +12,25 @@
 namespace aggscan::capture {
 namespace {
 
-constexpr Phase kAllPhases[] = {Phase::kIdle,      Phase::kArmed,     Phase::kHoming,  Phase::kRotating,
-                                Phase::kSettling,  Phase::kWaitingDue, Phase::kCapturing, Phase::kStoring,
+constexpr Phase kAllPhases[] = {Phase::kIdle,         Phase::kArmed,    Phase::kHoming,
+                                Phase::kRotating,     Phase::kSettling, Phase::kWaitingDue,
+                                Phase::kCapturing,    Phase::kStoring,  Phase::kFinishing,
                                 Phase::kAwaitingPose, Phase::kFaulted};
 
 std::vector<Event> AllEvents() {
-  return {Arm{"rock-1", Plan{2, 3, 30.0}, 1}, ButtonPressed{}, HomeDone{}, MoveDone{}, SettleDone{}, ViewDue{},
-          FrameReady{}, ViewStored{}, DeviceFault{ErrorClass::kStalled, "stalled"},
-          StoreFailed{ErrorClass::kDiskFull, "disk full"}, Abort{}, Reset{}};
+  return {Arm{"rock-1", Plan{2, 3, 30.0}, 1},
+          ButtonPressed{},
+          HomeDone{},
+          MoveDone{},
+          SettleDone{},
+          ViewDue{},
+          FrameReady{},
+          ViewStored{},
+          SideFinished{},
+          DeviceFault{ErrorClass::kStalled, "stalled"},
+          StoreFailed{ErrorClass::kDiskFull, "disk full"},
+          Abort{},
+          Reset{}};
 }
 
 // A mid-sample state in the given phase: side 1, view 1 of 3, 2 sides.
@@ -32,6 +43,7 @@ State InPhase(Phase p) {
     s.side = 1;
     s.view = 1;
   }
+  if (p == Phase::kFinishing) s.view = 2;  // the last view of side 1 is stored
   if (p == Phase::kAwaitingPose) {
     s.side = 2;
     s.view = 0;
@@ -73,6 +85,7 @@ const Row kTable[] = {
     {Phase::kWaitingDue, "view_due", Phase::kCapturing, "trigger_capture"},
     {Phase::kCapturing, "frame_ready", Phase::kStoring, "store_view"},
     {Phase::kStoring, "view_stored", Phase::kRotating, "move_to"},
+    {Phase::kFinishing, "side_finished", Phase::kAwaitingPose, ""},
     {Phase::kAwaitingPose, "button", Phase::kHoming, "home"},
     {Phase::kFaulted, "abort", Phase::kIdle, "clear_fault"},
     {Phase::kFaulted, "reset", Phase::kIdle, "clear_fault"},
@@ -82,8 +95,8 @@ TEST(StateMachine, EveryPhaseEventPair) {
   // Faults and aborts are accepted in every active phase.
   std::map<std::pair<Phase, std::string>, Row> table;
   for (const Row& r : kTable) table[{r.from, r.event}] = r;
-  for (Phase p : {Phase::kHoming, Phase::kRotating, Phase::kSettling, Phase::kWaitingDue, Phase::kCapturing,
-                  Phase::kStoring, Phase::kAwaitingPose}) {
+  for (Phase p : {Phase::kHoming, Phase::kRotating, Phase::kSettling, Phase::kWaitingDue,
+                  Phase::kCapturing, Phase::kStoring, Phase::kFinishing, Phase::kAwaitingPose}) {
     table[{p, "device_fault"}] = {p, "device_fault", Phase::kFaulted, "stop_motion,mark_interrupted,record_fault"};
     table[{p, "store_failed"}] = {p, "store_failed", Phase::kFaulted, "stop_motion,mark_interrupted,record_fault"};
     table[{p, "abort"}] = {p, "abort", Phase::kIdle, "stop_motion,mark_aborted"};
@@ -109,31 +122,61 @@ TEST(StateMachine, EveryPhaseEventPair) {
       }
     }
   }
-  EXPECT_EQ(accepted + rejected, 10 * 12);
+  EXPECT_EQ(accepted + rejected, 11 * 13);
   EXPECT_EQ(accepted, static_cast<int>(table.size()));
 }
 
-TEST(StateMachine, LastViewOfSideAwaitsNextPose) {
+TEST(StateMachine, LastViewOfSideFinishesThenAwaitsNextPose) {
   State s = InPhase(Phase::kStoring);
   s.view = 2;  // last of 3
   StepResult r = Step(s, ViewStored{});
   ASSERT_TRUE(r.accepted);
-  EXPECT_EQ(r.next.phase, Phase::kAwaitingPose);
-  EXPECT_EQ(r.next.side, 2);
-  EXPECT_EQ(r.next.view, 0);
+  EXPECT_EQ(r.next.phase, Phase::kFinishing);
   EXPECT_EQ(Effects(r), "finish_side");
   EXPECT_EQ(std::get<FinishSide>(r.effects[0]).side, 1);
+  EXPECT_FALSE(std::get<FinishSide>(r.effects[0]).last_side);
+  // Only the store's answer moves on: the next pose is asked for once side 1 is stored.
+  StepResult f = Step(r.next, SideFinished{});
+  ASSERT_TRUE(f.accepted);
+  EXPECT_EQ(f.next.phase, Phase::kAwaitingPose);
+  EXPECT_EQ(f.next.side, 2);
+  EXPECT_EQ(f.next.view, 0);
+  EXPECT_TRUE(f.effects.empty());
 }
 
-TEST(StateMachine, LastViewOfLastSideFinishesSample) {
+TEST(StateMachine, LastViewOfLastSideFinishesSampleOnlyWhenStored) {
   State s = InPhase(Phase::kStoring);
   s.side = 2;
   s.view = 2;
   StepResult r = Step(s, ViewStored{});
   ASSERT_TRUE(r.accepted);
-  EXPECT_EQ(r.next.phase, Phase::kIdle);
-  EXPECT_EQ(Effects(r), "finish_side,finish_sample");
+  EXPECT_EQ(r.next.phase, Phase::kFinishing);
+  EXPECT_EQ(Effects(r), "finish_side");
   EXPECT_EQ(std::get<FinishSide>(r.effects[0]).side, 2);
+  EXPECT_TRUE(std::get<FinishSide>(r.effects[0]).last_side);
+  StepResult done = Step(r.next, SideFinished{});
+  ASSERT_TRUE(done.accepted);
+  EXPECT_EQ(done.next.phase, Phase::kIdle);
+  EXPECT_TRUE(done.effects.empty());
+}
+
+TEST(StateMachine, StoreFailureWhileFinishingIsAFaultOfThatSide) {
+  // Disk full on the last manifest: the capture faults (named), the side is
+  // marked interrupted for re-arming, and the sample is never left "captured".
+  State s = InPhase(Phase::kStoring);
+  s.side = 2;
+  s.view = 2;
+  StepResult r = Step(Step(s, ViewStored{}).next,
+                      StoreFailed{ErrorClass::kDiskFull, "cannot finish side 2: disk full"});
+  ASSERT_TRUE(r.accepted);
+  EXPECT_EQ(r.next.phase, Phase::kFaulted);
+  EXPECT_EQ(r.next.fault_class, ErrorClass::kDiskFull);
+  EXPECT_EQ(r.next.fault_message, "cannot finish side 2: disk full");
+  EXPECT_EQ(r.next.sample_id, "rock-1");
+  EXPECT_EQ(Effects(r), "stop_motion,mark_interrupted,record_fault");
+  EXPECT_EQ(std::get<MarkInterrupted>(r.effects[1]).side, 2);
+  // A late SideFinished after the fault changes nothing.
+  EXPECT_FALSE(Step(r.next, SideFinished{}).accepted);
 }
 
 TEST(StateMachine, MoveTargetsAreViewTimesStep) {
@@ -182,7 +225,7 @@ TEST(StateMachine, FullSampleWalk) {
     return r;
   };
   step(Arm{"rock", Plan{2, 3, 120.0}, 1});
-  int captures = 0, sides_finished = 0, samples_finished = 0;
+  int captures = 0, sides_finished = 0, last_sides = 0;
   for (int side = 1; side <= 2; ++side) {
     step(ButtonPressed{});
     step(HomeDone{});
@@ -194,14 +237,16 @@ TEST(StateMachine, FullSampleWalk) {
       step(FrameReady{});
       StepResult st = step(ViewStored{});
       for (const auto& eff : st.effects) {
-        sides_finished += std::holds_alternative<FinishSide>(eff);
-        samples_finished += std::holds_alternative<FinishSample>(eff);
+        if (!std::holds_alternative<FinishSide>(eff)) continue;
+        ++sides_finished;
+        last_sides += std::get<FinishSide>(eff).last_side;
+        step(SideFinished{});
       }
     }
   }
   EXPECT_EQ(captures, 6);
   EXPECT_EQ(sides_finished, 2);
-  EXPECT_EQ(samples_finished, 1);
+  EXPECT_EQ(last_sides, 1);
   EXPECT_EQ(s.phase, Phase::kIdle);
 }
 

@@ -129,7 +129,7 @@ TEST(HealthDaemon, MissingTurntableRefusesCaptureAndRecoversByItself) {
   EXPECT_EQ(RunCli(t, d.port(), {"selftest"}, &out), 4) << out;
   EXPECT_NE(out.find("turntable: FAIL device_missing [modbus-tcp"), std::string::npos) << out;
   EXPECT_NE(out.find("127.0.0.1:" + std::to_string(mb_port)), std::string::npos) << out;
-  EXPECT_NE(out.find("1 of 3 devices unhealthy"), std::string::npos) << out;
+  EXPECT_NE(out.find("1 of 4 devices unhealthy"), std::string::npos) << out;
 
   // Several retries (100, 200, 400, 400 ms ...), one log line for the class.
   int c = 0;
@@ -162,7 +162,7 @@ TEST(HealthDaemon, MissingTurntableRefusesCaptureAndRecoversByItself) {
                                                          << log;
 
   EXPECT_EQ(RunCli(t, d.port(), {"selftest"}, &out), 0) << out;
-  EXPECT_NE(out.find("all 3 devices ok"), std::string::npos) << out;
+  EXPECT_NE(out.find("all 4 devices ok"), std::string::npos) << out;
 
   // And a capture runs on the recovered turntable.
   d.Post("/api/v1/samples", R"({"id": "rock-h"})", &code);

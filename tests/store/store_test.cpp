@@ -136,6 +136,130 @@ TEST(SampleStore, ResumeAfterFirstSideStartsAtSecond) {
   EXPECT_EQ(*store.PrepareArm("r", SmallPlan()), 2);
 }
 
+// Killed right after the last manifest, before the record said "captured":
+// start-up completes the sample (both sides done, "captured"), so its sample
+// job is queued (CapturedWork) instead of the rock being lost.
+TEST(SampleStore, CrashAfterLastManifestCompletesTheSample) {
+  TempDir t;
+  SampleStore store(t.path());
+  ASSERT_TRUE(store.Init());
+  ASSERT_TRUE(store.CreateOrResume("r", SmallPlan(), "cfg"));
+  for (int side = 1; side <= 2; ++side) {
+    ASSERT_TRUE(store.BeginSide("r", side));
+    for (int v = 0; v < 3; ++v)
+      ASSERT_TRUE(store.WriteView("r", side, v, Bytes("s" + std::to_string(side)), {}));
+    ASSERT_TRUE(store.FinishSide("r", side));
+    if (side == 1) {
+      ASSERT_TRUE(store.SetSampleState("r", "awaiting_pose"));
+    }
+  }
+  // The record still says "capturing": the kill came before "captured".
+  EXPECT_EQ((*store.LoadRecord("r"))["state"], "capturing");
+  EXPECT_EQ(store.CapturedWork().size(), 2u);  // the sample job would be missing
+  SampleStore restarted(t.path());
+  auto rep = restarted.Recover();
+  ASSERT_TRUE(rep.ok()) << rep.error().ToString();
+  EXPECT_EQ(rep->sides_interrupted, 0);
+  EXPECT_TRUE(rep->interrupted_samples.empty());
+  ASSERT_EQ(rep->completed_samples.size(), 1u);
+  EXPECT_EQ(rep->completed_samples[0], "r");
+  auto rec = restarted.LoadRecord("r");
+  EXPECT_EQ((*rec)["state"], "captured");
+  EXPECT_EQ((*rec)["sides"][1]["state"], "done");
+  auto work = restarted.CapturedWork();
+  ASSERT_EQ(work.size(), 3u);
+  EXPECT_EQ(work[2], std::make_pair(std::string("r"), 0));
+  // A second start-up changes nothing.
+  auto again = SampleStore(t.path()).Recover();
+  EXPECT_TRUE(again->completed_samples.empty());
+  EXPECT_EQ(again->sides_completed, 0);
+}
+
+// Every view of the last side stored, killed (or out of space) before its
+// manifest: the manifest is written from the stored views, nothing is re-shot
+// or moved aside, and the sample is captured.
+TEST(SampleStore, SideWithEveryViewStoredIsCompletedNotReshot) {
+  TempDir t;
+  SampleStore store(t.path());
+  ASSERT_TRUE(store.Init());
+  ASSERT_TRUE(store.CreateOrResume("r", SmallPlan(), "cfg"));
+  ASSERT_TRUE(store.BeginSide("r", 1));
+  for (int v = 0; v < 3; ++v)
+    ASSERT_TRUE(store.WriteView("r", 1, v, Bytes("a" + std::to_string(v)), {}));
+  ASSERT_TRUE(store.FinishSide("r", 1));
+  ASSERT_TRUE(store.BeginSide("r", 2));
+  for (int v = 0; v < 3; ++v)
+    ASSERT_TRUE(store.WriteView("r", 2, v, Bytes("bb" + std::to_string(v)), {}));
+  // Manifest missing. The running daemon would have marked it interrupted on the fault.
+  ASSERT_TRUE(store.SetSampleState("r", "interrupted", 2, "interrupted"));
+  auto done = store.CompleteStored("r");
+  ASSERT_TRUE(done.ok()) << done.error().ToString();
+  ASSERT_EQ(done->sides_completed.size(), 1u);
+  EXPECT_EQ(done->sides_completed[0], 2);
+  EXPECT_TRUE(done->sample_captured);
+  EXPECT_TRUE(done->sample_completed_now);
+  auto man = nlohmann::json::parse(*ReadFile(store.SampleDir("r") + "/side2/manifest.json"));
+  ASSERT_EQ(man["views"].size(), 3u);
+  EXPECT_EQ(man["views"][2]["bytes"], 3);
+  EXPECT_EQ(*ReadFile(store.SampleDir("r") + "/side2/view_002.jpg"), "bb2");
+  EXPECT_FALSE(PathExists(store.SampleDir("r") + "/side2.interrupted-1"));
+  auto rec = store.LoadRecord("r");
+  EXPECT_EQ((*rec)["state"], "captured");
+  EXPECT_EQ((*rec)["sides"][1]["state"], "done");
+  EXPECT_EQ((*rec)["sides"][1]["views"], 3);
+  EXPECT_EQ(store.PrepareArm("r", SmallPlan()).error().cls, ErrorClass::kConflict);
+  // Repeating it is harmless.
+  auto twice = store.CompleteStored("r");
+  EXPECT_TRUE(twice->sides_completed.empty());
+  EXPECT_FALSE(twice->sample_completed_now);
+}
+
+// A side with a view missing is not completed: it stays re-armable from there.
+TEST(SampleStore, SideWithAViewMissingStaysReArmable) {
+  TempDir t;
+  SampleStore store(t.path());
+  ASSERT_TRUE(store.Init());
+  ASSERT_TRUE(store.CreateOrResume("r", SmallPlan(), "cfg"));
+  ASSERT_TRUE(store.BeginSide("r", 1));
+  ASSERT_TRUE(store.WriteView("r", 1, 0, Bytes("x"), {}));
+  ASSERT_TRUE(store.WriteView("r", 1, 2, Bytes("z"), {}));  // view 1 never stored
+  // Image of view 1 without its sidecar: incomplete.
+  ASSERT_TRUE(WriteFileAtomic(store.SampleDir("r") + "/side1/view_001.jpg", std::string_view("y")));
+  auto rep = SampleStore(t.path()).Recover();
+  ASSERT_TRUE(rep.ok());
+  EXPECT_EQ(rep->sides_interrupted, 1);
+  EXPECT_EQ(rep->sides_completed, 0);
+  EXPECT_FALSE(PathExists(store.SampleDir("r") + "/side1/manifest.json"));
+  EXPECT_EQ((*store.LoadRecord("r"))["state"], "interrupted");
+  EXPECT_EQ(*store.PrepareArm("r", SmallPlan()), 1);
+}
+
+// Killed between side 1's manifest and its record update: the record is
+// mended to "done" and re-arming resumes at side 2.
+TEST(SampleStore, ManifestWithoutRecordUpdateIsDone) {
+  TempDir t;
+  SampleStore store(t.path());
+  ASSERT_TRUE(store.Init());
+  ASSERT_TRUE(store.CreateOrResume("r", SmallPlan(), "cfg"));
+  ASSERT_TRUE(store.BeginSide("r", 1));
+  for (int v = 0; v < 3; ++v) ASSERT_TRUE(store.WriteView("r", 1, v, Bytes("x"), {}));
+  ASSERT_TRUE(store.FinishSide("r", 1));
+  // What a record that lags behind looks like (the daemon's fault path marked it).
+  ASSERT_TRUE(store.SetSampleState("r", "interrupted"));
+  {
+    auto rec = *store.LoadRecord("r");
+    rec["sides"][0]["state"] = "interrupted";
+    ASSERT_TRUE(
+        WriteFileAtomic(store.SampleDir("r") + "/sample.json", std::string_view(rec.dump())));
+  }
+  auto rep = SampleStore(t.path()).Recover();
+  ASSERT_TRUE(rep.ok());
+  auto rec = store.LoadRecord("r");
+  EXPECT_EQ((*rec)["sides"][0]["state"], "done");
+  EXPECT_EQ((*rec)["state"], "interrupted");
+  EXPECT_EQ(*store.PrepareArm("r", SmallPlan()), 2);
+}
+
 TEST(SampleStore, BadIdsNeverTouchTheFilesystem) {
   TempDir t;
   SampleStore store(t.path());
