@@ -9,6 +9,9 @@
 #   FUZZ_TIMEOUT_S  one input taking longer than this is a finding (default 10)
 #   FUZZ_JOBS       build jobs (default 2)
 #   FUZZ_NO_BUILD=1 run what is built
+#   FUZZ_RUN_DIR    where the corpus copies, logs and reproducers go (default $FUZZ_BUILD_DIR/fuzz-run)
+#   FUZZ_KEEP_GOING=1  go on after a crash (libFuzzer's fork mode), collecting
+#                   every reproducer for the whole time: for long runs
 # Each target stops at its first crash (or leak, timeout, out-of-memory); the
 # others still run. One line per target: executions, exec/s, crashes. Exit 1
 # when any target crashed, with the reproducer's path. Inputs the run finds
@@ -45,7 +48,7 @@ if [ "${FUZZ_NO_BUILD:-0}" != 1 ]; then
 fi
 
 read -r -a targets <<<"${FUZZ_TARGETS:-$(tr '\n' ' ' <"$BUILD_DIR/fuzzers.txt")}"
-RUN_DIR=$(realpath "$BUILD_DIR")/fuzz-run
+RUN_DIR=${FUZZ_RUN_DIR:-$(realpath "$BUILD_DIR")/fuzz-run}
 # The targets' scratch files: memory-backed where possible (the store's
 # writes fsync every file).
 scratch_root=/tmp
@@ -67,6 +70,8 @@ for t in "${targets[@]}"; do
   mkdir -p "$work/corpus" "$work/artifacts"
   cp -r "$seeds/." "$work/corpus/"
   dict=()
+  mode=()
+  if [ "${FUZZ_KEEP_GOING:-0}" = 1 ]; then mode=(-fork=1 -ignore_crashes=1 -ignore_ooms=1 -ignore_timeouts=1); fi
   [ -f "$SRC/tests/fuzz/$t.dict" ] && dict=(-dict="$SRC/tests/fuzz/$t.dict")
   scratch=$(mktemp -d "$scratch_root/aggscan-fuzz-$t.XXXXXX")
   echo "run-fuzzers: $t for ${SECONDS_PER_TARGET} s (log: $work/log.txt)"
@@ -74,15 +79,20 @@ for t in "${targets[@]}"; do
   # The outer timeout only guards against a hang of libFuzzer itself.
   TMPDIR="$scratch" nice -n 10 timeout --kill-after=30 $((SECONDS_PER_TARGET + 5 * TIMEOUT_S + 60)) \
     "$bin" "$work/corpus" -max_total_time="$SECONDS_PER_TARGET" -rss_limit_mb="$RSS_MB" -timeout="$TIMEOUT_S" \
-    -artifact_prefix="$work/artifacts/" -print_final_stats=1 "${dict[@]}" >"$work/log.txt" 2>&1 || rc=$?
+    -artifact_prefix="$work/artifacts/" -print_final_stats=1 "${dict[@]}" "${mode[@]}" >"$work/log.txt" 2>&1 || rc=$?
   rm -rf "$scratch"
   execs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$work/log.txt" | tail -1)
   rate=$(sed -n 's/^stat::average_exec_per_sec: *//p' "$work/log.txt" | tail -1)
+  if [ -z "$execs" ]; then  # fork mode: "#N: cov: ... exec/s R ..." lines
+    last=$(grep -E '^#[0-9]+: cov:' "$work/log.txt" | tail -1 || true)
+    execs=$(sed -n 's/^#\([0-9]*\):.*/\1/p' <<<"$last")
+    rate=$(sed -n 's/.*exec\/s:\? \([0-9]*\).*/\1/p' <<<"$last")
+  fi
   mapfile -t found < <(find "$work/artifacts" -type f | sort)
   line=$(printf '%-18s executions %-9s exec/s %-6s crashes %d' "$t" "${execs:-?}" "${rate:-?}" "${#found[@]}")
   if [ "${#found[@]}" -gt 0 ] || [ "$rc" -ne 0 ]; then
     crashed=1
-    what=$(grep -m1 -E '^==[0-9]+==ERROR|^SUMMARY|runtime error|deadly signal|timeout after|out-of-memory' "$work/log.txt" || true)
+    what=$(grep -m1 -E "what\(\)|runtime error|^==[0-9]+== ?ERROR|timeout after|out-of-memory" "$work/log.txt" || true)
     line+="  FAILED (exit $rc): ${what:-see the log}"
     for f in "${found[@]}"; do line+=$'\n'"    reproducer: $f  (re-run: $bin $f)"; done
     line+=$'\n'"    log: $work/log.txt"
