@@ -73,6 +73,13 @@ void ForSide(json& rec, int side, F fn) {
   }
 }
 
+// JSON text of a record, sidecar or manifest. Strings that are not UTF-8 (a
+// parser's message quoting the bytes of a damaged file, a device's name) are
+// written with U+FFFD in their place: json::dump would throw on them.
+std::string JsonText(const json& j) {
+  return j.dump(2, ' ', false, json::error_handler_t::replace) + "\n";
+}
+
 Error BadId(const std::string& id) {
   return MakeError(ErrorClass::kInvalidArgument,
                    "invalid sample id \"" + id.substr(0, 80) +
@@ -140,7 +147,7 @@ Status SampleStore::Init() { return MakeDirsDurable(layout::SamplesDir(state_dir
 Status SampleStore::SaveRecord(const std::string& id, const json& rec) {
   json r = rec;
   r["updated_utc"] = NowUtcString();
-  return WriteFileAtomic(SampleDir(id) + "/" + layout::kSampleRecord, r.dump(2) + "\n");
+  return WriteFileAtomic(SampleDir(id) + "/" + layout::kSampleRecord, JsonText(r));
 }
 
 Status SampleStore::UpdateRecord(const std::string& id, const std::function<void(json&)>& edit) {
@@ -314,7 +321,7 @@ Status SampleStore::WriteView(const std::string& id, int side, int view, std::sp
   const std::string side_dir = SampleDir(id) + "/" + layout::SideDirName(side);
   Status s = WriteFileAtomic(side_dir + "/" + layout::ViewImageName(view), image, /*no_replace=*/true);
   if (!s) return s;
-  return WriteFileAtomic(side_dir + "/" + layout::ViewSidecarName(view), sidecar.dump(2) + "\n", true);
+  return WriteFileAtomic(side_dir + "/" + layout::ViewSidecarName(view), JsonText(sidecar), true);
 }
 
 Status SampleStore::FinishSide(const std::string& id, int side) {
@@ -331,7 +338,7 @@ Status SampleStore::FinishSide(const std::string& id, int side) {
                      {"bytes", static_cast<int64_t>(st.st_size)}});
   }
   json manifest = {{"sample_id", id}, {"side", side}, {"views", views}, {"completed_utc", NowUtcString()}};
-  Status s = WriteFileAtomic(side_dir + "/" + layout::kManifest, manifest.dump(2) + "\n", true);
+  Status s = WriteFileAtomic(side_dir + "/" + layout::kManifest, JsonText(manifest), true);
   if (!s) return s;
   return UpdateRecord(id, [&](json& r) {
     ForSide(r, side, [&](json& sd) {

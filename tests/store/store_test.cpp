@@ -216,6 +216,24 @@ TEST(SampleStore, WronglyTypedSidecarFieldsReadAsAbsent) {
   EXPECT_EQ(view["capture_utc"], "");
 }
 
+TEST(SampleStore, DamagedCalibrationWithBytesThatAreNotUtf8IsRecordedNotThrown) {
+  // Found by the sample_json fuzzer: the parser's message quotes the damaged
+  // file's bytes, and the record holding that reason could not be written.
+  TempDir t;
+  SampleStore store(t.path());
+  ASSERT_TRUE(store.Init());
+  ASSERT_TRUE(WriteFileAtomic(t.path() + "/calibration.json",
+                              std::string_view("{\"format\": \"\xff\xfe\"}")));
+  ASSERT_TRUE(store.CreateOrResume("r", SmallPlan(), "cfg"));
+  auto rec = store.LoadRecord("r");
+  ASSERT_TRUE(rec.ok()) << rec.error().ToString();
+  EXPECT_TRUE((*rec)["calibration"]["file"].is_null());
+  const std::string reason = (*rec)["calibration"]["reason"].get<std::string>();
+  EXPECT_NE(reason.find("not valid JSON"), std::string::npos) << reason;
+  EXPECT_NE(reason.find("\xEF\xBF\xBD"), std::string::npos) << reason;  // U+FFFD for the bad bytes
+  EXPECT_FALSE(PathExists(store.SampleDir("r") + "/calibration.json"));
+}
+
 TEST(SampleStore, DirectoryWithoutRecordIsArmable) {
   // A crash between creating the directory and writing the record.
   TempDir t;
