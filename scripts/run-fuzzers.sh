@@ -92,7 +92,7 @@ for t in "${targets[@]}"; do
   line=$(printf '%-18s executions %-9s exec/s %-6s crashes %d' "$t" "${execs:-?}" "${rate:-?}" "${#found[@]}")
   if [ "${#found[@]}" -gt 0 ] || [ "$rc" -ne 0 ]; then
     crashed=1
-    what=$(grep -m1 -E "what\(\)|runtime error|^==[0-9]+== ?ERROR|timeout after|out-of-memory" "$work/log.txt" || true)
+    what=$(grep -m1 -E "what\(\): |runtime error|^==[0-9]+== ?ERROR|timeout after|out-of-memory" "$work/log.txt" || true)
     line+="  FAILED (exit $rc): ${what:-see the log}"
     for f in "${found[@]}"; do line+=$'\n'"    reproducer: $f  (re-run: $bin $f)"; done
     line+=$'\n'"    log: $work/log.txt"
