@@ -1,6 +1,7 @@
 #include "pipeline/side_job.h"
 
 #include <algorithm>
+#include <cstdint>
 #include <filesystem>
 #include <map>
 #include <set>
@@ -125,6 +126,29 @@ int FramePixels(const cv::Mat& mask) {
          cv::countNonZero(mask.col(c).rowRange(1, std::max(1, r)));
 }
 
+// Fields of a side result, which is read back from disk: the type asked for,
+// else `fallback` (json::value throws on another type, and a double beyond
+// int's range does not convert).
+bool Flag(const json& j, const char* key) {
+  const auto it = j.find(key);
+  return it != j.end() && it->is_boolean() && it->get<bool>();
+}
+double Number(const json& j, const char* key, double fallback) {
+  const auto it = j.find(key);
+  return it != j.end() && it->is_number() ? it->get<double>() : fallback;
+}
+int Count(const json& j, const char* key, int fallback) {
+  const auto it = j.find(key);
+  if (it == j.end() || !it->is_number_integer()) return fallback;
+  const int64_t v =
+      it->is_number_unsigned() && it->get<uint64_t>() > INT32_MAX ? INT64_MAX : it->get<int64_t>();
+  return v >= INT32_MIN && v <= INT32_MAX ? static_cast<int>(v) : fallback;
+}
+std::string Text(const json& j, const char* key) {
+  const auto it = j.find(key);
+  return it != j.end() && it->is_string() ? it->get<std::string>() : std::string();
+}
+
 std::string ViewList(const std::vector<int>& v) {
   std::string s;
   for (size_t i = 0; i < v.size(); ++i) s += (i ? ", " : "") + std::to_string(v[i]);
@@ -136,22 +160,24 @@ std::string ViewList(const std::vector<int>& v) {
 std::string CheckSideMasks(json* jviews) {
   double largest = 0;
   for (const json& jv : *jviews) {
-    if (jv.value("ok", false)) largest = std::max(largest, jv.value("mask_area_fraction", 0.0));
+    if (Flag(jv, "ok")) largest = std::max(largest, Number(jv, "mask_area_fraction", 0.0));
   }
   std::vector<int> cut, small;
   for (json& jv : *jviews) {
-    if (!jv.value("ok", false)) continue;
-    const int view = jv.value("view", -1);
-    if (jv.value("mask_frame_px", 0) >= kMaskFrameMinPx) {
+    if (!Flag(jv, "ok")) continue;
+    const int view = Count(jv, "view", -1);
+    const int frame_px = Count(jv, "mask_frame_px", 0);
+    const double area = Number(jv, "mask_area_fraction", 0.0);
+    if (frame_px >= kMaskFrameMinPx) {
       cut.push_back(view);
       jv["ok"] = false;
-      jv["error"] = "the rock reaches the edge of the photo (" + std::to_string(jv.value("mask_frame_px", 0)) +
+      jv["error"] = "the rock reaches the edge of the photo (" + std::to_string(frame_px) +
                     " px on its border): its silhouette is cut";
-    } else if (jv.value("mask_area_fraction", 0.0) < kMaskMinAreaOfLargest * largest) {
+    } else if (area < kMaskMinAreaOfLargest * largest) {
       small.push_back(view);
       jv["ok"] = false;
       jv["error"] = "the mask covers " +
-                    std::to_string(static_cast<int>(std::lround(100 * jv.value("mask_area_fraction", 0.0) / largest))) +
+                    std::to_string(static_cast<int>(std::lround(100 * area / largest))) +
                     " % of the side's largest: the segmentation lost the rock";
     }
   }
@@ -172,14 +198,15 @@ std::string CheckSideMasks(json* jviews) {
 }
 
 Status SideHasEnoughWholeViews(const json& side_result) {
-  std::string problems = side_result.value("mask_problems", "");
-  const std::string damaged = side_result.value("image_problems", "");
+  std::string problems = Text(side_result, "mask_problems");
+  const std::string damaged = Text(side_result, "image_problems");
   if (!damaged.empty()) problems += (problems.empty() ? "" : "; ") + damaged;
-  const int total = side_result.value("views_total", 0), ok = side_result.value("views_ok", 0);
-  if (problems.empty() || 3 * ok >= 2 * total) return OkStatus();
-  return MakeError(ErrorClass::kCorrupt, "side " + std::to_string(side_result.value("side", 0)) + ": only " +
-                                             std::to_string(ok) + " of " + std::to_string(total) +
-                                             " views show the whole rock, too few for its model: " + problems);
+  const int total = Count(side_result, "views_total", 0), ok = Count(side_result, "views_ok", 0);
+  if (problems.empty() || 3 * int64_t{ok} >= 2 * int64_t{total}) return OkStatus();
+  return MakeError(ErrorClass::kCorrupt,
+                   "side " + std::to_string(Count(side_result, "side", 0)) + ": only " +
+                       std::to_string(ok) + " of " + std::to_string(total) +
+                       " views show the whole rock, too few for its model: " + problems);
 }
 
 namespace {
@@ -390,7 +417,7 @@ Status ProcessSampleStage(const std::string& sample_dir, const WorkerOptions& op
       return MakeError(ErrorClass::kCorrupt, "side result " + side_result + " is unreadable; delete it to recompute");
     std::map<std::string, std::vector<double>> vals;
     for (const auto& v : j["views"]) {
-      if (!v.value("ok", false)) continue;
+      if (!Flag(v, "ok")) continue;
       for (const char* f : kStatFields)
         if (v.contains(f) && v[f].is_number()) {
           vals[f].push_back(v[f].get<double>());

@@ -11,6 +11,9 @@ PACKAGES=(
   # toolchain and test tools
   build-essential cmake pkg-config git
   googletest libgtest-dev libgmock-dev libbenchmark-dev
+  # fuzzing (scripts/run-fuzzers.sh): clang with libFuzzer's runtime (only
+  # recommended by clang, so named here) and llvm-symbolizer for the stacks
+  clang-14 libclang-rt-14-dev llvm-14
   # common / config / daemon
   nlohmann-json3-dev libtomlplusplus-dev libcpp-httplib-dev
   # the daemon's HTTP server (cpp-httplib stays for the CLI and the test clients)

@@ -5,7 +5,9 @@
 
 #include <algorithm>
 #include <cerrno>
+#include <cstdint>
 #include <filesystem>
+#include <type_traits>
 
 #include "common/clock.h"
 #include "common/fsutil.h"
@@ -71,10 +73,69 @@ void ForSide(json& rec, int side, F fn) {
   }
 }
 
+// JSON text of a record, sidecar or manifest. Strings that are not UTF-8 (a
+// parser's message quoting the bytes of a damaged file, a device's name) are
+// written with U+FFFD in their place: json::dump would throw on them.
+std::string JsonText(const json& j) {
+  return j.dump(2, ' ', false, json::error_handler_t::replace) + "\n";
+}
+
 Error BadId(const std::string& id) {
   return MakeError(ErrorClass::kInvalidArgument,
                    "invalid sample id \"" + id.substr(0, 80) +
                        "\": use 1-64 characters of A-Z a-z 0-9 . _ - (not starting with . or -)");
+}
+
+// What is wrong with a parsed sample record, empty when nothing: every field
+// the store's readers take is there with its type (json::value throws when a
+// field holds another type than its default).
+std::string RecordShapeProblem(const json& rec) {
+  auto typed = [](const json& j, const char* key, json::value_t t) {
+    if (!j.contains(key)) return true;
+    const json& v = j[key];
+    switch (t) {
+      case json::value_t::number_integer:  // counts: the store adds one to them
+        return v.is_number_integer() && v.get<int64_t>() >= 0 &&
+               v.get<int64_t>() < (int64_t{1} << 30);
+      case json::value_t::number_float:
+        return v.is_number();
+      default:
+        return v.type() == t;
+    }
+  };
+  using T = json::value_t;
+  if (!rec.contains("state") || !rec["state"].is_string()) return "state missing or not a string";
+  for (const char* k : {"id", "created_utc", "updated_utc", "resumed_utc"})
+    if (!typed(rec, k, T::string)) return std::string(k) + " is not a string";
+  if (!typed(rec, "resumes", T::number_integer)) return "resumes is not a count";
+  if (!rec.contains("plan") || !rec["plan"].is_object()) return "plan missing";
+  const json& plan = rec["plan"];
+  for (const char* k : {"sides", "views_per_side"})
+    if (!plan.contains(k) || !plan[k].is_number_integer() || plan[k].get<int64_t>() < 1 ||
+        plan[k].get<int64_t>() > 100000)
+      return std::string("plan.") + k + " missing or not a count from 1 to 100000";
+  if (!typed(plan, "step_deg", T::number_float)) return "plan.step_deg is not a number";
+  if (!rec.contains("sides") || !rec["sides"].is_array()) return "sides missing";
+  for (const auto& sd : rec["sides"]) {
+    if (!sd.is_object() || !sd.contains("side") || !sd["side"].is_number_integer())
+      return "a side entry has no integer \"side\"";
+    if (!typed(sd, "state", T::string)) return "a side's state is not a string";
+    for (const char* k : {"attempts", "views", "views_found"})
+      if (!typed(sd, k, T::number_integer)) return std::string("a side's ") + k + " is not a count";
+  }
+  return "";
+}
+
+// The field `key` of a sidecar when it holds the type of `fallback`, else `fallback`.
+template <typename T>
+T SidecarField(const json& car, const char* key, T fallback) {
+  if (!car.contains(key)) return fallback;
+  const json& v = car[key];
+  if constexpr (std::is_same_v<T, double>) {
+    return v.is_number() ? v.get<double>() : fallback;
+  } else {
+    return v.is_string() ? v.get<std::string>() : fallback;
+  }
 }
 
 }  // namespace
@@ -86,7 +147,7 @@ Status SampleStore::Init() { return MakeDirsDurable(layout::SamplesDir(state_dir
 Status SampleStore::SaveRecord(const std::string& id, const json& rec) {
   json r = rec;
   r["updated_utc"] = NowUtcString();
-  return WriteFileAtomic(SampleDir(id) + "/" + layout::kSampleRecord, r.dump(2) + "\n");
+  return WriteFileAtomic(SampleDir(id) + "/" + layout::kSampleRecord, JsonText(r));
 }
 
 Status SampleStore::UpdateRecord(const std::string& id, const std::function<void(json&)>& edit) {
@@ -109,16 +170,11 @@ Result<json> SampleStore::LoadRecord(const std::string& id) const {
   }
   // Every reader below relies on this shape; a damaged record is refused
   // here, never allowed to throw later on the capture loop.
-  const bool plan_ok = rec.contains("plan") && rec["plan"].is_object() &&
-                       rec["plan"].value("sides", 0) >= 1 && rec["plan"].value("views_per_side", 0) >= 1;
-  bool sides_ok = rec.contains("sides") && rec["sides"].is_array();
-  if (sides_ok) {
-    for (const auto& sd : rec["sides"]) sides_ok = sides_ok && sd.is_object() && sd.contains("side") && sd["side"].is_number_integer();
-  }
-  if (!plan_ok || !sides_ok || !rec.value("state", json()).is_string()) {
-    return MakeError(ErrorClass::kCorrupt, "sample record " + path +
-                                               " is damaged (plan, sides or state missing); its images are untouched — "
-                                               "move the sample directory aside to re-shoot under this id");
+  if (const std::string bad = RecordShapeProblem(rec); !bad.empty()) {
+    return MakeError(ErrorClass::kCorrupt,
+                     "sample record " + path + " is damaged (" + bad +
+                         "); its images are untouched — "
+                         "move the sample directory aside to re-shoot under this id");
   }
   return rec;
 }
@@ -338,7 +394,7 @@ Status SampleStore::WriteView(const std::string& id, int side, int view, std::sp
   const std::string side_dir = SampleDir(id) + "/" + layout::SideDirName(side);
   Status s = WriteFileAtomic(side_dir + "/" + layout::ViewImageName(view), image, /*no_replace=*/true);
   if (!s) return s;
-  return WriteFileAtomic(side_dir + "/" + layout::ViewSidecarName(view), sidecar.dump(2) + "\n", true);
+  return WriteFileAtomic(side_dir + "/" + layout::ViewSidecarName(view), JsonText(sidecar), true);
 }
 
 Result<json> SampleStore::WriteManifest(const std::string& id, int side) {
@@ -355,7 +411,7 @@ Result<json> SampleStore::WriteManifest(const std::string& id, int side) {
                      {"bytes", static_cast<int64_t>(st.st_size)}});
   }
   json manifest = {{"sample_id", id}, {"side", side}, {"views", views}, {"completed_utc", NowUtcString()}};
-  Status s = WriteFileAtomic(side_dir + "/" + layout::kManifest, manifest.dump(2) + "\n", true);
+  Status s = WriteFileAtomic(side_dir + "/" + layout::kManifest, JsonText(manifest), true);
   if (!s) return s.error();
   return manifest;
 }
@@ -458,12 +514,13 @@ Result<json> SampleStore::Describe(const std::string& id) const {
       Result<std::string> t = ReadFile(side_dir + "/" + layout::ViewSidecarName(v));
       json car = t ? json::parse(*t, nullptr, false) : json();
       if (!car.is_object()) car = json::object();
-      views.push_back({{"view", v},
-                       {"image", layout::SideDirName(sd.value("side", 0)) + "/" + layout::ViewImageName(v)},
-                       {"commanded_angle_deg", car.value("commanded_angle_deg", 0.0)},
-                       {"measured_angle_deg", car.value("measured_angle_deg", 0.0)},
-                       {"capture_utc", car.value("capture_utc", "")},
-                       {"schedule_error_ms", car.value("schedule_error_ms", 0.0)}});
+      views.push_back(
+          {{"view", v},
+           {"image", layout::SideDirName(sd.value("side", 0)) + "/" + layout::ViewImageName(v)},
+           {"commanded_angle_deg", SidecarField(car, "commanded_angle_deg", 0.0)},
+           {"measured_angle_deg", SidecarField(car, "measured_angle_deg", 0.0)},
+           {"capture_utc", SidecarField(car, "capture_utc", std::string())},
+           {"schedule_error_ms", SidecarField(car, "schedule_error_ms", 0.0)}});
     }
     sd["captured_views"] = views;
     json attempts = json::array();

@@ -204,6 +204,50 @@ TEST(CheckSideMasks, ThresholdsAndMessages) {
   EXPECT_EQ(CheckSideMasks(&fine), "");
 }
 
+// A side result read back from disk with a field of another type (as in
+// tests/fuzz/corpus/worker_json/side_result_types.json) made json::value
+// throw out of the worker.
+TEST(CheckSideMasks, WronglyTypedFieldsReadAsAbsent) {
+  json views = json::array(
+      {json{{"view", 0}, {"ok", true}, {"mask_area_fraction", 0.2}, {"mask_frame_px", 0}},
+       json{{"view", "one"}, {"ok", 1}, {"mask_area_fraction", "big"}},
+       json{{"view", 2}, {"ok", true}, {"mask_area_fraction", 0.19}, {"mask_frame_px", 1e300}},
+       json{{"view", 3}, {"ok", true}, {"mask_area_fraction", "small"}}, json(7)});
+  const std::string msg = CheckSideMasks(&views);
+  EXPECT_TRUE(views[0]["ok"].get<bool>());
+  EXPECT_EQ(views[1]["ok"], 1);              // not a rock view: untouched
+  EXPECT_TRUE(views[2]["ok"].get<bool>());   // a frame count that is no integer counts as none
+  EXPECT_FALSE(views[3]["ok"].get<bool>());  // no area: lost
+  EXPECT_NE(msg.find("segmentation in view 3 "), std::string::npos) << msg;
+  EXPECT_EQ(views[4], 7);
+
+  const json huge = {
+      {"side", 1}, {"mask_problems", "cut"}, {"views_total", 2147483647}, {"views_ok", 2147483647}};
+  EXPECT_TRUE(SideHasEnoughWholeViews(huge).ok());
+  const json typed = {
+      {"side", "1"}, {"mask_problems", "cut"}, {"views_total", 30}, {"views_ok", "30"}};
+  const Status s = SideHasEnoughWholeViews(typed);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().message.find("only 0 of 30 views"), std::string::npos) << s.error().message;
+  EXPECT_TRUE(SideHasEnoughWholeViews(json{{"mask_problems", 5}}).ok());  // no problems named
+}
+
+TEST_F(SideJobTest, SampleStageSurvivesAWronglyTypedSideResult) {
+  MakeSide(1);
+  ASSERT_TRUE(ProcessSide(dir_, 1).ok());
+  fs::create_directories(dir_ + "/side2");
+  Write(
+      SideResultPath(dir_, 2),
+      R"({"side": 2, "views": [{"ok": 1, "fer_2d": 1.5}, {"ok": true, "fer_2d": "x", "circularity": 0.7}, 3]})");
+  ASSERT_TRUE(ProcessSample(dir_).ok());
+  const json r = ReadJson(SampleResultPath(dir_));
+  EXPECT_EQ(r["sides"][1]["side"], 2);
+  EXPECT_EQ(r["sides"][1]["views_ok"],
+            0);  // the views without a number are left out, not thrown on
+  EXPECT_EQ(r["sides"][1]["stats"]["circularity"]["n"], 1);
+  EXPECT_EQ(r["overall"]["views_ok"], 3);
+}
+
 TEST_F(SideJobTest, CancelStopsBetweenViewsAndResumes) {
   MakeSide(1);
   std::atomic<bool> cancel{true};

@@ -288,6 +288,77 @@ TEST(SampleStore, DamagedRecordIsRefusedNotThrown) {
   }
 }
 
+TEST(SampleStore, WronglyTypedRecordFieldsAreRefusedNotThrown) {
+  // Found by the sample_json fuzzer (tests/fuzz/corpus/sample_json/): a field
+  // of the wrong type made json::value throw on the capture loop.
+  TempDir t;
+  SampleStore store(t.path());
+  ASSERT_TRUE(store.Init());
+  ASSERT_TRUE(store.CreateOrResume("r", SmallPlan(), "cfg"));
+  const std::string plan = R"("plan": {"sides": 2, "views_per_side": 3, "step_deg": 120})";
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {R"({"state": "armed", "plan": {"sides": "2", "views_per_side": 3}, "sides": []})",
+       "plan.sides"},
+      {R"({"state": "armed", "plan": {"sides": 2, "views_per_side": 3, "step_deg": "x"}, "sides": []})",
+       "plan.step_deg"},
+      {R"({"state": "armed", "plan": {"sides": 18446744073709551615, "views_per_side": 3}, "sides": []})",
+       "plan.sides"},
+      {R"({"state": "armed", )" + plan + R"(, "sides": [{"side": 1, "state": 5}]})",
+       "side's state"},
+      {R"({"state": "armed", )" + plan + R"(, "sides": [{"side": 1, "attempts": 2147483647}]})",
+       "attempts"},
+      {R"({"state": "armed", "resumes": "1", )" + plan + R"(, "sides": []})", "resumes"},
+      {R"({"state": "armed", "created_utc": 7, )" + plan + R"(, "sides": []})", "created_utc"},
+  };
+  for (const auto& [bad, field] : cases) {
+    ASSERT_TRUE(WriteFileAtomic(store.SampleDir("r") + "/sample.json", std::string_view(bad)));
+    auto rec = store.LoadRecord("r");
+    ASSERT_FALSE(rec.ok()) << bad;
+    EXPECT_EQ(rec.error().cls, ErrorClass::kCorrupt) << bad;
+    EXPECT_NE(rec.error().message.find(field), std::string::npos) << rec.error().message;
+    EXPECT_EQ(store.PrepareArm("r", SmallPlan()).error().cls, ErrorClass::kCorrupt);
+    EXPECT_FALSE(store.CreateOrResume("r", SmallPlan(), "cfg").ok());
+    EXPECT_TRUE(store.Recover().ok());
+    EXPECT_EQ((*store.List())[0]["state"], "unreadable");
+    EXPECT_TRUE(store.CapturedWork().empty());
+  }
+}
+
+TEST(SampleStore, WronglyTypedSidecarFieldsReadAsAbsent) {
+  TempDir t;
+  SampleStore store(t.path());
+  ASSERT_TRUE(store.Init());
+  ASSERT_TRUE(store.CreateOrResume("r", SmallPlan(), "cfg"));
+  ASSERT_TRUE(store.BeginSide("r", 1));
+  ASSERT_TRUE(store.WriteView(
+      "r", 1, 0, Bytes("x"),
+      {{"commanded_angle_deg", "zero"}, {"measured_angle_deg", 30.5}, {"capture_utc", 12}}));
+  auto d = store.Describe("r");
+  ASSERT_TRUE(d.ok()) << d.error().ToString();
+  const auto& view = (*d)["sides"][0]["captured_views"][0];
+  EXPECT_EQ(view["commanded_angle_deg"], 0.0);
+  EXPECT_EQ(view["measured_angle_deg"], 30.5);
+  EXPECT_EQ(view["capture_utc"], "");
+}
+
+TEST(SampleStore, DamagedCalibrationWithBytesThatAreNotUtf8IsRecordedNotThrown) {
+  // Found by the sample_json fuzzer: the parser's message quotes the damaged
+  // file's bytes, and the record holding that reason could not be written.
+  TempDir t;
+  SampleStore store(t.path());
+  ASSERT_TRUE(store.Init());
+  ASSERT_TRUE(WriteFileAtomic(t.path() + "/calibration.json",
+                              std::string_view("{\"format\": \"\xff\xfe\"}")));
+  ASSERT_TRUE(store.CreateOrResume("r", SmallPlan(), "cfg"));
+  auto rec = store.LoadRecord("r");
+  ASSERT_TRUE(rec.ok()) << rec.error().ToString();
+  EXPECT_TRUE((*rec)["calibration"]["file"].is_null());
+  const std::string reason = (*rec)["calibration"]["reason"].get<std::string>();
+  EXPECT_NE(reason.find("not valid JSON"), std::string::npos) << reason;
+  EXPECT_NE(reason.find("\xEF\xBF\xBD"), std::string::npos) << reason;  // U+FFFD for the bad bytes
+  EXPECT_FALSE(PathExists(store.SampleDir("r") + "/calibration.json"));
+}
+
 TEST(SampleStore, DirectoryWithoutRecordIsArmable) {
   // A crash between creating the directory and writing the record.
   TempDir t;
