@@ -455,7 +455,11 @@ void ModbusTurntable::DoClose() {
 
 Result<ModbusTurntable::Raw> ModbusTurntable::ReadRaw() {
   std::map<int, uint16_t> regs;
-  for (const auto& [first, count] : read_blocks_) {
+  for (const auto& block : read_blocks_) {
+    // Plain locals, not structured bindings: clang before 16 cannot capture
+    // those in a lambda, and the fuzz build uses Debian's clang 14.
+    const int first = block.first;
+    const int count = block.second;
     std::vector<uint16_t> buf(static_cast<size_t>(count));
     const std::string what = "reading status (register " + Hex(first) +
                              (count > 1 ? ".." + Hex(first + count - 1) : std::string()) + ")";
