@@ -477,7 +477,8 @@ TEST(SfmChecks, PointsBehindCamerasAndBadReprojectionRejected) {
 class FakeColmap : public ::testing::Test {
  protected:
   void SetUp() override {
-    cv::Mat img(48, 64, CV_8UC3, cv::Scalar(90, 120, 150));
+    // The smallest photo the image loader measures is 64 px a side.
+    cv::Mat img(96, 128, CV_8UC3, cv::Scalar(90, 120, 150));
     for (int i = 0; i < 3; ++i) {
       images_.push_back(tmp_.path() + "/in/view_00" + std::to_string(i) + ".png");
       std::filesystem::create_directories(tmp_.path() + "/in");
@@ -567,14 +568,14 @@ TEST_F(FakeColmap, InvalidOptionsListEveryProblem) {
 // fixed intrinsics at another resolution with the same aspect are rescaled.
 TEST_F(FakeColmap, MasksLinkedUnderColmapNamesAndCameraPassed) {
   std::vector<std::string> masks;
-  cv::Mat mask(48, 64, CV_8UC1, cv::Scalar(255));
+  cv::Mat mask(96, 128, CV_8UC1, cv::Scalar(255));
   for (int i = 0; i < 3; ++i) {
     masks.push_back(tmp_.path() + "/in/mask_" + std::to_string(i) + ".png");
     ASSERT_TRUE(cv::imwrite(masks.back(), mask));
   }
   auto o = Options(Script("exit 0"));
   o.masks = masks;
-  CameraModel cam = TestCamera();  // 640x480 -> images are 64x48
+  CameraModel cam = TestCamera();  // 640x480 -> images are 128x96
   o.fixed_camera = cam;
   (void)RunColmapSfm(o);
   for (int i = 0; i < 3; ++i) {
@@ -584,7 +585,7 @@ TEST_F(FakeColmap, MasksLinkedUnderColmapNamesAndCameraPassed) {
   }
   const std::string log = *ReadFile(o.workspace + "/logs/feature_extractor.log");
   EXPECT_NE(log.find("--ImageReader.camera_model PINHOLE --"), std::string::npos) << log;
-  EXPECT_NE(log.find("--ImageReader.camera_params 80,80,32,24"), std::string::npos) << log;
+  EXPECT_NE(log.find("--ImageReader.camera_params 160,160,64,48"), std::string::npos) << log;
   EXPECT_NE(log.find("--ImageReader.mask_path " + o.workspace + "/masks"), std::string::npos);
 
   CameraModel wrong = cam;
