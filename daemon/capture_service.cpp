@@ -34,6 +34,13 @@ constexpr auto kApiWait = std::chrono::seconds(5);
 // Failed jobs listed in the status (newest first); the total is counted too.
 constexpr int kStatusFailedJobs = 20;
 
+// One worker job as the status, sample and retry answers show it.
+json JobJson(const Job& j) {
+  return {{"sample_id", j.sample_id}, {"side", j.side},   {"state", j.state},
+          {"attempts", j.attempts},   {"interruptions", j.interruptions}, {"error", j.error},
+          {"updated_utc", j.updated_utc}};
+}
+
 SamplePlan PlanFromConfig(const Config& c) {
   SamplePlan p;
   p.profile = c.capture.profile;
@@ -998,13 +1005,7 @@ json CaptureService::StatusOnLoop() const {
     if (d) depth = *d;
     // Failed jobs wait for an operator: shown until retried.
     if (auto f = queue_->FailedJobs(kStatusFailedJobs)) {
-      for (const Job& j : *f) {
-        failed.push_back({{"sample_id", j.sample_id},
-                          {"side", j.side},
-                          {"attempts", j.attempts},
-                          {"error", j.error},
-                          {"updated_utc", j.updated_utc}});
-      }
+      for (const Job& j : *f) failed.push_back(JobJson(j));
     }
     failed_total = static_cast<int>(failed.size());
     // Counted only when the list is cut: the status is polled on the loop.
@@ -1142,13 +1143,7 @@ Result<json> CaptureService::GetSample(const std::string& sample_id) {
     auto jobs = OnLoop([this, sample_id]() -> Result<std::vector<Job>> { return queue_->JobsForSample(sample_id); });
     if (jobs) {
       json js = json::array();
-      for (const Job& j : *jobs) {
-        js.push_back({{"side", j.side},
-                      {"state", j.state},
-                      {"attempts", j.attempts},
-                      {"interruptions", j.interruptions},
-                      {"error", j.error}});
-      }
+      for (const Job& j : *jobs) js.push_back(JobJson(j));
       out["jobs"] = js;
     }
   }
@@ -1166,9 +1161,7 @@ Result<json> CaptureService::Retry(const std::string& sample_id) {
             "retry: " + std::to_string(*n) + " failed job(s) back in the worker's queue");
     json out = {{"sample_id", sample_id}, {"requeued", *n}, {"jobs", json::array()}};
     if (auto jobs = queue_->JobsForSample(sample_id)) {
-      for (const Job& j : *jobs) {
-        out["jobs"].push_back({{"side", j.side}, {"state", j.state}, {"attempts", j.attempts}, {"error", j.error}});
-      }
+      for (const Job& j : *jobs) out["jobs"].push_back(JobJson(j));
     }
     return out;
   });
