@@ -12,6 +12,9 @@
 #include <fstream>
 #include <sstream>
 
+#include <opencv2/imgcodecs.hpp>
+
+#include "cli/blender_render.h"
 #include "cli/sim_capture.h"
 #include "common/fsutil.h"
 #include "common/mesh.h"
@@ -22,6 +25,7 @@
 #include "drivers/sim/world.h"
 #include "pipeline/calibrate.h"
 #include "pipeline/reconstruct.h"
+#include "pipeline/side_job.h"
 
 namespace aggscan {
 
@@ -115,12 +119,52 @@ json Realism(const Config& c, int sides) {
 }
 
 // The sim rig's set-up where it differs from the config's (the tripod moved
-// back for big rocks), as a [sim] table; empty when it does not.
+// back for big rocks; no lens distortion under Blender, whose camera is a
+// pinhole), as a [sim] table; empty when it does not.
 std::string RigToml(const ValidateOptions& o) {
-  if (o.camera_distance_mm <= 0) return "";
+  const bool blender = o.renderer == "blender";
+  if (o.camera_distance_mm <= 0 && !blender) return "";
   std::ostringstream t;
-  t << "[sim]\ncamera_distance_mm = " << o.camera_distance_mm << "\n";
+  t << "[sim]\n";
+  if (o.camera_distance_mm > 0) t << "camera_distance_mm = " << o.camera_distance_mm << "\n";
+  if (blender) t << "k1 = 0.0\nk2 = 0.0\n";
   return t.str();
+}
+
+BlenderOptions BlenderOpts(const ValidateOptions& o) {
+  BlenderOptions b;
+  b.samples = o.samples;
+  return b;
+}
+
+// The look of rock i: the one given, or the batch's variety.
+BlenderLook LookFor(const ValidateOptions& o, int i) {
+  if (!o.look.empty()) {
+    auto l = ParseBlenderLook(o.look);
+    if (l) return *l;  // checked when the options were parsed
+  }
+  return BatchLook(i, o.seed + static_cast<uint64_t>(i));
+}
+
+// The worker's masks of a reconstructed sample against its truth masks.
+void MaskIou(const std::string& sample_dir, const json& truth, double* iou_min, double* iou_mean) {
+  double sum = 0, lo = 1;
+  int n = 0;
+  for (const json& v : truth.value("views", json::array())) {
+    if (!v.is_object() || !v.contains("side") || !v.contains("view") || !v.contains("mask")) continue;
+    const cv::Mat t = cv::imread(sample_dir + "/" + v["mask"].get<std::string>(), cv::IMREAD_GRAYSCALE);
+    const cv::Mat m =
+        cv::imread(ViewMaskPath(sample_dir, v["side"].get<int>(), v["view"].get<int>()), cv::IMREAD_GRAYSCALE);
+    if (t.empty() || m.empty() || t.size() != m.size()) continue;
+    const cv::Mat a = t > 127, b = m > 127;
+    const int uni = cv::countNonZero(a | b);
+    const double iou = uni > 0 ? static_cast<double>(cv::countNonZero(a & b)) / uni : 1.0;
+    sum += iou;
+    lo = std::min(lo, iou);
+    ++n;
+  }
+  *iou_min = n > 0 ? lo : 0;
+  *iou_mean = n > 0 ? sum / n : 0;
 }
 
 // Writes the capture config: the study's protocol with the chosen sides and views.
@@ -139,6 +183,7 @@ Result<json> MakeCalibration(const ValidateOptions& o, const std::string& work, 
   const int h = o.height > 0 ? o.height : defaults.camera.height;
   Config c;
   if (o.camera_distance_mm > 0) c.sim.camera_distance_mm = o.camera_distance_mm;
+  if (o.renderer == "blender") c.sim.k1 = c.sim.k2 = 0;
   sim::SimWorld world(c);  // the rig geometry does not depend on the rock
   const RigCalibration truth = world.TruthCalibration(w, h);
   if (o.calibration == "truth") {
@@ -164,6 +209,16 @@ Result<json> MakeCalibration(const ValidateOptions& o, const std::string& work, 
     return MakeError(ErrorClass::kInternal, "the simulated calibration capture failed: " + cerr_.str() +
                                                 "; try --calibration truth to validate without it");
   }
+  json rendered;
+  if (o.renderer == "blender") {
+    // The board's photos drawn by Blender as well, in the first rock's look.
+    auto b = RerenderWithBlender(cap.out, LookFor(o, 0), BlenderOpts(o), log);
+    if (!b) {
+      return MakeError(b.error().cls, "the Blender calibration capture failed: " + b.error().message +
+                                          "; try --calibration truth to validate without it");
+    }
+    rendered = b->ToJson();
+  }
   auto r = CalibrateSampleSide(cap.out, 1, c.calibration);
   if (!r) {
     return MakeError(r.error().cls, "calibration from the simulated board failed: " + r.error().message +
@@ -181,7 +236,7 @@ Result<json> MakeCalibration(const ValidateOptions& o, const std::string& work, 
                 r->cal.views_used, r->cal.reprojection_rms_px, fx_err, centre_err,
                 r->k2_estimated ? "estimated" : "fixed at 0", Seconds(t0));
   log << line << std::flush;
-  return json{{"method", "charuco"},
+  json out{{"method", "charuco"},
               {"note", "simulated ChArUco capture on the disc, solved by aggscan calibrate's solver"},
               {"views_used", r->cal.views_used},
               {"reprojection_rms_px", r->cal.reprojection_rms_px},
@@ -191,6 +246,8 @@ Result<json> MakeCalibration(const ValidateOptions& o, const std::string& work, 
               {"k2", r->cal.camera.k2},
               {"k2_estimated", r->k2_estimated},
               {"seconds", Seconds(t0)}};
+  if (!rendered.is_null()) out["renderer"] = rendered;
+  return out;
 }
 
 struct RockInput {
@@ -247,8 +304,8 @@ RockInput PrepareMesh(const std::string& file, const ValidateOptions& o, double 
   return in;
 }
 
-void RunRock(const RockInput& in, const ValidateOptions& o, const std::string& work, const std::string& cfg,
-             const std::string& calibration, ValidateRock* row, std::ostream& log) {
+void RunRock(const RockInput& in, int index, const ValidateOptions& o, const std::string& work,
+             const std::string& cfg, const std::string& calibration, ValidateRock* row, std::ostream& log) {
   const auto t0 = std::chrono::steady_clock::now();
   row->id = in.id;
   row->source = in.source;
@@ -279,6 +336,23 @@ void RunRock(const RockInput& in, const ValidateOptions& o, const std::string& w
     log << "rock " << in.id << ": " << row->message << "\n" << std::flush;
     return;
   }
+  if (o.renderer == "blender") {
+    const BlenderLook look = LookFor(o, index);
+    row->look = look.Name();
+    auto b = RerenderWithBlender(cap.out, look, BlenderOpts(o), log);
+    if (!b) {
+      row->status = "failed";
+      row->message = "blender: " + b.error().ToString();
+      row->seconds = Seconds(t0);
+      log << "rock " << in.id << ": " << row->message << "\n" << std::flush;
+      return;
+    }
+    row->render_frame_s = b->mean_frame_s;
+    char line[200];
+    std::snprintf(line, sizeof line, "rock %s: %d frames rendered (%s), %.1f s a frame, silhouettes vs the sim's IoU "
+                  "%.4f min\n", in.id.c_str(), b->frames, look.Name().c_str(), b->mean_frame_s, b->silhouette_iou_min);
+    log << line << std::flush;
+  }
   auto truth_text = ReadFile(cap.out + "/truth.json");
   json truth = truth_text ? json::parse(*truth_text, nullptr, false) : json();
   if (!truth.is_object()) {
@@ -302,6 +376,7 @@ void RunRock(const RockInput& in, const ValidateOptions& o, const std::string& w
     return;
   }
   row->rec = FiguresFrom(m->value("morphology_3d", json::object()));
+  MaskIou(cap.out, truth, &row->mask_iou_min, &row->mask_iou_mean);
   row->status = "ok";
   row->seconds = Seconds(t0);
   char b[200];
@@ -346,8 +421,10 @@ DimErrors DimsAgainstTruth(const RockFigures& truth, const RockFigures& rec) {
 
 ValidateSummary Summarize(const std::vector<ValidateRock>& rocks, const ValidateTargets& t) {
   ValidateSummary s;
-  double sum = 0, sum_abs = 0, sum_area = 0;
+  double sum = 0, sum_abs = 0, sum_area = 0, sum_iou = 0, sum_render = 0;
+  int n_iou = 0, n_render = 0;
   for (const ValidateRock& r : rocks) {
+    if (r.render_frame_s > 0) sum_render += r.render_frame_s, ++n_render;
     if (r.status == "skipped") ++s.rocks_skipped;
     if (r.status == "failed") ++s.rocks_failed;
     if (r.status != "ok") continue;
@@ -366,6 +443,11 @@ ValidateSummary Summarize(const std::vector<ValidateRock>& rocks, const Validate
     const double raw = DimsAgainstMinimumBox(r.truth, r.rec).MaxAbs();
     s.dims_raw_max_abs_pct = std::max(s.dims_raw_max_abs_pct, raw);
     if (raw <= t.dims_pct) ++s.dims_raw_within;
+    if (r.mask_iou_mean > 0) {
+      s.mask_iou_min = n_iou == 0 ? r.mask_iou_min : std::min(s.mask_iou_min, r.mask_iou_min);
+      sum_iou += r.mask_iou_mean;
+      ++n_iou;
+    }
     s.sphericity_max_abs = std::max(s.sphericity_max_abs, std::fabs(r.rec.sphericity - r.truth.sphericity));
   }
   if (s.rocks_ok > 0) {
@@ -373,6 +455,8 @@ ValidateSummary Summarize(const std::vector<ValidateRock>& rocks, const Validate
     s.volume_mape_pct = sum_abs / s.rocks_ok;
     s.area_mpe_pct = sum_area / s.rocks_ok;
   }
+  if (n_iou > 0) s.mask_iou_mean = sum_iou / n_iou;
+  if (n_render > 0) s.render_frame_s = sum_render / n_render;
   const bool any = s.rocks_ok > 0;
   s.volume_mpe_pass = any && std::fabs(s.volume_mpe_pct) <= t.volume_mpe_pct;
   s.volume_mape_pass = any && s.volume_mape_pct <= t.volume_mape_pct;
@@ -411,6 +495,12 @@ Result<ValidateReport> RunValidation(const ValidateOptions& o, std::ostream& log
   if (!cal) return cal.error();
 
   Config effective;
+  if (o.renderer == "blender") {
+    // Blender's camera has no lens distortion, and its noise is the path
+    // tracer's, not the sim's sensor model.
+    effective.sim.k1 = effective.sim.k2 = 0;
+    effective.sim.noise_sigma = 0;
+  }
   rep.settings = {{"width", o.width > 0 ? o.width : effective.camera.width},
                   {"height", o.height > 0 ? o.height : effective.camera.height},
                   {"sides", o.sides},
@@ -420,6 +510,11 @@ Result<ValidateReport> RunValidation(const ValidateOptions& o, std::ostream& log
                   {"step_deg", kStepDeg},
                   {"calibration", *cal},
                   {"masks", "computed by the worker (classical segmentation), not the sim's truth masks"},
+                  {"renderer", o.renderer == "blender"
+                                   ? json{{"name", "blender"}, {"samples_per_pixel", o.samples},
+                                          {"look", o.look.empty() ? json("the batch's variety (BatchLook)") : json(o.look)},
+                                          {"lens_distortion", "none (pinhole)"}}
+                                   : json{{"name", "sim"}}},
                   {"sim_realism", Realism(effective, o.sides)},
                   {"work_dir", temporary ? std::string() : work}};
 
@@ -444,7 +539,7 @@ Result<ValidateReport> RunValidation(const ValidateOptions& o, std::ostream& log
   }
   for (const RockInput& in : inputs) {
     ValidateRock row;
-    RunRock(in, o, work, cfg, cal_path, &row, log);
+    RunRock(in, static_cast<int>(rep.rocks.size()), o, work, cfg, cal_path, &row, log);
     rep.rocks.push_back(std::move(row));
   }
   rep.summary = Summarize(rep.rocks, rep.targets);
@@ -454,10 +549,14 @@ Result<ValidateReport> RunValidation(const ValidateOptions& o, std::ostream& log
 void PrintValidateReport(const ValidateReport& r, std::ostream& out) {
   const json& st = r.settings;
   char b[512];
-  std::snprintf(b, sizeof b, "aggscan validate: %s, %d side(s) x %d views at %dx%d, calibration %s, computed masks\n",
+  std::snprintf(b, sizeof b,
+                "aggscan validate: %s, %d side(s) x %d views at %dx%d, calibration %s, computed masks, photos by %s\n",
                 r.options.mesh_dir.empty() ? "procedural rocks" : ("meshes in " + r.options.mesh_dir).c_str(),
                 r.options.sides, r.options.views_per_side, st.value("width", 0), st.value("height", 0),
-                st["calibration"].value("method", "").c_str());
+                st["calibration"].value("method", "").c_str(),
+                r.options.renderer == "blender"
+                    ? ("Blender Cycles, " + std::to_string(r.options.samples) + " samples/px").c_str()
+                    : "the sim renderer");
   out << b;
   const json& re = st["sim_realism"];
   std::snprintf(b, sizeof b,
@@ -489,6 +588,16 @@ void PrintValidateReport(const ValidateReport& r, std::ostream& out) {
                   k.rec.a_mm, k.truth.b_mm, k.rec.b_mm, k.truth.c_mm, k.rec.c_mm, k.truth.sphericity,
                   k.rec.sphericity);
     out << b;
+    if (!k.look.empty() || k.mask_iou_mean > 0) {
+      std::snprintf(b, sizeof b, "    %s%smasks vs true silhouettes IoU min %.4f mean %.4f", k.look.c_str(),
+                    k.look.empty() ? "" : ": ", k.mask_iou_min, k.mask_iou_mean);
+      out << b;
+      if (k.render_frame_s > 0) {
+        std::snprintf(b, sizeof b, ", %.1f s a frame", k.render_frame_s);
+        out << b;
+      }
+      out << "\n";
+    }
     if (const DimErrors d = DimsAgainstTruth(k.truth, k.rec); d.NearBox()) {
       out << "    a, b, c ill-conditioned: " << BoxName("the truth's", k.truth, d.truth_box) << " against "
           << BoxName("the reconstruction's", k.rec, d.rec_box);
@@ -525,6 +634,15 @@ void PrintValidateReport(const ValidateReport& r, std::ostream& out) {
   out << b;
   std::snprintf(b, sizeof b, "area MPE          %+7.2f %%   (no target)\n", s.area_mpe_pct);
   out << b;
+  if (s.mask_iou_mean > 0) {
+    std::snprintf(b, sizeof b, "masks vs true silhouettes: IoU min %.4f, mean %.4f (per rock mean)\n", s.mask_iou_min,
+                  s.mask_iou_mean);
+    out << b;
+  }
+  if (s.render_frame_s > 0) {
+    std::snprintf(b, sizeof b, "render time: %.2f s a frame (mean over rocks)\n", s.render_frame_s);
+    out << b;
+  }
   out << "result: " << verdict(s.pass);
   if (s.rocks_failed > 0) out << " (" << s.rocks_failed << " rock(s) failed to capture or reconstruct)";
   if (s.rocks_ok == 0) out << " (no rock measured)";
@@ -551,6 +669,9 @@ json ValidateReportToJson(const ValidateReport& r) {
                      {"sphericity", k.rec.sphericity - k.truth.sphericity}};
     }
     if (k.seconds > 0) j["seconds"] = k.seconds;
+    if (!k.look.empty()) j["look"] = k.look;
+    if (k.render_frame_s > 0) j["render_frame_seconds"] = k.render_frame_s;
+    if (k.mask_iou_mean > 0) j["mask_iou"] = {{"min", k.mask_iou_min}, {"mean", k.mask_iou_mean}};
     rocks.push_back(std::move(j));
   }
   const ValidateSummary& s = r.summary;
@@ -573,7 +694,10 @@ json ValidateReportToJson(const ValidateReport& r) {
             {"dims_matched_through_near_minimal_box", s.dims_near_box},
             {"dims_within_target_minimum_boxes_only", s.dims_raw_within},
             {"dims_max_abs_error_against_minimum_box_pct", s.dims_raw_max_abs_pct},
-            {"sphericity_max_abs_error", s.sphericity_max_abs}}},
+            {"sphericity_max_abs_error", s.sphericity_max_abs},
+            {"mask_iou_min", s.mask_iou_min},
+            {"mask_iou_mean", s.mask_iou_mean},
+            {"render_frame_seconds", s.render_frame_s}}},
           {"targets",
            {{"volume_abs_mpe_pct", t.volume_mpe_pct},
             {"volume_mape_pct", t.volume_mape_pct},
@@ -590,7 +714,8 @@ json ValidateReportToJson(const ValidateReport& r) {
 void PrintValidateUsage(std::ostream& o) {
   o << "  aggscan validate [--count N] [--seed S] [--mesh-dir DIR --unit mm|cm|m [--scale-to-mm L|LO:HI]]\n"
        "                   [--sides 1|2] [--views N] [--width W --height H] [--calibration charuco|truth]\n"
-       "                   [--camera-distance-mm D] [--json] [--keep DIR]\n"
+       "                   [--camera-distance-mm D] [--renderer sim|blender [--look SPEC] [--samples N]]\n"
+       "                   [--json] [--keep DIR]\n"
        "      accuracy harness: simulated two-side captures (noise, distortion, JPEG, turntable\n"
        "      errors, flip) of N procedural rocks (default 20, seeds S..S+N-1) or of every mesh in\n"
        "      DIR scaled so its longest dimension is L mm (LO..HI spread over the files),\n"
@@ -599,6 +724,12 @@ void PrintValidateUsage(std::ostream& o) {
        "      JSON); calibration from a simulated ChArUco capture unless --calibration truth;\n"
        "      --camera-distance-mm: the sim rig's tripod distance from the disc centre (default\n"
        "      650 mm frames rocks up to ~20 cm in every pose; ~800 mm for 20-25 cm rocks);\n"
+       "      --renderer blender: every photo redrawn by Blender's Cycles path tracer (Debian's\n"
+       "      blender, CPU) from the same poses, in a look per rock that cycles the disc/floor\n"
+       "      (white, light-grey, wood, rubber-mat, gravel), the light (softbox, two-lights,\n"
+       "      overcast, low-sun) and the stone (granite, dolomite, basalt, wet), or the one\n"
+       "      --look surface=S,light=L,stone=T gives; markers drawn like coloured pencil;\n"
+       "      --samples: Cycles samples per pixel (default 16); render time per frame is reported;\n"
        "      exit 0 all targets met, 1 a target missed or a rock failed, 2 usage\n";
 }
 
@@ -663,6 +794,23 @@ int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, 
     } else if (a == "--calibration") {
       if (!has_value) return need("charuco or truth");
       o.calibration = args[++i];
+    } else if (a == "--renderer") {
+      if (!has_value) return need("sim or blender");
+      o.renderer = args[++i];
+    } else if (a == "--look") {
+      if (!has_value) return need("a look, e.g. surface=wood,light=low-sun,stone=dolomite");
+      o.look = args[++i];
+      if (auto l = ParseBlenderLook(o.look); !l) {
+        err << "aggscan validate: --look: " << l.error().message << "\n";
+        return 2;
+      }
+    } else if (a == "--samples") {
+      if (!has_value) return need("a number of samples per pixel");
+      if (!ParseCount(args[++i], &n) || n < 1 || n > 4096) {
+        err << "aggscan validate: --samples expects 1..4096 samples per pixel, got '" << args[i] << "'\n";
+        return 2;
+      }
+      o.samples = static_cast<int>(n);
     } else if (a == "--keep") {
       if (!has_value) return need("a new folder");
       o.keep = args[++i];
@@ -670,6 +818,14 @@ int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, 
       err << "aggscan validate: unknown option '" << a << "'\n";
       return 2;
     }
+  }
+  if (o.renderer != "sim" && o.renderer != "blender") {
+    err << "aggscan validate: --renderer must be sim or blender, got '" << o.renderer << "'\n";
+    return 2;
+  }
+  if (o.renderer != "blender" && !o.look.empty()) {
+    err << "aggscan validate: --look applies to --renderer blender only\n";
+    return 2;
   }
   if (o.sides > 2) {
     err << "aggscan validate: --sides must be 1 or 2\n";

@@ -35,6 +35,13 @@ struct ValidateOptions {
   std::string calibration = "charuco";  // charuco: calibrate from a simulated board capture;
                                         // truth: the sim's exact calibration
   std::string keep;               // keep every sample under this new folder (empty: temporary)
+  // The renderer of the photos: sim (the sim rig's own) or blender (every
+  // view redrawn by Blender's Cycles from the same poses, cli/blender_render.h;
+  // the sim's lens distortion is off then, Blender's camera is a pinhole).
+  std::string renderer = "sim";
+  std::string look;               // blender: one look for every rock ("surface=wood,light=low-sun,...");
+                                  // empty: BatchLook(i) per rock, the variety cycled
+  int samples = 16;               // blender: Cycles samples per pixel
 };
 
 /// Targets of issue 3 item 9.
@@ -85,6 +92,11 @@ struct ValidateRock {
   double scale = 1;      // mesh rocks: factor applied to the file (after its unit)
   RockFigures truth, rec;
   double seconds = 0;    // capture + reconstruction, wall time
+  std::string look;      // blender: the look's name (surface/light/stone)
+  double render_frame_s = 0;  // blender: mean seconds per rendered frame
+  // The worker's masks against the renderer's true silhouettes, over every
+  // view (0 when not measured).
+  double mask_iou_min = 0, mask_iou_mean = 0;
 };
 
 struct ValidateSummary {
@@ -97,6 +109,8 @@ struct ValidateSummary {
   double dims_raw_max_abs_pct = 0;  // minimum box against minimum box only
   int dims_raw_within = 0;          // ... rocks within the target that way
   double sphericity_max_abs = 0;
+  double mask_iou_min = 0, mask_iou_mean = 0;  // over every view of every measured rock
+  double render_frame_s = 0;                   // blender: mean seconds per frame
   bool volume_mpe_pass = false, volume_mape_pass = false, dims_pass = false, sphericity_pass = false;
   bool pass = false;  // every target met, no rock failed, at least one rock measured
 };

@@ -56,6 +56,9 @@ PACKAGES=(
   # disk image (e2fsprogs: mkfs, e2fsck, debugfs) served by nbdkit, whose
   # cache filter is the disk's volatile write cache
   e2fsprogs nbdkit
+  # `aggscan validate --renderer blender` and its test: Blender's Cycles path
+  # tracer (CPU, headless) redraws simulated captures as an independent renderer
+  blender
   # USB turntable controllers (libusb), start buttons (libgpiod v1, evdev),
   # the libcamera camera backend (and its IPA modules, which vimc needs)
   libusb-1.0-0-dev libgpiod-dev libevdev-dev libcamera-dev libcamera-ipa
