@@ -267,15 +267,21 @@ Result<BlenderLook> ParseBlenderLook(const std::string& spec) {
 }
 
 BlenderLook BatchLook(int i, uint64_t seed) {
+  // Surfaces and lights cycle (5 and 4 values: 20 rocks see every pairing);
+  // the stones are laid out so that the first ten rocks have every stone,
+  // a dark basalt on the dark rubber mat and a yellowish dolomite on wood
+  // among them, and every stone meets four surfaces over twenty rocks.
+  static const char* const kStones[20] = {"granite", "dolomite", "dolomite", "basalt", "wet",
+                                          "basalt",  "wet",      "granite",  "wet",    "dolomite",
+                                          "wet",     "basalt",   "granite",  "dolomite", "granite",
+                                          "dolomite", "granite", "basalt",   "basalt", "wet"};
   const auto& s = BlenderSurfaces();
   const auto& l = BlenderLights();
-  const auto& t = BlenderStones();
   BlenderLook look;
   const size_t k = static_cast<size_t>(i);
   look.surface = s[k % s.size()];
   look.light = l[k % l.size()];
-  // Stones step every 5 rocks as well, so a stone does not stay on one light.
-  look.stone = t[(k + k / s.size()) % t.size()];
+  look.stone = kStones[k % 20];
   look.seed = seed + k;
   return look;
 }

@@ -46,9 +46,9 @@ const std::vector<std::string>& BlenderStones();
 /// kInvalidArgument naming the unknown key or value and the known ones.
 Result<BlenderLook> ParseBlenderLook(const std::string& spec);
 
-/// The i-th look of a batch: surfaces, lights and stones each cycled (5, 4
-/// and 4 values), so any 20 consecutive rocks see every pairing of a surface
-/// with a light and every stone on four surfaces.
+/// The i-th look of a batch: surfaces and lights cycled (5 and 4 values), so
+/// 20 rocks see every pairing; stones laid out so that the first 10 have every
+/// stone, basalt on the rubber mat and dolomite on wood among them.
 BlenderLook BatchLook(int i, uint64_t seed);
 
 struct BlenderOptions {

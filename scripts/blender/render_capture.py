@@ -515,7 +515,7 @@ def build_scene(scene_dir, s):
     }
     platter = bpy.data.objects.new("platter", None)
     scene.collection.objects.link(platter)
-    add_object("disc", disc_mesh(radius, thick), disc_mats[surface](), platter)
+    disc = add_object("disc", disc_mesh(radius, thick), disc_mats[surface](), platter)
     rim = add_object("rim-floor", rect_mesh("floor", 10.0, 10.0, -thick), floor_mats[surface]())
     rim.name = "floor"
     for lb in s.get("labels", []):
@@ -594,18 +594,24 @@ def build_scene(scene_dir, s):
         mask_out.format.color_mode = "BW"
         mask_out.format.color_depth = "8"
         tree.links.new(idm.outputs["Alpha"], mask_out.inputs[0])
-    return scene, platter, rock, mask_out
+    return scene, platter, rock, disc, mask_out
 
 
-def auto_exposure(scene, scene_dir, platter, rock, view):
-    """The exposure a camera's metering would pick for the first view: the
-    98th percentile of the frame's luminance at 0.8 of white."""
+def auto_exposure(scene, scene_dir, platter, rock, disc, view):
+    """The exposure an operator sets with a white card: with the rock away and
+    a white diffuse card (albedo 0.9) over the disc, the middle of the frame
+    (the disc's centre) renders at 0.75 of white, so that paper, labels and a
+    pale stone do not clip, and a dark stone on a dark mat stays dark."""
     pose(platter, rock, view)
     r = scene.render
     saved = (r.resolution_percentage, scene.cycles.samples, r.image_settings.file_format,
              r.image_settings.color_depth, r.image_settings.color_mode)
+    disc_mat = disc.material_slots[0].material
+    disc.material_slots[0].material = plain_material("white-card", (0.9, 0.9, 0.9), 0.9)
+    if rock is not None:
+        rock.hide_render = True
     r.resolution_percentage = 25
-    scene.cycles.samples = 8
+    scene.cycles.samples = 16
     r.image_settings.file_format = "OPEN_EXR"
     r.image_settings.color_depth = "32"
     r.image_settings.color_mode = "RGB"
@@ -614,16 +620,25 @@ def auto_exposure(scene, scene_dir, platter, rock, view):
     r.filepath = path
     bpy.ops.render.render(write_still=True)
     img = bpy.data.images.load(path)
-    px = list(img.pixels)
-    lum = sorted(0.2126 * px[i] + 0.7152 * px[i + 1] + 0.0722 * px[i + 2] for i in range(0, len(px), 4))
+    w, h = img.size
+    px = img.pixels[:]
+    lum = []
+    for y in range(int(0.4 * h), int(0.6 * h)):
+        for x in range(int(0.4 * w), int(0.6 * w)):
+            i = 4 * (y * w + x)
+            lum.append(0.2126 * px[i] + 0.7152 * px[i + 1] + 0.0722 * px[i + 2])
     bpy.data.images.remove(img)
     os.remove(path)
     (r.resolution_percentage, scene.cycles.samples, r.image_settings.file_format, r.image_settings.color_depth,
      r.image_settings.color_mode) = saved
-    p98 = lum[int(0.98 * (len(lum) - 1))]
-    if p98 <= 0:
-        fail("the exposure probe rendered a black frame; check the lights")
-    return math.log2(0.8 / p98)
+    disc.material_slots[0].material = disc_mat
+    if rock is not None:
+        rock.hide_render = False
+    lum.sort()
+    median = lum[len(lum) // 2] if lum else 0.0
+    if median <= 0:
+        fail("the exposure probe rendered the white card black; check the lights")
+    return math.log2(0.75 / median)
 
 
 def pose(platter, rock, view):
@@ -647,10 +662,10 @@ def main():
     views = s.get("views", [])
     if not views:
         fail("scene.json has no views")
-    scene, platter, rock, mask_out = build_scene(scene_dir, s)
+    scene, platter, rock, disc, mask_out = build_scene(scene_dir, s)
     exposure = s["render"].get("exposure")
     if exposure is None:
-        exposure = auto_exposure(scene, scene_dir, platter, rock, views[0])
+        exposure = auto_exposure(scene, scene_dir, platter, rock, disc, views[0])
     scene.view_settings.exposure = exposure
     times = []
     for v in views:
