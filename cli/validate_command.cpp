@@ -143,7 +143,8 @@ BlenderLook LookFor(const ValidateOptions& o, int i) {
     auto l = ParseBlenderLook(o.look);
     if (l) return *l;  // checked when the options were parsed
   }
-  return BatchLook(i, o.seed + static_cast<uint64_t>(i));
+  const int k = o.look_index + i;
+  return BatchLook(k, o.seed + static_cast<uint64_t>(k));
 }
 
 // The worker's masks of a reconstructed sample against its truth masks.
@@ -714,7 +715,8 @@ json ValidateReportToJson(const ValidateReport& r) {
 void PrintValidateUsage(std::ostream& o) {
   o << "  aggscan validate [--count N] [--seed S] [--mesh-dir DIR --unit mm|cm|m [--scale-to-mm L|LO:HI]]\n"
        "                   [--sides 1|2] [--views N] [--width W --height H] [--calibration charuco|truth]\n"
-       "                   [--camera-distance-mm D] [--renderer sim|blender [--look SPEC] [--samples N]]\n"
+       "                   [--camera-distance-mm D] [--renderer sim|blender [--look SPEC|--look-index K]\n"
+       "                   [--samples N]]\n"
        "                   [--json] [--keep DIR]\n"
        "      accuracy harness: simulated two-side captures (noise, distortion, JPEG, turntable\n"
        "      errors, flip) of N procedural rocks (default 20, seeds S..S+N-1) or of every mesh in\n"
@@ -728,7 +730,8 @@ void PrintValidateUsage(std::ostream& o) {
        "      blender, CPU) from the same poses, in a look per rock that cycles the disc/floor\n"
        "      (white, light-grey, wood, rubber-mat, gravel), the light (softbox, two-lights,\n"
        "      overcast, low-sun) and the stone (granite, dolomite, basalt, wet), or the one\n"
-       "      --look surface=S,light=L,stone=T gives; markers drawn like coloured pencil;\n"
+       "      --look surface=S,light=L,stone=T gives (--look-index K: start the cycle at look K);\n"
+       "      object markers drawn like coloured pencil;\n"
        "      --samples: Cycles samples per pixel (default 16); render time per frame is reported;\n"
        "      exit 0 all targets met, 1 a target missed or a rock failed, 2 usage\n";
 }
@@ -811,6 +814,13 @@ int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, 
         return 2;
       }
       o.samples = static_cast<int>(n);
+    } else if (a == "--look-index") {
+      if (!has_value) return need("a look number");
+      if (!ParseCount(args[++i], &n) || n > 1000) {
+        err << "aggscan validate: --look-index expects 0..1000, got '" << args[i] << "'\n";
+        return 2;
+      }
+      o.look_index = static_cast<int>(n);
     } else if (a == "--keep") {
       if (!has_value) return need("a new folder");
       o.keep = args[++i];
@@ -823,8 +833,8 @@ int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, 
     err << "aggscan validate: --renderer must be sim or blender, got '" << o.renderer << "'\n";
     return 2;
   }
-  if (o.renderer != "blender" && !o.look.empty()) {
-    err << "aggscan validate: --look applies to --renderer blender only\n";
+  if (o.renderer != "blender" && (!o.look.empty() || o.look_index > 0)) {
+    err << "aggscan validate: --look and --look-index apply to --renderer blender only\n";
     return 2;
   }
   if (o.sides > 2) {

@@ -42,6 +42,7 @@ struct ValidateOptions {
   std::string look;               // blender: one look for every rock ("surface=wood,light=low-sun,...");
                                   // empty: BatchLook(i) per rock, the variety cycled
   int samples = 16;               // blender: Cycles samples per pixel
+  int look_index = 0;             // blender: BatchLook index of the first rock (to continue a batch)
 };
 
 /// Targets of issue 3 item 9.

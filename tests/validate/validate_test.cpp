@@ -125,6 +125,14 @@ TEST(ValidateCommand, UsageErrorsExit2) {
       << err;
   EXPECT_EQ(RunCmd({"--camera-distance-mm", "far"}), 2);
   EXPECT_EQ(RunCmd({"--camera-distance-mm"}), 2);
+  EXPECT_EQ(RunCmd({"--renderer", "povray"}, nullptr, &err), 2);
+  EXPECT_NE(err.find("--renderer must be sim or blender, got 'povray'"), std::string::npos) << err;
+  EXPECT_EQ(RunCmd({"--look", "stone=basalt"}, nullptr, &err), 2);
+  EXPECT_NE(err.find("apply to --renderer blender only"), std::string::npos) << err;
+  EXPECT_EQ(RunCmd({"--renderer", "blender", "--look", "light=moon"}, nullptr, &err), 2);
+  EXPECT_NE(err.find("light 'moon' is not one of softbox, two-lights, overcast, low-sun"), std::string::npos) << err;
+  EXPECT_EQ(RunCmd({"--renderer", "blender", "--samples", "0"}, nullptr, &err), 2);
+  EXPECT_NE(err.find("--samples expects 1..4096"), std::string::npos) << err;
 }
 
 TEST(ValidateCommand, BadMeshDirSaysWhatIsWrong) {
