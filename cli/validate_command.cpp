@@ -10,8 +10,10 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <sstream>
 
+#include <Eigen/Geometry>
 #include <opencv2/imgcodecs.hpp>
 
 #include "cli/blender_render.h"
@@ -378,6 +380,7 @@ void RunRock(const RockInput& in, int index, const ValidateOptions& o, const std
   }
   row->rec = FiguresFrom(m->value("morphology_3d", json::object()));
   MaskIou(cap.out, truth, &row->mask_iou_min, &row->mask_iou_mean);
+  row->stitch = StitchAgainstTruth(cap.out, truth);
   row->status = "ok";
   row->seconds = Seconds(t0);
   char b[200];
@@ -399,7 +402,86 @@ bool ParseCount(const std::string& s, long long* v) {
   return end != s.c_str() && *end == '\0' && *v >= 0;
 }
 
+// A row-major 4x4 rigid transform; false when malformed.
+bool IsoFrom(const json& j, Eigen::Isometry3d* out) {
+  if (!j.is_array() || j.size() != 16) return false;
+  Eigen::Matrix4d m;
+  for (int i = 0; i < 16; ++i) {
+    if (!j[static_cast<size_t>(i)].is_number()) return false;
+    m(i / 4, i % 4) = j[static_cast<size_t>(i)].get<double>();
+  }
+  out->matrix() = m;
+  return true;
+}
+
+// Rotation angle (deg) and displacement RMS (mm) over `pts` between two
+// transforms of the same frame.
+void TransformError(const Eigen::Isometry3d& est, const Eigen::Isometry3d& truth,
+                    const std::vector<Eigen::Vector3d>& pts, double* deg, double* mm) {
+  const Eigen::AngleAxisd d((est.linear() * truth.linear().transpose()).eval());
+  *deg = std::abs(d.angle()) * 180.0 / M_PI;
+  double sum = 0;
+  for (const Eigen::Vector3d& p : pts) sum += (est * p - truth * p).squaredNorm();
+  *mm = pts.empty() ? 0 : std::sqrt(sum / static_cast<double>(pts.size()));
+}
+
 }  // namespace
+
+StitchTruthError StitchAgainstTruth(const std::string& sample_dir, const json& truth) {
+  StitchTruthError e;
+  auto text = ReadFile(sample_dir + "/results/stitch.json");
+  const json st = text ? json::parse(*text, nullptr, false) : json();
+  auto mesh = LoadMesh(sample_dir + "/results/mesh.ply", "mm");
+  if (!st.is_object() || !mesh) return e;
+  std::map<int, Eigen::Isometry3d> rest;  // rock -> turntable, per side
+  for (const json& p : truth.value("poses", json::array())) {
+    Eigen::Isometry3d m;
+    if (p.is_object() && p.contains("side") && IsoFrom(p.value("rock_to_turntable_4x4", json()), &m)) {
+      rest[p["side"].get<int>()] = m;
+    }
+  }
+  if (!rest.count(1)) return e;
+  std::vector<Eigen::Vector3d> pts;  // the reconstructed surface, object frame (side 1's turntable)
+  const size_t step = std::max<size_t>(1, mesh->vertices.size() / 4000);
+  for (size_t i = 0; i < mesh->vertices.size(); i += step) {
+    pts.emplace_back(mesh->vertices[i][0], mesh->vertices[i][1], mesh->vertices[i][2]);
+  }
+  for (const json& s : st.value("stitches", json::array())) {
+    const int side = s.value("side", 0);
+    if (!rest.count(side)) continue;
+    // Object frame = side 1's turntable frame: side s sees it through
+    // rest_s * rest_1^-1.
+    const Eigen::Isometry3d truth_t = rest[side] * rest[1].inverse();
+    Eigen::Isometry3d taken;
+    bool found = false;
+    for (const json& sd : st.value("sides", json::array())) {
+      if (sd.value("side", 0) == side) found = IsoFrom(sd.value("table_from_object_4x4", json()), &taken);
+    }
+    if (!found) continue;
+    double deg = 0, mm = 0;
+    TransformError(taken, truth_t, pts, &deg, &mm);
+    if (!e.measured || deg > e.deg) {
+      e.measured = true;
+      e.deg = deg;
+      e.mm = mm;
+      e.source = s.value("source", "");
+      e.silhouette_deficit = st.value("silhouette_deficit", 0.0);
+      e.consistent = s.value("consistent", true);
+      e.warning = s.value("warning", "");
+      e.markers_deg = e.markers_mm = e.features_deg = e.features_mm = -1;
+      for (const char* src : {"markers", "features"}) {
+        const json& est = s.value(src, json::object());
+        Eigen::Isometry3d moving_to_ref;
+        if (!est.value("valid", false) || !IsoFrom(est.value("moving_to_reference_4x4", json()), &moving_to_ref)) continue;
+        double d = 0, m = 0;
+        TransformError(moving_to_ref.inverse(), truth_t, pts, &d, &m);
+        (std::string(src) == "markers" ? e.markers_deg : e.features_deg) = d;
+        (std::string(src) == "markers" ? e.markers_mm : e.features_mm) = m;
+      }
+    }
+  }
+  return e;
+}
 
 double DimErrors::MaxAbs() const { return std::max({std::fabs(a_pct), std::fabs(b_pct), std::fabs(c_pct)}); }
 
@@ -444,6 +526,12 @@ ValidateSummary Summarize(const std::vector<ValidateRock>& rocks, const Validate
     const double raw = DimsAgainstMinimumBox(r.truth, r.rec).MaxAbs();
     s.dims_raw_max_abs_pct = std::max(s.dims_raw_max_abs_pct, raw);
     if (raw <= t.dims_pct) ++s.dims_raw_within;
+    if (r.stitch.measured) {
+      ++s.stitch_measured;
+      s.stitch_max_deg = std::max(s.stitch_max_deg, r.stitch.deg);
+      s.stitch_max_mm = std::max(s.stitch_max_mm, r.stitch.mm);
+      if (r.stitch.deg <= s.stitch_target_deg && r.stitch.mm <= s.stitch_target_mm) ++s.stitch_within;
+    }
     if (r.mask_iou_mean > 0) {
       s.mask_iou_min = n_iou == 0 ? r.mask_iou_min : std::min(s.mask_iou_min, r.mask_iou_min);
       sum_iou += r.mask_iou_mean;
@@ -599,6 +687,22 @@ void PrintValidateReport(const ValidateReport& r, std::ostream& out) {
       }
       out << "\n";
     }
+    if (k.stitch.measured) {
+      std::snprintf(b, sizeof b, "    stitch vs truth %.2f deg / %.2f mm by %s", k.stitch.deg, k.stitch.mm,
+                    k.stitch.source.c_str());
+      out << b;
+      if (k.stitch.markers_deg >= 0) {
+        std::snprintf(b, sizeof b, "; markers alone %.2f deg / %.2f mm", k.stitch.markers_deg, k.stitch.markers_mm);
+        out << b;
+      }
+      if (k.stitch.features_deg >= 0) {
+        std::snprintf(b, sizeof b, "; features alone %.2f deg / %.2f mm", k.stitch.features_deg, k.stitch.features_mm);
+        out << b;
+      }
+      std::snprintf(b, sizeof b, "; silhouette deficit %.4f%s%s\n", k.stitch.silhouette_deficit,
+                    k.stitch.warning.empty() ? "" : "; warning: ", k.stitch.warning.c_str());
+      out << b;
+    }
     if (const DimErrors d = DimsAgainstTruth(k.truth, k.rec); d.NearBox()) {
       out << "    a, b, c ill-conditioned: " << BoxName("the truth's", k.truth, d.truth_box) << " against "
           << BoxName("the reconstruction's", k.rec, d.rec_box);
@@ -640,6 +744,14 @@ void PrintValidateReport(const ValidateReport& r, std::ostream& out) {
                   s.mask_iou_mean);
     out << b;
   }
+  if (s.stitch_measured > 0) {
+    std::snprintf(b, sizeof b,
+                  "stitch vs truth: worst %.2f deg / %.2f mm; %d of %d rocks within %.1f deg and %.1f mm (no "
+                  "verdict)\n",
+                  s.stitch_max_deg, s.stitch_max_mm, s.stitch_within, s.stitch_measured, s.stitch_target_deg,
+                  s.stitch_target_mm);
+    out << b;
+  }
   if (s.render_frame_s > 0) {
     std::snprintf(b, sizeof b, "render time: %.2f s a frame (mean over rocks)\n", s.render_frame_s);
     out << b;
@@ -673,6 +785,19 @@ json ValidateReportToJson(const ValidateReport& r) {
     if (!k.look.empty()) j["look"] = k.look;
     if (k.render_frame_s > 0) j["render_frame_seconds"] = k.render_frame_s;
     if (k.mask_iou_mean > 0) j["mask_iou"] = {{"min", k.mask_iou_min}, {"mean", k.mask_iou_mean}};
+    if (k.stitch.measured) {
+      json sj = {{"error_deg", k.stitch.deg},
+                 {"error_mm", k.stitch.mm},
+                 {"source", k.stitch.source},
+                 {"silhouette_deficit", k.stitch.silhouette_deficit},
+                 {"consistent", k.stitch.consistent},
+                 {"warning", k.stitch.warning}};
+      if (k.stitch.markers_deg >= 0) sj["markers"] = {{"error_deg", k.stitch.markers_deg}, {"error_mm", k.stitch.markers_mm}};
+      if (k.stitch.features_deg >= 0) {
+        sj["features"] = {{"error_deg", k.stitch.features_deg}, {"error_mm", k.stitch.features_mm}};
+      }
+      j["stitch_vs_truth"] = sj;
+    }
     rocks.push_back(std::move(j));
   }
   const ValidateSummary& s = r.summary;
@@ -698,7 +823,11 @@ json ValidateReportToJson(const ValidateReport& r) {
             {"sphericity_max_abs_error", s.sphericity_max_abs},
             {"mask_iou_min", s.mask_iou_min},
             {"mask_iou_mean", s.mask_iou_mean},
-            {"render_frame_seconds", s.render_frame_s}}},
+            {"render_frame_seconds", s.render_frame_s},
+            {"stitch_max_error_deg", s.stitch_max_deg},
+            {"stitch_max_error_mm", s.stitch_max_mm},
+            {"stitch_rocks_measured", s.stitch_measured},
+            {"stitch_rocks_within_target", s.stitch_within}}},
           {"targets",
            {{"volume_abs_mpe_pct", t.volume_mpe_pct},
             {"volume_mape_pct", t.volume_mape_pct},

@@ -85,6 +85,21 @@ DimErrors DimsAgainstTruth(const RockFigures& truth, const RockFigures& rec);
 /// The same against the truth's minimum-volume box only.
 DimErrors DimsAgainstMinimumBox(const RockFigures& truth, const RockFigures& rec);
 
+struct StitchTruthError {
+  bool measured = false;
+  double deg = 0, mm = 0;              // the stitch taken
+  std::string source;                  // markers | features | ... (stitch.json)
+  double markers_deg = -1, markers_mm = -1;    // the markers' own estimate
+  double features_deg = -1, features_mm = -1;  // the features' own estimate
+  double silhouette_deficit = 0;       // of the stitch taken
+  bool consistent = true;              // the sources agreed (stitch.json)
+  std::string warning;                 // stitch.json's
+};
+
+/// The sample's stitch (results/stitch.json) against truth.json's rest poses,
+/// over the vertices of results/mesh.ply; measured false when any is missing.
+StitchTruthError StitchAgainstTruth(const std::string& sample_dir, const nlohmann::json& truth);
+
 struct ValidateRock {
   std::string id;        // "seed-7" or the mesh file's stem
   std::string source;    // "procedural seed 7" or the mesh path
@@ -98,6 +113,11 @@ struct ValidateRock {
   // The worker's masks against the renderer's true silhouettes, over every
   // view (0 when not measured).
   double mask_iou_min = 0, mask_iou_mean = 0;
+  // The stitch of each further side onto side 1 against the truth (the
+  // worst side): rotation error and displacement RMS over the reconstructed
+  // surface; the source that won; each source's own estimate against the
+  // truth where it had one (-1: none). Two sides only.
+  StitchTruthError stitch;
 };
 
 struct ValidateSummary {
@@ -111,6 +131,9 @@ struct ValidateSummary {
   int dims_raw_within = 0;          // ... rocks within the target that way
   double sphericity_max_abs = 0;
   double mask_iou_min = 0, mask_iou_mean = 0;  // over every view of every measured rock
+  double stitch_max_deg = 0, stitch_max_mm = 0;  // worst stitch against the truth
+  int stitch_measured = 0, stitch_within = 0;    // rocks measured, and within the stitch targets
+  double stitch_target_deg = 0.5, stitch_target_mm = 0.5;
   double render_frame_s = 0;                   // blender: mean seconds per frame
   bool volume_mpe_pass = false, volume_mape_pass = false, dims_pass = false, sphericity_pass = false;
   bool pass = false;  // every target met, no rock failed, at least one rock measured
