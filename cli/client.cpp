@@ -422,9 +422,24 @@ void PrintTree(const json& j, int indent, std::ostream& out) {
 void PrintSample(const json& s, std::ostream& out) {
   out << "sample: " << FieldText(s, "id") << "  state: " << FieldText(s, "state") << "\n";
   if (!s.is_object()) return;
+  if (s.contains("result") && s["result"].is_object()) {
+    const json& r = s["result"];
+    out << "result: V " << FieldText(r, "volume_mm3") << " mm3, a/b/c " << FieldText(r, "a_mm") << " / "
+        << FieldText(r, "b_mm") << " / " << FieldText(r, "c_mm") << " mm\n";
+    const json flags = r.value("quality_flags", json::array());
+    if (r.value("confident", true) && flags.empty()) {
+      out << "quality: confident\n";
+    } else {
+      out << "quality: NOT CONFIDENT (" << flags.size() << " flag(s)): do not use these figures without checking\n";
+      for (const json& f : flags) {
+        if (f.is_object()) out << "  " << FieldText(f, "code") << ": " << FieldText(f, "reason") << "\n";
+      }
+    }
+  }
   json rest = s;
   rest.erase("id");
   rest.erase("state");
+  rest.erase("result");
   PrintTree(rest, 0, out);
 }
 

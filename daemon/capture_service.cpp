@@ -1138,6 +1138,22 @@ Result<json> CaptureService::GetSample(const std::string& sample_id) {
   Result<json> d = store_.Describe(sample_id);
   if (!d) return d;
   json out = *d;
+  // The worker's figures once it has written them, with their quality: a
+  // doubtful result is shown as such wherever the sample is.
+  if (auto m = ReadFile(store_.SampleDir(sample_id) + "/" + layout::kResultsDir + "/morphology.json")) {
+    const json mj = json::parse(*m, nullptr, false);
+    if (mj.is_object() && mj.contains("morphology_3d") && mj["morphology_3d"].is_object()) {
+      const json& d3 = mj["morphology_3d"];
+      const json q = mj.value("quality", json::object());
+      json r = json::object();
+      for (const char* k : {"volume_mm3", "surface_area_mm2", "a_mm", "b_mm", "c_mm", "sphericity"}) {
+        if (d3.contains(k)) r[k] = d3[k];
+      }
+      r["confident"] = q.is_object() ? q.value("confident", true) : true;
+      r["quality_flags"] = q.is_object() ? q.value("flags", json::array()) : json::array();
+      out["result"] = r;
+    }
+  }
   if (queue_) {
     // Our own queue handle is used from the loop thread only.
     auto jobs = OnLoop([this, sample_id]() -> Result<std::vector<Job>> { return queue_->JobsForSample(sample_id); });

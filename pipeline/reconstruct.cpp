@@ -20,6 +20,7 @@
 #include "common/rig_calibration.h"
 #include "pipeline/image_io.h"
 #include "pipeline/morph2d.h"
+#include "pipeline/quality.h"
 #include "pipeline/stage.h"
 #include "pipeline/stitch_stage.h"
 #include "store/layout.h"
@@ -832,6 +833,14 @@ Status AppendLibraryRow(const std::string& state_dir, const json& morphology) {
     text = *t;
     // Already there (a resumed run after the row was written): nothing to do.
     if (text.find("\n" + id + ",") != std::string::npos) return OkStatus();
+    if (text.compare(0, LibraryCsvHeader().size(), LibraryCsvHeader()) != 0) {
+      // Written with other columns (an older worker): kept beside under a
+      // new name, and a new library begins, so no row is mixed or lost.
+      const std::string kept = state_dir + "/library-" + NowUtcString() + ".csv";
+      if (Status s = RenameDurable(path, kept); !s) return s;
+      LogLine(LogLevel::kNotice, kCat, id, "library.csv had other columns; kept as " + kept + ", a new one begun");
+      text = LibraryCsvHeader();
+    }
   } else {
     text = LibraryCsvHeader();
   }
@@ -845,7 +854,7 @@ Status AppendLibraryRow(const std::string& state_dir, const json& morphology) {
 std::string LibraryCsvHeader() {
   return "sample_id,created_utc,volume_mm3,surface_area_mm2,a_mm,b_mm,c_mm,fer_3d,ratio_c_b,ratio_b_a,sphericity,"
          "fer_2d_mean,circularity_mean,views,poses_method,stitch_method,surface_method,stitch_rms_mm,"
-         "silhouette_iou_mean,total_s\n";
+         "silhouette_iou_mean,total_s,confident,quality_flags\n";
 }
 
 std::string LibraryCsvRow(const json& m) {
@@ -867,7 +876,11 @@ std::string LibraryCsvRow(const json& m) {
   row += "," + m.at("methods").value("poses", "") + "," + m.at("methods").value("stitch", "") + "," +
          m.at("methods").value("surface", "");
   row += "," + num(q.value("stitch_rms_mm", json())) + "," + num(q.value("silhouette_iou_mean", json()));
-  row += "," + num(m.at("timings_s").value("total", json())) + "\n";
+  row += "," + num(m.at("timings_s").value("total", json()));
+  // Flag codes joined by ';' (no commas or quotes: one CSV field).
+  std::string codes;
+  for (const json& f : q.value("flags", json::array())) codes += (codes.empty() ? "" : ";") + f.value("code", "");
+  row += std::string(",") + (q.value("confident", true) ? "yes" : "no") + "," + codes + "\n";
   return row;
 }
 
@@ -1150,6 +1163,13 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
                   {"scale_residual_mm", stitch->value("scale_residual_mm", json())},
                   {"scale_reference", stitch->value("scale_reference", json())},
                   {"watertight", watertight.ok()}};
+  // What the figures cannot be trusted for, with the reason: never a
+  // confident number from poor masks or an unconfirmed stitch.
+  quality["flags"] = QualityFlags(quality, *stitch, surface->value("silhouette_iou", json::array()));
+  quality["confident"] = quality["flags"].empty();
+  for (const json& f : quality["flags"]) {
+    LogLine(LogLevel::kWarning, kCat, sample_id, "not confident: " + f.value("reason", ""));
+  }
   timings["masks_and_2d_s"] = masks_s;
   timings["morphology_s"] = Seconds(t_m);
   double total = masks_s;

@@ -43,6 +43,10 @@ json Truth(const std::string& sample) { return ReadJsonFile(sample + "/truth.jso
 TEST(Reconstruct, OneSideGivesAClosedMeshAndResults) {
   test::TempDir tmp;
   const std::string sample = Capture(tmp.path(), 6, 1);
+  // A library written by an older worker, with other columns: kept aside
+  // under a new name, never mixed with the new rows.
+  const std::string old_library = "sample_id,created_utc,volume_mm3\nrock-1,2026-01-01T00:00:00Z,123\n";
+  ASSERT_TRUE(WriteFileAtomic(tmp.path() + "/library.csv", old_library));
   ReconstructOptions opts;
   opts.state_dir = tmp.path();
   opts.bundle_adjust = true;  // the default; exercised and checked here
@@ -88,6 +92,7 @@ TEST(Reconstruct, OneSideGivesAClosedMeshAndResults) {
   // The library has one row; a second run changes nothing.
   auto csv = ReadFile(tmp.path() + "/library.csv");
   ASSERT_TRUE(csv);
+  EXPECT_EQ(csv->substr(0, csv->find('\n') + 1), LibraryCsvHeader());
   {
     auto st = ReconstructSample(sample, opts);
     ASSERT_TRUE(st) << st.error().ToString();
@@ -95,6 +100,15 @@ TEST(Reconstruct, OneSideGivesAClosedMeshAndResults) {
   auto csv2 = ReadFile(tmp.path() + "/library.csv");
   EXPECT_EQ(*csv, *csv2);
   EXPECT_EQ(std::count(csv->begin(), csv->end(), '\n'), 2);
+  int kept = 0;
+  for (const auto& e : fs::directory_iterator(tmp.path())) {
+    const std::string n = e.path().filename().string();
+    if (n.rfind("library-", 0) == 0 && n.size() > 4 && n.substr(n.size() - 4) == ".csv") {
+      ++kept;
+      EXPECT_EQ(*ReadFile(e.path().string()), old_library);
+    }
+  }
+  EXPECT_EQ(kept, 1);
   std::printf("one side: V %.0f (truth %.0f), iou %.4f, total %.1f s\n", d["volume_mm3"].get<double>(),
               truth["volume_mm3"].get<double>(), (*m)["quality"]["silhouette_iou_mean"].get<double>(),
               (*m)["timings_s"]["total"].get<double>());
@@ -172,6 +186,10 @@ void TwoSides(bool truth_masks, bool photo_refine) {
               stitch["scale_residual_mm"].dump().c_str(), (*m)["quality"]["silhouette_iou_mean"].get<double>(),
               (*m)["timings_s"]["total"].get<double>());
   EXPECT_TRUE(d["watertight"].get<bool>());
+  // A sound capture of the sim rig: nothing to doubt, and the library says so.
+  EXPECT_TRUE((*m)["quality"]["confident"].get<bool>()) << (*m)["quality"]["flags"].dump();
+  const std::string csv = *ReadFile(tmp.path() + "/library.csv");
+  EXPECT_NE(csv.find(",yes,\n"), std::string::npos) << csv;
   EXPECT_EQ(stitch["sides"].size(), 2u);
   EXPECT_NE(stitch["method"].get<std::string>(), "single-side");
   EXPECT_LT(stitch["rms_mm"].get<double>(), 2.0);

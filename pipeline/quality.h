@@ -1,0 +1,35 @@
+// What the worker cannot vouch for in a reconstruction: quality flags, each
+// with a code and a reason that says what was measured, the limit and what to
+// check. A sample with any flag is not confident: its figures are still
+// written (a figure computed from doubtful data is still evidence), but
+// `aggscan show`, the API and the library CSV say that it is doubtful and why.
+//
+// The limits sit between what a sound capture gives and what a broken one
+// does (docs/validation.md has the measured figures): on the sim rig's own
+// renders the masks agree with the model's silhouettes at IoU >= 0.98 on every
+// view and the stitch leaves < 0.005 of the silhouettes uncovered; masks that
+// take in a cast shadow give 0.77-0.9 and a stitch that the silhouettes cannot
+// confirm leaves 0.05-0.08.
+#pragma once
+
+#include <nlohmann/json.hpp>
+
+namespace aggscan {
+
+struct QualityLimits {
+  double silhouette_iou_mean = 0.97;  // masks vs the model's silhouettes, mean over the views ...
+  double silhouette_iou_min = 0.95;   // ... and the worst view
+  double stitch_rms_mm = 1.0;         // residual of the stitch's points (markers or features)
+  double stitch_deficit = 0.0125;     // silhouettes uncovered by the stitched model (StitchOptions::silhouette_accept)
+  double scale_residual_mm = 0.5;     // scale references (labels, ArUco) against their configured distances
+};
+
+/// The flags, [{"code", "reason"}], of a reconstruction from its quality
+/// block (morphology.json "quality"), its stitch record (results/stitch.json)
+/// and the surface's per-view silhouette IoU ([{"side", "view", "iou"}]).
+/// Codes: mask_consistency, stitch_unconfirmed, stitch_disagreement,
+/// stitch_residual, scale_residual, not_watertight.
+nlohmann::json QualityFlags(const nlohmann::json& quality, const nlohmann::json& stitch,
+                            const nlohmann::json& silhouette_iou, const QualityLimits& limits = {});
+
+}  // namespace aggscan

@@ -1,0 +1,96 @@
+// Quality flags: a sound reconstruction has none; poor masks, a stitch the
+// silhouettes do not confirm, sources that disagree, a loose stitch or scale
+// fit and an open model each give a flag whose reason names the figure and
+// the limit. Inputs are shaped as morphology.json's quality block,
+// results/stitch.json and surface.json's per-view IoU.
+#include "pipeline/quality.h"
+
+#include <gtest/gtest.h>
+
+#include <set>
+#include <string>
+
+namespace aggscan {
+namespace {
+
+using nlohmann::json;
+
+json SoundQuality() {
+  return {{"silhouette_iou_mean", 0.991}, {"silhouette_iou_min", 0.983}, {"scale_residual_mm", 0.03},
+          {"watertight", true}};
+}
+
+json Stitch(double deficit, bool consistent, double rms) {
+  return {{"rms_mm", rms},
+          {"max_mm", 2 * rms},
+          {"stitches",
+           {{{"side", 2},
+             {"onto_side", 1},
+             {"source", "features"},
+             {"consistent", consistent},
+             {"disagreement_deg", consistent ? 0.1 : 3.4},
+             {"disagreement_mm", consistent ? 0.1 : 4.2},
+             {"warning", consistent ? "" : "markers and features disagree"},
+             {"silhouettes", {{"available", true}, {"deficit", deficit}}}}}}};
+}
+
+std::set<std::string> Codes(const json& flags) {
+  std::set<std::string> c;
+  for (const json& f : flags) {
+    EXPECT_FALSE(f.value("reason", "").empty()) << f.dump();
+    c.insert(f.value("code", ""));
+  }
+  return c;
+}
+
+TEST(QualityFlags, SoundReconstructionHasNone) {
+  // Figures as the sim rig's own renders give them.
+  const json iou = json::array({{{"side", 1}, {"view", 0}, {"iou", 0.99}}});
+  EXPECT_TRUE(QualityFlags(SoundQuality(), Stitch(0.0035, true, 0.12), iou).empty());
+  // One side: no stitch to judge.
+  EXPECT_TRUE(QualityFlags(SoundQuality(), json{{"method", "single-side"}}, iou).empty());
+}
+
+TEST(QualityFlags, ShadowedMasksAndAnUnconfirmedStitchAreFlaggedWithTheirFigures) {
+  // As measured on a Blender capture whose masks took in the contact shadow.
+  json q = SoundQuality();
+  q["silhouette_iou_mean"] = 0.876;
+  q["silhouette_iou_min"] = 0.773;
+  const json iou = json::array({{{"side", 1}, {"view", 3}, {"iou", 0.94}}, {{"side", 2}, {"view", 15}, {"iou", 0.773}}});
+  const json flags = QualityFlags(q, Stitch(0.0825, true, 0.39), iou);
+  EXPECT_EQ(Codes(flags), (std::set<std::string>{"mask_consistency", "stitch_unconfirmed"}));
+  const std::string mask_reason = flags[0]["reason"];
+  EXPECT_NE(mask_reason.find("IoU mean 0.876, worst 0.773 at side 2 view 15"), std::string::npos) << mask_reason;
+  EXPECT_NE(mask_reason.find("results/masks"), std::string::npos) << mask_reason;
+  const std::string stitch_reason = flags[1]["reason"];
+  EXPECT_NE(stitch_reason.find("by features"), std::string::npos) << stitch_reason;
+  EXPECT_NE(stitch_reason.find("0.083 of them uncovered"), std::string::npos) << stitch_reason;
+}
+
+TEST(QualityFlags, EachLimitGivesItsOwnFlag) {
+  // Only the worst view poor: still flagged.
+  json q = SoundQuality();
+  q["silhouette_iou_min"] = 0.93;
+  EXPECT_EQ(Codes(QualityFlags(q, json::object(), json::array())), std::set<std::string>{"mask_consistency"});
+  // Sources that disagree.
+  json flags = QualityFlags(SoundQuality(), Stitch(0.004, false, 0.3), json::array());
+  EXPECT_EQ(Codes(flags), std::set<std::string>{"stitch_disagreement"});
+  EXPECT_NE(flags[0]["reason"].get<std::string>().find("3.40 deg and 4.20 mm"), std::string::npos) << flags.dump();
+  // A loose stitch fit.
+  EXPECT_EQ(Codes(QualityFlags(SoundQuality(), Stitch(0.004, true, 1.6), json::array())),
+            std::set<std::string>{"stitch_residual"});
+  // The scale references off, and an open model.
+  q = SoundQuality();
+  q["scale_residual_mm"] = 0.9;
+  q["watertight"] = false;
+  EXPECT_EQ(Codes(QualityFlags(q, json::object(), json::array())),
+            (std::set<std::string>{"scale_residual", "not_watertight"}));
+  // Limits are the caller's.
+  QualityLimits strict;
+  strict.silhouette_iou_mean = 0.995;
+  EXPECT_EQ(Codes(QualityFlags(SoundQuality(), json::object(), json::array(), strict)),
+            std::set<std::string>{"mask_consistency"});
+}
+
+}  // namespace
+}  // namespace aggscan
