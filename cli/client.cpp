@@ -424,8 +424,15 @@ void PrintSample(const json& s, std::ostream& out) {
   if (!s.is_object()) return;
   if (s.contains("result") && s["result"].is_object()) {
     const json& r = s["result"];
-    out << "result: V " << FieldText(r, "volume_mm3") << " mm3, a/b/c " << FieldText(r, "a_mm") << " / "
-        << FieldText(r, "b_mm") << " / " << FieldText(r, "c_mm") << " mm\n";
+    auto num = [&r](const char* k, const char* fmt) {
+      const auto it = r.find(k);
+      if (it == r.end() || !it->is_number()) return std::string("-");
+      char t[64];
+      std::snprintf(t, sizeof t, fmt, it->get<double>());
+      return std::string(t);
+    };
+    out << "result: V " << num("volume_mm3", "%.0f") << " mm3, a/b/c " << num("a_mm", "%.1f") << " / "
+        << num("b_mm", "%.1f") << " / " << num("c_mm", "%.1f") << " mm\n";
     const json flags = r.value("quality_flags", json::array());
     if (r.value("confident", true) && flags.empty()) {
       out << "quality: confident\n";

@@ -94,6 +94,7 @@ class FakeControl : public DaemonControl {
     if (fail) return *fail;
     return nlohmann::json{{"state", "idle"}};
   }
+  nlohmann::json sample_result;  // GetSample's "result" when set
   Result<nlohmann::json> ListSamples() override {
     Record("list");
     if (fail) return *fail;
@@ -104,10 +105,12 @@ class FakeControl : public DaemonControl {
     if (fail) return *fail;
     nlohmann::json views = nlohmann::json::array();
     for (int v = 1; v <= 30; ++v) views.push_back({{"view", v}, {"angle_deg", 12.0 * (v - 1)}});
-    return nlohmann::json{{"id", id},
-                          {"state", "done"},
-                          {"created_utc", "2026-01-01T10:00:00.000Z"},
-                          {"sides", {{{"side", 1}, {"job", "done"}, {"views", views}}}}};
+    nlohmann::json out{{"id", id},
+                       {"state", "done"},
+                       {"created_utc", "2026-01-01T10:00:00.000Z"},
+                       {"sides", {{{"side", 1}, {"job", "done"}, {"views", views}}}}};
+    if (!sample_result.is_null()) out["result"] = sample_result;
+    return out;
   }
   Result<nlohmann::json> Retry(const std::string& id) override {
     Record("retry:" + id);

@@ -405,6 +405,36 @@ TEST(CaptureScenario, LostQueueIsRebuiltAtStartUp) {
   EXPECT_NE(ReadAll(d.log()).find("re-queued side 1"), std::string::npos);
 }
 
+// The worker's figures reach the sample's answer with their quality: a
+// doubtful result says so, and why, wherever the sample is shown.
+TEST(CaptureScenario, SampleAnswerCarriesTheResultAndItsQuality) {
+  TempDir t;
+  const std::string cfg = WriteConfig(t.path(), "", 20, kTinyPlan);
+  Daemon d(cfg, t.path());
+  ASSERT_TRUE(d.ok()) << ReadAll(d.log());
+  int code = 0;
+  d.Post("/api/v1/samples", R"({"id": "q-2"})", &code);
+  ASSERT_EQ(code, 200);
+  EXPECT_FALSE(d.Get("/api/v1/samples/q-2").contains("result"));
+  // As the worker writes it (only the fields the answer takes).
+  const std::string results = t.path() + "/state/samples/q-2/results";
+  fs::create_directories(results);
+  const json morphology = {
+      {"format", "aggscan-morphology-1"},
+      {"morphology_3d", {{"volume_mm3", 715900.0}, {"a_mm", 83.7}, {"b_mm", 122.0}, {"c_mm", 142.8}}},
+      {"quality",
+       {{"confident", false},
+        {"flags", {{{"code", "mask_consistency"}, {"reason", "the masks agree poorly with the model's silhouettes"}}}}}}};
+  std::ofstream(results + "/morphology.json") << morphology.dump();
+  const json s = d.Get("/api/v1/samples/q-2");
+  ASSERT_TRUE(s.contains("result")) << s.dump();
+  EXPECT_EQ(s["result"]["volume_mm3"], 715900.0);
+  EXPECT_FALSE(s["result"]["confident"].get<bool>());
+  ASSERT_EQ(s["result"]["quality_flags"].size(), 1u);
+  EXPECT_EQ(s["result"]["quality_flags"][0]["code"], "mask_consistency");
+  EXPECT_EQ(d.Stop(), 0);
+}
+
 // A side whose photos a library cannot use: the worker gives up on its jobs
 // with a named reason, the status lists them, `retry` refuses a sample with
 // nothing failed and, after the photos are fixed, puts the jobs back; the
