@@ -366,6 +366,9 @@ void RunRock(const RockInput& in, int index, const ValidateOptions& o, const std
   row->truth = FiguresFrom(truth);
   ReconstructOptions ro;  // the sample carries its calibration; no library CSV
   if (Status s = ReconstructSample(cap.out, ro); !s) {
+    // The masks are made before the stitch: how they compare is known even
+    // when a later stage failed.
+    MaskIou(cap.out, truth, &row->mask_iou_min, &row->mask_iou_mean);
     row->status = "failed";
     row->message = "reconstruction: " + s.error().ToString();
     row->seconds = Seconds(t0);
@@ -379,6 +382,9 @@ void RunRock(const RockInput& in, int index, const ValidateOptions& o, const std
     return;
   }
   row->rec = FiguresFrom(m->value("morphology_3d", json::object()));
+  for (const json& f : m->value("quality", json::object()).value("flags", json::array())) {
+    if (f.is_object()) row->quality_flags.push_back(f.value("code", ""));
+  }
   MaskIou(cap.out, truth, &row->mask_iou_min, &row->mask_iou_mean);
   row->stitch = StitchAgainstTruth(cap.out, truth);
   row->status = "ok";
@@ -510,6 +516,12 @@ ValidateSummary Summarize(const std::vector<ValidateRock>& rocks, const Validate
     if (r.render_frame_s > 0) sum_render += r.render_frame_s, ++n_render;
     if (r.status == "skipped") ++s.rocks_skipped;
     if (r.status == "failed") ++s.rocks_failed;
+    // Every rock whose masks were made, measured or not.
+    if (r.mask_iou_mean > 0) {
+      s.mask_iou_min = n_iou == 0 ? r.mask_iou_min : std::min(s.mask_iou_min, r.mask_iou_min);
+      sum_iou += r.mask_iou_mean;
+      ++n_iou;
+    }
     if (r.status != "ok") continue;
     ++s.rocks_ok;
     const double e = Pct(r.rec.volume_mm3, r.truth.volume_mm3);
@@ -531,11 +543,6 @@ ValidateSummary Summarize(const std::vector<ValidateRock>& rocks, const Validate
       s.stitch_max_deg = std::max(s.stitch_max_deg, r.stitch.deg);
       s.stitch_max_mm = std::max(s.stitch_max_mm, r.stitch.mm);
       if (r.stitch.deg <= s.stitch_target_deg && r.stitch.mm <= s.stitch_target_mm) ++s.stitch_within;
-    }
-    if (r.mask_iou_mean > 0) {
-      s.mask_iou_min = n_iou == 0 ? r.mask_iou_min : std::min(s.mask_iou_min, r.mask_iou_min);
-      sum_iou += r.mask_iou_mean;
-      ++n_iou;
     }
     s.sphericity_max_abs = std::max(s.sphericity_max_abs, std::fabs(r.rec.sphericity - r.truth.sphericity));
   }
@@ -668,6 +675,11 @@ void PrintValidateReport(const ValidateReport& r, std::ostream& out) {
     std::string id = k.id.size() > 22 ? k.id.substr(0, 19) + "..." : k.id;
     if (k.status != "ok") {
       out << id << std::string(id.size() < 23 ? 23 - id.size() : 1, ' ') << k.status << ": " << k.message << "\n";
+      if (!k.look.empty() || k.mask_iou_mean > 0) {
+        std::snprintf(b, sizeof b, "    %s%smasks vs true silhouettes IoU min %.4f mean %.4f\n", k.look.c_str(),
+                      k.look.empty() ? "" : ": ", k.mask_iou_min, k.mask_iou_mean);
+        out << b;
+      }
       continue;
     }
     std::snprintf(b, sizeof b,
@@ -685,6 +697,11 @@ void PrintValidateReport(const ValidateReport& r, std::ostream& out) {
         std::snprintf(b, sizeof b, ", %.1f s a frame", k.render_frame_s);
         out << b;
       }
+      out << "\n";
+    }
+    if (!k.quality_flags.empty()) {
+      out << "    NOT CONFIDENT (the worker's quality flags):";
+      for (const std::string& f : k.quality_flags) out << " " << f;
       out << "\n";
     }
     if (k.stitch.measured) {
@@ -783,6 +800,7 @@ json ValidateReportToJson(const ValidateReport& r) {
     }
     if (k.seconds > 0) j["seconds"] = k.seconds;
     if (!k.look.empty()) j["look"] = k.look;
+    if (k.status == "ok") j["quality_flags"] = k.quality_flags;
     if (k.render_frame_s > 0) j["render_frame_seconds"] = k.render_frame_s;
     if (k.mask_iou_mean > 0) j["mask_iou"] = {{"min", k.mask_iou_min}, {"mean", k.mask_iou_mean}};
     if (k.stitch.measured) {

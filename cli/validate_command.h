@@ -118,6 +118,7 @@ struct ValidateRock {
   // surface; the source that won; each source's own estimate against the
   // truth where it had one (-1: none). Two sides only.
   StitchTruthError stitch;
+  std::vector<std::string> quality_flags;  // the worker's quality flag codes (morphology.json)
 };
 
 struct ValidateSummary {
@@ -130,7 +131,7 @@ struct ValidateSummary {
   double dims_raw_max_abs_pct = 0;  // minimum box against minimum box only
   int dims_raw_within = 0;          // ... rocks within the target that way
   double sphericity_max_abs = 0;
-  double mask_iou_min = 0, mask_iou_mean = 0;  // over every view of every measured rock
+  double mask_iou_min = 0, mask_iou_mean = 0;  // over every view of every rock whose masks were made
   double stitch_max_deg = 0, stitch_max_mm = 0;  // worst stitch against the truth
   int stitch_measured = 0, stitch_within = 0;    // rocks measured, and within the stitch targets
   double stitch_target_deg = 0.5, stitch_target_mm = 0.5;

@@ -199,6 +199,16 @@ TEST(ValidateRun, OneRockTwoSidesReducedResolution) {
   EXPECT_NEAR(r.rec.b_mm, r.truth.b_mm, 0.02 * r.truth.b_mm);
   EXPECT_NEAR(r.rec.c_mm, r.truth.c_mm, 0.02 * r.truth.c_mm);
   EXPECT_NEAR(r.rec.sphericity, r.truth.sphericity, 0.02);
+  // The stitch against the truth, and the masks against the true silhouettes:
+  // on the sim's own renders both are sound, and the worker raised no flag.
+  ASSERT_TRUE(r.stitch.measured);
+  std::printf("stitch vs truth %.3f deg / %.3f mm by %s; masks IoU min %.4f mean %.4f\n", r.stitch.deg, r.stitch.mm,
+              r.stitch.source.c_str(), r.mask_iou_min, r.mask_iou_mean);
+  EXPECT_LT(r.stitch.deg, 1.5);
+  EXPECT_LT(r.stitch.mm, 1.5);
+  EXPECT_GT(r.mask_iou_min, 0.97);
+  EXPECT_TRUE(r.quality_flags.empty());
+  EXPECT_TRUE(j["rocks"][0].contains("stitch_vs_truth"));
 }
 
 // The tripod moved back (as for 20-25 cm rocks): the board capture that
