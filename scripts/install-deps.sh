@@ -32,6 +32,10 @@ PACKAGES=(
   systemd curl python3
   # tests only: writes the small ONNX networks of the mask-network test
   python3-onnx
+  # `aggscan masks train` (scripts/masks/train_masks.py: CPU training, ONNX
+  # export, the export checked in OpenCV DNN) and tests/masks/masks_train_test
+  # (its training case skips without them)
+  python3-torch python3-opencv
   # tests only: an independent Modbus implementation acting as the turntable
   # controller in the interoperability test (skipped, 77, without it).
   # pymodbus.server imports serial and serial_asyncio, which Debian's
