@@ -8,10 +8,9 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
-#include <sstream>
-
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <sstream>
 
 #include "common/fsutil.h"
 #include "config/config.h"
@@ -44,7 +43,8 @@ bool RigidFrom(const json& j, sim::Rigid* out) {
   for (const json& x : j)
     if (!x.is_number()) return false;
   for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c) out->R[static_cast<size_t>(3 * r + c)] = j[static_cast<size_t>(4 * r + c)].get<double>();
+    for (int c = 0; c < 3; ++c)
+      out->R[static_cast<size_t>(3 * r + c)] = j[static_cast<size_t>(4 * r + c)].get<double>();
   }
   out->t = {j[3].get<double>(), j[7].get<double>(), j[11].get<double>()};
   return true;
@@ -60,23 +60,15 @@ std::string Joined(const std::vector<std::string>& v) {
   return s;
 }
 
-std::string ExeDir() {
-  char buf[PATH_MAX];
-  const ssize_t n = ::readlink("/proc/self/exe", buf, sizeof buf - 1);
-  if (n <= 0) return "";
-  buf[n] = '\0';
-  return fs::path(buf).parent_path().string();
-}
-
 double Iou(const cv::Mat& a, const cv::Mat& b) {
   const int inter = cv::countNonZero(a & b), uni = cv::countNonZero(a | b);
   return uni > 0 ? static_cast<double>(inter) / uni : 1.0;
 }
 
 // The scene file the render script reads (its docstring has the format).
-Result<json> SceneJson(const std::string& sample_dir, const std::string& scene_dir, const Config& config,
-                       const sim::SimWorld& world, const json& truth, const BlenderLook& look,
-                       const BlenderOptions& o) {
+Result<json> SceneJson(const std::string& sample_dir, const std::string& scene_dir,
+                       const Config& config, const sim::SimWorld& world, const json& truth,
+                       const BlenderLook& look, const BlenderOptions& o) {
   const sim::Intrinsics in = world.IntrinsicsFor(config.camera.width, config.camera.height);
   json scene = {{"format", "aggscan-blender-scene-1"},
                 {"camera",
@@ -87,7 +79,9 @@ Result<json> SceneJson(const std::string& sample_dir, const std::string& scene_d
                   {"cx", in.cx},
                   {"cy", in.cy},
                   {"world_to_camera_4x4", Mat(world.world_to_camera().Matrix4())}}},
-                {"disc", {{"radius_mm", config.rig.turntable_diameter_mm / 2}, {"thickness_mm", sim::kDiscThicknessMm}}},
+                {"disc",
+                 {{"radius_mm", config.rig.turntable_diameter_mm / 2},
+                  {"thickness_mm", sim::kDiscThicknessMm}}},
                 {"look", look.ToJson()},
                 {"render", {{"samples", o.samples}, {"threads", o.threads}}}};
   json labels = json::array();
@@ -102,7 +96,8 @@ Result<json> SceneJson(const std::string& sample_dir, const std::string& scene_d
   }
   scene["labels"] = labels;
   if (const sim::SimBoard* b = world.board()) {
-    cv::Mat img(b->image.height, b->image.width, CV_8UC1, const_cast<uint8_t*>(b->image.pixels.data()));
+    cv::Mat img(b->image.height, b->image.width, CV_8UC1,
+                const_cast<uint8_t*>(b->image.pixels.data()));
     if (!cv::imwrite(scene_dir + "/board.png", img)) {
       return MakeError(ErrorClass::kIo, "cannot write " + scene_dir + "/board.png");
     }
@@ -121,7 +116,8 @@ Result<json> SceneJson(const std::string& sample_dir, const std::string& scene_d
       for (double x : v) verts.push_back(x);
     for (const auto& f : world.rock().faces)
       for (int i : f) faces.push_back(i);
-    if (Status s = WriteFileAtomic(scene_dir + "/rock.json", json{{"vertices", verts}, {"faces", faces}}.dump());
+    if (Status s = WriteFileAtomic(scene_dir + "/rock.json",
+                                   json{{"vertices", verts}, {"faces", faces}}.dump());
         !s) {
       return s.error();
     }
@@ -143,10 +139,11 @@ Result<json> SceneJson(const std::string& sample_dir, const std::string& scene_d
   json views = json::array();
   for (const json& v : truth.value("views", json::array())) {
     sim::Rigid r2c;
-    if (!v.is_object() || !v.contains("side") || !v.contains("view") || !v.contains("platter_deg") ||
-        !RigidFrom(v.value("rock_to_camera_4x4", json()), &r2c)) {
-      return MakeError(ErrorClass::kInvalidArgument,
-                       sample_dir + "/truth.json: a view without side, view, platter_deg or rock_to_camera_4x4");
+    if (!v.is_object() || !v.contains("side") || !v.contains("view") ||
+        !v.contains("platter_deg") || !RigidFrom(v.value("rock_to_camera_4x4", json()), &r2c)) {
+      return MakeError(
+          ErrorClass::kInvalidArgument,
+          sample_dir + "/truth.json: a view without side, view, platter_deg or rock_to_camera_4x4");
     }
     const int side = v["side"].get<int>(), view = v["view"].get<int>();
     char stem[64];
@@ -158,37 +155,42 @@ Result<json> SceneJson(const std::string& sample_dir, const std::string& scene_d
                      {"image", std::string(stem) + ".png"},
                      {"mask", std::string(stem) + "_mask.png"}});
   }
-  if (views.empty()) return MakeError(ErrorClass::kInvalidArgument, sample_dir + "/truth.json lists no views");
+  if (views.empty())
+    return MakeError(ErrorClass::kInvalidArgument, sample_dir + "/truth.json lists no views");
   scene["views"] = views;
   return scene;
 }
 
 // The photo and truth mask of one view replaced by the renderer's; returns
 // the silhouette IoU against the sim's mask (-1 for a scene without a rock).
-Result<double> IngestView(const std::string& sample_dir, const std::string& scene_dir, const json& view,
-                          int jpeg_quality, bool has_rock) {
+Result<double> IngestView(const std::string& sample_dir, const std::string& scene_dir,
+                          const json& view, int jpeg_quality, bool has_rock) {
   const int side = view["side"].get<int>(), v = view["view"].get<int>();
   const std::string png = scene_dir + "/" + view["image"].get<std::string>();
   cv::Mat bgr = cv::imread(png, cv::IMREAD_COLOR);
   if (bgr.empty()) return MakeError(ErrorClass::kIo, "Blender wrote no readable frame " + png);
   cv::Mat rgb;
   cv::cvtColor(bgr, rgb, cv::COLOR_BGR2RGB);
-  Result<std::vector<unsigned char>> jpeg = sim::EncodeJpeg(rgb.data, rgb.cols, rgb.rows, jpeg_quality);
+  Result<std::vector<unsigned char>> jpeg =
+      sim::EncodeJpeg(rgb.data, rgb.cols, rgb.rows, jpeg_quality);
   if (!jpeg) return jpeg.error();
   const std::string side_dir = sample_dir + "/" + layout::SideDirName(side);
-  if (Status s = WriteFileAtomic(side_dir + "/" + layout::ViewImageName(v), *jpeg); !s) return s.error();
+  if (Status s = WriteFileAtomic(side_dir + "/" + layout::ViewImageName(v), *jpeg); !s)
+    return s.error();
   if (!has_rock) return -1.0;
   const std::string mask_png = scene_dir + "/" + view["mask"].get<std::string>();
   cv::Mat mask = cv::imread(mask_png, cv::IMREAD_GRAYSCALE);
   if (mask.empty() || mask.size() != bgr.size()) {
-    return MakeError(ErrorClass::kIo, "Blender wrote no readable mask " + mask_png + " of the frame's size");
+    return MakeError(ErrorClass::kIo,
+                     "Blender wrote no readable mask " + mask_png + " of the frame's size");
   }
   mask = mask > 127;
   char name[64];
   std::snprintf(name, sizeof name, "/side%d/view_%03d_mask.pgm", side, v);
   const std::string truth_mask = sample_dir + "/" + layout::kTruthDir + name;
   double iou = 0;
-  if (Result<sim::GrayImage> old = sim::ReadPgm(truth_mask); old && old->width == mask.cols && old->height == mask.rows) {
+  if (Result<sim::GrayImage> old = sim::ReadPgm(truth_mask);
+      old && old->width == mask.cols && old->height == mask.rows) {
     cv::Mat sim_mask(old->height, old->width, CV_8UC1, old->pixels.data());
     iou = Iou(mask, sim_mask > 127);
   }
@@ -203,11 +205,13 @@ Status UpdateManifest(const std::string& side_dir) {
   auto text = ReadFile(path);
   if (!text) return text.error();
   json m = json::parse(*text, nullptr, false);
-  if (!m.is_object() || !m["views"].is_array()) return MakeError(ErrorClass::kInvalidArgument, path + " is not a manifest");
+  if (!m.is_object() || !m["views"].is_array())
+    return MakeError(ErrorClass::kInvalidArgument, path + " is not a manifest");
   for (json& v : m["views"]) {
     std::error_code ec;
     const auto size = fs::file_size(side_dir + "/" + v.value("image", ""), ec);
-    if (ec) return MakeError(ErrorClass::kIo, "cannot stat " + side_dir + "/" + v.value("image", ""));
+    if (ec)
+      return MakeError(ErrorClass::kIo, "cannot stat " + side_dir + "/" + v.value("image", ""));
     v["bytes"] = static_cast<uint64_t>(size);
   }
   return WriteFileAtomic(path, m.dump(1) + "\n");
@@ -216,7 +220,8 @@ Status UpdateManifest(const std::string& side_dir) {
 }  // namespace
 
 json BlenderLook::ToJson() const {
-  return {{"surface", surface}, {"light", light}, {"stone", stone}, {"seed", seed}, {"name", Name()}};
+  return {
+      {"surface", surface}, {"light", light}, {"stone", stone}, {"seed", seed}, {"name", Name()}};
 }
 
 const std::vector<std::string>& BlenderSurfaces() {
@@ -239,7 +244,8 @@ Result<BlenderLook> ParseBlenderLook(const std::string& spec) {
   while (std::getline(ss, item, ',')) {
     if (item.empty()) continue;
     const size_t eq = item.find('=');
-    const std::string key = item.substr(0, eq), value = eq == std::string::npos ? "" : item.substr(eq + 1);
+    const std::string key = item.substr(0, eq),
+                      value = eq == std::string::npos ? "" : item.substr(eq + 1);
     const std::vector<std::string>* known = nullptr;
     std::string* field = nullptr;
     if (key == "surface") known = &BlenderSurfaces(), field = &look.surface;
@@ -249,13 +255,14 @@ Result<BlenderLook> ParseBlenderLook(const std::string& spec) {
       char* end = nullptr;
       look.seed = std::strtoull(value.c_str(), &end, 10);
       if (value.empty() || *end != '\0') {
-        return MakeError(ErrorClass::kInvalidArgument, "look: seed expects a non-negative integer, got '" + value + "'");
+        return MakeError(ErrorClass::kInvalidArgument,
+                         "look: seed expects a non-negative integer, got '" + value + "'");
       }
       continue;
     }
     if (!known) {
-      return MakeError(ErrorClass::kInvalidArgument,
-                       "look: unknown key '" + key + "' in '" + item + "' (known: surface, light, stone, seed)");
+      return MakeError(ErrorClass::kInvalidArgument, "look: unknown key '" + key + "' in '" + item +
+                                                         "' (known: surface, light, stone, seed)");
     }
     if (!OneOf(value, *known)) {
       return MakeError(ErrorClass::kInvalidArgument,
@@ -271,10 +278,10 @@ BlenderLook BatchLook(int i, uint64_t seed) {
   // the stones are laid out so that the first ten rocks have every stone,
   // a dark basalt on the dark rubber mat and a yellowish dolomite on wood
   // among them, and every stone meets four surfaces over twenty rocks.
-  static const char* const kStones[20] = {"granite", "dolomite", "dolomite", "basalt", "wet",
-                                          "basalt",  "wet",      "granite",  "wet",    "dolomite",
-                                          "wet",     "basalt",   "granite",  "dolomite", "granite",
-                                          "dolomite", "granite", "basalt",   "basalt", "wet"};
+  static const char* const kStones[20] = {
+      "granite", "dolomite", "dolomite", "basalt", "wet",    "basalt",  "wet",
+      "granite", "wet",      "dolomite", "wet",    "basalt", "granite", "dolomite",
+      "granite", "dolomite", "granite",  "basalt", "basalt", "wet"};
   const auto& s = BlenderSurfaces();
   const auto& l = BlenderLights();
   BlenderLook look;
@@ -288,7 +295,7 @@ BlenderLook BatchLook(int i, uint64_t seed) {
 
 std::string BlenderScriptPath() {
   if (const char* e = std::getenv("AGGSCAN_BLENDER_SCRIPT"); e && *e) return e;
-  const std::string installed = ExeDir() + "/../share/aggscan/blender/" + kScriptName;
+  const std::string installed = ExecutableDir() + "/../share/aggscan/blender/" + kScriptName;
   if (PathExists(installed)) return installed;
   return std::string(AGGSCAN_SOURCE_DIR) + "/scripts/blender/" + kScriptName;
 }
@@ -312,15 +319,18 @@ json BlenderRenderReport::ToJson() const {
   return j;
 }
 
-Result<BlenderRenderReport> RerenderWithBlender(const std::string& sample_dir, const BlenderLook& look,
-                                                const BlenderOptions& opts, std::ostream& log) {
+Result<BlenderRenderReport> RerenderWithBlender(const std::string& sample_dir,
+                                                const BlenderLook& look, const BlenderOptions& opts,
+                                                std::ostream& log) {
   auto truth_text = ReadFile(sample_dir + "/truth.json");
   if (!truth_text) {
-    return MakeError(ErrorClass::kInvalidArgument,
-                     sample_dir + " has no truth.json; capture it with `aggscan sim capture` (truth on)");
+    return MakeError(
+        ErrorClass::kInvalidArgument,
+        sample_dir + " has no truth.json; capture it with `aggscan sim capture` (truth on)");
   }
   json truth = json::parse(*truth_text, nullptr, false);
-  if (!truth.is_object()) return MakeError(ErrorClass::kInvalidArgument, sample_dir + "/truth.json is not JSON");
+  if (!truth.is_object())
+    return MakeError(ErrorClass::kInvalidArgument, sample_dir + "/truth.json is not JSON");
   std::vector<ConfigProblem> problems;
   Result<Config> cfg = LoadConfigFile(sample_dir + "/" + layout::kConfigCopy, &problems);
   if (!cfg || !problems.empty()) {
@@ -331,12 +341,14 @@ Result<BlenderRenderReport> RerenderWithBlender(const std::string& sample_dir, c
   Config config = *cfg;
   if (config.sim.k1 != 0 || config.sim.k2 != 0) {
     return MakeError(ErrorClass::kInvalidArgument,
-                     "the sample was captured with lens distortion (sim.k1/k2); Blender draws a pinhole camera, so "
+                     "the sample was captured with lens distortion (sim.k1/k2); Blender draws a "
+                     "pinhole camera, so "
                      "capture it with [sim] k1 = 0 and k2 = 0");
   }
   if (!config.rig.aruco_markers.empty()) {
-    return MakeError(ErrorClass::kInvalidArgument,
-                     "the Blender renderer does not draw rig.aruco_markers; validate it with the colour labels");
+    return MakeError(
+        ErrorClass::kInvalidArgument,
+        "the Blender renderer does not draw rig.aruco_markers; validate it with the colour labels");
   }
   const bool charuco = config.sim.scene == "charuco";
   if (charuco) config.sim.board_image = sample_dir + "/board.pgm";
@@ -351,34 +363,37 @@ Result<BlenderRenderReport> RerenderWithBlender(const std::string& sample_dir, c
 
   const std::string script = opts.script.empty() ? BlenderScriptPath() : opts.script;
   if (!PathExists(script)) {
-    return MakeError(ErrorClass::kNotFound, "the Blender render script " + script +
-                                                " is missing; set AGGSCAN_BLENDER_SCRIPT to scripts/blender/" +
-                                                kScriptName + " of the source tree");
+    return MakeError(ErrorClass::kNotFound,
+                     "the Blender render script " + script +
+                         " is missing; set AGGSCAN_BLENDER_SCRIPT to scripts/blender/" +
+                         kScriptName + " of the source tree");
   }
   const size_t frames = (*scene)["views"].size();
   SubprocessOptions so;
   so.log_path = scene_dir + "/blender.log";
   so.timeout_s = 120 + opts.frame_timeout_s * static_cast<double>(frames);
-  log << "blender: rendering " << frames << " frames of " << sample_dir << " (" << look.Name() << ", "
-      << opts.samples << " samples/px)\n"
+  log << "blender: rendering " << frames << " frames of " << sample_dir << " (" << look.Name()
+      << ", " << opts.samples << " samples/px)\n"
       << std::flush;
-  auto run = RunSubprocess({opts.blender, "-b", "--factory-startup", "-noaudio", "--python-exit-code", "3",
-                            "--python", script, "--", scene_dir},
+  auto run = RunSubprocess({opts.blender, "-b", "--factory-startup", "-noaudio",
+                            "--python-exit-code", "3", "--python", script, "--", scene_dir},
                            so);
   if (!run) {
     if (run.error().cls == ErrorClass::kNotFound) {
-      return MakeError(ErrorClass::kNotFound,
-                       "cannot run '" + opts.blender + "': " + run.error().message + "; install Debian's blender");
+      return MakeError(ErrorClass::kNotFound, "cannot run '" + opts.blender +
+                                                  "': " + run.error().message +
+                                                  "; install Debian's blender");
     }
     return run.error();
   }
   if (!run->Succeeded()) {
-    return MakeError(ErrorClass::kInternal, "blender " + run->Describe() + "; the end of " + so.log_path + ":\n" +
-                                                TailOfFile(so.log_path, 12));
+    return MakeError(ErrorClass::kInternal, "blender " + run->Describe() + "; the end of " +
+                                                so.log_path + ":\n" + TailOfFile(so.log_path, 12));
   }
   auto rep_text = ReadFile(scene_dir + "/render_report.json");
   json rj = rep_text ? json::parse(*rep_text, nullptr, false) : json();
-  if (!rj.is_object()) return MakeError(ErrorClass::kInternal, "blender wrote no render_report.json in " + scene_dir);
+  if (!rj.is_object())
+    return MakeError(ErrorClass::kInternal, "blender wrote no render_report.json in " + scene_dir);
 
   BlenderRenderReport rep;
   rep.renderer = rj.value("renderer", "blender");
@@ -408,13 +423,15 @@ Result<BlenderRenderReport> RerenderWithBlender(const std::string& sample_dir, c
   rep.silhouette_iou_mean = iou_n > 0 ? iou_sum / iou_n : 0;
   if (iou_n == 0) rep.silhouette_iou_min = 0;
   for (int side : sides) {
-    if (Status s = UpdateManifest(sample_dir + "/" + layout::SideDirName(side)); !s) return s.error();
+    if (Status s = UpdateManifest(sample_dir + "/" + layout::SideDirName(side)); !s)
+      return s.error();
   }
   truth["renderer"] = rep.ToJson();
   truth["renderer"]["look"] = look.ToJson();
   truth["renderer"]["samples_per_pixel"] = opts.samples;
   truth["renderer"]["exposure_ev"] = rj.value("exposure_ev", 0.0);
-  if (Status s = WriteFileAtomic(sample_dir + "/truth.json", truth.dump(1) + "\n"); !s) return s.error();
+  if (Status s = WriteFileAtomic(sample_dir + "/truth.json", truth.dump(1) + "\n"); !s)
+    return s.error();
   return rep;
 }
 

@@ -17,11 +17,10 @@
 #pragma once
 
 #include <cstdint>
+#include <nlohmann/json.hpp>
 #include <ostream>
 #include <string>
 #include <vector>
-
-#include <nlohmann/json.hpp>
 
 #include "common/error.h"
 
@@ -67,10 +66,10 @@ std::string BlenderScriptPath();
 bool BlenderAvailable(const BlenderOptions& o = {});
 
 struct BlenderRenderReport {
-  std::string renderer;        // "blender 3.4.1 cycles cpu"
+  std::string renderer;  // "blender 3.4.1 cycles cpu"
   int frames = 0;
   double mean_frame_s = 0, max_frame_s = 0;
-  double wall_s = 0;           // the whole Blender run (start-up, scene build, exposure probe, frames)
+  double wall_s = 0;  // the whole Blender run (start-up, scene build, exposure probe, frames)
   // The renderer's silhouettes against the sim's for the same poses: a check
   // that camera, poses and mesh were carried over exactly (rock scenes only).
   double silhouette_iou_min = 0, silhouette_iou_mean = 0;
@@ -82,7 +81,8 @@ struct BlenderRenderReport {
 /// Blender scene and its log go to `sample_dir`/blender/. Errors name what is
 /// wrong: no truth, lens distortion on, Blender missing or failing (with the
 /// tail of its log), a frame missing.
-Result<BlenderRenderReport> RerenderWithBlender(const std::string& sample_dir, const BlenderLook& look,
-                                                const BlenderOptions& opts, std::ostream& log);
+Result<BlenderRenderReport> RerenderWithBlender(const std::string& sample_dir,
+                                                const BlenderLook& look, const BlenderOptions& opts,
+                                                std::ostream& log);
 
 }  // namespace aggscan

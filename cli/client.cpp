@@ -431,15 +431,17 @@ void PrintSample(const json& s, std::ostream& out) {
       std::snprintf(t, sizeof t, fmt, it->get<double>());
       return std::string(t);
     };
-    out << "result: V " << num("volume_mm3", "%.0f") << " mm3, a/b/c " << num("a_mm", "%.1f") << " / "
-        << num("b_mm", "%.1f") << " / " << num("c_mm", "%.1f") << " mm\n";
+    out << "result: V " << num("volume_mm3", "%.0f") << " mm3, a/b/c " << num("a_mm", "%.1f")
+        << " / " << num("b_mm", "%.1f") << " / " << num("c_mm", "%.1f") << " mm\n";
     const json flags = r.value("quality_flags", json::array());
     if (r.value("confident", true) && flags.empty()) {
       out << "quality: confident\n";
     } else {
-      out << "quality: NOT CONFIDENT (" << flags.size() << " flag(s)): do not use these figures without checking\n";
+      out << "quality: NOT CONFIDENT (" << flags.size()
+          << " flag(s)): do not use these figures without checking\n";
       for (const json& f : flags) {
-        if (f.is_object()) out << "  " << FieldText(f, "code") << ": " << FieldText(f, "reason") << "\n";
+        if (f.is_object())
+          out << "  " << FieldText(f, "code") << ": " << FieldText(f, "reason") << "\n";
       }
     }
   }

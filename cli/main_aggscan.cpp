@@ -182,7 +182,8 @@ int main(int argc, char** argv) {
   if (cmd == "reconstruct")
     return aggscan::RunReconstructCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
   if (cmd == "sim") return SimCommand(args);
-  if (cmd == "masks") return aggscan::RunMasksCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
+  if (cmd == "masks")
+    return aggscan::RunMasksCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
   if (cmd == "validate") return aggscan::RunValidateCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
   if (cmd == "calibrate") return aggscan::RunCalibrateCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
   std::cerr << "aggscan: unknown command '" << cmd << "'\n\n";

@@ -10,11 +10,10 @@
 #include <fstream>
 #include <map>
 #include <memory>
-#include <optional>
-#include <set>
-
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <optional>
+#include <set>
 
 #include "common/fsutil.h"
 #include "pipeline/image_io.h"
@@ -42,17 +41,9 @@ constexpr int kScriptMissingModule = 3;
 // requirement); the evaluation counts the views below it.
 constexpr double kIouGoal = 0.98;
 
-std::string ExeDir() {
-  char buf[PATH_MAX];
-  const ssize_t n = ::readlink("/proc/self/exe", buf, sizeof buf - 1);
-  if (n <= 0) return "";
-  buf[n] = '\0';
-  return fs::path(buf).parent_path().string();
-}
-
 std::string TrainScriptPath() {
   if (const char* e = std::getenv("AGGSCAN_TRAIN_MASKS_SCRIPT"); e && *e) return e;
-  const std::string installed = ExeDir() + "/../share/aggscan/masks/" + kTrainScript;
+  const std::string installed = ExecutableDir() + "/../share/aggscan/masks/" + kTrainScript;
   if (PathExists(installed)) return installed;
   return std::string(AGGSCAN_SOURCE_DIR) + "/scripts/masks/" + kTrainScript;
 }
@@ -67,8 +58,8 @@ bool ParseInt(const std::string& s, int lo, int hi, int* v) {
 
 bool ParseSize(const std::string& s, int* w, int* h) {
   const auto x = s.find('x');
-  return x != std::string::npos && ParseInt(s.substr(0, x), 32, 4096, w) && ParseInt(s.substr(x + 1), 32, 4096, h) &&
-         *w % 16 == 0 && *h % 16 == 0;
+  return x != std::string::npos && ParseInt(s.substr(0, x), 32, 4096, w) &&
+         ParseInt(s.substr(x + 1), 32, 4096, h) && *w % 16 == 0 && *h % 16 == 0;
 }
 
 std::optional<json> ReadJson(const std::string& path) {
@@ -97,7 +88,8 @@ int DatasetCommand(const std::vector<std::string>& args, std::ostream& out, std:
     }
   }
   if (out_dir.empty() || samples.empty()) {
-    err << "aggscan masks dataset: give --out DIR and one or more reconstructed sample directories\n";
+    err << "aggscan masks dataset: give --out DIR and one or more reconstructed sample "
+           "directories\n";
     return 2;
   }
   for (const auto& s : samples) {
@@ -120,7 +112,8 @@ int DatasetCommand(const std::vector<std::string>& args, std::ostream& out, std:
   }
   for (const auto& [s, n] : per_sample) out << s << ": " << n << " pairs\n";
   out << sum->pairs.size() << " pairs from " << sum->samples.size() << " samples in " << out_dir
-      << " (index.json, index.csv); lowest IoU of a projection with the worker's own mask " << low << "\n";
+      << " (index.json, index.csv); lowest IoU of a projection with the worker's own mask " << low
+      << "\n";
   return 0;
 }
 
@@ -130,25 +123,29 @@ int DatasetCommand(const std::vector<std::string>& args, std::ostream& out, std:
 // earlier on PATH, e.g. pyenv's, does not see Debian's python3-torch).
 Result<std::string> FindPython(const std::string& wanted) {
   std::vector<std::string> candidates;
-  if (!wanted.empty()) candidates.push_back(wanted);
-  else candidates = {"/usr/bin/python3", "python3"};
+  if (!wanted.empty())
+    candidates.push_back(wanted);
+  else
+    candidates = {"/usr/bin/python3", "python3"};
   std::string last;
   for (const auto& py : candidates) {
     auto r = RunSubprocess({py, "-c", "import torch, cv2"}, SubprocessOptions{.timeout_s = 120});
     if (r && r->Succeeded()) return py;
     last = py + (r ? ": " + r->Describe() : ": " + r.error().message);
   }
-  return MakeError(ErrorClass::kNotFound,
-                   "no python3 that imports torch and cv2 (" + last +
-                       "): install Debian's python3-torch and python3-opencv (apt-get install python3-torch "
-                       "python3-opencv, or scripts/install-deps.sh), or give --python PATH");
+  return MakeError(
+      ErrorClass::kNotFound,
+      "no python3 that imports torch and cv2 (" + last +
+          "): install Debian's python3-torch and python3-opencv (apt-get install python3-torch "
+          "python3-opencv, or scripts/install-deps.sh), or give --python PATH");
 }
 
 std::string ConfigLines(const std::string& model, int w, int h) {
   char buf[512];
   std::snprintf(buf, sizeof buf,
                 "[mask]\nmethod = \"onnx\"\nmodel = \"%s\"\ninput_width = %d\ninput_height = %d\n"
-                "mean_r = 0.485\nmean_g = 0.456\nmean_b = 0.406\nstd_r = 0.229\nstd_g = 0.224\nstd_b = 0.225\n"
+                "mean_r = 0.485\nmean_g = 0.456\nmean_b = 0.406\nstd_r = 0.229\nstd_g = "
+                "0.224\nstd_b = 0.225\n"
                 "output = \"probability\"\nthreshold = 0.5\n",
                 model.c_str(), w, h);
   return buf;
@@ -191,7 +188,8 @@ int TrainCommand(const std::vector<std::string>& args, std::ostream& out, std::o
     }
   }
   if (dataset.empty() || model.empty()) {
-    err << "aggscan masks train: give --dataset DIR (from `aggscan masks dataset`) and --out MODEL.onnx\n";
+    err << "aggscan masks train: give --dataset DIR (from `aggscan masks dataset`) and --out "
+           "MODEL.onnx\n";
     return 2;
   }
   if (!PathExists(dataset + "/index.json")) {
@@ -203,8 +201,8 @@ int TrainCommand(const std::vector<std::string>& args, std::ostream& out, std::o
   const std::string script = TrainScriptPath();
   if (!PathExists(script)) {
     err << "aggscan masks train: the training script " << script
-        << " is missing: reinstall aggscan, or set AGGSCAN_TRAIN_MASKS_SCRIPT to scripts/masks/" << kTrainScript
-        << "\n";
+        << " is missing: reinstall aggscan, or set AGGSCAN_TRAIN_MASKS_SCRIPT to scripts/masks/"
+        << kTrainScript << "\n";
     return 1;
   }
   auto py = FindPython(python);
@@ -216,11 +214,13 @@ int TrainCommand(const std::vector<std::string>& args, std::ostream& out, std::o
   const std::string log = abs_model + ".log";
   std::error_code ec;
   fs::remove(log, ec);
-  out << "aggscan masks train: training with " << *py << " " << script << " (log: " << log << ")\n" << std::flush;
-  auto r = RunSubprocess({*py, script, "--dataset", dataset, "--out", abs_model, "--epochs", std::to_string(epochs),
-                          "--width", std::to_string(width), "--height", std::to_string(height), "--seed",
-                          std::to_string(seed), "--threads", std::to_string(threads)},
-                         SubprocessOptions{.log_path = log});
+  out << "aggscan masks train: training with " << *py << " " << script << " (log: " << log << ")\n"
+      << std::flush;
+  auto r = RunSubprocess(
+      {*py, script, "--dataset", dataset, "--out", abs_model, "--epochs", std::to_string(epochs),
+       "--width", std::to_string(width), "--height", std::to_string(height), "--seed",
+       std::to_string(seed), "--threads", std::to_string(threads)},
+      SubprocessOptions{.log_path = log});
   if (!r) {
     err << "aggscan masks train: cannot run " << *py << ": " << r.error().message << "\n";
     return 1;
@@ -238,7 +238,8 @@ int TrainCommand(const std::vector<std::string>& args, std::ostream& out, std::o
   o.input_size = cv::Size(width, height);
   auto net = MaskNet::Load(o);
   if (!net) {
-    err << "aggscan masks train: the exported model does not load in the worker: " << net.error().message << "\n";
+    err << "aggscan masks train: the exported model does not load in the worker: "
+        << net.error().message << "\n";
     return 1;
   }
   const std::string lines = ConfigLines(abs_model, width, height);
@@ -313,8 +314,8 @@ class Scorer {
 void PrintScores(std::ostream& out, const std::string& what, const Scores& s) {
   char buf[256];
   if (s.net >= 0) {
-    std::snprintf(buf, sizeof buf, "%-44s classical %.4f  trained %.4f  (network alone %.4f)\n", what.c_str(),
-                  s.classical, s.net, s.net_raw);
+    std::snprintf(buf, sizeof buf, "%-44s classical %.4f  trained %.4f  (network alone %.4f)\n",
+                  what.c_str(), s.classical, s.net, s.net_raw);
   } else {
     std::snprintf(buf, sizeof buf, "%-44s classical %.4f\n", what.c_str(), s.classical);
   }
@@ -336,7 +337,8 @@ void PrintSummary(std::ostream& out, const std::string& what, const Summary& s) 
     mm(s.net, &nl, &nm);
     mm(s.net_raw, &rl, &rm);
     std::snprintf(buf, sizeof buf,
-                  "%-36s %3zu views  classical min %.4f mean %.4f | trained min %.4f mean %.4f | network alone "
+                  "%-36s %3zu views  classical min %.4f mean %.4f | trained min %.4f mean %.4f | "
+                  "network alone "
                   "min %.4f mean %.4f\n",
                   what.c_str(), s.classical.size(), cl, cm, nl, nm, rl, rm);
   } else {
@@ -374,7 +376,8 @@ int EvalCommand(const std::vector<std::string>& args, std::ostream& out, std::os
     }
   }
   if (samples.empty() && grabcut.empty()) {
-    err << "aggscan masks eval: give simulated sample directories (with truth/) and/or --grabcut DIR\n";
+    err << "aggscan masks eval: give simulated sample directories (with truth/) and/or --grabcut "
+           "DIR\n";
     return 2;
   }
   // The model and what it was trained on (MODEL.json, written by training).
@@ -385,7 +388,8 @@ int EvalCommand(const std::vector<std::string>& args, std::ostream& out, std::os
     o.model_path = model;
     if (auto rep = ReadJson(model + ".json")) {
       o.input_size = cv::Size(rep->value("input_width", 320), rep->value("input_height", 320));
-      for (const auto& s : rep->value("samples", json::array())) trained_on.insert(s.get<std::string>());
+      for (const auto& s : rep->value("samples", json::array()))
+        trained_on.insert(s.get<std::string>());
     }
     if (width > 0) o.input_size = cv::Size(width, height);
     auto loaded = MaskNet::Load(o);
@@ -403,16 +407,19 @@ int EvalCommand(const std::vector<std::string>& args, std::ostream& out, std::os
   for (const std::string& dir : samples) {
     const std::string truth_dir = dir + "/" + layout::kTruthDir;
     if (!fs::is_directory(truth_dir)) {
-      err << "aggscan masks eval: " << dir << " has no truth/ (only simulated samples carry truth masks)\n";
+      err << "aggscan masks eval: " << dir
+          << " has no truth/ (only simulated samples carry truth masks)\n";
       return 1;
     }
     std::string name = fs::path(dir).lexically_normal().filename().string();
     if (name.empty()) name = fs::path(dir).lexically_normal().parent_path().filename().string();
     std::string look = "sim renderer";
-    if (auto t = ReadJson(dir + "/truth.json"); t && t->contains("renderer") && (*t)["renderer"].is_object()) {
+    if (auto t = ReadJson(dir + "/truth.json");
+        t && t->contains("renderer") && (*t)["renderer"].is_object()) {
       look = (*t)["renderer"].value("look", json::object()).value("name", "blender");
     }
-    const std::string split = trained_on.empty() ? "" : (trained_on.count(name) ? "trained on" : "held out");
+    const std::string split =
+        trained_on.empty() ? "" : (trained_on.count(name) ? "trained on" : "held out");
     int views = 0;
     for (int side = 1; side <= 8; ++side) {
       const std::string td = truth_dir + "/" + layout::SideDirName(side);
@@ -429,14 +436,15 @@ int EvalCommand(const std::vector<std::string>& args, std::ostream& out, std::os
         auto bgr = LoadImage(photo, ImageMode::kColor);
         auto truth = LoadImage(td + "/" + f, ImageMode::kGray);
         if (!bgr || !truth || bgr->size() != truth->size()) {
-          err << "aggscan masks eval: skipped " << photo << " (unreadable, or not the size of its truth mask)\n";
+          err << "aggscan masks eval: skipped " << photo
+              << " (unreadable, or not the size of its truth mask)\n";
           continue;
         }
         const Scores s = scorer.Score(*bgr, *truth > 127, cv::Mat());
         const std::string what = name + " " + layout::SideDirName(side) + " " + stem;
         if (!quiet && !as_json) PrintScores(out, what, s);
-        json v = {{"set", "simulated"}, {"sample", name},         {"look", look},   {"side", side},
-                  {"view", stem},       {"classical", s.classical}};
+        json v = {{"set", "simulated"}, {"sample", name}, {"look", look},
+                  {"side", side},       {"view", stem},   {"classical", s.classical}};
         if (s.net >= 0) v["trained"] = s.net, v["trained_raw"] = s.net_raw;
         if (!split.empty()) v["split"] = split;
         report["views"].push_back(v);
@@ -448,7 +456,8 @@ int EvalCommand(const std::vector<std::string>& args, std::ostream& out, std::os
       }
     }
     if (views == 0) {
-      err << "aggscan masks eval: " << dir << " has no view with a truth mask and a readable photo\n";
+      err << "aggscan masks eval: " << dir
+          << " has no view with a truth mask and a readable photo\n";
       return 1;
     }
   }
@@ -460,13 +469,15 @@ int EvalCommand(const std::vector<std::string>& args, std::ostream& out, std::os
       const std::string gt_path = grabcut + "/boundary_GT/" + stone + ".bmp";
       std::string photo;
       for (const char* ext : {".JPG", ".jpg", ".bmp"}) {
-        if (PathExists(grabcut + "/data_GT/" + stone + ext)) photo = grabcut + "/data_GT/" + stone + ext;
+        if (PathExists(grabcut + "/data_GT/" + stone + ext))
+          photo = grabcut + "/data_GT/" + stone + ext;
       }
       const cv::Mat bgr = photo.empty() ? cv::Mat() : cv::imread(photo, cv::IMREAD_COLOR);
       const cv::Mat gt = cv::imread(gt_path, cv::IMREAD_GRAYSCALE);
       if (bgr.empty() || gt.empty() || bgr.size() != gt.size()) {
-        err << "aggscan masks eval: " << grabcut << " lacks a readable data_GT/" << stone << ".JPG and boundary_GT/"
-            << stone << ".bmp of one size (the MSR GrabCut set's layout)\n";
+        err << "aggscan masks eval: " << grabcut << " lacks a readable data_GT/" << stone
+            << ".JPG and boundary_GT/" << stone
+            << ".bmp of one size (the MSR GrabCut set's layout)\n";
         return 1;
       }
       const Scores s = scorer.Score(bgr, gt == 255, gt == 128);
@@ -492,10 +503,15 @@ int EvalCommand(const std::vector<std::string>& args, std::ostream& out, std::os
     return 0;
   }
   if (!samples.empty()) {
-    out << "\nIoU against the truth masks (goal " << kIouGoal << " on every view); 'trained' = the network's map "
+    out << "\nIoU against the truth masks (goal " << kIouGoal
+        << " on every view); 'trained' = the network's map "
         << "refined as the worker does, 'network alone' = its map thresholded:\n";
     for (const auto& [k, s] : by_sample) {
-      PrintSummary(out, k + (trained_on.empty() ? "" : trained_on.count(k) ? " (trained on)" : " (held out)"), s);
+      PrintSummary(out,
+                   k + (trained_on.empty()    ? ""
+                        : trained_on.count(k) ? " (trained on)"
+                                              : " (held out)"),
+                   s);
     }
     for (const auto& [k, s] : by_look) PrintSummary(out, "look " + k, s);
     for (const auto& [k, s] : by_split) PrintSummary(out, k, s);
@@ -510,11 +526,13 @@ void PrintMasksUsage(std::ostream& o) {
   o << "  aggscan masks dataset --out DIR SAMPLE_DIR...\n"
        "      training pairs for the mask network from reconstructed samples: each photo with\n"
        "      the sample's mesh projected into it (PNG 0/255), index.json and index.csv\n"
-       "  aggscan masks train --dataset DIR --out MODEL.onnx [--epochs N (30)] [--input WxH (320x320)]\n"
+       "  aggscan masks train --dataset DIR --out MODEL.onnx [--epochs N (30)] [--input WxH "
+       "(320x320)]\n"
        "                      [--seed N] [--threads N (2)] [--python PATH]\n"
        "      train the small salient-object network on the CPU (Debian's python3-torch and\n"
        "      python3-opencv), export it to ONNX, print the [mask] config lines to use it\n"
-       "  aggscan masks eval [--model MODEL.onnx] [--grabcut DIR] [--summary | --json] SAMPLE_DIR...\n"
+       "  aggscan masks eval [--model MODEL.onnx] [--grabcut DIR] [--summary | --json] "
+       "SAMPLE_DIR...\n"
        "      IoU of the classical and the trained masks side by side against the truth masks\n"
        "      of simulated samples, per view and summarised (min/mean), and on the GrabCut\n"
        "      set's stone photos\n";

@@ -2,19 +2,18 @@
 
 #include <stdlib.h>
 
+#include <Eigen/Geometry>
 #include <algorithm>
+#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <cerrno>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <map>
-#include <sstream>
-
-#include <Eigen/Geometry>
 #include <opencv2/imgcodecs.hpp>
+#include <sstream>
 
 #include "cli/blender_render.h"
 #include "cli/sim_capture.h"
@@ -154,10 +153,12 @@ void MaskIou(const std::string& sample_dir, const json& truth, double* iou_min, 
   double sum = 0, lo = 1;
   int n = 0;
   for (const json& v : truth.value("views", json::array())) {
-    if (!v.is_object() || !v.contains("side") || !v.contains("view") || !v.contains("mask")) continue;
-    const cv::Mat t = cv::imread(sample_dir + "/" + v["mask"].get<std::string>(), cv::IMREAD_GRAYSCALE);
-    const cv::Mat m =
-        cv::imread(ViewMaskPath(sample_dir, v["side"].get<int>(), v["view"].get<int>()), cv::IMREAD_GRAYSCALE);
+    if (!v.is_object() || !v.contains("side") || !v.contains("view") || !v.contains("mask"))
+      continue;
+    const cv::Mat t =
+        cv::imread(sample_dir + "/" + v["mask"].get<std::string>(), cv::IMREAD_GRAYSCALE);
+    const cv::Mat m = cv::imread(
+        ViewMaskPath(sample_dir, v["side"].get<int>(), v["view"].get<int>()), cv::IMREAD_GRAYSCALE);
     if (t.empty() || m.empty() || t.size() != m.size()) continue;
     const cv::Mat a = t > 127, b = m > 127;
     const int uni = cv::countNonZero(a | b);
@@ -217,8 +218,9 @@ Result<json> MakeCalibration(const ValidateOptions& o, const std::string& work, 
     // The board's photos drawn by Blender as well, in the first rock's look.
     auto b = RerenderWithBlender(cap.out, LookFor(o, 0), BlenderOpts(o), log);
     if (!b) {
-      return MakeError(b.error().cls, "the Blender calibration capture failed: " + b.error().message +
-                                          "; try --calibration truth to validate without it");
+      return MakeError(b.error().cls,
+                       "the Blender calibration capture failed: " + b.error().message +
+                           "; try --calibration truth to validate without it");
     }
     rendered = b->ToJson();
   }
@@ -240,15 +242,15 @@ Result<json> MakeCalibration(const ValidateOptions& o, const std::string& work, 
                 r->k2_estimated ? "estimated" : "fixed at 0", Seconds(t0));
   log << line << std::flush;
   json out{{"method", "charuco"},
-              {"note", "simulated ChArUco capture on the disc, solved by aggscan calibrate's solver"},
-              {"views_used", r->cal.views_used},
-              {"reprojection_rms_px", r->cal.reprojection_rms_px},
-              {"fx_error_pct", fx_err},
-              {"camera_centre_error_mm", centre_err},
-              {"k1", r->cal.camera.k1},
-              {"k2", r->cal.camera.k2},
-              {"k2_estimated", r->k2_estimated},
-              {"seconds", Seconds(t0)}};
+           {"note", "simulated ChArUco capture on the disc, solved by aggscan calibrate's solver"},
+           {"views_used", r->cal.views_used},
+           {"reprojection_rms_px", r->cal.reprojection_rms_px},
+           {"fx_error_pct", fx_err},
+           {"camera_centre_error_mm", centre_err},
+           {"k1", r->cal.camera.k1},
+           {"k2", r->cal.camera.k2},
+           {"k2_estimated", r->k2_estimated},
+           {"seconds", Seconds(t0)}};
   if (!rendered.is_null()) out["renderer"] = rendered;
   return out;
 }
@@ -308,7 +310,8 @@ RockInput PrepareMesh(const std::string& file, const ValidateOptions& o, double 
 }
 
 void RunRock(const RockInput& in, int index, const ValidateOptions& o, const std::string& work,
-             const std::string& cfg, const std::string& calibration, ValidateRock* row, std::ostream& log) {
+             const std::string& cfg, const std::string& calibration, ValidateRock* row,
+             std::ostream& log) {
   const auto t0 = std::chrono::steady_clock::now();
   row->id = in.id;
   row->source = in.source;
@@ -352,8 +355,11 @@ void RunRock(const RockInput& in, int index, const ValidateOptions& o, const std
     }
     row->render_frame_s = b->mean_frame_s;
     char line[200];
-    std::snprintf(line, sizeof line, "rock %s: %d frames rendered (%s), %.1f s a frame, silhouettes vs the sim's IoU "
-                  "%.4f min\n", in.id.c_str(), b->frames, look.Name().c_str(), b->mean_frame_s, b->silhouette_iou_min);
+    std::snprintf(line, sizeof line,
+                  "rock %s: %d frames rendered (%s), %.1f s a frame, silhouettes vs the sim's IoU "
+                  "%.4f min\n",
+                  in.id.c_str(), b->frames, look.Name().c_str(), b->mean_frame_s,
+                  b->silhouette_iou_min);
     log << line << std::flush;
   }
   auto truth_text = ReadFile(cap.out + "/truth.json");
@@ -442,7 +448,8 @@ StitchTruthError StitchAgainstTruth(const std::string& sample_dir, const json& t
   std::map<int, Eigen::Isometry3d> rest;  // rock -> turntable, per side
   for (const json& p : truth.value("poses", json::array())) {
     Eigen::Isometry3d m;
-    if (p.is_object() && p.contains("side") && IsoFrom(p.value("rock_to_turntable_4x4", json()), &m)) {
+    if (p.is_object() && p.contains("side") &&
+        IsoFrom(p.value("rock_to_turntable_4x4", json()), &m)) {
       rest[p["side"].get<int>()] = m;
     }
   }
@@ -461,7 +468,8 @@ StitchTruthError StitchAgainstTruth(const std::string& sample_dir, const json& t
     Eigen::Isometry3d taken;
     bool found = false;
     for (const json& sd : st.value("sides", json::array())) {
-      if (sd.value("side", 0) == side) found = IsoFrom(sd.value("table_from_object_4x4", json()), &taken);
+      if (sd.value("side", 0) == side)
+        found = IsoFrom(sd.value("table_from_object_4x4", json()), &taken);
     }
     if (!found) continue;
     double deg = 0, mm = 0;
@@ -478,7 +486,9 @@ StitchTruthError StitchAgainstTruth(const std::string& sample_dir, const json& t
       for (const char* src : {"markers", "features"}) {
         const json& est = s.value(src, json::object());
         Eigen::Isometry3d moving_to_ref;
-        if (!est.value("valid", false) || !IsoFrom(est.value("moving_to_reference_4x4", json()), &moving_to_ref)) continue;
+        if (!est.value("valid", false) ||
+            !IsoFrom(est.value("moving_to_reference_4x4", json()), &moving_to_ref))
+          continue;
         double d = 0, m = 0;
         TransformError(moving_to_ref.inverse(), truth_t, pts, &d, &m);
         (std::string(src) == "markers" ? e.markers_deg : e.features_deg) = d;
@@ -542,7 +552,8 @@ ValidateSummary Summarize(const std::vector<ValidateRock>& rocks, const Validate
       ++s.stitch_measured;
       s.stitch_max_deg = std::max(s.stitch_max_deg, r.stitch.deg);
       s.stitch_max_mm = std::max(s.stitch_max_mm, r.stitch.mm);
-      if (r.stitch.deg <= s.stitch_target_deg && r.stitch.mm <= s.stitch_target_mm) ++s.stitch_within;
+      if (r.stitch.deg <= s.stitch_target_deg && r.stitch.mm <= s.stitch_target_mm)
+        ++s.stitch_within;
     }
     s.sphericity_max_abs = std::max(s.sphericity_max_abs, std::fabs(r.rec.sphericity - r.truth.sphericity));
   }
@@ -597,22 +608,25 @@ Result<ValidateReport> RunValidation(const ValidateOptions& o, std::ostream& log
     effective.sim.k1 = effective.sim.k2 = 0;
     effective.sim.noise_sigma = 0;
   }
-  rep.settings = {{"width", o.width > 0 ? o.width : effective.camera.width},
-                  {"height", o.height > 0 ? o.height : effective.camera.height},
-                  {"sides", o.sides},
-                  {"views_per_side", o.views_per_side},
-                  {"camera_distance_mm",
-                   o.camera_distance_mm > 0 ? o.camera_distance_mm : effective.sim.camera_distance_mm},
-                  {"step_deg", kStepDeg},
-                  {"calibration", *cal},
-                  {"masks", "computed by the worker (classical segmentation), not the sim's truth masks"},
-                  {"renderer", o.renderer == "blender"
-                                   ? json{{"name", "blender"}, {"samples_per_pixel", o.samples},
-                                          {"look", o.look.empty() ? json("the batch's variety (BatchLook)") : json(o.look)},
-                                          {"lens_distortion", "none (pinhole)"}}
-                                   : json{{"name", "sim"}}},
-                  {"sim_realism", Realism(effective, o.sides)},
-                  {"work_dir", temporary ? std::string() : work}};
+  rep.settings = {
+      {"width", o.width > 0 ? o.width : effective.camera.width},
+      {"height", o.height > 0 ? o.height : effective.camera.height},
+      {"sides", o.sides},
+      {"views_per_side", o.views_per_side},
+      {"camera_distance_mm",
+       o.camera_distance_mm > 0 ? o.camera_distance_mm : effective.sim.camera_distance_mm},
+      {"step_deg", kStepDeg},
+      {"calibration", *cal},
+      {"masks", "computed by the worker (classical segmentation), not the sim's truth masks"},
+      {"renderer",
+       o.renderer == "blender"
+           ? json{{"name", "blender"},
+                  {"samples_per_pixel", o.samples},
+                  {"look", o.look.empty() ? json("the batch's variety (BatchLook)") : json(o.look)},
+                  {"lens_distortion", "none (pinhole)"}}
+           : json{{"name", "sim"}}},
+      {"sim_realism", Realism(effective, o.sides)},
+      {"work_dir", temporary ? std::string() : work}};
 
   std::vector<RockInput> inputs;
   if (!o.mesh_dir.empty()) {
@@ -645,14 +659,16 @@ Result<ValidateReport> RunValidation(const ValidateOptions& o, std::ostream& log
 void PrintValidateReport(const ValidateReport& r, std::ostream& out) {
   const json& st = r.settings;
   char b[512];
-  std::snprintf(b, sizeof b,
-                "aggscan validate: %s, %d side(s) x %d views at %dx%d, calibration %s, computed masks, photos by %s\n",
-                r.options.mesh_dir.empty() ? "procedural rocks" : ("meshes in " + r.options.mesh_dir).c_str(),
-                r.options.sides, r.options.views_per_side, st.value("width", 0), st.value("height", 0),
-                st["calibration"].value("method", "").c_str(),
-                r.options.renderer == "blender"
-                    ? ("Blender Cycles, " + std::to_string(r.options.samples) + " samples/px").c_str()
-                    : "the sim renderer");
+  std::snprintf(
+      b, sizeof b,
+      "aggscan validate: %s, %d side(s) x %d views at %dx%d, calibration %s, computed masks, "
+      "photos by %s\n",
+      r.options.mesh_dir.empty() ? "procedural rocks" : ("meshes in " + r.options.mesh_dir).c_str(),
+      r.options.sides, r.options.views_per_side, st.value("width", 0), st.value("height", 0),
+      st["calibration"].value("method", "").c_str(),
+      r.options.renderer == "blender"
+          ? ("Blender Cycles, " + std::to_string(r.options.samples) + " samples/px").c_str()
+          : "the sim renderer");
   out << b;
   const json& re = st["sim_realism"];
   std::snprintf(b, sizeof b,
@@ -676,8 +692,8 @@ void PrintValidateReport(const ValidateReport& r, std::ostream& out) {
     if (k.status != "ok") {
       out << id << std::string(id.size() < 23 ? 23 - id.size() : 1, ' ') << k.status << ": " << k.message << "\n";
       if (!k.look.empty() || k.mask_iou_mean > 0) {
-        std::snprintf(b, sizeof b, "    %s%smasks vs true silhouettes IoU min %.4f mean %.4f\n", k.look.c_str(),
-                      k.look.empty() ? "" : ": ", k.mask_iou_min, k.mask_iou_mean);
+        std::snprintf(b, sizeof b, "    %s%smasks vs true silhouettes IoU min %.4f mean %.4f\n",
+                      k.look.c_str(), k.look.empty() ? "" : ": ", k.mask_iou_min, k.mask_iou_mean);
         out << b;
       }
       continue;
@@ -690,8 +706,8 @@ void PrintValidateReport(const ValidateReport& r, std::ostream& out) {
                   k.rec.sphericity);
     out << b;
     if (!k.look.empty() || k.mask_iou_mean > 0) {
-      std::snprintf(b, sizeof b, "    %s%smasks vs true silhouettes IoU min %.4f mean %.4f", k.look.c_str(),
-                    k.look.empty() ? "" : ": ", k.mask_iou_min, k.mask_iou_mean);
+      std::snprintf(b, sizeof b, "    %s%smasks vs true silhouettes IoU min %.4f mean %.4f",
+                    k.look.c_str(), k.look.empty() ? "" : ": ", k.mask_iou_min, k.mask_iou_mean);
       out << b;
       if (k.render_frame_s > 0) {
         std::snprintf(b, sizeof b, ", %.1f s a frame", k.render_frame_s);
@@ -705,15 +721,17 @@ void PrintValidateReport(const ValidateReport& r, std::ostream& out) {
       out << "\n";
     }
     if (k.stitch.measured) {
-      std::snprintf(b, sizeof b, "    stitch vs truth %.2f deg / %.2f mm by %s", k.stitch.deg, k.stitch.mm,
-                    k.stitch.source.c_str());
+      std::snprintf(b, sizeof b, "    stitch vs truth %.2f deg / %.2f mm by %s", k.stitch.deg,
+                    k.stitch.mm, k.stitch.source.c_str());
       out << b;
       if (k.stitch.markers_deg >= 0) {
-        std::snprintf(b, sizeof b, "; markers alone %.2f deg / %.2f mm", k.stitch.markers_deg, k.stitch.markers_mm);
+        std::snprintf(b, sizeof b, "; markers alone %.2f deg / %.2f mm", k.stitch.markers_deg,
+                      k.stitch.markers_mm);
         out << b;
       }
       if (k.stitch.features_deg >= 0) {
-        std::snprintf(b, sizeof b, "; features alone %.2f deg / %.2f mm", k.stitch.features_deg, k.stitch.features_mm);
+        std::snprintf(b, sizeof b, "; features alone %.2f deg / %.2f mm", k.stitch.features_deg,
+                      k.stitch.features_mm);
         out << b;
       }
       std::snprintf(b, sizeof b, "; silhouette deficit %.4f%s%s\n", k.stitch.silhouette_deficit,
@@ -757,16 +775,18 @@ void PrintValidateReport(const ValidateReport& r, std::ostream& out) {
   std::snprintf(b, sizeof b, "area MPE          %+7.2f %%   (no target)\n", s.area_mpe_pct);
   out << b;
   if (s.mask_iou_mean > 0) {
-    std::snprintf(b, sizeof b, "masks vs true silhouettes: IoU min %.4f, mean %.4f (per rock mean)\n", s.mask_iou_min,
-                  s.mask_iou_mean);
+    std::snprintf(b, sizeof b,
+                  "masks vs true silhouettes: IoU min %.4f, mean %.4f (per rock mean)\n",
+                  s.mask_iou_min, s.mask_iou_mean);
     out << b;
   }
   if (s.stitch_measured > 0) {
-    std::snprintf(b, sizeof b,
-                  "stitch vs truth: worst %.2f deg / %.2f mm; %d of %d rocks within %.1f deg and %.1f mm (no "
-                  "verdict)\n",
-                  s.stitch_max_deg, s.stitch_max_mm, s.stitch_within, s.stitch_measured, s.stitch_target_deg,
-                  s.stitch_target_mm);
+    std::snprintf(
+        b, sizeof b,
+        "stitch vs truth: worst %.2f deg / %.2f mm; %d of %d rocks within %.1f deg and %.1f mm (no "
+        "verdict)\n",
+        s.stitch_max_deg, s.stitch_max_mm, s.stitch_within, s.stitch_measured, s.stitch_target_deg,
+        s.stitch_target_mm);
     out << b;
   }
   if (s.render_frame_s > 0) {
@@ -804,13 +824,12 @@ json ValidateReportToJson(const ValidateReport& r) {
     if (k.render_frame_s > 0) j["render_frame_seconds"] = k.render_frame_s;
     if (k.mask_iou_mean > 0) j["mask_iou"] = {{"min", k.mask_iou_min}, {"mean", k.mask_iou_mean}};
     if (k.stitch.measured) {
-      json sj = {{"error_deg", k.stitch.deg},
-                 {"error_mm", k.stitch.mm},
-                 {"source", k.stitch.source},
-                 {"silhouette_deficit", k.stitch.silhouette_deficit},
-                 {"consistent", k.stitch.consistent},
-                 {"warning", k.stitch.warning}};
-      if (k.stitch.markers_deg >= 0) sj["markers"] = {{"error_deg", k.stitch.markers_deg}, {"error_mm", k.stitch.markers_mm}};
+      json sj = {
+          {"error_deg", k.stitch.deg},         {"error_mm", k.stitch.mm},
+          {"source", k.stitch.source},         {"silhouette_deficit", k.stitch.silhouette_deficit},
+          {"consistent", k.stitch.consistent}, {"warning", k.stitch.warning}};
+      if (k.stitch.markers_deg >= 0)
+        sj["markers"] = {{"error_deg", k.stitch.markers_deg}, {"error_mm", k.stitch.markers_mm}};
       if (k.stitch.features_deg >= 0) {
         sj["features"] = {{"error_deg", k.stitch.features_deg}, {"error_mm", k.stitch.features_mm}};
       }
@@ -860,13 +879,17 @@ json ValidateReportToJson(const ValidateReport& r) {
 }
 
 void PrintValidateUsage(std::ostream& o) {
-  o << "  aggscan validate [--count N] [--seed S] [--mesh-dir DIR --unit mm|cm|m [--scale-to-mm L|LO:HI]]\n"
-       "                   [--sides 1|2] [--views N] [--width W --height H] [--calibration charuco|truth]\n"
-       "                   [--camera-distance-mm D] [--renderer sim|blender [--look SPEC|--look-index K]\n"
+  o << "  aggscan validate [--count N] [--seed S] [--mesh-dir DIR --unit mm|cm|m [--scale-to-mm "
+       "L|LO:HI]]\n"
+       "                   [--sides 1|2] [--views N] [--width W --height H] [--calibration "
+       "charuco|truth]\n"
+       "                   [--camera-distance-mm D] [--renderer sim|blender [--look "
+       "SPEC|--look-index K]\n"
        "                   [--samples N]]\n"
        "                   [--json] [--keep DIR]\n"
        "      accuracy harness: simulated two-side captures (noise, distortion, JPEG, turntable\n"
-       "      errors, flip) of N procedural rocks (default 20, seeds S..S+N-1) or of every mesh in\n"
+       "      errors, flip) of N procedural rocks (default 20, seeds S..S+N-1) or of every mesh "
+       "in\n"
        "      DIR scaled so its longest dimension is L mm (LO..HI spread over the files),\n"
        "      reconstructed by the worker; prints true vs reconstructed volume, area, a, b, c,\n"
        "      sphericity, volume MPE/MAPE and PASS/FAIL against the targets (--json: the same as\n"
@@ -879,7 +902,8 @@ void PrintValidateUsage(std::ostream& o) {
        "      overcast, low-sun) and the stone (granite, dolomite, basalt, wet), or the one\n"
        "      --look surface=S,light=L,stone=T gives (--look-index K: start the cycle at look K);\n"
        "      object markers drawn like coloured pencil;\n"
-       "      --samples: Cycles samples per pixel (default 16); render time per frame is reported;\n"
+       "      --samples: Cycles samples per pixel (default 16); render time per frame is "
+       "reported;\n"
        "      exit 0 all targets met, 1 a target missed or a rock failed, 2 usage\n";
 }
 
@@ -957,7 +981,8 @@ int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, 
     } else if (a == "--samples") {
       if (!has_value) return need("a number of samples per pixel");
       if (!ParseCount(args[++i], &n) || n < 1 || n > 4096) {
-        err << "aggscan validate: --samples expects 1..4096 samples per pixel, got '" << args[i] << "'\n";
+        err << "aggscan validate: --samples expects 1..4096 samples per pixel, got '" << args[i]
+            << "'\n";
         return 2;
       }
       o.samples = static_cast<int>(n);

@@ -39,10 +39,10 @@ struct ValidateOptions {
   // view redrawn by Blender's Cycles from the same poses, cli/blender_render.h;
   // the sim's lens distortion is off then, Blender's camera is a pinhole).
   std::string renderer = "sim";
-  std::string look;               // blender: one look for every rock ("surface=wood,light=low-sun,...");
-                                  // empty: BatchLook(i) per rock, the variety cycled
-  int samples = 16;               // blender: Cycles samples per pixel
-  int look_index = 0;             // blender: BatchLook index of the first rock (to continue a batch)
+  std::string look;    // blender: one look for every rock ("surface=wood,light=low-sun,...");
+                       // empty: BatchLook(i) per rock, the variety cycled
+  int samples = 16;    // blender: Cycles samples per pixel
+  int look_index = 0;  // blender: BatchLook index of the first rock (to continue a batch)
 };
 
 /// Targets of issue 3 item 9.
@@ -87,13 +87,13 @@ DimErrors DimsAgainstMinimumBox(const RockFigures& truth, const RockFigures& rec
 
 struct StitchTruthError {
   bool measured = false;
-  double deg = 0, mm = 0;              // the stitch taken
-  std::string source;                  // markers | features | ... (stitch.json)
+  double deg = 0, mm = 0;                      // the stitch taken
+  std::string source;                          // markers | features | ... (stitch.json)
   double markers_deg = -1, markers_mm = -1;    // the markers' own estimate
   double features_deg = -1, features_mm = -1;  // the features' own estimate
-  double silhouette_deficit = 0;       // of the stitch taken
-  bool consistent = true;              // the sources agreed (stitch.json)
-  std::string warning;                 // stitch.json's
+  double silhouette_deficit = 0;               // of the stitch taken
+  bool consistent = true;                      // the sources agreed (stitch.json)
+  std::string warning;                         // stitch.json's
 };
 
 /// The sample's stitch (results/stitch.json) against truth.json's rest poses,
@@ -131,11 +131,12 @@ struct ValidateSummary {
   double dims_raw_max_abs_pct = 0;  // minimum box against minimum box only
   int dims_raw_within = 0;          // ... rocks within the target that way
   double sphericity_max_abs = 0;
-  double mask_iou_min = 0, mask_iou_mean = 0;  // over every view of every rock whose masks were made
+  double mask_iou_min = 0,
+         mask_iou_mean = 0;  // over every view of every rock whose masks were made
   double stitch_max_deg = 0, stitch_max_mm = 0;  // worst stitch against the truth
   int stitch_measured = 0, stitch_within = 0;    // rocks measured, and within the stitch targets
   double stitch_target_deg = 0.5, stitch_target_mm = 0.5;
-  double render_frame_s = 0;                   // blender: mean seconds per frame
+  double render_frame_s = 0;  // blender: mean seconds per frame
   bool volume_mpe_pass = false, volume_mape_pass = false, dims_pass = false, sphericity_pass = false;
   bool pass = false;  // every target met, no rock failed, at least one rock measured
 };

@@ -167,4 +167,12 @@ int RemoveTempFiles(const std::string& dir) {
   return removed;
 }
 
+std::string ExecutableDir() {
+  char buf[4096];
+  const ssize_t n = ::readlink("/proc/self/exe", buf, sizeof buf - 1);
+  if (n <= 0) return "";
+  buf[n] = '\0';
+  return std::filesystem::path(buf).parent_path().string();
+}
+
 }  // namespace aggscan

@@ -28,6 +28,9 @@ Status RenameDurable(const std::string& from, const std::string& to);
 /// Reads a whole file.
 Result<std::string> ReadFile(const std::string& path);
 bool PathExists(const std::string& path);
+/// The folder of the running executable (/proc/self/exe); empty if unknown.
+/// Installed data files are found relative to it (../share/aggscan/).
+std::string ExecutableDir();
 /// Removes leftover temporary files (".tmp-*") in dir (not recursive); returns how many.
 int RemoveTempFiles(const std::string& dir);
 

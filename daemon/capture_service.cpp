@@ -1140,13 +1140,15 @@ Result<json> CaptureService::GetSample(const std::string& sample_id) {
   json out = *d;
   // The worker's figures once it has written them, with their quality: a
   // doubtful result is shown as such wherever the sample is.
-  if (auto m = ReadFile(store_.SampleDir(sample_id) + "/" + layout::kResultsDir + "/morphology.json")) {
+  if (auto m =
+          ReadFile(store_.SampleDir(sample_id) + "/" + layout::kResultsDir + "/morphology.json")) {
     const json mj = json::parse(*m, nullptr, false);
     if (mj.is_object() && mj.contains("morphology_3d") && mj["morphology_3d"].is_object()) {
       const json& d3 = mj["morphology_3d"];
       const json q = mj.value("quality", json::object());
       json r = json::object();
-      for (const char* k : {"volume_mm3", "surface_area_mm2", "a_mm", "b_mm", "c_mm", "sphericity"}) {
+      for (const char* k :
+           {"volume_mm3", "surface_area_mm2", "a_mm", "b_mm", "c_mm", "sphericity"}) {
         if (d3.contains(k)) r[k] = d3[k];
       }
       r["confident"] = q.is_object() ? q.value("confident", true) : true;

@@ -383,4 +383,13 @@ LengthScaleFit FitLengthScale(const std::vector<LengthPair>& lengths) {
   return LengthResiduals(den > 0 ? num / den : 1.0, lengths);
 }
 
+Eigen::Isometry3d IsoFromRowMajor(const std::array<double, 16>& m) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) T.linear()(r, c) = m[r * 4 + c];
+    T.translation()(r) = m[r * 4 + 3];
+  }
+  return T;
+}
+
 }  // namespace aggscan::geom

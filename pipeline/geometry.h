@@ -57,6 +57,9 @@ Rigid3 CamFromTable(const RigCalibration& cal, double angle_deg);
 /// The camera matrix K (no distortion).
 Eigen::Matrix3d CameraMatrix(const CameraModel& cam);
 
+/// A rigid transform from a row-major 4x4 matrix (RigCalibration's form).
+Eigen::Isometry3d IsoFromRowMajor(const std::array<double, 16>& m);
+
 /// Removes the lens distortion from a pixel: the pixel where the same ray would
 /// land through an ideal lens with the same K. Iterative (converges to 1e-6 px
 /// within the rig's distortion range).

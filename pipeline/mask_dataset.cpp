@@ -4,14 +4,14 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
-#include <set>
-#include <sstream>
-
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <set>
+#include <sstream>
 
 #include "common/fsutil.h"
+#include "pipeline/geometry.h"
 #include "pipeline/image_io.h"
 #include "store/layout.h"
 
@@ -32,24 +32,18 @@ Result<json> ReadJsonFile(const std::string& path) {
 }
 
 Result<Eigen::Isometry3d> IsoFromJson(const json& j, const std::string& what) {
-  if (!j.is_array() || j.size() != 16) return MakeError(ErrorClass::kCorrupt, what + ": not a 4x4 matrix");
+  if (!j.is_array() || j.size() != 16)
+    return MakeError(ErrorClass::kCorrupt, what + ": not a 4x4 matrix");
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
   for (int r = 0; r < 3; ++r) {
     for (int c = 0; c < 4; ++c) {
       const json& e = j[r * 4 + c];
       if (!e.is_number()) return MakeError(ErrorClass::kCorrupt, what + ": not a 4x4 matrix");
-      if (c < 3) T.linear()(r, c) = e.get<double>();
-      else T.translation()(r) = e.get<double>();
+      if (c < 3)
+        T.linear()(r, c) = e.get<double>();
+      else
+        T.translation()(r) = e.get<double>();
     }
-  }
-  return T;
-}
-
-Eigen::Isometry3d IsoFromRowMajor(const std::array<double, 16>& m) {
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c) T.linear()(r, c) = m[r * 4 + c];
-    T.translation()(r) = m[r * 4 + 3];
   }
   return T;
 }
@@ -69,7 +63,8 @@ std::string CsvField(const std::string& s) {
 
 }  // namespace
 
-cv::Mat RenderMeshSilhouette(const Mesh& mesh, const Eigen::Isometry3d& cam_from_object, const CameraModel& cam) {
+cv::Mat RenderMeshSilhouette(const Mesh& mesh, const Eigen::Isometry3d& cam_from_object,
+                             const CameraModel& cam) {
   constexpr int kShift = 4;  // fillConvexPoly's fractional bits: vertices at 1/16 px
   std::vector<cv::Point> pts(mesh.vertices.size());
   std::vector<char> in_front(mesh.vertices.size(), 0);
@@ -79,8 +74,9 @@ cv::Mat RenderMeshSilhouette(const Mesh& mesh, const Eigen::Isometry3d& cam_from
     in_front[i] = cam.Project({pc.x(), pc.y(), pc.z()}, &u, &v);
     // Pixel centres at integer coordinates; the fixed-point origin is the
     // pixel's corner.
-    pts[i] = cv::Point(static_cast<int>(std::lround((u + 0.5) * (1 << kShift) - (1 << (kShift - 1)))),
-                       static_cast<int>(std::lround((v + 0.5) * (1 << kShift) - (1 << (kShift - 1)))));
+    pts[i] =
+        cv::Point(static_cast<int>(std::lround((u + 0.5) * (1 << kShift) - (1 << (kShift - 1)))),
+                  static_cast<int>(std::lround((v + 0.5) * (1 << kShift) - (1 << (kShift - 1)))));
   }
   cv::Mat sil = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
   for (const auto& f : mesh.faces) {
@@ -106,7 +102,8 @@ double MaskIoUIgnoring(const cv::Mat& a, const cv::Mat& b, const cv::Mat& ignore
 
 Result<std::vector<ProjectedView>> ProjectReconstruction(const std::string& sample_dir) {
   const std::string results = sample_dir + "/" + layout::kResultsDir;
-  const std::string redo = ": reconstruct the sample first (aggscan reconstruct " + sample_dir + ")";
+  const std::string redo =
+      ": reconstruct the sample first (aggscan reconstruct " + sample_dir + ")";
   for (const char* f : {"morphology.json", "mesh.ply", "stitch.json", "calibration_used.json"}) {
     if (!PathExists(results + "/" + f)) {
       return MakeError(ErrorClass::kNotFound, sample_dir + " has no results/" + f + redo);
@@ -134,7 +131,8 @@ Result<std::vector<ProjectedView>> ProjectReconstruction(const std::string& samp
     const std::string side_dir = sample_dir + "/" + layout::SideDirName(side);
     const std::string poses_path = results + "/poses_" + layout::SideDirName(side) + ".json";
     auto poses = ReadJsonFile(poses_path);
-    if (!poses) return MakeError(poses.error().cls, poses.error().message + redo, poses.error().detail);
+    if (!poses)
+      return MakeError(poses.error().cls, poses.error().message + redo, poses.error().detail);
     struct Posed {
       Eigen::Isometry3d cam_from_table;
       std::string image, mask, pose;
@@ -155,12 +153,14 @@ Result<std::vector<ProjectedView>> ProjectReconstruction(const std::string& samp
         for (const auto& v : manifest->value("views", json::array())) {
           const int view = v.value("view", -1);
           if (view < 0 || views.count(view)) continue;
-          auto sidecar = ReadJsonFile(side_dir + "/" + v.value("sidecar", layout::ViewSidecarName(view)));
-          if (!sidecar || !(*sidecar).contains("measured_angle_deg") || !(*sidecar)["measured_angle_deg"].is_number())
+          auto sidecar =
+              ReadJsonFile(side_dir + "/" + v.value("sidecar", layout::ViewSidecarName(view)));
+          if (!sidecar || !(*sidecar).contains("measured_angle_deg") ||
+              !(*sidecar)["measured_angle_deg"].is_number())
             continue;
           const double angle = (*sidecar)["measured_angle_deg"].get<double>();
-          views[view] = {IsoFromRowMajor(cal->CamFromTable(angle)), v.value("image", layout::ViewImageName(view)), "",
-                         "turntable"};
+          views[view] = {geom::IsoFromRowMajor(cal->CamFromTable(angle)),
+                         v.value("image", layout::ViewImageName(view)), "", "turntable"};
         }
       }
     }
@@ -173,7 +173,8 @@ Result<std::vector<ProjectedView>> ProjectReconstruction(const std::string& samp
       pv.silhouette = RenderMeshSilhouette(*mesh, p.cam_from_table * table_T, cal->camera);
       if (!p.mask.empty()) {
         auto m = LoadImage(results + "/" + p.mask, ImageMode::kGray);
-        if (m && m->size() == pv.silhouette.size()) pv.agreement_iou = MaskIoUIgnoring(*m, pv.silhouette);
+        if (m && m->size() == pv.silhouette.size())
+          pv.agreement_iou = MaskIoUIgnoring(*m, pv.silhouette);
       }
       out.push_back(std::move(pv));
     }
@@ -181,17 +182,21 @@ Result<std::vector<ProjectedView>> ProjectReconstruction(const std::string& samp
   return out;
 }
 
-Result<MaskDatasetSummary> MakeMaskDataset(const std::vector<std::string>& sample_dirs, const std::string& out_dir) {
+Result<MaskDatasetSummary> MakeMaskDataset(const std::vector<std::string>& sample_dirs,
+                                           const std::string& out_dir) {
   std::error_code ec;
   fs::create_directories(out_dir + "/images", ec);
   if (!ec) fs::create_directories(out_dir + "/masks", ec);
-  if (ec) return MakeError(ErrorClass::kIo, "cannot create the dataset directory " + out_dir, ec.message());
+  if (ec)
+    return MakeError(ErrorClass::kIo, "cannot create the dataset directory " + out_dir,
+                     ec.message());
   MaskDatasetSummary sum;
   std::set<std::string> names;
   for (const std::string& dir : sample_dirs) {
     std::string name = SampleName(dir);
     if (!names.insert(name).second) {
-      sum.skipped.push_back(dir + ": another sample directory of the same name " + name + " is already in");
+      sum.skipped.push_back(dir + ": another sample directory of the same name " + name +
+                            " is already in");
       continue;
     }
     auto views = ProjectReconstruction(dir);
@@ -205,7 +210,8 @@ Result<MaskDatasetSummary> MakeMaskDataset(const std::vector<std::string>& sampl
       // the calibration's size (the silhouette's).
       auto photo = LoadImage(v.image, ImageMode::kColor);
       if (!photo || photo->size() != v.silhouette.size()) continue;
-      const std::string stem = name + "_" + layout::SideDirName(v.side) + "_" + layout::ViewStem(v.view);
+      const std::string stem =
+          name + "_" + layout::SideDirName(v.side) + "_" + layout::ViewStem(v.view);
       MaskPairRecord r;
       r.sample = name;
       r.side = v.side;
@@ -215,7 +221,9 @@ Result<MaskDatasetSummary> MakeMaskDataset(const std::vector<std::string>& sampl
       r.image = "images/" + stem + fs::path(v.image).extension().string();
       r.mask = "masks/" + stem + ".png";
       fs::copy_file(v.image, out_dir + "/" + r.image, fs::copy_options::overwrite_existing, ec);
-      if (ec) return MakeError(ErrorClass::kIo, "cannot copy " + v.image + " into " + out_dir, ec.message());
+      if (ec)
+        return MakeError(ErrorClass::kIo, "cannot copy " + v.image + " into " + out_dir,
+                         ec.message());
       std::vector<unsigned char> png;
       cv::imencode(".png", v.silhouette, png);
       if (Status s = WriteFileAtomic(out_dir + "/" + r.mask, png); !s) return s.error();
@@ -231,8 +239,10 @@ Result<MaskDatasetSummary> MakeMaskDataset(const std::vector<std::string>& sampl
   if (sum.pairs.empty()) {
     std::string why;
     for (const auto& s : sum.skipped) why += "\n  " + s;
-    return MakeError(ErrorClass::kNotFound, "no training pair: none of the samples is reconstructed with readable "
-                                            "photos (aggscan reconstruct SAMPLE_DIR makes results/mesh.ply)" + why);
+    return MakeError(ErrorClass::kNotFound,
+                     "no training pair: none of the samples is reconstructed with readable "
+                     "photos (aggscan reconstruct SAMPLE_DIR makes results/mesh.ply)" +
+                         why);
   }
   json pairs = json::array();
   std::ostringstream csv;
@@ -245,15 +255,18 @@ Result<MaskDatasetSummary> MakeMaskDataset(const std::vector<std::string>& sampl
                      {"view", r.view},
                      {"pose", r.pose},
                      {"agreement_iou", r.agreement_iou}});
-    csv << CsvField(r.image) << "," << CsvField(r.mask) << "," << CsvField(r.sample) << "," << r.side << ","
-        << r.view << "," << r.pose << "," << r.agreement_iou << "\n";
+    csv << CsvField(r.image) << "," << CsvField(r.mask) << "," << CsvField(r.sample) << ","
+        << r.side << "," << r.view << "," << r.pose << "," << r.agreement_iou << "\n";
   }
-  const json index = {{"format", "aggscan mask dataset 1"},
-                      {"mask_source", "the sample's reconstructed mesh (results/mesh.ply) projected into each view"},
-                      {"pairs", pairs},
-                      {"samples", sum.samples},
-                      {"skipped", sum.skipped}};
-  if (Status s = WriteFileAtomic(out_dir + "/index.json", index.dump(1) + "\n"); !s) return s.error();
+  const json index = {
+      {"format", "aggscan mask dataset 1"},
+      {"mask_source",
+       "the sample's reconstructed mesh (results/mesh.ply) projected into each view"},
+      {"pairs", pairs},
+      {"samples", sum.samples},
+      {"skipped", sum.skipped}};
+  if (Status s = WriteFileAtomic(out_dir + "/index.json", index.dump(1) + "\n"); !s)
+    return s.error();
   if (Status s = WriteFileAtomic(out_dir + "/index.csv", csv.str()); !s) return s.error();
   return sum;
 }

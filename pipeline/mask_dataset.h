@@ -17,11 +17,10 @@
 //   DIR/index.csv   the same pairs, one a line
 #pragma once
 
-#include <string>
-#include <vector>
-
 #include <Eigen/Geometry>
 #include <opencv2/core.hpp>
+#include <string>
+#include <vector>
 
 #include "common/error.h"
 #include "common/mesh.h"
@@ -32,7 +31,8 @@ namespace aggscan {
 /// The silhouette of `mesh` (object frame, mm) seen by `cam` at
 /// `cam_from_object`: CV_8UC1, 0/255, the camera's size; every face filled
 /// with sub-pixel vertex positions (1/16 px).
-cv::Mat RenderMeshSilhouette(const Mesh& mesh, const Eigen::Isometry3d& cam_from_object, const CameraModel& cam);
+cv::Mat RenderMeshSilhouette(const Mesh& mesh, const Eigen::Isometry3d& cam_from_object,
+                             const CameraModel& cam);
 
 /// IoU of two masks (nonzero: rock) of one size, leaving out the pixels where
 /// `ignore` (if given) is nonzero; 1 when both are empty.
@@ -41,9 +41,10 @@ double MaskIoUIgnoring(const cv::Mat& a, const cv::Mat& b, const cv::Mat& ignore
 /// One view of a reconstructed sample: its photo and where the mesh projects.
 struct ProjectedView {
   int side = 0, view = 0;
-  std::string image;       // the photo's path
-  std::string pose;        // "poses" (results/poses_sideN.json) or "turntable" (calibration + measured angle)
-  cv::Mat silhouette;      // 0/255, the photo's size
+  std::string image;  // the photo's path
+  std::string
+      pose;  // "poses" (results/poses_sideN.json) or "turntable" (calibration + measured angle)
+  cv::Mat silhouette;         // 0/255, the photo's size
   double agreement_iou = -1;  // IoU with the worker's own mask of the view (-1: it has none)
 };
 
@@ -70,6 +71,7 @@ struct MaskDatasetSummary {
 /// Writes the pairs of every sample into out_dir (created; pairs of the same
 /// names replaced) and its index. A sample that is not reconstructed is
 /// skipped and named in `skipped`; kNotFound when no sample gives a pair.
-Result<MaskDatasetSummary> MakeMaskDataset(const std::vector<std::string>& sample_dirs, const std::string& out_dir);
+Result<MaskDatasetSummary> MakeMaskDataset(const std::vector<std::string>& sample_dirs,
+                                           const std::string& out_dir);
 
 }  // namespace aggscan

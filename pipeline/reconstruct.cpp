@@ -18,7 +18,9 @@
 #include "common/mesh_check.h"
 #include "common/mesh_props.h"
 #include "common/rig_calibration.h"
+#include "pipeline/geometry.h"
 #include "pipeline/image_io.h"
+#include "pipeline/mask_dataset.h"
 #include "pipeline/morph2d.h"
 #include "pipeline/quality.h"
 #include "pipeline/stage.h"
@@ -62,15 +64,6 @@ double Seconds(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
-Eigen::Isometry3d IsoFromRowMajor(const std::array<double, 16>& m) {
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c) T.linear()(r, c) = m[r * 4 + c];
-    T.translation()(r) = m[r * 4 + 3];
-  }
-  return T;
-}
-
 json IsoToJson(const Eigen::Isometry3d& T) {
   json a = json::array();
   for (int r = 0; r < 4; ++r)
@@ -85,7 +78,7 @@ Result<Eigen::Isometry3d> IsoFromJson(const json& j, const std::string& what) {
     if (!j[i].is_number()) return MakeError(ErrorClass::kCorrupt, what + ": not a 4x4 matrix");
     m[i] = j[i].get<double>();
   }
-  return IsoFromRowMajor(m);
+  return geom::IsoFromRowMajor(m);
 }
 
 // --- stage: calibration --------------------------------------------------
@@ -276,7 +269,7 @@ Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int sid
       auto measured = MeasuredAngle(v, side);
       if (!measured) return measured.error();
       const double angle = *measured;
-      const Eigen::Isometry3d T = IsoFromRowMajor(cal->CamFromTable(angle));
+      const Eigen::Isometry3d T = geom::IsoFromRowMajor(cal->CamFromTable(angle));
       jviews.push_back({{"view", v["view"]},
                         {"image", v.value("image", "")},
                         {"mask", v.value("mask", "")},
@@ -318,7 +311,7 @@ Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int sid
           jviews[i]["angle_deg"] = ba.angle_deg[i];
           jviews[i]["angle_correction_deg"] = ba.correction_deg[i];
           jviews[i]["ba_adjusted"] = static_cast<bool>(ba.adjusted[i]);
-          jviews[i]["cam_from_table_4x4"] = IsoToJson(IsoFromRowMajor(ba.calibration.CamFromTable(ba.angle_deg[i])));
+          jviews[i]["cam_from_table_4x4"] = IsoToJson(geom::IsoFromRowMajor(ba.calibration.CamFromTable(ba.angle_deg[i])));
         }
       } else {
         LogLine(LogLevel::kWarning, kCat, SampleIdOf(sample_dir),
@@ -406,33 +399,16 @@ Result<VertexColors> ColourVertices(const Mesh& mesh, const std::vector<ViewInpu
   return colors;
 }
 
-// IoU between each view's mask and the hull's silhouette in it (at a quarter
-// of the resolution): how well the masks and poses agree. A visual hull's
+// IoU between each view's mask and the hull's silhouette in it: how well the masks and poses agree. A visual hull's
 // silhouette lies inside every mask; a mask that disagrees with the others
 // (a leak, a wrong pose) loses area.
 std::vector<double> SilhouetteAgreement(const Mesh& mesh, const std::vector<Eigen::Isometry3d>& cam_from_object,
                                         const std::vector<cv::Mat>& masks, const CameraModel& cam) {
-  constexpr int kDown = 1;
   std::vector<double> iou(masks.size(), 0.0);
   auto work = [&](size_t begin, size_t step) {
-    std::vector<cv::Point> pts(mesh.vertices.size());
     for (size_t vi = begin; vi < masks.size(); vi += step) {
-      const Eigen::Isometry3d& T = cam_from_object[vi];
-      for (size_t i = 0; i < mesh.vertices.size(); ++i) {
-        const Eigen::Vector3d pc = T * Eigen::Vector3d(mesh.vertices[i].data());
-        double u = 0, v = 0;
-        cam.Project({pc.x(), pc.y(), pc.z()}, &u, &v);
-        pts[i] = cv::Point(static_cast<int>(std::lround((u + 0.5) * 16.0 / kDown - 8)),
-                           static_cast<int>(std::lround((v + 0.5) * 16.0 / kDown - 8)));
-      }
-      cv::Mat small_mask;
-      cv::resize(masks[vi], small_mask, cv::Size(cam.width / kDown, cam.height / kDown), 0, 0, cv::INTER_AREA);
-      small_mask = small_mask > 127;
-      cv::Mat sil = cv::Mat::zeros(small_mask.size(), CV_8UC1);
-      for (const auto& f : mesh.faces) {
-        const cv::Point tri[3] = {pts[f[0]], pts[f[1]], pts[f[2]]};
-        cv::fillConvexPoly(sil, tri, 3, cv::Scalar(255), cv::LINE_8, 4);
-      }
+      const cv::Mat sil = RenderMeshSilhouette(mesh, cam_from_object[vi], cam);
+      const cv::Mat small_mask = masks[vi] > 127;
       const double inter = cv::countNonZero(sil & small_mask);
       const double uni = cv::countNonZero(sil | small_mask);
       iou[vi] = uni > 0 ? inter / uni : 0.0;

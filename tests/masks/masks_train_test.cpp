@@ -4,18 +4,17 @@
 // ONNX model that MaskNet loads and runs, and bad input gets errors that say
 // what to do. The training needs Debian's python3-torch and python3-opencv
 // (skipped without them).
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
 #include <unistd.h>
 
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
-#include <string>
-
-#include <gmock/gmock.h>
-#include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <string>
 
 #include "pipeline/mask_dataset.h"
 #include "pipeline/mask_net.h"
@@ -51,7 +50,8 @@ class MasksTrainTest : public ::testing::Test {
     root_ = fs::temp_directory_path() / ("aggscan_masks_" + std::to_string(getpid()));
     fs::create_directories(root_);
     std::string out;
-    const std::string cmd = kAggscan + " validate --count 1 --seed 1 --keep " + (root_ / "sim").string() +
+    const std::string cmd = kAggscan + " validate --count 1 --seed 1 --keep " +
+                            (root_ / "sim").string() +
                             " --width 1008 --height 756 --views 12 --calibration truth";
     validate_rc_ = Shell(cmd, &out);
     validate_out_ = cmd + "\n" + out;
@@ -93,7 +93,8 @@ TEST_F(MasksTrainTest, DatasetIsTheMeshProjectedWithoutTheTruth) {
     const cv::Mat mask = cv::imread(ds + "/" + p["mask"].get<std::string>(), cv::IMREAD_GRAYSCALE);
     const cv::Mat photo = cv::imread(ds + "/" + p["image"].get<std::string>(), cv::IMREAD_COLOR);
     char truth[64];
-    std::snprintf(truth, sizeof truth, "/truth/side%d/view_%03d_mask.pgm", p["side"].get<int>(), p["view"].get<int>());
+    std::snprintf(truth, sizeof truth, "/truth/side%d/view_%03d_mask.pgm", p["side"].get<int>(),
+                  p["view"].get<int>());
     const cv::Mat t = cv::imread(sample_ + truth, cv::IMREAD_GRAYSCALE);
     ASSERT_FALSE(mask.empty());
     ASSERT_EQ(mask.size(), photo.size());
@@ -107,12 +108,16 @@ TEST_F(MasksTrainTest, DatasetIsTheMeshProjectedWithoutTheTruth) {
 }
 
 TEST_F(MasksTrainTest, TrainsExportsAndTheWorkerRunsIt) {
-  if (!TorchAvailable()) GTEST_SKIP() << "/usr/bin/python3 lacks torch or cv2 (apt-get install python3-torch python3-opencv)";
+  if (!TorchAvailable())
+    GTEST_SKIP()
+        << "/usr/bin/python3 lacks torch or cv2 (apt-get install python3-torch python3-opencv)";
   const std::string ds = (root_ / "ds_train").string();
   const std::string model = (root_ / "m.onnx").string();
   std::string out;
   ASSERT_EQ(Shell(kAggscan + " masks dataset --out " + ds + " " + sample_, &out), 0) << out;
-  ASSERT_EQ(Shell(kAggscan + " masks train --dataset " + ds + " --out " + model + " --epochs 2", &out), 0) << out;
+  ASSERT_EQ(
+      Shell(kAggscan + " masks train --dataset " + ds + " --out " + model + " --epochs 2", &out), 0)
+      << out;
   EXPECT_THAT(out, HasSubstr("method = \"onnx\""));
   EXPECT_TRUE(fs::exists(root_ / "m.mask.toml"));
   // Loaded and run as the worker does.
@@ -133,7 +138,10 @@ TEST_F(MasksTrainTest, TrainsExportsAndTheWorkerRunsIt) {
   ASSERT_TRUE(m.ok()) << m.error().message;
   EXPECT_EQ(m->type(), CV_8UC1);
   // The evaluation scores both methods on the same views.
-  ASSERT_EQ(Shell(kAggscan + " masks eval --json --model " + model + " " + sample_ + " 2>/dev/null", &out), 0) << out;
+  ASSERT_EQ(Shell(kAggscan + " masks eval --json --model " + model + " " + sample_ + " 2>/dev/null",
+                  &out),
+            0)
+      << out;
   const auto report = nlohmann::json::parse(out.substr(out.find('{')));
   EXPECT_EQ(report["summary"]["all_simulated"]["classical"]["views"].get<int>(), 24);
   EXPECT_EQ(report["summary"]["all_simulated"]["trained"]["views"].get<int>(), 24);
@@ -145,24 +153,30 @@ TEST_F(MasksTrainTest, BadInputSaysWhatToDo) {
   // A sample that was never reconstructed.
   const fs::path bare = root_ / "bare";
   fs::create_directories(bare / "side1");
-  EXPECT_EQ(Shell(kAggscan + " masks dataset --out " + (root_ / "ds_bad").string() + " " + bare.string(), &out), 1);
+  EXPECT_EQ(
+      Shell(kAggscan + " masks dataset --out " + (root_ / "ds_bad").string() + " " + bare.string(),
+            &out),
+      1);
   EXPECT_THAT(out, HasSubstr("aggscan reconstruct"));
   // No dataset.
   EXPECT_EQ(Shell(kAggscan + " masks train --dataset " + (root_ / "none").string() + " --out " +
-                    (root_ / "x.onnx").string(),
-                &out),
+                      (root_ / "x.onnx").string(),
+                  &out),
             1);
   EXPECT_THAT(out, HasSubstr("aggscan masks dataset"));
   // A model file that is not ONNX.
   std::ofstream(root_ / "junk.onnx") << "not a network";
-  EXPECT_EQ(Shell(kAggscan + " masks eval --model " + (root_ / "junk.onnx").string() + " " + sample_, &out), 1);
+  EXPECT_EQ(
+      Shell(kAggscan + " masks eval --model " + (root_ / "junk.onnx").string() + " " + sample_,
+            &out),
+      1);
   EXPECT_THAT(out, HasSubstr("cannot be read as an ONNX model"));
   // No python with torch (a dataset of its own: ctest runs each test alone).
   fs::create_directories(root_ / "ds_nopython");
   std::ofstream(root_ / "ds_nopython" / "index.json") << "{\"pairs\": []}";
-  EXPECT_EQ(Shell(kAggscan + " masks train --python /nonexistent/python3 --dataset " + (root_ / "ds_nopython").string() +
-                    " --out " + (root_ / "y.onnx").string(),
-                &out),
+  EXPECT_EQ(Shell(kAggscan + " masks train --python /nonexistent/python3 --dataset " +
+                      (root_ / "ds_nopython").string() + " --out " + (root_ / "y.onnx").string(),
+                  &out),
             1);
   EXPECT_THAT(out, HasSubstr("python3-torch"));
   EXPECT_EQ(Shell(kAggscan + " masks frobnicate", &out), 2);

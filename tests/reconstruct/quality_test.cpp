@@ -16,7 +16,9 @@ namespace {
 using nlohmann::json;
 
 json SoundQuality() {
-  return {{"silhouette_iou_mean", 0.991}, {"silhouette_iou_min", 0.983}, {"scale_residual_mm", 0.03},
+  return {{"silhouette_iou_mean", 0.991},
+          {"silhouette_iou_min", 0.983},
+          {"scale_residual_mm", 0.03},
           {"watertight", true}};
 }
 
@@ -56,11 +58,13 @@ TEST(QualityFlags, ShadowedMasksAndAnUnconfirmedStitchAreFlaggedWithTheirFigures
   json q = SoundQuality();
   q["silhouette_iou_mean"] = 0.876;
   q["silhouette_iou_min"] = 0.773;
-  const json iou = json::array({{{"side", 1}, {"view", 3}, {"iou", 0.94}}, {{"side", 2}, {"view", 15}, {"iou", 0.773}}});
+  const json iou = json::array(
+      {{{"side", 1}, {"view", 3}, {"iou", 0.94}}, {{"side", 2}, {"view", 15}, {"iou", 0.773}}});
   const json flags = QualityFlags(q, Stitch(0.0825, true, 0.39), iou);
   EXPECT_EQ(Codes(flags), (std::set<std::string>{"mask_consistency", "stitch_unconfirmed"}));
   const std::string mask_reason = flags[0]["reason"];
-  EXPECT_NE(mask_reason.find("IoU mean 0.876, worst 0.773 at side 2 view 15"), std::string::npos) << mask_reason;
+  EXPECT_NE(mask_reason.find("IoU mean 0.876, worst 0.773 at side 2 view 15"), std::string::npos)
+      << mask_reason;
   EXPECT_NE(mask_reason.find("results/masks"), std::string::npos) << mask_reason;
   const std::string stitch_reason = flags[1]["reason"];
   EXPECT_NE(stitch_reason.find("by features"), std::string::npos) << stitch_reason;
@@ -71,11 +75,13 @@ TEST(QualityFlags, EachLimitGivesItsOwnFlag) {
   // Only the worst view poor: still flagged.
   json q = SoundQuality();
   q["silhouette_iou_min"] = 0.93;
-  EXPECT_EQ(Codes(QualityFlags(q, json::object(), json::array())), std::set<std::string>{"mask_consistency"});
+  EXPECT_EQ(Codes(QualityFlags(q, json::object(), json::array())),
+            std::set<std::string>{"mask_consistency"});
   // Sources that disagree.
   json flags = QualityFlags(SoundQuality(), Stitch(0.004, false, 0.3), json::array());
   EXPECT_EQ(Codes(flags), std::set<std::string>{"stitch_disagreement"});
-  EXPECT_NE(flags[0]["reason"].get<std::string>().find("3.40 deg and 4.20 mm"), std::string::npos) << flags.dump();
+  EXPECT_NE(flags[0]["reason"].get<std::string>().find("3.40 deg and 4.20 mm"), std::string::npos)
+      << flags.dump();
   // A loose stitch fit.
   EXPECT_EQ(Codes(QualityFlags(SoundQuality(), Stitch(0.004, true, 1.6), json::array())),
             std::set<std::string>{"stitch_residual"});

@@ -8,15 +8,14 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
-#include <cmath>
 #include <map>
+#include <opencv2/imgcodecs.hpp>
 #include <set>
 #include <sstream>
-
-#include <opencv2/imgcodecs.hpp>
 
 #include "cli/sim_capture.h"
 #include "common/fsutil.h"
@@ -43,12 +42,14 @@ TEST(BlenderLook, ParsesAndNamesWhatIsWrong) {
   EXPECT_EQ(d->Name(), "light-grey/softbox/basalt");
   auto bad = ParseBlenderLook("surface=carpet");
   ASSERT_FALSE(bad);
-  EXPECT_NE(bad.error().message.find("surface 'carpet' is not one of white, light-grey, wood, rubber-mat, gravel"),
+  EXPECT_NE(bad.error().message.find(
+                "surface 'carpet' is not one of white, light-grey, wood, rubber-mat, gravel"),
             std::string::npos)
       << bad.error().message;
   bad = ParseBlenderLook("colour=red");
   ASSERT_FALSE(bad);
-  EXPECT_NE(bad.error().message.find("unknown key 'colour'"), std::string::npos) << bad.error().message;
+  EXPECT_NE(bad.error().message.find("unknown key 'colour'"), std::string::npos)
+      << bad.error().message;
   EXPECT_FALSE(ParseBlenderLook("seed=x"));
 }
 
@@ -80,7 +81,8 @@ TEST(BlenderLook, TwentyRocksSeeEverySurfaceWithEveryLightAndEveryStoneOnFourSur
 }
 
 // A sim capture of `views` views on one side, lens distortion off.
-std::string Capture(const std::string& dir, const std::string& scene, int views, bool distortion = false) {
+std::string Capture(const std::string& dir, const std::string& scene, int views,
+                    bool distortion = false) {
   const std::string cfg = dir + "/capture.toml";
   std::ofstream(cfg) << "[capture]\nprofile = \"custom\"\nsides = 1\nviews_per_side = " << views
                      << "\nstep_deg = " << (views >= 8 ? 360.0 / views : 30.0) << "\n"
@@ -105,7 +107,8 @@ BlenderOptions Fast() {
 }
 
 TEST(BlenderRender, RedrawnViewsKeepTheSampleFormatAndTheSimsGeometry) {
-  if (!BlenderAvailable()) GTEST_SKIP() << "Debian's blender is not installed (scripts/install-deps.sh)";
+  if (!BlenderAvailable())
+    GTEST_SKIP() << "Debian's blender is not installed (scripts/install-deps.sh)";
   test::TempDir tmp;
   const std::string sample = Capture(tmp.path(), "rock", 3);
   std::map<std::string, std::string> before;
@@ -119,10 +122,12 @@ TEST(BlenderRender, RedrawnViewsKeepTheSampleFormatAndTheSimsGeometry) {
   ASSERT_TRUE(look);
   auto rep = RerenderWithBlender(sample, *look, Fast(), log);
   ASSERT_TRUE(rep) << rep.error().ToString() << "\n" << log.str();
-  std::printf("%s: %d frames of 640x480 at 4 samples/px, %.2f s a frame (%.2f max), %.1f s in all; silhouettes vs "
-              "the sim's IoU min %.4f mean %.4f\n",
-              rep->renderer.c_str(), rep->frames, rep->mean_frame_s, rep->max_frame_s, rep->wall_s,
-              rep->silhouette_iou_min, rep->silhouette_iou_mean);
+  std::printf(
+      "%s: %d frames of 640x480 at 4 samples/px, %.2f s a frame (%.2f max), %.1f s in all; "
+      "silhouettes vs "
+      "the sim's IoU min %.4f mean %.4f\n",
+      rep->renderer.c_str(), rep->frames, rep->mean_frame_s, rep->max_frame_s, rep->wall_s,
+      rep->silhouette_iou_min, rep->silhouette_iou_mean);
   EXPECT_EQ(rep->frames, 3);
   EXPECT_GT(rep->mean_frame_s, 0);
   // Same camera, poses and mesh: the path tracer's silhouettes are the sim's
@@ -136,7 +141,8 @@ TEST(BlenderRender, RedrawnViewsKeepTheSampleFormatAndTheSimsGeometry) {
     const std::string path = sample + "/side1/" + v["image"].get<std::string>();
     EXPECT_EQ(v["bytes"].get<uint64_t>(), fs::file_size(path)) << path;
     const std::string bytes = ReadFile(path).value();
-    EXPECT_NE(bytes, before["/side1/" + v["image"].get<std::string>()]) << path << " was not redrawn";
+    EXPECT_NE(bytes, before["/side1/" + v["image"].get<std::string>()])
+        << path << " was not redrawn";
     auto img = LoadImage(path, ImageMode::kColor);
     ASSERT_TRUE(img) << img.error().ToString();
     EXPECT_EQ(img->cols, 640);
@@ -159,7 +165,8 @@ TEST(BlenderRender, RedrawnViewsKeepTheSampleFormatAndTheSimsGeometry) {
 }
 
 TEST(BlenderRender, BoardDrawnByBlenderCalibratesTheRig) {
-  if (!BlenderAvailable()) GTEST_SKIP() << "Debian's blender is not installed (scripts/install-deps.sh)";
+  if (!BlenderAvailable())
+    GTEST_SKIP() << "Debian's blender is not installed (scripts/install-deps.sh)";
   test::TempDir tmp;
   const std::string sample = Capture(tmp.path(), "charuco", 8);
   std::ostringstream log;
@@ -176,10 +183,13 @@ TEST(BlenderRender, BoardDrawnByBlenderCalibratesTheRig) {
   const RigCalibration truth = world.TruthCalibration(640, 480);
   const auto cc = cal->cal.CameraCentreTable0(), ct = truth.CameraCentreTable0();
   const double centre_mm =
-      std::sqrt((cc[0] - ct[0]) * (cc[0] - ct[0]) + (cc[1] - ct[1]) * (cc[1] - ct[1]) + (cc[2] - ct[2]) * (cc[2] - ct[2]));
-  std::printf("Blender board capture, 8 views at 640x480: RMS %.3f px, fx %.2f (truth %.2f), camera centre %.2f mm "
-              "from the truth\n",
-              cal->cal.reprojection_rms_px, cal->cal.camera.fx, truth.camera.fx, centre_mm);
+      std::sqrt((cc[0] - ct[0]) * (cc[0] - ct[0]) + (cc[1] - ct[1]) * (cc[1] - ct[1]) +
+                (cc[2] - ct[2]) * (cc[2] - ct[2]));
+  std::printf(
+      "Blender board capture, 8 views at 640x480: RMS %.3f px, fx %.2f (truth %.2f), camera centre "
+      "%.2f mm "
+      "from the truth\n",
+      cal->cal.reprojection_rms_px, cal->cal.camera.fx, truth.camera.fx, centre_mm);
   EXPECT_LT(cal->cal.reprojection_rms_px, 0.5);
   EXPECT_NEAR(cal->cal.camera.fx, truth.camera.fx, 0.01 * truth.camera.fx);
   EXPECT_LT(centre_mm, 10.0);
@@ -205,7 +215,8 @@ TEST(BlenderRender, RefusesWhatItCannotDrawAndSaysWhatToDo) {
   none.blender = tmp.path() + "/no-such-blender";
   r = RerenderWithBlender(sample, BlenderLook{}, none, log);
   ASSERT_FALSE(r);
-  EXPECT_NE(r.error().message.find("install Debian's blender"), std::string::npos) << r.error().message;
+  EXPECT_NE(r.error().message.find("install Debian's blender"), std::string::npos)
+      << r.error().message;
   // The photos are untouched after a failed run.
   const json m = json::parse(ReadFile(sample + "/side1/manifest.json").value());
   EXPECT_EQ(m["views"][0]["bytes"].get<uint64_t>(), fs::file_size(sample + "/side1/view_000.jpg"));
