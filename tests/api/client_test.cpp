@@ -120,16 +120,24 @@ TEST_F(ClientTest, ShowSample) {
 }
 
 TEST_F(ClientTest, ShowSaysWhenAResultIsNotConfidentAndWhy) {
-  fake_.sample_result = {{"volume_mm3", 715900.0}, {"a_mm", 83.7}, {"b_mm", 122.0}, {"c_mm", 142.8},
+  fake_.sample_result = {{"volume_mm3", 715900.0},
+                         {"a_mm", 83.7},
+                         {"b_mm", 122.0},
+                         {"c_mm", 142.8},
                          {"confident", false},
                          {"quality_flags",
-                          {{{"code", "stitch_unconfirmed"}, {"reason", "side 2's stitch onto side 1 is not confirmed"}}}}};
+                          {{{"code", "stitch_unconfirmed"},
+                            {"reason", "side 2's stitch onto side 1 is not confirmed"}}}}};
   ASSERT_EQ(Run({"show", "rock-11"}), kClientExitOk) << err_.str();
   std::string out = out_.str();
-  EXPECT_NE(out.find("result: V 715900 mm3, a/b/c 83.7 / 122.0 / 142.8 mm\n"), std::string::npos) << out;
+  EXPECT_NE(out.find("result: V 715900 mm3, a/b/c 83.7 / 122.0 / 142.8 mm\n"), std::string::npos)
+      << out;
   EXPECT_NE(out.find("quality: NOT CONFIDENT (1 flag(s))"), std::string::npos) << out;
-  EXPECT_NE(out.find("  stitch_unconfirmed: side 2's stitch onto side 1 is not confirmed\n"), std::string::npos) << out;
-  fake_.sample_result = {{"volume_mm3", 1000.0}, {"confident", true}, {"quality_flags", json::array()}};
+  EXPECT_NE(out.find("  stitch_unconfirmed: side 2's stitch onto side 1 is not confirmed\n"),
+            std::string::npos)
+      << out;
+  fake_.sample_result = {
+      {"volume_mm3", 1000.0}, {"confident", true}, {"quality_flags", json::array()}};
   out_.str("");
   ASSERT_EQ(Run({"show", "rock-11"}), kClientExitOk) << err_.str();
   EXPECT_NE(out_.str().find("quality: confident\n"), std::string::npos) << out_.str();

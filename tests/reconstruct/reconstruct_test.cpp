@@ -45,7 +45,8 @@ TEST(Reconstruct, OneSideGivesAClosedMeshAndResults) {
   const std::string sample = Capture(tmp.path(), 6, 1);
   // A library written by an older worker, with other columns: kept aside
   // under a new name, never mixed with the new rows.
-  const std::string old_library = "sample_id,created_utc,volume_mm3\nrock-1,2026-01-01T00:00:00Z,123\n";
+  const std::string old_library =
+      "sample_id,created_utc,volume_mm3\nrock-1,2026-01-01T00:00:00Z,123\n";
   ASSERT_TRUE(WriteFileAtomic(tmp.path() + "/library.csv", old_library));
   ReconstructOptions opts;
   opts.state_dir = tmp.path();

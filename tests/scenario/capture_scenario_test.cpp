@@ -421,10 +421,13 @@ TEST(CaptureScenario, SampleAnswerCarriesTheResultAndItsQuality) {
   fs::create_directories(results);
   const json morphology = {
       {"format", "aggscan-morphology-1"},
-      {"morphology_3d", {{"volume_mm3", 715900.0}, {"a_mm", 83.7}, {"b_mm", 122.0}, {"c_mm", 142.8}}},
+      {"morphology_3d",
+       {{"volume_mm3", 715900.0}, {"a_mm", 83.7}, {"b_mm", 122.0}, {"c_mm", 142.8}}},
       {"quality",
        {{"confident", false},
-        {"flags", {{{"code", "mask_consistency"}, {"reason", "the masks agree poorly with the model's silhouettes"}}}}}}};
+        {"flags",
+         {{{"code", "mask_consistency"},
+           {"reason", "the masks agree poorly with the model's silhouettes"}}}}}}};
   std::ofstream(results + "/morphology.json") << morphology.dump();
   const json s = d.Get("/api/v1/samples/q-2");
   ASSERT_TRUE(s.contains("result")) << s.dump();

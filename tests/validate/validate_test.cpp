@@ -130,7 +130,9 @@ TEST(ValidateCommand, UsageErrorsExit2) {
   EXPECT_EQ(RunCmd({"--look", "stone=basalt"}, nullptr, &err), 2);
   EXPECT_NE(err.find("apply to --renderer blender only"), std::string::npos) << err;
   EXPECT_EQ(RunCmd({"--renderer", "blender", "--look", "light=moon"}, nullptr, &err), 2);
-  EXPECT_NE(err.find("light 'moon' is not one of softbox, two-lights, overcast, low-sun"), std::string::npos) << err;
+  EXPECT_NE(err.find("light 'moon' is not one of softbox, two-lights, overcast, low-sun"),
+            std::string::npos)
+      << err;
   EXPECT_EQ(RunCmd({"--renderer", "blender", "--samples", "0"}, nullptr, &err), 2);
   EXPECT_NE(err.find("--samples expects 1..4096"), std::string::npos) << err;
 }
@@ -202,8 +204,8 @@ TEST(ValidateRun, OneRockTwoSidesReducedResolution) {
   // The stitch against the truth, and the masks against the true silhouettes:
   // on the sim's own renders both are sound, and the worker raised no flag.
   ASSERT_TRUE(r.stitch.measured);
-  std::printf("stitch vs truth %.3f deg / %.3f mm by %s; masks IoU min %.4f mean %.4f\n", r.stitch.deg, r.stitch.mm,
-              r.stitch.source.c_str(), r.mask_iou_min, r.mask_iou_mean);
+  std::printf("stitch vs truth %.3f deg / %.3f mm by %s; masks IoU min %.4f mean %.4f\n",
+              r.stitch.deg, r.stitch.mm, r.stitch.source.c_str(), r.mask_iou_min, r.mask_iou_mean);
   EXPECT_LT(r.stitch.deg, 1.5);
   EXPECT_LT(r.stitch.mm, 1.5);
   EXPECT_GT(r.mask_iou_min, 0.97);
