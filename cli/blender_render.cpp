@@ -32,6 +32,7 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 constexpr const char* kScriptName = "render_capture.py";
+constexpr const char* kBackgroundDir = "background";  // empty-turntable photos of the look
 
 json Vec(const sim::Vec3& v) { return json::array({v.x, v.y, v.z}); }
 
@@ -154,6 +155,8 @@ Result<json> SceneJson(const std::string& sample_dir, const std::string& scene_d
                      {"rock_to_world_4x4", Mat((camera_to_world * r2c).Matrix4())},
                      {"image", std::string(stem) + ".png"},
                      {"mask", std::string(stem) + "_mask.png"}});
+    if (o.empty_plates && world.rock().vertices.size() > 0)
+      views.back()["empty_image"] = "empty/" + std::string(stem) + ".png";
   }
   if (views.empty())
     return MakeError(ErrorClass::kInvalidArgument, sample_dir + "/truth.json lists no views");
@@ -215,6 +218,25 @@ Status UpdateManifest(const std::string& side_dir) {
     v["bytes"] = static_cast<uint64_t>(size);
   }
   return WriteFileAtomic(path, m.dump(1) + "\n");
+}
+
+// The view's empty-turntable frame as SAMPLE/background/sideN/view_NNN.jpg,
+// encoded as the rig encodes its photos.
+Status IngestEmptyPlate(const std::string& sample_dir, const std::string& scene_dir,
+                        const json& view, int jpeg_quality) {
+  const std::string png = scene_dir + "/" + view["empty_image"].get<std::string>();
+  cv::Mat bgr = cv::imread(png, cv::IMREAD_COLOR);
+  if (bgr.empty())
+    return MakeError(ErrorClass::kIo, "Blender wrote no readable empty-turntable frame " + png);
+  cv::Mat rgb;
+  cv::cvtColor(bgr, rgb, cv::COLOR_BGR2RGB);
+  Result<std::vector<unsigned char>> jpeg =
+      sim::EncodeJpeg(rgb.data, rgb.cols, rgb.rows, jpeg_quality);
+  if (!jpeg) return jpeg.error();
+  const std::string dir =
+      sample_dir + "/" + kBackgroundDir + "/" + layout::SideDirName(view["side"].get<int>());
+  if (Status s = MakeDirsDurable(dir); !s) return s;
+  return WriteFileAtomic(dir + "/" + layout::ViewImageName(view["view"].get<int>()), *jpeg);
 }
 
 }  // namespace
@@ -419,6 +441,10 @@ Result<BlenderRenderReport> RerenderWithBlender(const std::string& sample_dir,
     }
     const int side = v["side"].get<int>();
     if (std::find(sides.begin(), sides.end(), side) == sides.end()) sides.push_back(side);
+    if (v.contains("empty_image")) {
+      if (Status s = IngestEmptyPlate(sample_dir, scene_dir, v, config.camera.jpeg_quality); !s)
+        return s.error();
+    }
   }
   rep.silhouette_iou_mean = iou_n > 0 ? iou_sum / iou_n : 0;
   if (iou_n == 0) rep.silhouette_iou_min = 0;

@@ -153,6 +153,7 @@ std::string ConfigLines(const std::string& model, int w, int h) {
 
 int TrainCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {
   std::string dataset, model, python;
+  std::vector<std::string> backgrounds;
   int epochs = 30, width = 320, height = 320, seed = 1, threads = 2;
   for (size_t i = 0; i < args.size(); ++i) {
     const bool has = i + 1 < args.size();
@@ -162,6 +163,14 @@ int TrainCommand(const std::vector<std::string>& args, std::ostream& out, std::o
       model = args[++i];
     } else if (args[i] == "--python" && has) {
       python = args[++i];
+    } else if (args[i] == "--backgrounds" && has) {
+      const std::string dir = args[++i];
+      if (!fs::is_directory(dir)) {
+        err << "aggscan masks train: --backgrounds " << dir
+            << " is not a folder (give a folder of empty-turntable photos)\n";
+        return 2;
+      }
+      backgrounds.push_back(fs::absolute(dir).lexically_normal().string());
     } else if (args[i] == "--epochs" && has) {
       if (!ParseInt(args[++i], 1, 10000, &epochs)) {
         err << "aggscan masks train: --epochs needs a whole number from 1 to 10000\n";
@@ -216,11 +225,17 @@ int TrainCommand(const std::vector<std::string>& args, std::ostream& out, std::o
   fs::remove(log, ec);
   out << "aggscan masks train: training with " << *py << " " << script << " (log: " << log << ")\n"
       << std::flush;
-  auto r = RunSubprocess(
-      {*py, script, "--dataset", dataset, "--out", abs_model, "--epochs", std::to_string(epochs),
-       "--width", std::to_string(width), "--height", std::to_string(height), "--seed",
-       std::to_string(seed), "--threads", std::to_string(threads)},
-      SubprocessOptions{.log_path = log});
+  std::vector<std::string> argv = {*py,      script,         "--dataset",
+                                   dataset,  "--out",        abs_model,
+                                   "--epochs", std::to_string(epochs), "--width",
+                                   std::to_string(width), "--height", std::to_string(height),
+                                   "--seed",  std::to_string(seed), "--threads",
+                                   std::to_string(threads)};
+  if (!backgrounds.empty()) {
+    argv.push_back("--backgrounds");
+    argv.insert(argv.end(), backgrounds.begin(), backgrounds.end());
+  }
+  auto r = RunSubprocess(argv, SubprocessOptions{.log_path = log});
   if (!r) {
     err << "aggscan masks train: cannot run " << *py << ": " << r.error().message << "\n";
     return 1;
@@ -258,7 +273,22 @@ int TrainCommand(const std::vector<std::string>& args, std::ostream& out, std::o
 
 struct Scores {
   double classical = -1, net_raw = -1, net = -1;  // -1: not scored
+  cv::Mat classical_mask, net_raw_mask, net_mask;  // 0/255, for --save
 };
+
+// The masks scored, as 0/255 PNGs next to each other under `dir` (made on
+// demand): STEM_classical.png, STEM_trained.png, STEM_network.png.
+Status SaveMasks(const std::string& dir, const std::string& stem, const Scores& s) {
+  if (Status st = MakeDirsDurable(dir); !st) return st;
+  const std::pair<const char*, const cv::Mat*> masks[] = {
+      {"classical", &s.classical_mask}, {"trained", &s.net_mask}, {"network", &s.net_raw_mask}};
+  for (const auto& [what, m] : masks) {
+    if (m->empty()) continue;
+    const std::string path = dir + "/" + stem + "_" + what + ".png";
+    if (!cv::imwrite(path, *m)) return MakeError(ErrorClass::kIo, "cannot write " + path);
+  }
+  return {};
+}
 
 struct Summary {
   std::vector<double> classical, net_raw, net;
@@ -295,13 +325,15 @@ class Scorer {
   explicit Scorer(MaskNet* net) : net_(net) {}
   Scores Score(const cv::Mat& bgr, const cv::Mat& truth, const cv::Mat& ignore) {
     Scores s;
-    s.classical = MaskIoUIgnoring(ComputeForegroundMask(bgr), truth, ignore);
+    s.classical_mask = ComputeForegroundMask(bgr);
+    s.classical = MaskIoUIgnoring(s.classical_mask, truth, ignore);
     if (net_) {
       auto p = net_->Probability(bgr);
       if (p) {
-        const cv::Mat rough = *p > net_->options().threshold;
-        s.net_raw = MaskIoUIgnoring(rough, truth, ignore);
-        s.net = MaskIoUIgnoring(RefineForegroundMask(bgr, rough), truth, ignore);
+        s.net_raw_mask = *p > net_->options().threshold;
+        s.net_raw = MaskIoUIgnoring(s.net_raw_mask, truth, ignore);
+        s.net_mask = RefineForegroundMask(bgr, s.net_raw_mask);
+        s.net = MaskIoUIgnoring(s.net_mask, truth, ignore);
       }
     }
     return s;
@@ -349,7 +381,7 @@ void PrintSummary(std::ostream& out, const std::string& what, const Summary& s) 
 }
 
 int EvalCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {
-  std::string model, grabcut;
+  std::string model, grabcut, save;
   bool as_json = false, quiet = false;
   int width = 0, height = 0;
   std::vector<std::string> samples;
@@ -359,6 +391,8 @@ int EvalCommand(const std::vector<std::string>& args, std::ostream& out, std::os
       model = args[++i];
     } else if (args[i] == "--grabcut" && has) {
       grabcut = args[++i];
+    } else if (args[i] == "--save" && has) {
+      save = args[++i];
     } else if (args[i] == "--input" && has) {
       if (!ParseSize(args[++i], &width, &height)) {
         err << "aggscan masks eval: --input needs WxH, each a multiple of 16 from 32\n";
@@ -441,6 +475,13 @@ int EvalCommand(const std::vector<std::string>& args, std::ostream& out, std::os
           continue;
         }
         const Scores s = scorer.Score(*bgr, *truth > 127, cv::Mat());
+        if (!save.empty()) {
+          if (Status st = SaveMasks(save + "/" + name + "/" + layout::SideDirName(side), stem, s);
+              !st) {
+            err << "aggscan masks eval: --save: " << st.error().message << "\n";
+            return 1;
+          }
+        }
         const std::string what = name + " " + layout::SideDirName(side) + " " + stem;
         if (!quiet && !as_json) PrintScores(out, what, s);
         json v = {{"set", "simulated"}, {"sample", name}, {"look", look},
@@ -481,6 +522,12 @@ int EvalCommand(const std::vector<std::string>& args, std::ostream& out, std::os
         return 1;
       }
       const Scores s = scorer.Score(bgr, gt == 255, gt == 128);
+      if (!save.empty()) {
+        if (Status st = SaveMasks(save + "/grabcut", stone, s); !st) {
+          err << "aggscan masks eval: --save: " << st.error().message << "\n";
+          return 1;
+        }
+      }
       stones[stone] = s;
       if (!as_json) PrintScores(out, std::string("grabcut ") + stone, s);
       json v = {{"set", "grabcut"}, {"sample", stone}, {"classical", s.classical}};
@@ -528,14 +575,17 @@ void PrintMasksUsage(std::ostream& o) {
        "      the sample's mesh projected into it (PNG 0/255), index.json and index.csv\n"
        "  aggscan masks train --dataset DIR --out MODEL.onnx [--epochs N (30)] [--input WxH "
        "(320x320)]\n"
-       "                      [--seed N] [--threads N (2)] [--python PATH]\n"
+       "                      [--seed N] [--threads N (2)] [--python PATH] [--backgrounds DIR]...\n"
        "      train the small salient-object network on the CPU (Debian's python3-torch and\n"
-       "      python3-opencv), export it to ONNX, print the [mask] config lines to use it\n"
+       "      python3-opencv), export it to ONNX, print the [mask] config lines to use it;\n"
+       "      --backgrounds: photos of the empty turntable where the rig is to work (disc, floor,\n"
+       "      lights): the dataset's rocks are also laid onto them with a drawn shadow, which\n"
+       "      teaches the network that place without a rock from it\n"
        "  aggscan masks eval [--model MODEL.onnx] [--grabcut DIR] [--summary | --json] "
-       "SAMPLE_DIR...\n"
+       "[--save DIR] SAMPLE_DIR...\n"
        "      IoU of the classical and the trained masks side by side against the truth masks\n"
        "      of simulated samples, per view and summarised (min/mean), and on the GrabCut\n"
-       "      set's stone photos\n";
+       "      set's stone photos; --save: every mask scored, as PNGs under DIR/SAMPLE/sideN/\n";
 }
 
 int RunMasksCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {

@@ -135,6 +135,7 @@ std::string RigToml(const ValidateOptions& o) {
 BlenderOptions BlenderOpts(const ValidateOptions& o) {
   BlenderOptions b;
   b.samples = o.samples;
+  b.empty_plates = o.backgrounds;
   return b;
 }
 
@@ -370,6 +371,12 @@ void RunRock(const RockInput& in, int index, const ValidateOptions& o, const std
     return;
   }
   row->truth = FiguresFrom(truth);
+  if (o.render_only) {
+    row->status = "rendered";
+    row->seconds = Seconds(t0);
+    log << "rock " << in.id << ": captured into " << cap.out << " (not reconstructed)\n" << std::flush;
+    return;
+  }
   ReconstructOptions ro;  // the sample carries its calibration; no library CSV
   if (Status s = ReconstructSample(cap.out, ro); !s) {
     // The masks are made before the stitch: how they compare is known even
@@ -885,7 +892,7 @@ void PrintValidateUsage(std::ostream& o) {
        "charuco|truth]\n"
        "                   [--camera-distance-mm D] [--renderer sim|blender [--look "
        "SPEC|--look-index K]\n"
-       "                   [--samples N]]\n"
+       "                   [--samples N] [--backgrounds]] [--render-only]\n"
        "                   [--json] [--keep DIR]\n"
        "      accuracy harness: simulated two-side captures (noise, distortion, JPEG, turntable\n"
        "      errors, flip) of N procedural rocks (default 20, seeds S..S+N-1) or of every mesh "
@@ -904,6 +911,9 @@ void PrintValidateUsage(std::ostream& o) {
        "      object markers drawn like coloured pencil;\n"
        "      --samples: Cycles samples per pixel (default 16); render time per frame is "
        "reported;\n"
+       "      --backgrounds: also every view with the rock taken away, the look's empty-turntable\n"
+       "      photos (SAMPLE/background/, for aggscan masks train --backgrounds);\n"
+       "      --render-only: capture and render into --keep DIR, reconstruct nothing (mask sets);\n"
        "      exit 0 all targets met, 1 a target missed or a rock failed, 2 usage\n";
 }
 
@@ -993,6 +1003,10 @@ int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, 
         return 2;
       }
       o.look_index = static_cast<int>(n);
+    } else if (a == "--backgrounds") {
+      o.backgrounds = true;
+    } else if (a == "--render-only") {
+      o.render_only = true;
     } else if (a == "--keep") {
       if (!has_value) return need("a new folder");
       o.keep = args[++i];
@@ -1007,6 +1021,14 @@ int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, 
   }
   if (o.renderer != "blender" && (!o.look.empty() || o.look_index > 0)) {
     err << "aggscan validate: --look and --look-index apply to --renderer blender only\n";
+    return 2;
+  }
+  if (o.backgrounds && o.renderer != "blender") {
+    err << "aggscan validate: --backgrounds (empty-turntable photos) needs --renderer blender\n";
+    return 2;
+  }
+  if (o.render_only && o.keep.empty()) {
+    err << "aggscan validate: --render-only keeps the samples and needs --keep DIR\n";
     return 2;
   }
   if (o.sides > 2) {
@@ -1060,6 +1082,13 @@ int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, 
   if (!rep) {
     err << "aggscan validate: " << rep.error().ToString() << "\n";
     return 1;
+  }
+  if (o.render_only) {
+    int rendered = 0;
+    for (const ValidateRock& r : rep->rocks) rendered += r.status == "rendered";
+    out << rendered << " sample(s) captured" << (o.renderer == "blender" ? " and rendered" : "")
+        << " into " << o.keep << ", " << rep->summary.rocks_failed << " failed\n";
+    return rep->summary.rocks_failed == 0 && rendered > 0 ? 0 : 1;
   }
   if (json_out) {
     out << ValidateReportToJson(*rep).dump(2) << "\n";

@@ -685,6 +685,23 @@ def main():
             os.replace(os.path.join(os.path.dirname(mask), os.path.basename(mask)[:-len(".png")] + "-frame0001.png"),
                        mask)
         print("render_capture.py: side %d view %d rendered in %.2f s" % (v["side"], v["view"], times[-1]), flush=True)
+        if v.get("empty_image") and rock is not None:
+            # The same view with the rock taken away: the environment's
+            # empty-turntable photo (disc at this angle, same lights and
+            # exposure), for teaching the mask network a new environment.
+            rock.hide_render = True
+            empty = os.path.join(scene_dir, v["empty_image"])
+            os.makedirs(os.path.dirname(empty), exist_ok=True)
+            scene.render.filepath = empty
+            if mask_out is not None:
+                mask_out.mute = True
+            bpy.ops.render.render(write_still=True)
+            if mask_out is not None:
+                mask_out.mute = False
+                stray = os.path.join(mask_out.base_path, mask_out.file_slots[0].path + "0001.png")
+                if os.path.exists(stray):
+                    os.remove(stray)
+            rock.hide_render = False
     report = {
         "renderer": "blender " + bpy.app.version_string + " cycles cpu",
         "samples": scene.cycles.samples,

@@ -151,11 +151,112 @@ def load_dataset(root, width, height, margin):
     return torch.from_numpy(imgs), torch.from_numpy(masks), pairs
 
 
-def augment(img_u8, mask, out_hw, gen, margin):
+def load_backgrounds(dirs, width, height, margin):
+    """Every photo under the given folders (the environment's empty turntable:
+    the disc, the floor and the lights of the place the rig works in, no
+    rock), resized like the dataset's photos: uint8 N x 3 x H x W (RGB)."""
+    files = []
+    for d in dirs:
+        if not os.path.isdir(d):
+            fail(EXIT_USAGE, "--backgrounds %s is not a folder" % d)
+        for root, _, names in os.walk(d):
+            files += [os.path.join(root, f) for f in sorted(names)
+                      if f.lower().endswith((".jpg", ".jpeg", ".png"))]
+    if not files:
+        fail(EXIT_USAGE, "--backgrounds %s holds no .jpg or .png photos of the empty turntable"
+             % " ".join(dirs))
+    W, H = int(round(width * margin)), int(round(height * margin))
+    out = np.zeros((len(files), 3, H, W), np.uint8)
+    for i, f in enumerate(sorted(files)):
+        img = cv2.imread(f, cv2.IMREAD_COLOR)
+        if img is None:
+            fail(EXIT_USAGE, "cannot read the background photo %s" % f)
+        out[i] = cv2.cvtColor(cv2.resize(img, (W, H), interpolation=cv2.INTER_AREA),
+                              cv2.COLOR_BGR2RGB).transpose(2, 0, 1)
+    return torch.from_numpy(out), files
+
+
+def blur(m, sigma):
+    """Separable Gaussian blur of N x 1 x H x W maps, one sigma (px) per map."""
+    out = torch.empty_like(m)
+    for i in range(m.shape[0]):
+        s = float(sigma[i])
+        x = m[i:i + 1]
+        f = max(1, int(s / 2))  # wide blurs at reduced size: the result is smooth anyway
+        if f > 1:
+            x = F.avg_pool2d(x, f, f, ceil_mode=True)
+            s /= f
+        r = max(1, int(math.ceil(3 * s)))
+        t = torch.arange(-r, r + 1, dtype=torch.float32)
+        k = torch.exp(-0.5 * (t / s) ** 2)
+        k = k / k.sum()
+        x = F.conv2d(F.pad(x, (r, r, 0, 0), mode="replicate"), k.view(1, 1, 1, -1))
+        x = F.conv2d(F.pad(x, (0, 0, r, r), mode="replicate"), k.view(1, 1, -1, 1))
+        if f > 1:
+            x = F.interpolate(x, size=m.shape[-2:], mode="bilinear", align_corners=False)
+        out[i:i + 1] = x
+    return out
+
+
+def composite(img, mask, bgs, gen, p):
+    """The rig's own rocks (the pixels inside their reconstructed silhouette)
+    laid onto the new environment's empty-turntable photos, each with a cast
+    shadow drawn in (its silhouette shifted away from a random light, softened
+    and darkened by a random amount, plus a contact shadow where it stands), and
+    its colour changed at random (a darker or yellower stone than the rig has
+    seen). With probability p per photo; img is float 0..1, N x 3 x H x W."""
+    n, _, H, W = img.shape
+    pick = torch.rand(n, generator=gen) < p
+    if not bool(pick.any()):
+        return img
+    idx = torch.nonzero(pick).flatten()
+    k = idx.numel()
+    r = lambda lo, hi: torch.rand(k, generator=gen) * (hi - lo) + lo
+    bg = bgs[torch.randint(0, bgs.shape[0], (k,), generator=gen)].float() / 255.0
+    m = mask[idx]
+    size = m.sum(dim=(1, 2, 3)).clamp(min=1).sqrt()  # the rock's size in px
+    # Cast shadow: the silhouette moved away from the light and softened.
+    ang = r(0, 2 * math.pi)
+    length = r(0.0, 0.6) * size
+    theta = torch.zeros(k, 2, 3)
+    theta[:, 0, 0] = 1
+    theta[:, 1, 1] = 1
+    theta[:, 0, 2] = -2 * length * torch.cos(ang) / W
+    theta[:, 1, 2] = -2 * length * torch.sin(ang) / H
+    grid = F.affine_grid(theta, (k, 1, H, W), align_corners=False)
+    cast = F.grid_sample(m, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+    cast = blur(torch.maximum(cast, m), r(0.5, 0.12 * float(size.mean()) + 1))
+    contact = blur(F.max_pool2d(m, 5, 1, 2), r(1.0, 4.0))
+    shade = torch.maximum(cast * r(0.0, 0.8).view(k, 1, 1, 1), contact * r(0.2, 0.9).view(k, 1, 1, 1))
+    bg = bg * (1 - shade)
+    # Another stone: its grain's contrast (a smooth dolomite .. a speckled
+    # granite), a tint of any hue and up to the saturation of a yellowish
+    # dolomite or a reddish sandstone, and an overall gain (dark basalt ..
+    # pale limestone).
+    rock = img[idx]
+    lum = (0.299 * rock[:, 0:1] + 0.587 * rock[:, 1:2] + 0.114 * rock[:, 2:3])
+    mean = (lum * m).sum(dim=(2, 3), keepdim=True) / m.sum(dim=(2, 3), keepdim=True).clamp(min=1)
+    lum = mean + (lum - mean) * r(0.4, 1.2).view(k, 1, 1, 1)
+    hue = r(0, 2 * math.pi).view(k, 1)
+    sat = r(0, 0.5).view(k, 1)
+    phase = torch.tensor([0.0, 2 * math.pi / 3, 4 * math.pi / 3]).view(1, 3)
+    tint = 1 + sat * torch.cos(hue - phase)  # mean 1 over the three channels
+    keep = r(0, 1).view(k, 1, 1, 1)  # how much of the rig's own colour stays
+    rock = keep * rock + (1 - keep) * lum * tint.view(k, 3, 1, 1)
+    rock = rock * r(0.25, 1.2).view(k, 1, 1, 1)
+    # The mask, resized with area averaging, is already the edge's coverage;
+    # widening it would bring the old disc's colour in as a halo.
+    alpha = m
+    out = img.clone()
+    out[idx] = (alpha * rock + (1 - alpha) * bg).clamp(0, 1)
+    return out
+
+
+def augment(img, mask, out_hw, gen, margin):
     """A batch's geometric (scale, shift, flips) and photometric (brightness,
-    contrast, saturation, white balance, gamma) augmentation; returns the
-    normalised input and the mask at out_hw."""
-    n = img_u8.shape[0]
+    contrast, saturation, white balance, gamma) augmentation of float 0..1
+    photos; returns the normalised input and the mask at out_hw."""
+    n = img.shape[0]
     r = lambda lo, hi: torch.rand(n, generator=gen) * (hi - lo) + lo
     # Geometry: the source holds margin x the view; s < 1 zooms in, > 1 out.
     s = r(0.8, 1.35) / margin
@@ -168,7 +269,7 @@ def augment(img_u8, mask, out_hw, gen, margin):
     theta[:, 0, 2] = tx
     theta[:, 1, 2] = ty
     grid = F.affine_grid(theta, (n, 3) + tuple(out_hw), align_corners=False)
-    x = F.grid_sample(img_u8.float() / 255.0, grid, mode="bilinear", padding_mode="reflection",
+    x = F.grid_sample(img, grid, mode="bilinear", padding_mode="reflection",
                       align_corners=False)
     y = F.grid_sample(mask, grid, mode="bilinear", padding_mode="reflection", align_corners=False)
     # Colour: rigs differ in exposure, white balance and the stones' colour.
@@ -234,6 +335,11 @@ def main():
     ap.add_argument("--lr", type=float, default=3e-3)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--threads", type=int, default=2, help="CPU threads (the rig has 2 cores)")
+    ap.add_argument("--backgrounds", nargs="+", default=[],
+                    help="folders of empty-turntable photos of the environment to teach: the dataset's "
+                         "rocks are composited onto them (with drawn shadows) as well as seen as shot")
+    ap.add_argument("--composite", type=float, default=0.7,
+                    help="share of the training photos composited onto --backgrounds")
     a = ap.parse_args()
     if a.epochs < 1 or a.width < 32 or a.height < 32 or a.width % 16 or a.height % 16 or a.batch < 1:
         fail(EXIT_USAGE, "--epochs and --batch must be >= 1, --width and --height multiples of 16 (the "
@@ -251,13 +357,16 @@ def main():
     t0 = time.monotonic()
     margin = 1.25
     imgs, masks, pairs = load_dataset(a.dataset, a.width, a.height, margin)
+    bgs, bg_files = (load_backgrounds(a.backgrounds, a.width, a.height, margin) if a.backgrounds
+                     else (None, []))
     t_load = time.monotonic() - t0
     n = imgs.shape[0]
     out_hw = (a.height, a.width)
     net = MaskUNet()
     params = sum(p.numel() for p in net.parameters())
-    print("train_masks: %d pairs from %s, %d parameters, input %dx%d, %d epochs, %d threads"
-          % (n, a.dataset, params, a.width, a.height, a.epochs, a.threads), flush=True)
+    print("train_masks: %d pairs from %s, %d background photos, %d parameters, input %dx%d, %d epochs, "
+          "%d threads" % (n, a.dataset, len(bg_files), params, a.width, a.height, a.epochs, a.threads),
+          flush=True)
     opt = torch.optim.AdamW(net.parameters(), lr=a.lr, weight_decay=1e-4)
     steps_per_epoch = max(1, math.ceil(n / a.batch))
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=a.lr, total_steps=a.epochs * steps_per_epoch,
@@ -272,7 +381,10 @@ def main():
             idx = order[k:k + a.batch]
             if idx.numel() < 2 and n >= 2:
                 continue  # BatchNorm needs more than one sample
-            x, y = augment(imgs[idx], masks[idx], out_hw, gen, margin)
+            x = imgs[idx].float() / 255.0
+            if bgs is not None:
+                x = composite(x, masks[idx], bgs, gen, a.composite)
+            x, y = augment(x, masks[idx], out_hw, gen, margin)
             loss = loss_fn(net(x), y)
             opt.zero_grad()
             loss.backward()
@@ -317,6 +429,9 @@ def main():
         "dataset": os.path.abspath(a.dataset),
         "pairs": n,
         "samples": sorted({p.get("sample", "") for p in pairs}),
+        "backgrounds": [os.path.abspath(d) for d in a.backgrounds],
+        "background_photos": len(bg_files),
+        "composite_share": a.composite if bg_files else 0.0,
         "parameters": params,
         "model_bytes": os.path.getsize(a.out),
         "input_width": a.width, "input_height": a.height,

@@ -14,6 +14,7 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 #include <string>
 
 #include "pipeline/mask_dataset.h"
@@ -115,11 +116,33 @@ TEST_F(MasksTrainTest, TrainsExportsAndTheWorkerRunsIt) {
   const std::string model = (root_ / "m.onnx").string();
   std::string out;
   ASSERT_EQ(Shell(kAggscan + " masks dataset --out " + ds + " " + sample_, &out), 0) << out;
-  ASSERT_EQ(
-      Shell(kAggscan + " masks train --dataset " + ds + " --out " + model + " --epochs 2", &out), 0)
+  // An environment to teach: empty-turntable photos (here the sample's own
+  // photos with the rock blurred away stand in for them).
+  const fs::path empty = root_ / "empty";
+  fs::create_directories(empty);
+  for (int v = 0; v < 3; ++v) {
+    char name[64];
+    std::snprintf(name, sizeof name, "/side1/view_%03d.jpg", v);
+    cv::Mat photo = cv::imread(sample_ + name, cv::IMREAD_COLOR), smooth;
+    ASSERT_FALSE(photo.empty());
+    cv::GaussianBlur(photo, smooth, cv::Size(0, 0), 40);
+    ASSERT_TRUE(cv::imwrite((empty / ("empty_" + std::to_string(v) + ".jpg")).string(), smooth));
+  }
+  ASSERT_EQ(Shell(kAggscan + " masks train --dataset " + ds + " --out " + model +
+                      " --epochs 2 --backgrounds " + empty.string(),
+                  &out),
+            0)
       << out;
   EXPECT_THAT(out, HasSubstr("method = \"onnx\""));
   EXPECT_TRUE(fs::exists(root_ / "m.mask.toml"));
+  {
+    std::ifstream f(model + ".json");
+    const auto rep = nlohmann::json::parse(f);
+    EXPECT_EQ(rep["background_photos"].get<int>(), 3);
+    EXPECT_GT(rep["composite_share"].get<double>(), 0);
+    ASSERT_EQ(rep["backgrounds"].size(), 1u);
+    EXPECT_EQ(rep["backgrounds"][0].get<std::string>(), empty.string());
+  }
   // Loaded and run as the worker does.
   MaskNetOptions o;
   o.model_path = model;
@@ -146,6 +169,22 @@ TEST_F(MasksTrainTest, TrainsExportsAndTheWorkerRunsIt) {
   EXPECT_EQ(report["summary"]["all_simulated"]["classical"]["views"].get<int>(), 24);
   EXPECT_EQ(report["summary"]["all_simulated"]["trained"]["views"].get<int>(), 24);
   EXPECT_EQ(report["summary"]["by_split"]["trained on"]["classical"]["views"].get<int>(), 24);
+  // --save writes every mask it scored.
+  const std::string saved = (root_ / "saved").string();
+  ASSERT_EQ(Shell(kAggscan + " masks eval --summary --model " + model + " --save " + saved + " " +
+                      sample_,
+                  &out),
+            0)
+      << out;
+  for (const char* what : {"classical", "trained", "network"}) {
+    const cv::Mat m = cv::imread(saved + "/seed-1/side2/view_011_" + what + ".png",
+                                 cv::IMREAD_GRAYSCALE);
+    ASSERT_EQ(m.size(), photo.size()) << what;
+    EXPECT_EQ(cv::countNonZero((m != 0) & (m != 255)), 0) << what;
+  }
+  EXPECT_GT(cv::countNonZero(cv::imread(saved + "/seed-1/side2/view_011_classical.png",
+                                        cv::IMREAD_GRAYSCALE)),
+            1000);
 }
 
 TEST_F(MasksTrainTest, BadInputSaysWhatToDo) {
@@ -164,6 +203,13 @@ TEST_F(MasksTrainTest, BadInputSaysWhatToDo) {
                   &out),
             1);
   EXPECT_THAT(out, HasSubstr("aggscan masks dataset"));
+  // Backgrounds that are not there.
+  EXPECT_EQ(Shell(kAggscan + " masks train --dataset " + (root_ / "none").string() + " --out " +
+                      (root_ / "x.onnx").string() + " --backgrounds " +
+                      (root_ / "no-such-folder").string(),
+                  &out),
+            2);
+  EXPECT_THAT(out, HasSubstr("empty-turntable photos"));
   // A model file that is not ONNX.
   std::ofstream(root_ / "junk.onnx") << "not a network";
   EXPECT_EQ(

@@ -14,6 +14,7 @@
 #include <fstream>
 #include <map>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 #include <set>
 #include <sstream>
 
@@ -162,6 +163,48 @@ TEST(BlenderRender, RedrawnViewsKeepTheSampleFormatAndTheSimsGeometry) {
   const double rock_mean = cv::mean(photo, mask)[0];
   EXPECT_GT(rock_mean, 5) << "rock mean level";
   EXPECT_LT(rock_mean, 150) << "rock mean level";
+}
+
+// The environment's empty-turntable photos: each view drawn again with the
+// rock taken away. Away from the rock and its shadow they are the view's
+// photo; where the rock stood they show the mat, not the rock.
+TEST(BlenderRender, EmptyTurntablePhotosAreTheViewsWithoutTheRock) {
+  if (!BlenderAvailable())
+    GTEST_SKIP() << "Debian's blender is not installed (scripts/install-deps.sh)";
+  test::TempDir tmp;
+  const std::string sample = Capture(tmp.path(), "rock", 2);
+  std::ostringstream log;
+  auto look = ParseBlenderLook("surface=wood,light=two-lights,stone=dolomite");
+  ASSERT_TRUE(look);
+  BlenderOptions o = Fast();
+  o.empty_plates = true;
+  auto rep = RerenderWithBlender(sample, *look, o, log);
+  ASSERT_TRUE(rep) << rep.error().ToString() << "\n" << log.str();
+  EXPECT_EQ(rep->frames, 2);
+  for (int v = 0; v < 2; ++v) {
+    char name[64];
+    std::snprintf(name, sizeof name, "view_%03d", v);
+    const cv::Mat photo = cv::imread(sample + "/side1/" + name + ".jpg", cv::IMREAD_GRAYSCALE);
+    const cv::Mat empty =
+        cv::imread(sample + "/background/side1/" + name + ".jpg", cv::IMREAD_GRAYSCALE);
+    const cv::Mat rock =
+        cv::imread(sample + "/truth/side1/" + name + "_mask.pgm", cv::IMREAD_GRAYSCALE) > 127;
+    ASSERT_FALSE(empty.empty()) << "no empty-turntable photo for " << name;
+    ASSERT_EQ(empty.size(), photo.size());
+    ASSERT_GT(cv::countNonZero(rock), 2000);
+    cv::Mat near_rock, diff;
+    cv::dilate(rock, near_rock, cv::Mat(), cv::Point(-1, -1), 60);
+    cv::absdiff(photo, empty, diff);
+    const double far_diff = cv::mean(diff, ~near_rock)[0], rock_diff = cv::mean(diff, rock)[0];
+    std::printf("%s: photo vs empty turntable, mean |difference| %.2f levels away from the rock, "
+                "%.1f where it stood\n",
+                name, far_diff, rock_diff);
+    EXPECT_LT(far_diff, 3.0) << name << ": the rest of the scene changed";
+    EXPECT_GT(rock_diff, 10.0) << name << ": the rock is still there";
+  }
+  // No stray compositor output left next to the frames.
+  for (const auto& e : fs::recursive_directory_iterator(sample + "/blender/empty"))
+    EXPECT_EQ(e.path().string().find("frame0001"), std::string::npos) << e.path();
 }
 
 TEST(BlenderRender, BoardDrawnByBlenderCalibratesTheRig) {
