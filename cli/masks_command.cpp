@@ -225,12 +225,14 @@ int TrainCommand(const std::vector<std::string>& args, std::ostream& out, std::o
   fs::remove(log, ec);
   out << "aggscan masks train: training with " << *py << " " << script << " (log: " << log << ")\n"
       << std::flush;
-  std::vector<std::string> argv = {*py,      script,         "--dataset",
-                                   dataset,  "--out",        abs_model,
-                                   "--epochs", std::to_string(epochs), "--width",
-                                   std::to_string(width), "--height", std::to_string(height),
-                                   "--seed",  std::to_string(seed), "--threads",
-                                   std::to_string(threads)};
+  std::vector<std::string> argv = {*py,         script,
+                                   "--dataset", dataset,
+                                   "--out",     abs_model,
+                                   "--epochs",  std::to_string(epochs),
+                                   "--width",   std::to_string(width),
+                                   "--height",  std::to_string(height),
+                                   "--seed",    std::to_string(seed),
+                                   "--threads", std::to_string(threads)};
   if (!backgrounds.empty()) {
     argv.push_back("--backgrounds");
     argv.insert(argv.end(), backgrounds.begin(), backgrounds.end());

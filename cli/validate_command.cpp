@@ -374,7 +374,8 @@ void RunRock(const RockInput& in, int index, const ValidateOptions& o, const std
   if (o.render_only) {
     row->status = "rendered";
     row->seconds = Seconds(t0);
-    log << "rock " << in.id << ": captured into " << cap.out << " (not reconstructed)\n" << std::flush;
+    log << "rock " << in.id << ": captured into " << cap.out << " (not reconstructed)\n"
+        << std::flush;
     return;
   }
   ReconstructOptions ro;  // the sample carries its calibration; no library CSV

@@ -177,13 +177,13 @@ TEST_F(MasksTrainTest, TrainsExportsAndTheWorkerRunsIt) {
             0)
       << out;
   for (const char* what : {"classical", "trained", "network"}) {
-    const cv::Mat m = cv::imread(saved + "/seed-1/side2/view_011_" + what + ".png",
-                                 cv::IMREAD_GRAYSCALE);
+    const cv::Mat m =
+        cv::imread(saved + "/seed-1/side2/view_011_" + what + ".png", cv::IMREAD_GRAYSCALE);
     ASSERT_EQ(m.size(), photo.size()) << what;
     EXPECT_EQ(cv::countNonZero((m != 0) & (m != 255)), 0) << what;
   }
-  EXPECT_GT(cv::countNonZero(cv::imread(saved + "/seed-1/side2/view_011_classical.png",
-                                        cv::IMREAD_GRAYSCALE)),
+  EXPECT_GT(cv::countNonZero(
+                cv::imread(saved + "/seed-1/side2/view_011_classical.png", cv::IMREAD_GRAYSCALE)),
             1000);
 }
 

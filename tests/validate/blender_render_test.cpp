@@ -196,9 +196,10 @@ TEST(BlenderRender, EmptyTurntablePhotosAreTheViewsWithoutTheRock) {
     cv::dilate(rock, near_rock, cv::Mat(), cv::Point(-1, -1), 60);
     cv::absdiff(photo, empty, diff);
     const double far_diff = cv::mean(diff, ~near_rock)[0], rock_diff = cv::mean(diff, rock)[0];
-    std::printf("%s: photo vs empty turntable, mean |difference| %.2f levels away from the rock, "
-                "%.1f where it stood\n",
-                name, far_diff, rock_diff);
+    std::printf(
+        "%s: photo vs empty turntable, mean |difference| %.2f levels away from the rock, "
+        "%.1f where it stood\n",
+        name, far_diff, rock_diff);
     EXPECT_LT(far_diff, 3.0) << name << ": the rest of the scene changed";
     EXPECT_GT(rock_diff, 10.0) << name << ": the rock is still there";
   }
