@@ -202,7 +202,8 @@ def composite(img, mask, bgs, gen, p):
     """The rig's own rocks (the pixels inside their reconstructed silhouette)
     laid onto the new environment's empty-turntable photos, each with a cast
     shadow drawn in (its silhouette shifted away from a random light, softened
-    and darkened by a random amount, plus a contact shadow where it stands), and
+    and darkened by a random amount, plus a contact shadow where it stands and
+    the dark ground under its overhang), and
     its colour changed at random (a darker or yellower stone than the rig has
     seen). With probability p per photo; img is float 0..1, N x 3 x H x W."""
     n, _, H, W = img.shape
@@ -227,7 +228,16 @@ def composite(img, mask, bgs, gen, p):
     cast = F.grid_sample(m, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
     cast = blur(torch.maximum(cast, m), r(0.5, 0.12 * float(size.mean()) + 1))
     contact = blur(F.max_pool2d(m, 5, 1, 2), r(1.0, 4.0))
+    # Under the rock's overhang the camera, looking down at the disc, sees the
+    # ground the rock hides from every light: a nearly black band along the
+    # bottom of the silhouette (image y grows towards the camera).
+    theta[:, 0, 2] = 0
+    theta[:, 1, 2] = -2 * r(0.02, 0.12) * size / H
+    grid = F.affine_grid(theta, (k, 1, H, W), align_corners=False)
+    under = blur(F.grid_sample(m, grid, mode="bilinear", padding_mode="zeros", align_corners=False),
+                 r(0.7, 3.0))
     shade = torch.maximum(cast * r(0.0, 0.8).view(k, 1, 1, 1), contact * r(0.2, 0.9).view(k, 1, 1, 1))
+    shade = torch.maximum(shade, under * r(0.3, 0.95).view(k, 1, 1, 1))
     bg = bg * (1 - shade)
     # Another stone: its grain's contrast (a smooth dolomite .. a speckled
     # granite), a tint of any hue and up to the saturation of a yellowish
