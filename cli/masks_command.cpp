@@ -274,7 +274,7 @@ int TrainCommand(const std::vector<std::string>& args, std::ostream& out, std::o
 // --- eval ------------------------------------------------------------------
 
 struct Scores {
-  double classical = -1, net_raw = -1, net = -1;  // -1: not scored
+  double classical = -1, net_raw = -1, net = -1;   // -1: not scored
   cv::Mat classical_mask, net_raw_mask, net_mask;  // 0/255, for --save
 };
 

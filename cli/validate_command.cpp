@@ -59,8 +59,8 @@ RockFigures FiguresFrom(const json& j) {
   if (const auto it = j.find("near_minimal_boxes"); it != j.end() && it->is_array()) {
     for (const json& b : *it) {
       if (!b.is_object()) continue;
-      f.near_boxes.push_back(
-          {b.value("a_mm", 0.0), b.value("b_mm", 0.0), b.value("c_mm", 0.0), b.value("volume_ratio", 1.0)});
+      f.near_boxes.push_back({b.value("a_mm", 0.0), b.value("b_mm", 0.0), b.value("c_mm", 0.0),
+                              b.value("volume_ratio", 1.0)});
     }
   } else if (const auto sb = j.find("second_box"); sb != j.end() && sb->is_object()) {
     // Figures written before near_minimal_boxes: the second box, if near.
@@ -76,8 +76,12 @@ json BoxJson(const BoxDims& b) {
 }
 
 json FiguresJson(const RockFigures& f) {
-  json j = {{"volume_mm3", f.volume_mm3}, {"surface_area_mm2", f.area_mm2}, {"a_mm", f.a_mm},
-            {"b_mm", f.b_mm},             {"c_mm", f.c_mm},                 {"sphericity", f.sphericity}};
+  json j = {{"volume_mm3", f.volume_mm3},
+            {"surface_area_mm2", f.area_mm2},
+            {"a_mm", f.a_mm},
+            {"b_mm", f.b_mm},
+            {"c_mm", f.c_mm},
+            {"sphericity", f.sphericity}};
   if (!f.near_boxes.empty()) {
     j["near_minimal_boxes"] = json::array();
     for (const BoxDims& b : f.near_boxes) j["near_minimal_boxes"].push_back(BoxJson(b));
@@ -96,8 +100,8 @@ std::string BoxName(const char* whose, const RockFigures& f, int k) {
   if (k == 0) {
     std::snprintf(t, sizeof t, "%s minimum box", whose);
   } else {
-    std::snprintf(t, sizeof t, "%s box %.1f / %.1f / %.1f mm (%+.2f %% volume)", whose, b.a_mm, b.b_mm, b.c_mm,
-                  100 * (b.volume_ratio - 1));
+    std::snprintf(t, sizeof t, "%s box %.1f / %.1f / %.1f mm (%+.2f %% volume)", whose, b.a_mm,
+                  b.b_mm, b.c_mm, 100 * (b.volume_ratio - 1));
   }
   return t;
 }
@@ -115,7 +119,8 @@ json Realism(const Config& c, int sides) {
           {"settle_before_shot_ms", static_cast<double>(c.capture.settle) / 1e6},
           {"flip_between_sides", sides > 1},
           {"note",
-           "angles in the sidecars are the sim encoder's readings (they carry the repeatability and backlash "
+           "angles in the sidecars are the sim encoder's readings (they carry the repeatability "
+           "and backlash "
            "errors); the flip puts the rock on its next stable rest for each side"}};
 }
 
@@ -175,14 +180,15 @@ void MaskIou(const std::string& sample_dir, const json& truth, double* iou_min, 
 // Writes the capture config: the study's protocol with the chosen sides and views.
 Status WriteCaptureConfig(const std::string& path, const ValidateOptions& o) {
   std::ostringstream t;
-  t << "[capture]\nprofile = \"custom\"\nsides = " << o.sides << "\nviews_per_side = " << o.views_per_side
-    << "\nstep_deg = " << kStepDeg << "\n" << RigToml(o);
+  t << "[capture]\nprofile = \"custom\"\nsides = " << o.sides
+    << "\nviews_per_side = " << o.views_per_side << "\nstep_deg = " << kStepDeg << "\n"
+    << RigToml(o);
   return WriteFileAtomic(path, t.str());
 }
 
 // The calibration every rock is captured and reconstructed with.
-Result<json> MakeCalibration(const ValidateOptions& o, const std::string& work, const std::string& out_path,
-                             std::ostream& log) {
+Result<json> MakeCalibration(const ValidateOptions& o, const std::string& work,
+                             const std::string& out_path, std::ostream& log) {
   const Config defaults;
   const int w = o.width > 0 ? o.width : defaults.camera.width;
   const int h = o.height > 0 ? o.height : defaults.camera.height;
@@ -211,8 +217,9 @@ Result<json> MakeCalibration(const ValidateOptions& o, const std::string& work, 
   cap.height = h;
   std::ostringstream cout_, cerr_;
   if (RunSimCapture(cap, cout_, cerr_) != 0) {
-    return MakeError(ErrorClass::kInternal, "the simulated calibration capture failed: " + cerr_.str() +
-                                                "; try --calibration truth to validate without it");
+    return MakeError(ErrorClass::kInternal,
+                     "the simulated calibration capture failed: " + cerr_.str() +
+                         "; try --calibration truth to validate without it");
   }
   json rendered;
   if (o.renderer == "blender") {
@@ -227,17 +234,20 @@ Result<json> MakeCalibration(const ValidateOptions& o, const std::string& work, 
   }
   auto r = CalibrateSampleSide(cap.out, 1, c.calibration);
   if (!r) {
-    return MakeError(r.error().cls, "calibration from the simulated board failed: " + r.error().message +
-                                        "; try --calibration truth to validate without it");
+    return MakeError(r.error().cls,
+                     "calibration from the simulated board failed: " + r.error().message +
+                         "; try --calibration truth to validate without it");
   }
   if (Status s = SaveCalibration(out_path, r->cal); !s) return s.error();
   const double fx_err = Pct(r->cal.camera.fx, truth.camera.fx);
   const auto cc = r->cal.CameraCentreTable0(), ct = truth.CameraCentreTable0();
   const double centre_err =
-      std::sqrt((cc[0] - ct[0]) * (cc[0] - ct[0]) + (cc[1] - ct[1]) * (cc[1] - ct[1]) + (cc[2] - ct[2]) * (cc[2] - ct[2]));
+      std::sqrt((cc[0] - ct[0]) * (cc[0] - ct[0]) + (cc[1] - ct[1]) * (cc[1] - ct[1]) +
+                (cc[2] - ct[2]) * (cc[2] - ct[2]));
   char line[256];
   std::snprintf(line, sizeof line,
-                "calibration: charuco, %d views, reprojection RMS %.3f px, fx %+.3f %% vs truth, camera centre "
+                "calibration: charuco, %d views, reprojection RMS %.3f px, fx %+.3f %% vs truth, "
+                "camera centre "
                 "%.2f mm from truth, k2 %s (%.1f s)\n",
                 r->cal.views_used, r->cal.reprojection_rms_px, fx_err, centre_err,
                 r->k2_estimated ? "estimated" : "fixed at 0", Seconds(t0));
@@ -261,7 +271,7 @@ struct RockInput {
   std::optional<uint64_t> seed;
   std::string mesh_file;  // the scaled mesh in mm (mesh rocks)
   double scale = 1;
-  std::string skip;       // non-empty: unusable input, why
+  std::string skip;  // non-empty: unusable input, why
 };
 
 std::vector<std::string> MeshFiles(const std::string& dir) {
@@ -270,7 +280,8 @@ std::vector<std::string> MeshFiles(const std::string& dir) {
   for (const auto& e : fs::directory_iterator(dir, ec)) {
     if (!e.is_regular_file()) continue;
     std::string ext = e.path().extension().string();
-    std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char ch) { return std::tolower(ch); });
+    std::transform(ext.begin(), ext.end(), ext.begin(),
+                   [](unsigned char ch) { return std::tolower(ch); });
     if (ext == ".ply" || ext == ".obj" || ext == ".stl") files.push_back(e.path().string());
   }
   std::sort(files.begin(), files.end());
@@ -278,7 +289,8 @@ std::vector<std::string> MeshFiles(const std::string& dir) {
 }
 
 // Loads, checks and scales one mesh file; writes the mm mesh the sim renders.
-RockInput PrepareMesh(const std::string& file, const ValidateOptions& o, double target_mm, const std::string& work) {
+RockInput PrepareMesh(const std::string& file, const ValidateOptions& o, double target_mm,
+                      const std::string& work) {
   RockInput in;
   in.id = fs::path(file).stem().string();
   in.source = file;
@@ -300,13 +312,17 @@ RockInput PrepareMesh(const std::string& file, const ValidateOptions& o, double 
   }
   if (target_mm <= 0 && (p.c_mm < kMinRockMm || p.c_mm > kMaxRockMm)) {
     char b[200];
-    std::snprintf(b, sizeof b, "its longest dimension is %.1f mm in unit %s, outside the rig's %.0f..%.0f mm; give "
-                  "--scale-to-mm L (or LO:HI)", p.c_mm, o.unit.c_str(), kMinRockMm, kMaxRockMm);
+    std::snprintf(
+        b, sizeof b,
+        "its longest dimension is %.1f mm in unit %s, outside the rig's %.0f..%.0f mm; give "
+        "--scale-to-mm L (or LO:HI)",
+        p.c_mm, o.unit.c_str(), kMinRockMm, kMaxRockMm);
     in.skip = b;
     return in;
   }
   in.mesh_file = work + "/" + in.id + ".rock.ply";
-  if (Status s = SaveMeshPly(*mesh, in.mesh_file); !s) in.skip = "cannot write the scaled mesh: " + s.error().message;
+  if (Status s = SaveMeshPly(*mesh, in.mesh_file); !s)
+    in.skip = "cannot write the scaled mesh: " + s.error().message;
   return in;
 }
 
@@ -405,8 +421,8 @@ void RunRock(const RockInput& in, int index, const ValidateOptions& o, const std
   row->seconds = Seconds(t0);
   char b[200];
   std::snprintf(b, sizeof b, "rock %s: V %.1f cm3 (true %.1f, %+.2f %%) in %.1f s\n", in.id.c_str(),
-                row->rec.volume_mm3 / 1000, row->truth.volume_mm3 / 1000, Pct(row->rec.volume_mm3, row->truth.volume_mm3),
-                row->seconds);
+                row->rec.volume_mm3 / 1000, row->truth.volume_mm3 / 1000,
+                Pct(row->rec.volume_mm3, row->truth.volume_mm3), row->seconds);
   log << b << std::flush;
 }
 
@@ -507,7 +523,9 @@ StitchTruthError StitchAgainstTruth(const std::string& sample_dir, const json& t
   return e;
 }
 
-double DimErrors::MaxAbs() const { return std::max({std::fabs(a_pct), std::fabs(b_pct), std::fabs(c_pct)}); }
+double DimErrors::MaxAbs() const {
+  return std::max({std::fabs(a_pct), std::fabs(b_pct), std::fabs(c_pct)});
+}
 
 DimErrors DimsAgainstMinimumBox(const RockFigures& truth, const RockFigures& rec) {
   return {Pct(rec.a_mm, truth.a_mm), Pct(rec.b_mm, truth.b_mm), Pct(rec.c_mm, truth.c_mm), 0, 0};
@@ -515,7 +533,8 @@ DimErrors DimsAgainstMinimumBox(const RockFigures& truth, const RockFigures& rec
 
 DimErrors DimsAgainstTruth(const RockFigures& truth, const RockFigures& rec) {
   DimErrors best = DimsAgainstMinimumBox(truth, rec);
-  const int nt = static_cast<int>(truth.near_boxes.size()), nr = static_cast<int>(rec.near_boxes.size());
+  const int nt = static_cast<int>(truth.near_boxes.size()),
+            nr = static_cast<int>(rec.near_boxes.size());
   for (int i = 0; i <= nt; ++i) {
     for (int j = 0; j <= nr; ++j) {
       const BoxDims t = BoxOf(truth, i), r = BoxOf(rec, j);
@@ -563,7 +582,8 @@ ValidateSummary Summarize(const std::vector<ValidateRock>& rocks, const Validate
       if (r.stitch.deg <= s.stitch_target_deg && r.stitch.mm <= s.stitch_target_mm)
         ++s.stitch_within;
     }
-    s.sphericity_max_abs = std::max(s.sphericity_max_abs, std::fabs(r.rec.sphericity - r.truth.sphericity));
+    s.sphericity_max_abs =
+        std::max(s.sphericity_max_abs, std::fabs(r.rec.sphericity - r.truth.sphericity));
   }
   if (s.rocks_ok > 0) {
     s.volume_mpe_pct = sum / s.rocks_ok;
@@ -577,7 +597,8 @@ ValidateSummary Summarize(const std::vector<ValidateRock>& rocks, const Validate
   s.volume_mape_pass = any && s.volume_mape_pct <= t.volume_mape_pct;
   s.dims_pass = any && std::max({s.a_max_abs_pct, s.b_max_abs_pct, s.c_max_abs_pct}) <= t.dims_pct;
   s.sphericity_pass = any && s.sphericity_max_abs <= t.sphericity;
-  s.pass = s.volume_mpe_pass && s.volume_mape_pass && s.dims_pass && s.sphericity_pass && s.rocks_failed == 0;
+  s.pass = s.volume_mpe_pass && s.volume_mape_pass && s.dims_pass && s.sphericity_pass &&
+           s.rocks_failed == 0;
   return s;
 }
 
@@ -589,7 +610,9 @@ Result<ValidateReport> RunValidation(const ValidateOptions& o, std::ostream& log
   if (work.empty()) {
     const char* tmp = std::getenv("TMPDIR");
     std::string tmpl = std::string(tmp && *tmp ? tmp : "/tmp") + "/aggscan-validate-XXXXXX";
-    if (::mkdtemp(tmpl.data()) == nullptr) return ErrnoError("cannot create a work folder under " + tmpl + "; set TMPDIR to a writable folder", errno);
+    if (::mkdtemp(tmpl.data()) == nullptr)
+      return ErrnoError(
+          "cannot create a work folder under " + tmpl + "; set TMPDIR to a writable folder", errno);
     work = tmpl;
     temporary = true;
   } else if (Status s = MakeDirsDurable(work); !s) {
@@ -642,7 +665,8 @@ Result<ValidateReport> RunValidation(const ValidateOptions& o, std::ostream& log
     for (size_t i = 0; i < files.size(); ++i) {
       double target = o.scale_min_mm;
       if (o.scale_max_mm > o.scale_min_mm && files.size() > 1) {
-        target = o.scale_min_mm + (o.scale_max_mm - o.scale_min_mm) * static_cast<double>(i) / (files.size() - 1);
+        target = o.scale_min_mm +
+                 (o.scale_max_mm - o.scale_min_mm) * static_cast<double>(i) / (files.size() - 1);
       }
       inputs.push_back(PrepareMesh(files[i], o, target, work));
     }
@@ -679,26 +703,29 @@ void PrintValidateReport(const ValidateReport& r, std::ostream& out) {
           : "the sim renderer");
   out << b;
   const json& re = st["sim_realism"];
-  std::snprintf(b, sizeof b,
-                "sim realism: sensor noise %.1f levels, lens k1 %.3f k2 %.3f, JPEG q%d, turntable repeatability "
-                "%.2f deg + backlash %.2f deg + settle ringing %.2f deg, %s\n\n",
-                re.value("sensor_noise_sigma_levels", 0.0), re.value("lens_distortion_k1", 0.0),
-                re.value("lens_distortion_k2", 0.0), re.value("jpeg_quality", 0),
-                re.value("turntable_repeatability_deg", 0.0), re.value("turntable_backlash_deg", 0.0),
-                re.value("turntable_settle_amplitude_deg", 0.0),
-                re.value("flip_between_sides", false) ? "rock flipped between sides" : "one side (no flip)");
+  std::snprintf(
+      b, sizeof b,
+      "sim realism: sensor noise %.1f levels, lens k1 %.3f k2 %.3f, JPEG q%d, turntable "
+      "repeatability "
+      "%.2f deg + backlash %.2f deg + settle ringing %.2f deg, %s\n\n",
+      re.value("sensor_noise_sigma_levels", 0.0), re.value("lens_distortion_k1", 0.0),
+      re.value("lens_distortion_k2", 0.0), re.value("jpeg_quality", 0),
+      re.value("turntable_repeatability_deg", 0.0), re.value("turntable_backlash_deg", 0.0),
+      re.value("turntable_settle_amplitude_deg", 0.0),
+      re.value("flip_between_sides", false) ? "rock flipped between sides" : "one side (no flip)");
   out << b;
-  std::snprintf(b, sizeof b, "%-22s %9s %9s %7s  %8s %8s  %6s %6s  %6s %6s  %6s %6s  %6s %6s\n", "rock", "V_true",
-                "V_rec", "V_err%", "A_true", "A_rec", "a_true", "a_rec", "b_true", "b_rec", "c_true", "c_rec",
-                "sph_t", "sph_r");
+  std::snprintf(b, sizeof b, "%-22s %9s %9s %7s  %8s %8s  %6s %6s  %6s %6s  %6s %6s  %6s %6s\n",
+                "rock", "V_true", "V_rec", "V_err%", "A_true", "A_rec", "a_true", "a_rec", "b_true",
+                "b_rec", "c_true", "c_rec", "sph_t", "sph_r");
   out << b;
-  std::snprintf(b, sizeof b, "%-22s %9s %9s %7s  %8s %8s  %6s %6s  %6s %6s  %6s %6s  %6s %6s\n", "", "cm3", "cm3", "",
-                "cm2", "cm2", "mm", "mm", "mm", "mm", "mm", "mm", "", "");
+  std::snprintf(b, sizeof b, "%-22s %9s %9s %7s  %8s %8s  %6s %6s  %6s %6s  %6s %6s  %6s %6s\n", "",
+                "cm3", "cm3", "", "cm2", "cm2", "mm", "mm", "mm", "mm", "mm", "mm", "", "");
   out << b;
   for (const ValidateRock& k : r.rocks) {
     std::string id = k.id.size() > 22 ? k.id.substr(0, 19) + "..." : k.id;
     if (k.status != "ok") {
-      out << id << std::string(id.size() < 23 ? 23 - id.size() : 1, ' ') << k.status << ": " << k.message << "\n";
+      out << id << std::string(id.size() < 23 ? 23 - id.size() : 1, ' ') << k.status << ": "
+          << k.message << "\n";
       if (!k.look.empty() || k.mask_iou_mean > 0) {
         std::snprintf(b, sizeof b, "    %s%smasks vs true silhouettes IoU min %.4f mean %.4f\n",
                       k.look.c_str(), k.look.empty() ? "" : ": ", k.mask_iou_min, k.mask_iou_mean);
@@ -707,11 +734,12 @@ void PrintValidateReport(const ValidateReport& r, std::ostream& out) {
       continue;
     }
     std::snprintf(b, sizeof b,
-                  "%-22s %9.2f %9.2f %+7.2f  %8.2f %8.2f  %6.1f %6.1f  %6.1f %6.1f  %6.1f %6.1f  %6.4f %6.4f\n",
+                  "%-22s %9.2f %9.2f %+7.2f  %8.2f %8.2f  %6.1f %6.1f  %6.1f %6.1f  %6.1f %6.1f  "
+                  "%6.4f %6.4f\n",
                   id.c_str(), k.truth.volume_mm3 / 1000, k.rec.volume_mm3 / 1000,
-                  Pct(k.rec.volume_mm3, k.truth.volume_mm3), k.truth.area_mm2 / 100, k.rec.area_mm2 / 100, k.truth.a_mm,
-                  k.rec.a_mm, k.truth.b_mm, k.rec.b_mm, k.truth.c_mm, k.rec.c_mm, k.truth.sphericity,
-                  k.rec.sphericity);
+                  Pct(k.rec.volume_mm3, k.truth.volume_mm3), k.truth.area_mm2 / 100,
+                  k.rec.area_mm2 / 100, k.truth.a_mm, k.rec.a_mm, k.truth.b_mm, k.rec.b_mm,
+                  k.truth.c_mm, k.rec.c_mm, k.truth.sphericity, k.rec.sphericity);
     out << b;
     if (!k.look.empty() || k.mask_iou_mean > 0) {
       std::snprintf(b, sizeof b, "    %s%smasks vs true silhouettes IoU min %.4f mean %.4f",
@@ -747,8 +775,8 @@ void PrintValidateReport(const ValidateReport& r, std::ostream& out) {
       out << b;
     }
     if (const DimErrors d = DimsAgainstTruth(k.truth, k.rec); d.NearBox()) {
-      out << "    a, b, c ill-conditioned: " << BoxName("the truth's", k.truth, d.truth_box) << " against "
-          << BoxName("the reconstruction's", k.rec, d.rec_box);
+      out << "    a, b, c ill-conditioned: " << BoxName("the truth's", k.truth, d.truth_box)
+          << " against " << BoxName("the reconstruction's", k.rec, d.rec_box);
       std::snprintf(b, sizeof b, ": errors %+.1f / %+.1f / %+.1f %%\n", d.a_pct, d.b_pct, d.c_pct);
       out << b;
     }
@@ -756,29 +784,36 @@ void PrintValidateReport(const ValidateReport& r, std::ostream& out) {
   const ValidateSummary& s = r.summary;
   const ValidateTargets& t = r.targets;
   auto verdict = [](bool p) { return p ? "PASS" : "FAIL"; };
-  std::snprintf(b, sizeof b, "\nrocks: %d measured, %d failed, %d skipped\n", s.rocks_ok, s.rocks_failed,
-                s.rocks_skipped);
+  std::snprintf(b, sizeof b, "\nrocks: %d measured, %d failed, %d skipped\n", s.rocks_ok,
+                s.rocks_failed, s.rocks_skipped);
   out << b;
-  std::snprintf(b, sizeof b, "volume MPE        %+7.2f %%   target |MPE| <= %.1f %%   %s\n", s.volume_mpe_pct,
-                t.volume_mpe_pct, verdict(s.volume_mpe_pass));
+  std::snprintf(b, sizeof b, "volume MPE        %+7.2f %%   target |MPE| <= %.1f %%   %s\n",
+                s.volume_mpe_pct, t.volume_mpe_pct, verdict(s.volume_mpe_pass));
   out << b;
-  std::snprintf(b, sizeof b, "volume MAPE       %7.2f %%   target <= %.1f %%         %s   (max |error| %.2f %%)\n",
-                s.volume_mape_pct, t.volume_mape_pct, verdict(s.volume_mape_pass), s.volume_max_abs_pct);
+  std::snprintf(
+      b, sizeof b,
+      "volume MAPE       %7.2f %%   target <= %.1f %%         %s   (max |error| %.2f %%)\n",
+      s.volume_mape_pct, t.volume_mape_pct, verdict(s.volume_mape_pass), s.volume_max_abs_pct);
   out << b;
-  std::snprintf(b, sizeof b, "max |a|,|b|,|c| error %.2f / %.2f / %.2f %%   target <= %.1f %%   %s   (%d of %d rocks within)\n",
-                s.a_max_abs_pct, s.b_max_abs_pct, s.c_max_abs_pct, t.dims_pct, verdict(s.dims_pass), s.dims_within,
-                s.rocks_ok);
+  std::snprintf(b, sizeof b,
+                "max |a|,|b|,|c| error %.2f / %.2f / %.2f %%   target <= %.1f %%   %s   (%d of %d "
+                "rocks within)\n",
+                s.a_max_abs_pct, s.b_max_abs_pct, s.c_max_abs_pct, t.dims_pct, verdict(s.dims_pass),
+                s.dims_within, s.rocks_ok);
   out << b;
   if (s.dims_near_box > 0) {
     std::snprintf(b, sizeof b,
-                  "  %d rock(s) matched through a near-minimal box (a, b, c ill-conditioned: another box within "
-                  "%.0f %% of the minimum volume); minimum box against minimum box alone: %d of %d within, max "
+                  "  %d rock(s) matched through a near-minimal box (a, b, c ill-conditioned: "
+                  "another box within "
+                  "%.0f %% of the minimum volume); minimum box against minimum box alone: %d of %d "
+                  "within, max "
                   "error %.2f %%\n",
-                  s.dims_near_box, 100 * kBoxAmbiguousVolume, s.dims_raw_within, s.rocks_ok, s.dims_raw_max_abs_pct);
+                  s.dims_near_box, 100 * kBoxAmbiguousVolume, s.dims_raw_within, s.rocks_ok,
+                  s.dims_raw_max_abs_pct);
     out << b;
   }
-  std::snprintf(b, sizeof b, "max |sphericity error| %.4f   target <= %.2f   %s\n", s.sphericity_max_abs, t.sphericity,
-                verdict(s.sphericity_pass));
+  std::snprintf(b, sizeof b, "max |sphericity error| %.4f   target <= %.2f   %s\n",
+                s.sphericity_max_abs, t.sphericity, verdict(s.sphericity_pass));
   out << b;
   std::snprintf(b, sizeof b, "area MPE          %+7.2f %%   (no target)\n", s.area_mpe_pct);
   out << b;
@@ -802,7 +837,8 @@ void PrintValidateReport(const ValidateReport& r, std::ostream& out) {
     out << b;
   }
   out << "result: " << verdict(s.pass);
-  if (s.rocks_failed > 0) out << " (" << s.rocks_failed << " rock(s) failed to capture or reconstruct)";
+  if (s.rocks_failed > 0)
+    out << " (" << s.rocks_failed << " rock(s) failed to capture or reconstruct)";
   if (s.rocks_ok == 0) out << " (no rock measured)";
   out << "\n";
 }
@@ -931,12 +967,13 @@ int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, 
     long long n = 0;
     if (a == "--json") {
       json_out = true;
-    } else if (a == "--count" || a == "--seed" || a == "--views" || a == "--width" || a == "--height" ||
-               a == "--sides") {
+    } else if (a == "--count" || a == "--seed" || a == "--views" || a == "--width" ||
+               a == "--height" || a == "--sides") {
       if (!has_value) return need("a number");
       if (!ParseCount(args[++i], &n) || (a != "--seed" && n == 0)) {
-        err << "aggscan validate: " << a << " expects a " << (a == "--seed" ? "non-negative" : "positive")
-            << " integer, got '" << args[i] << "'\n";
+        err << "aggscan validate: " << a << " expects a "
+            << (a == "--seed" ? "non-negative" : "positive") << " integer, got '" << args[i]
+            << "'\n";
         return 2;
       }
       if (a == "--count") o.count = static_cast<int>(n), count_given = true;
@@ -956,12 +993,12 @@ int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, 
       const std::string v = args[++i];
       const size_t colon = v.find(':');
       double lo = 0, hi = 0;
-      const bool ok = colon == std::string::npos
-                          ? ParseDouble(v, &lo) && (hi = lo, true)
-                          : ParseDouble(v.substr(0, colon), &lo) && ParseDouble(v.substr(colon + 1), &hi);
+      const bool ok = colon == std::string::npos ? ParseDouble(v, &lo) && (hi = lo, true)
+                                                 : ParseDouble(v.substr(0, colon), &lo) &&
+                                                       ParseDouble(v.substr(colon + 1), &hi);
       if (!ok || lo < kMinRockMm || hi > kMaxRockMm || hi < lo) {
-        err << "aggscan validate: --scale-to-mm expects L or LO:HI in mm within " << kMinRockMm << ".." << kMaxRockMm
-            << " (riprap on a 305 mm disc), got '" << v << "'\n";
+        err << "aggscan validate: --scale-to-mm expects L or LO:HI in mm within " << kMinRockMm
+            << ".." << kMaxRockMm << " (riprap on a 305 mm disc), got '" << v << "'\n";
         return 2;
       }
       o.scale_min_mm = lo;
@@ -970,7 +1007,8 @@ int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, 
       if (!has_value) return need("a distance in mm");
       double d = 0;
       if (!ParseDouble(args[++i], &d) || d < 400 || d > 2000) {
-        err << "aggscan validate: --camera-distance-mm expects the camera's distance from the disc centre "
+        err << "aggscan validate: --camera-distance-mm expects the camera's distance from the disc "
+               "centre "
                "in mm, 400..2000, got '"
             << args[i] << "'\n";
         return 2;
@@ -1037,7 +1075,8 @@ int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, 
     return 2;
   }
   if (o.calibration != "charuco" && o.calibration != "truth") {
-    err << "aggscan validate: --calibration must be charuco or truth, got '" << o.calibration << "'\n";
+    err << "aggscan validate: --calibration must be charuco or truth, got '" << o.calibration
+        << "'\n";
     return 2;
   }
   if ((o.width > 0) != (o.height > 0)) {
@@ -1050,12 +1089,14 @@ int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, 
   }
   if (!o.mesh_dir.empty()) {
     if (count_given || seed_given) {
-      err << "aggscan validate: --count and --seed choose procedural rocks; drop them with --mesh-dir\n";
+      err << "aggscan validate: --count and --seed choose procedural rocks; drop them with "
+             "--mesh-dir\n";
       return 2;
     }
     double f = 0;
     if (o.unit.empty() || !UnitToMm(o.unit, &f)) {
-      err << "aggscan validate: --mesh-dir needs --unit mm|cm|m (the unit of the files' coordinates)\n";
+      err << "aggscan validate: --mesh-dir needs --unit mm|cm|m (the unit of the files' "
+             "coordinates)\n";
       return 2;
     }
     std::error_code ec;

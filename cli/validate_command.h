@@ -9,40 +9,39 @@
 #pragma once
 
 #include <cstdint>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <ostream>
 #include <string>
 #include <vector>
-
-#include <nlohmann/json.hpp>
 
 #include "common/error.h"
 
 namespace aggscan {
 
 struct ValidateOptions {
-  int count = 20;                 // procedural rocks: seeds seed .. seed+count-1
-  uint64_t seed = 1;              // first seed
-  std::string mesh_dir;           // instead: every .ply/.obj/.stl file in this folder
-  std::string unit;               // unit of those files: mm | cm | m (required with mesh_dir)
-  double scale_min_mm = 0;        // mesh rocks: longest dimension c scaled to this (0: as given) ...
-  double scale_max_mm = 0;        // ... up to this, spread evenly over the files in name order
-  int sides = 2;                  // sides per rock (the operator flips the rock between them)
-  int views_per_side = 30;        // views per side, 30 deg apart (the study's protocol)
-  int width = 0, height = 0;      // image size (0: the config's 2016 x 1512)
+  int count = 20;             // procedural rocks: seeds seed .. seed+count-1
+  uint64_t seed = 1;          // first seed
+  std::string mesh_dir;       // instead: every .ply/.obj/.stl file in this folder
+  std::string unit;           // unit of those files: mm | cm | m (required with mesh_dir)
+  double scale_min_mm = 0;    // mesh rocks: longest dimension c scaled to this (0: as given) ...
+  double scale_max_mm = 0;    // ... up to this, spread evenly over the files in name order
+  int sides = 2;              // sides per rock (the operator flips the rock between them)
+  int views_per_side = 30;    // views per side, 30 deg apart (the study's protocol)
+  int width = 0, height = 0;  // image size (0: the config's 2016 x 1512)
   double camera_distance_mm = 0;  // the tripod's distance from the disc centre, as the rig is set
                                   // up for the batch's rock sizes (0: the config's 650 mm)
   std::string calibration = "charuco";  // charuco: calibrate from a simulated board capture;
                                         // truth: the sim's exact calibration
-  std::string keep;               // keep every sample under this new folder (empty: temporary)
+  std::string keep;  // keep every sample under this new folder (empty: temporary)
   // The renderer of the photos: sim (the sim rig's own) or blender (every
   // view redrawn by Blender's Cycles from the same poses, cli/blender_render.h;
   // the sim's lens distortion is off then, Blender's camera is a pinhole).
   std::string renderer = "sim";
-  std::string look;    // blender: one look for every rock ("surface=wood,light=low-sun,...");
-                       // empty: BatchLook(i) per rock, the variety cycled
-  int samples = 16;    // blender: Cycles samples per pixel
-  int look_index = 0;  // blender: BatchLook index of the first rock (to continue a batch)
+  std::string look;          // blender: one look for every rock ("surface=wood,light=low-sun,...");
+                             // empty: BatchLook(i) per rock, the variety cycled
+  int samples = 16;          // blender: Cycles samples per pixel
+  int look_index = 0;        // blender: BatchLook index of the first rock (to continue a batch)
   bool backgrounds = false;  // blender: also each view's empty-turntable photo (SAMPLE/background/)
   bool render_only = false;  // capture (and render) the samples into --keep, reconstruct nothing:
                              // test sets for `aggscan masks eval`
@@ -104,14 +103,14 @@ struct StitchTruthError {
 StitchTruthError StitchAgainstTruth(const std::string& sample_dir, const nlohmann::json& truth);
 
 struct ValidateRock {
-  std::string id;        // "seed-7" or the mesh file's stem
-  std::string source;    // "procedural seed 7" or the mesh path
-  std::string status;    // ok | skipped (unusable input) | failed (capture or reconstruction)
-  std::string message;   // why skipped or failed
-  double scale = 1;      // mesh rocks: factor applied to the file (after its unit)
+  std::string id;       // "seed-7" or the mesh file's stem
+  std::string source;   // "procedural seed 7" or the mesh path
+  std::string status;   // ok | skipped (unusable input) | failed (capture or reconstruction)
+  std::string message;  // why skipped or failed
+  double scale = 1;     // mesh rocks: factor applied to the file (after its unit)
   RockFigures truth, rec;
-  double seconds = 0;    // capture + reconstruction, wall time
-  std::string look;      // blender: the look's name (surface/light/stone)
+  double seconds = 0;         // capture + reconstruction, wall time
+  std::string look;           // blender: the look's name (surface/light/stone)
   double render_frame_s = 0;  // blender: mean seconds per rendered frame
   // The worker's masks against the renderer's true silhouettes, over every
   // view (0 when not measured).
@@ -129,8 +128,8 @@ struct ValidateSummary {
   double volume_mpe_pct = 0, volume_mape_pct = 0, volume_max_abs_pct = 0;
   double area_mpe_pct = 0;
   double a_max_abs_pct = 0, b_max_abs_pct = 0, c_max_abs_pct = 0;  // DimsAgainstTruth
-  int dims_within = 0;            // rocks with a, b, c all within the target
-  int dims_near_box = 0;          // rocks matched through a near-minimal box (DimErrors::NearBox)
+  int dims_within = 0;              // rocks with a, b, c all within the target
+  int dims_near_box = 0;            // rocks matched through a near-minimal box (DimErrors::NearBox)
   double dims_raw_max_abs_pct = 0;  // minimum box against minimum box only
   int dims_raw_within = 0;          // ... rocks within the target that way
   double sphericity_max_abs = 0;
@@ -140,14 +139,15 @@ struct ValidateSummary {
   int stitch_measured = 0, stitch_within = 0;    // rocks measured, and within the stitch targets
   double stitch_target_deg = 0.5, stitch_target_mm = 0.5;
   double render_frame_s = 0;  // blender: mean seconds per frame
-  bool volume_mpe_pass = false, volume_mape_pass = false, dims_pass = false, sphericity_pass = false;
+  bool volume_mpe_pass = false, volume_mape_pass = false, dims_pass = false,
+       sphericity_pass = false;
   bool pass = false;  // every target met, no rock failed, at least one rock measured
 };
 
 struct ValidateReport {
   ValidateOptions options;
   ValidateTargets targets;
-  nlohmann::json settings;     // resolution, views, calibration used, the sim's realism switches
+  nlohmann::json settings;  // resolution, views, calibration used, the sim's realism switches
   std::vector<ValidateRock> rocks;
   ValidateSummary summary;
 };
