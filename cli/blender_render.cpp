@@ -166,24 +166,33 @@ Result<json> SceneJson(const std::string& sample_dir, const std::string& scene_d
 
 // The photo and truth mask of one view replaced by the renderer's; returns
 // the silhouette IoU against the sim's mask (-1 for a scene without a rock).
-Result<double> IngestView(const std::string& sample_dir, const std::string& scene_dir,
-                          const json& view, int jpeg_quality, bool has_rock) {
-  const int side = view["side"].get<int>(), v = view["view"].get<int>();
-  const std::string png = scene_dir + "/" + view["image"].get<std::string>();
+// One of Blender's PNG frames stored as the rig stores its photos (JPEG at
+// the camera's quality) at `jpeg_path`; returns the frame's size.
+Result<cv::Size> StoreFrameAsJpeg(const std::string& png, const std::string& what, int jpeg_quality,
+                                  const std::string& jpeg_path) {
   cv::Mat bgr = cv::imread(png, cv::IMREAD_COLOR);
-  if (bgr.empty()) return MakeError(ErrorClass::kIo, "Blender wrote no readable frame " + png);
+  if (bgr.empty())
+    return MakeError(ErrorClass::kIo, "Blender wrote no readable " + what + " " + png);
   cv::Mat rgb;
   cv::cvtColor(bgr, rgb, cv::COLOR_BGR2RGB);
   Result<std::vector<unsigned char>> jpeg =
       sim::EncodeJpeg(rgb.data, rgb.cols, rgb.rows, jpeg_quality);
   if (!jpeg) return jpeg.error();
-  const std::string side_dir = sample_dir + "/" + layout::SideDirName(side);
-  if (Status s = WriteFileAtomic(side_dir + "/" + layout::ViewImageName(v), *jpeg); !s)
-    return s.error();
+  if (Status s = WriteFileAtomic(jpeg_path, *jpeg); !s) return s.error();
+  return bgr.size();
+}
+
+Result<double> IngestView(const std::string& sample_dir, const std::string& scene_dir,
+                          const json& view, int jpeg_quality, bool has_rock) {
+  const int side = view["side"].get<int>(), v = view["view"].get<int>();
+  Result<cv::Size> size = StoreFrameAsJpeg(
+      scene_dir + "/" + view["image"].get<std::string>(), "frame", jpeg_quality,
+      sample_dir + "/" + layout::SideDirName(side) + "/" + layout::ViewImageName(v));
+  if (!size) return size.error();
   if (!has_rock) return -1.0;
   const std::string mask_png = scene_dir + "/" + view["mask"].get<std::string>();
   cv::Mat mask = cv::imread(mask_png, cv::IMREAD_GRAYSCALE);
-  if (mask.empty() || mask.size() != bgr.size()) {
+  if (mask.empty() || mask.size() != *size) {
     return MakeError(ErrorClass::kIo,
                      "Blender wrote no readable mask " + mask_png + " of the frame's size");
   }
@@ -224,19 +233,14 @@ Status UpdateManifest(const std::string& side_dir) {
 // encoded as the rig encodes its photos.
 Status IngestEmptyPlate(const std::string& sample_dir, const std::string& scene_dir,
                         const json& view, int jpeg_quality) {
-  const std::string png = scene_dir + "/" + view["empty_image"].get<std::string>();
-  cv::Mat bgr = cv::imread(png, cv::IMREAD_COLOR);
-  if (bgr.empty())
-    return MakeError(ErrorClass::kIo, "Blender wrote no readable empty-turntable frame " + png);
-  cv::Mat rgb;
-  cv::cvtColor(bgr, rgb, cv::COLOR_BGR2RGB);
-  Result<std::vector<unsigned char>> jpeg =
-      sim::EncodeJpeg(rgb.data, rgb.cols, rgb.rows, jpeg_quality);
-  if (!jpeg) return jpeg.error();
   const std::string dir =
       sample_dir + "/" + kBackgroundDir + "/" + layout::SideDirName(view["side"].get<int>());
   if (Status s = MakeDirsDurable(dir); !s) return s;
-  return WriteFileAtomic(dir + "/" + layout::ViewImageName(view["view"].get<int>()), *jpeg);
+  Result<cv::Size> size = StoreFrameAsJpeg(
+      scene_dir + "/" + view["empty_image"].get<std::string>(), "empty-turntable frame",
+      jpeg_quality, dir + "/" + layout::ViewImageName(view["view"].get<int>()));
+  if (!size) return size.error();
+  return {};
 }
 
 }  // namespace
