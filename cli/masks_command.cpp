@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -386,6 +387,7 @@ int EvalCommand(const std::vector<std::string>& args, std::ostream& out, std::os
   std::string model, grabcut, save;
   bool as_json = false, quiet = false;
   int width = 0, height = 0;
+  double threshold = -1;
   std::vector<std::string> samples;
   for (size_t i = 0; i < args.size(); ++i) {
     const bool has = i + 1 < args.size();
@@ -395,6 +397,13 @@ int EvalCommand(const std::vector<std::string>& args, std::ostream& out, std::os
       grabcut = args[++i];
     } else if (args[i] == "--save" && has) {
       save = args[++i];
+    } else if (args[i] == "--threshold" && has) {
+      char* end = nullptr;
+      threshold = std::strtod(args[++i].c_str(), &end);
+      if (*end != '\0' || !(threshold > 0 && threshold < 1)) {
+        err << "aggscan masks eval: --threshold needs a probability between 0 and 1 (0.5)\n";
+        return 2;
+      }
     } else if (args[i] == "--input" && has) {
       if (!ParseSize(args[++i], &width, &height)) {
         err << "aggscan masks eval: --input needs WxH, each a multiple of 16 from 32\n";
@@ -428,6 +437,7 @@ int EvalCommand(const std::vector<std::string>& args, std::ostream& out, std::os
         trained_on.insert(s.get<std::string>());
     }
     if (width > 0) o.input_size = cv::Size(width, height);
+    if (threshold > 0) o.threshold = threshold;
     auto loaded = MaskNet::Load(o);
     if (!loaded) {
       err << "aggscan masks eval: " << loaded.error().message << "\n";
@@ -584,10 +594,12 @@ void PrintMasksUsage(std::ostream& o) {
        "      lights): the dataset's rocks are also laid onto them with a drawn shadow, which\n"
        "      teaches the network that place without a rock from it\n"
        "  aggscan masks eval [--model MODEL.onnx] [--grabcut DIR] [--summary | --json] "
-       "[--save DIR] SAMPLE_DIR...\n"
+       "[--save DIR] [--threshold P] SAMPLE_DIR...\n"
        "      IoU of the classical and the trained masks side by side against the truth masks\n"
        "      of simulated samples, per view and summarised (min/mean), and on the GrabCut\n"
-       "      set's stone photos; --save: every mask scored, as PNGs under DIR/SAMPLE/sideN/\n";
+       "      set's stone photos; --save: every mask scored, as PNGs under DIR/SAMPLE/sideN/;\n"
+       "      --threshold: the network's probability above which a pixel is rock (the worker's\n"
+       "      [mask] threshold, 0.5)\n";
 }
 
 int RunMasksCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {

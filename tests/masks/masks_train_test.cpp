@@ -217,6 +217,9 @@ TEST_F(MasksTrainTest, BadInputSaysWhatToDo) {
             &out),
       1);
   EXPECT_THAT(out, HasSubstr("cannot be read as an ONNX model"));
+  // A threshold that is not a probability.
+  EXPECT_EQ(Shell(kAggscan + " masks eval --threshold 1.5 " + sample_, &out), 2);
+  EXPECT_THAT(out, HasSubstr("--threshold needs a probability between 0 and 1"));
   // No python with torch (a dataset of its own: ctest runs each test alone).
   fs::create_directories(root_ / "ds_nopython");
   std::ofstream(root_ / "ds_nopython" / "index.json") << "{\"pairs\": []}";
