@@ -135,6 +135,35 @@ TEST(ValidateCommand, UsageErrorsExit2) {
       << err;
   EXPECT_EQ(RunCmd({"--renderer", "blender", "--samples", "0"}, nullptr, &err), 2);
   EXPECT_NE(err.find("--samples expects 1..4096"), std::string::npos) << err;
+  EXPECT_EQ(RunCmd({"--backgrounds"}, nullptr, &err), 2);
+  EXPECT_NE(err.find("--backgrounds (empty-turntable photos) needs --renderer blender"),
+            std::string::npos)
+      << err;
+  EXPECT_EQ(RunCmd({"--render-only"}, nullptr, &err), 2);
+  EXPECT_NE(err.find("--render-only keeps the samples and needs --keep DIR"), std::string::npos)
+      << err;
+}
+
+// --render-only: the samples captured with their truth into --keep, nothing
+// reconstructed (mask test sets).
+TEST(ValidateCommand, RenderOnlyCapturesWithoutReconstructing) {
+  test::TempDir tmp;
+  const std::string keep = tmp.path() + "/set";
+  std::string out, err;
+  ASSERT_EQ(RunCmd({"--count", "2", "--seed", "4", "--sides", "1", "--views", "3", "--width", "640",
+                    "--height", "480", "--calibration", "truth", "--render-only", "--keep", keep},
+                   &out, &err),
+            0)
+      << err;
+  EXPECT_NE(out.find("2 sample(s) captured into " + keep + ", 0 failed"), std::string::npos) << out;
+  for (const char* rock : {"seed-4", "seed-5"}) {
+    const std::string dir = keep + "/" + rock;
+    EXPECT_TRUE(std::filesystem::exists(dir + "/truth.json")) << dir;
+    EXPECT_TRUE(std::filesystem::exists(dir + "/truth/side1/view_002_mask.pgm")) << dir;
+    EXPECT_TRUE(std::filesystem::exists(dir + "/side1/view_002.jpg")) << dir;
+    EXPECT_FALSE(std::filesystem::exists(dir + "/results")) << dir << " was reconstructed";
+    EXPECT_FALSE(std::filesystem::exists(dir + "/side2")) << dir;
+  }
 }
 
 TEST(ValidateCommand, BadMeshDirSaysWhatIsWrong) {
