@@ -1,17 +1,15 @@
 // The accuracy harness: statistics and verdicts on known rows, usage errors,
 // a bad --mesh-dir, and one small real run (capture, computed masks,
 // reconstruction) at reduced resolution compared with the sim's truth.
-#include "cli/validate_command.h"
-
 #include <gtest/gtest.h>
 
+#include <Eigen/Dense>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
 
-#include <Eigen/Dense>
-
+#include "cli/validate_command.h"
 #include "common/mesh.h"
 #include "common/rig_calibration.h"
 #include "drivers/sim/world.h"
@@ -23,8 +21,8 @@ namespace {
 namespace fs = std::filesystem;
 using nlohmann::json;
 
-ValidateRock Row(double v_true, double v_rec, double c_true = 100, double c_rec = 100, double s_true = 0.8,
-                 double s_rec = 0.8) {
+ValidateRock Row(double v_true, double v_rec, double c_true = 100, double c_rec = 100,
+                 double s_true = 0.8, double s_rec = 0.8) {
   ValidateRock r;
   r.status = "ok";
   r.truth = {v_true, 1, 50, 80, c_true, s_true, {}};
@@ -96,7 +94,8 @@ TEST(ValidateSummary, MpeMapeAndVerdicts) {
   EXPECT_FALSE(Summarize({skipped}, t).pass);
 }
 
-int RunCmd(const std::vector<std::string>& args, std::string* out_text = nullptr, std::string* err_text = nullptr) {
+int RunCmd(const std::vector<std::string>& args, std::string* out_text = nullptr,
+           std::string* err_text = nullptr) {
   std::ostringstream out, err;
   const int rc = RunValidateCommand(args, out, err);
   if (out_text) *out_text = out.str();
@@ -119,7 +118,8 @@ TEST(ValidateCommand, UsageErrorsExit2) {
   EXPECT_NE(err.find("--mesh-dir only"), std::string::npos) << err;
   EXPECT_EQ(RunCmd({"--mesh-dir", "/tmp", "--scale-to-mm", "1000"}, nullptr, &err), 2);
   EXPECT_EQ(RunCmd({"--camera-distance-mm", "150"}, nullptr, &err), 2);
-  EXPECT_NE(err.find("--camera-distance-mm expects the camera's distance from the disc centre in mm, 400..2000, got "
+  EXPECT_NE(err.find("--camera-distance-mm expects the camera's distance from the disc centre in "
+                     "mm, 400..2000, got "
                      "'150'"),
             std::string::npos)
       << err;
@@ -177,11 +177,12 @@ TEST(ValidateCommand, BadMeshDirSaysWhatIsWrong) {
   EXPECT_NE(err.find("has no .ply, .obj or .stl file"), std::string::npos) << err;
   EXPECT_EQ(RunCmd({"--mesh-dir", tmp.path(), "--unit", "mm", "--count", "3"}, nullptr, &err), 2);
   // An open mesh is skipped with its defect named; with nothing measured the run fails.
-  std::ofstream(tmp.path() + "/open.obj") << "v 0 0 0\nv 100 0 0\nv 0 100 0\nv 0 0 100\nf 1 3 2\nf 1 2 4\nf 1 4 3\n";
+  std::ofstream(tmp.path() + "/open.obj")
+      << "v 0 0 0\nv 100 0 0\nv 0 100 0\nv 0 0 100\nf 1 3 2\nf 1 2 4\nf 1 4 3\n";
   std::string out;
-  EXPECT_EQ(RunCmd({"--mesh-dir", tmp.path(), "--unit", "mm", "--calibration", "truth", "--width", "1008", "--height",
-                 "756"},
-                &out, &err),
+  EXPECT_EQ(RunCmd({"--mesh-dir", tmp.path(), "--unit", "mm", "--calibration", "truth", "--width",
+                    "1008", "--height", "756"},
+                   &out, &err),
             1);
   EXPECT_NE(out.find("skipped"), std::string::npos) << out;
   EXPECT_NE(out.find("boundary"), std::string::npos) << out;
@@ -212,8 +213,9 @@ TEST(ValidateRun, OneRockTwoSidesReducedResolution) {
   std::ostringstream text;
   PrintValidateReport(*rep, text);
   std::printf("%s\n%s", log.str().c_str(), text.str().c_str());
-  for (const char* col : {"V_true", "V_rec", "V_err%", "A_true", "A_rec", "a_true", "a_rec", "b_true", "b_rec", "c_true",
-                          "c_rec", "sph_t", "sph_r", "volume MPE", "volume MAPE", "max |sphericity error|", "result:"}) {
+  for (const char* col : {"V_true", "V_rec", "V_err%", "A_true", "A_rec", "a_true", "a_rec",
+                          "b_true", "b_rec", "c_true", "c_rec", "sph_t", "sph_r", "volume MPE",
+                          "volume MAPE", "max |sphericity error|", "result:"}) {
     EXPECT_NE(text.str().find(col), std::string::npos) << col;
   }
   const json j = ValidateReportToJson(*rep);
@@ -281,8 +283,10 @@ TEST(ValidateRun, CameraDistanceMovesTheCalibrationAndTheCaptures) {
   const Eigen::Vector3d far = centre(sim::SimWorld(c).TruthCalibration(1008, 756));
   const Eigen::Vector3d near = centre(sim::SimWorld(Config{}).TruthCalibration(1008, 756));
   const double err = (centre(*cal) - far).norm();
-  std::printf("camera centre from the board capture: %.2f mm from the 800 mm set-up, %.1f mm from the default\n", err,
-              (centre(*cal) - near).norm());
+  std::printf(
+      "camera centre from the board capture: %.2f mm from the 800 mm set-up, %.1f mm from the "
+      "default\n",
+      err, (centre(*cal) - near).norm());
   EXPECT_LT(err, 5.0);  // the ChArUco calibration's centre error at 650 mm is ~1-2 mm
   EXPECT_GT((far - near).norm(), 140.0);
   // One side: the disc bounds the hull from below; the volume is compared
