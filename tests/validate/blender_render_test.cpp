@@ -167,7 +167,7 @@ TEST(BlenderRender, RedrawnViewsKeepTheSampleFormatAndTheSimsGeometry) {
 
 // The environment's empty-turntable photos: each view drawn again with the
 // rock taken away. Away from the rock and its shadow they are the view's
-// photo; where the rock stood they show the mat, not the rock.
+// photo; where the rock stood they show the disc, not the rock.
 TEST(BlenderRender, EmptyTurntablePhotosAreTheViewsWithoutTheRock) {
   if (!BlenderAvailable())
     GTEST_SKIP() << "Debian's blender is not installed (scripts/install-deps.sh)";
