@@ -354,6 +354,13 @@ int main(int argc, char** argv) {
     const ssize_t n = read(ep0, ev.data(), sizeof(ev));
     if (n < 0) {
       if (errno == EINTR || errno == EAGAIN) continue;
+      if (errno == EL2HLT) {
+        // The host dropped an IN request we could not answer (a write that
+        // failed as the cable was pulled): FunctionFS stalls it on this read
+        // and says so; the next read carries on with the events.
+        std::fprintf(stderr, "tic_gadget: a request left unanswered was stalled\n");
+        continue;
+      }
       if (errno == EIDRM) {
         // A setup request was cancelled before we answered it (the host gave
         // up on it, or another event came first): FunctionFS says so once;
