@@ -26,7 +26,8 @@ void Usage(std::ostream& o) {
        "  aggscan selftest --config FILE [--json]\n"
        "      open each device of FILE, exercise it briefly (camera: open+configure, turntable:\n"
        "      read status, button: open), report and close; stop aggscand first (it holds them)\n"
-       "  aggscan calibrate board --out FILE.png|FILE.pgm [--dpi N] [--margin-mm M] [--config FILE]\n"
+       "  aggscan calibrate board --out FILE.png|FILE.pgm [--dpi N] [--margin-mm M] [--config "
+       "FILE]\n"
        "      the printable ChArUco board of [calibration] (default 7x5 squares of 30 mm)\n"
        "  aggscan calibrate aruco --out FILE.pgm|FILE.png --config FILE [--dpi N]\n"
        "      the ArUco scale markers of [[rig.aruco_markers]] side by side ([sim] aruco_image)\n"
@@ -34,7 +35,8 @@ void Usage(std::ostream& o) {
        "                    [--json]\n"
        "      rig calibration (lens, turntable axis, camera pose) from a side captured with the\n"
        "      board lying on the turntable; writes calibration.json, keeps the previous one\n"
-       "  aggscan reconstruct SAMPLE_DIR [--state-dir DIR] [--config FILE] [--surface hull|hull+photo]\n"
+       "  aggscan reconstruct SAMPLE_DIR [--state-dir DIR] [--config FILE] [--surface "
+       "hull|hull+photo]\n"
        "                      [--poses turntable|turntable+ba]\n"
        "      run the worker's stages on a sample now (masks, poses, stitching, surface,\n"
        "      morphology) and print results/morphology.json; resumes finished stages\n"
@@ -75,22 +77,34 @@ int SimCommand(const std::vector<std::string>& a) {
       char* end = nullptr;
       const long long n = std::strtoll(v.c_str(), &end, 10);
       if (end == v.c_str() || *end != '\0' || n < 0) {
-        std::cerr << "aggscan sim capture: " << name << " expects a non-negative integer, got '" << v << "'\n";
+        std::cerr << "aggscan sim capture: " << name << " expects a non-negative integer, got '"
+                  << v << "'\n";
         std::exit(2);
       }
       return n;
     };
-    if (a[i] == "--seed") o.seed = static_cast<uint64_t>(num("--seed"));
-    else if (a[i] == "--mesh") o.mesh = val("--mesh");
-    else if (a[i] == "--unit") o.unit = val("--unit");
-    else if (a[i] == "--out") o.out = val("--out");
-    else if (a[i] == "--profile") o.profile = val("--profile");
-    else if (a[i] == "--config") o.config_path = val("--config");
-    else if (a[i] == "--width") o.width = static_cast<int>(num("--width"));
-    else if (a[i] == "--height") o.height = static_cast<int>(num("--height"));
-    else if (a[i] == "--views") o.views_per_side = static_cast<int>(num("--views"));
-    else if (a[i] == "--scene") o.scene = val("--scene");
-    else if (a[i] == "--calibration") o.calibration = val("--calibration");
+    if (a[i] == "--seed")
+      o.seed = static_cast<uint64_t>(num("--seed"));
+    else if (a[i] == "--mesh")
+      o.mesh = val("--mesh");
+    else if (a[i] == "--unit")
+      o.unit = val("--unit");
+    else if (a[i] == "--out")
+      o.out = val("--out");
+    else if (a[i] == "--profile")
+      o.profile = val("--profile");
+    else if (a[i] == "--config")
+      o.config_path = val("--config");
+    else if (a[i] == "--width")
+      o.width = static_cast<int>(num("--width"));
+    else if (a[i] == "--height")
+      o.height = static_cast<int>(num("--height"));
+    else if (a[i] == "--views")
+      o.views_per_side = static_cast<int>(num("--views"));
+    else if (a[i] == "--scene")
+      o.scene = val("--scene");
+    else if (a[i] == "--calibration")
+      o.calibration = val("--calibration");
     else {
       std::cerr << "aggscan sim capture: unknown option '" << a[i] << "'\n";
       return 2;
@@ -135,18 +149,21 @@ int main(int argc, char** argv) {
     bool json = true;
     aggscan::ImageLimits limits;
     for (size_t i = 1; i < args.size(); ++i) {
-      if (args[i] == "--text") json = false;
-      else if (args[i] == "--json") json = true;
+      if (args[i] == "--text")
+        json = false;
+      else if (args[i] == "--json")
+        json = true;
       else if (args[i] == "--max-megapixels" && i + 1 < args.size()) {
         char* end = nullptr;
         const double mp = std::strtod(args[++i].c_str(), &end);
         if (end == args[i].c_str() || *end != '\0' || !(mp > 0 && mp <= 10000)) {
-          std::cerr << "aggscan morph2d: --max-megapixels expects a number from 0 to 10000, got '" << args[i] << "'\n";
+          std::cerr << "aggscan morph2d: --max-megapixels expects a number from 0 to 10000, got '"
+                    << args[i] << "'\n";
           return 2;
         }
         limits.max_pixels = static_cast<int64_t>(mp * 1e6);
-      }
-      else if (path.empty()) path = args[i];
+      } else if (path.empty())
+        path = args[i];
       else {
         std::cerr << "aggscan morph2d: unexpected argument '" << args[i] << "'\n";
         return 2;
@@ -162,12 +179,15 @@ int main(int argc, char** argv) {
     std::string path, unit = "mm";
     bool json = false;
     for (size_t i = 1; i < args.size(); ++i) {
-      if (args[i] == "--json") json = true;
-      else if (args[i] == "--unit" && i + 1 < args.size()) unit = args[++i];
+      if (args[i] == "--json")
+        json = true;
+      else if (args[i] == "--unit" && i + 1 < args.size())
+        unit = args[++i];
       else if (args[i].rfind("--", 0) == 0) {
         std::cerr << "aggscan morph: unknown option '" << args[i] << "'\n";
         return 2;
-      } else if (path.empty()) path = args[i];
+      } else if (path.empty())
+        path = args[i];
       else {
         std::cerr << "aggscan morph: unexpected argument '" << args[i] << "'\n";
         return 2;
@@ -184,8 +204,10 @@ int main(int argc, char** argv) {
   if (cmd == "sim") return SimCommand(args);
   if (cmd == "masks")
     return aggscan::RunMasksCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
-  if (cmd == "validate") return aggscan::RunValidateCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
-  if (cmd == "calibrate") return aggscan::RunCalibrateCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
+  if (cmd == "validate")
+    return aggscan::RunValidateCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
+  if (cmd == "calibrate")
+    return aggscan::RunCalibrateCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
   std::cerr << "aggscan: unknown command '" << cmd << "'\n\n";
   Usage(std::cerr);
   return 2;

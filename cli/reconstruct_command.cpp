@@ -8,7 +8,8 @@
 
 namespace aggscan {
 
-int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {
+int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& out,
+                          std::ostream& err) {
   std::string sample_dir, state_dir, config_path, surface = "hull+photo", poses;
   // An option taking one of two words; false (usage error said) otherwise.
   auto choice = [&](size_t* i, const char* a, const char* b, const char* help, std::string* v) {
@@ -22,16 +23,21 @@ int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& ou
   for (size_t i = 0; i < args.size(); ++i) {
     if (args[i] == "--poses") {
       PosesPath unused;
-      if (i + 1 >= args.size() || (args[i + 1] != "turntable+ba" && !ParsePosesPath(args[i + 1], &unused))) {
-        err << "aggscan reconstruct: --poses needs turntable (calibration and measured angles), turntable+ba "
-               "(refined by bundle adjustment, the default), sfm (full SfM through COLMAP, scaled by the "
+      if (i + 1 >= args.size() ||
+          (args[i + 1] != "turntable+ba" && !ParsePosesPath(args[i + 1], &unused))) {
+        err << "aggscan reconstruct: --poses needs turntable (calibration and measured angles), "
+               "turntable+ba "
+               "(refined by bundle adjustment, the default), sfm (full SfM through COLMAP, scaled "
+               "by the "
                "background labels) or auto (turntable with a rig calibration, sfm without)\n";
         return 2;
       }
       poses = args[++i];
     } else if (args[i] == "--surface") {
-      if (!choice(&i, "hull", "hull+photo",
-                  "hull (visual hull only) or hull+photo (refined by photo-consistency, the default)", &surface)) {
+      if (!choice(
+              &i, "hull", "hull+photo",
+              "hull (visual hull only) or hull+photo (refined by photo-consistency, the default)",
+              &surface)) {
         return 2;
       }
     } else if (args[i] == "--config") {
@@ -90,7 +96,8 @@ int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& ou
       return 2;
     }
     opts.worker.mask_net = *net;
-    if (poses.empty()) ParsePosesPath(cfg->worker.poses, &opts.poses);  // validated by LoadConfigFile
+    if (poses.empty())
+      ParsePosesPath(cfg->worker.poses, &opts.poses);  // validated by LoadConfigFile
   }
   if (Status s = ReconstructSample(sample_dir, opts); !s) {
     err << "aggscan reconstruct: " << s.error().ToString() << "\n";

@@ -101,11 +101,11 @@ const std::vector<std::string>& MarkerColors() {
 // one marker per white square; an ArUco scale marker's id must be below it).
 const std::vector<std::pair<std::string, int>>& BoardDictionaries() {
   static const std::vector<std::pair<std::string, int>> k = {
-      {"DICT_4X4_50", 50},     {"DICT_4X4_100", 100},   {"DICT_4X4_250", 250},
-      {"DICT_4X4_1000", 1000}, {"DICT_5X5_50", 50},     {"DICT_5X5_100", 100},
-      {"DICT_5X5_250", 250},   {"DICT_5X5_1000", 1000}, {"DICT_6X6_50", 50},
-      {"DICT_6X6_100", 100},   {"DICT_6X6_250", 250},   {"DICT_6X6_1000", 1000},
-      {"DICT_7X7_50", 50},     {"DICT_7X7_100", 100},   {"DICT_7X7_250", 250},
+      {"DICT_4X4_50", 50},     {"DICT_4X4_100", 100},        {"DICT_4X4_250", 250},
+      {"DICT_4X4_1000", 1000}, {"DICT_5X5_50", 50},          {"DICT_5X5_100", 100},
+      {"DICT_5X5_250", 250},   {"DICT_5X5_1000", 1000},      {"DICT_6X6_50", 50},
+      {"DICT_6X6_100", 100},   {"DICT_6X6_250", 250},        {"DICT_6X6_1000", 1000},
+      {"DICT_7X7_50", 50},     {"DICT_7X7_100", 100},        {"DICT_7X7_250", 250},
       {"DICT_7X7_1000", 1000}, {"DICT_ARUCO_ORIGINAL", 1024}};
   return k;
 }
@@ -390,12 +390,16 @@ const std::vector<Field<Config>>& Fields() {
       D(worker.poll_interval, Above(0, 60 * kSec), "queue polling period when idle"),
       F(worker.nice, Range(0, 19), "CPU priority below the capture daemon (0..19)"),
       F(worker.poses, OneOf({"auto", "turntable", "sfm"}),
-        "poses: turntable (rig calibration + measured angles) | sfm (full SfM through COLMAP, scaled by "
-        "the background labels; minutes a side) | auto (turntable with a calibration, sfm without)"),
+        "poses: turntable (rig calibration + measured angles) | sfm (full SfM through COLMAP, "
+        "scaled by "
+        "the background labels; minutes a side) | auto (turntable with a calibration, sfm "
+        "without)"),
       F(worker.max_attempts, Range(1, 100),
-        "failed or crashed runs after which a job is marked failed (retry it with `aggscan retry ID`)"),
+        "failed or crashed runs after which a job is marked failed (retry it with `aggscan retry "
+        "ID`)"),
       F(worker.max_interruptions, Range(1, 1000),
-        "starts in a row that find a job cut off (worker killed, power lost) before it is marked failed"),
+        "starts in a row that find a job cut off (worker killed, power lost) before it is marked "
+        "failed"),
   };
   return k;
 }
@@ -446,7 +450,8 @@ const std::vector<Section>& Sections() {
       {"capture", "Capture schedule and device deadlines."},
       {"camera", "Camera backend and still format."},
       {"camera.exposure", "Locked exposure: every view of a rock shares it."},
-      {"camera.v4l2", "V4L2 camera (backend v4l2): pixel format, buffers, timeout, control mapping."},
+      {"camera.v4l2",
+       "V4L2 camera (backend v4l2): pixel format, buffers, timeout, control mapping."},
       {"camera.libcamera",
        "libcamera camera (backend libcamera): camera, stream role and format, buffers, timeout."},
       {"turntable", "Turntable backend, motion limits and the sim platter model."},
@@ -460,7 +465,9 @@ const std::vector<Section>& Sections() {
       {"button.gpio", "GPIO button (backend gpio): a line through libgpiod."},
       {"button.evdev", "Input-device button (backend evdev): a key of a foot pedal or keypad."},
       {"button.modbus", "Modbus button (backend modbus): a polled discrete input or coil."},
-      {"light", "Status light: ready steady, capturing slow blink, flip the rock fast blink, fault double flash."},
+      {"light",
+       "Status light: ready steady, capturing slow blink, flip the rock fast blink, fault double "
+       "flash."},
       {"light.gpio", "GPIO status light (backend gpio): an output line."},
       {"light.modbus", "Modbus status light (backend modbus): one coil."},
       {"sim", "Simulated rig: rock, camera geometry and sensor."},
@@ -1020,14 +1027,14 @@ class Validator {
             "device = \"/dev/ttyUSB0\"");
       }
       if (m.unit_id < 1 || m.unit_id > 247) {
-        Add("turntable.modbus.unit_id", "a Modbus RTU unit id is 1..247 (0 is broadcast), got " +
-                                            std::to_string(m.unit_id));
+        Add("turntable.modbus.unit_id",
+            "a Modbus RTU unit id is 1..247 (0 is broadcast), got " + std::to_string(m.unit_id));
       }
     }
-    static const int kBauds[] = {300,    600,    1200,   1800,   2400,    4800,    9600,
-                                 19200,  38400,  57600,  115200, 230400,  460800,  500000,
-                                 576000, 921600, 1000000, 1152000, 1500000, 2000000, 2500000,
-                                 3000000, 3500000, 4000000};
+    static const int kBauds[] = {300,     600,     1200,    1800,    2400,    4800,
+                                 9600,    19200,   38400,   57600,   115200,  230400,
+                                 460800,  500000,  576000,  921600,  1000000, 1152000,
+                                 1500000, 2000000, 2500000, 3000000, 3500000, 4000000};
     if (std::find(std::begin(kBauds), std::end(kBauds), m.baud) == std::end(kBauds)) {
       Add("turntable.modbus.baud", std::to_string(m.baud) +
                                        " is not a serial line speed; use one of 9600, 19200, "
@@ -1073,23 +1080,29 @@ class Validator {
     const bool modbus_button = c.button.backend == "modbus";
     const bool modbus_light = c.light.backend == "modbus";
     if (modbus_light && c.light.modbus.link == "button" && !modbus_button) {
-      Add("light.modbus.link", "link = \"button\" needs button.backend = \"modbus\"; use link = "
-                               "\"turntable\" or configure [button.modbus]");
+      Add("light.modbus.link",
+          "link = \"button\" needs button.backend = \"modbus\"; use link = "
+          "\"turntable\" or configure [button.modbus]");
     }
     const bool button_link_used = modbus_button;  // a light on it needs the button (above)
     const ModbusButtonConfig& l = c.button.modbus;
     const bool turntable_link_used = (button_link_used && l.link == "turntable") ||
                                      (modbus_light && c.light.modbus.link == "turntable");
     if (turntable_link_used && c.turntable.backend != "modbus-tcp") {
-      Add(modbus_light && c.light.modbus.link == "turntable" ? "light.modbus.link" : "button.modbus.link",
+      Add(modbus_light && c.light.modbus.link == "turntable" ? "light.modbus.link"
+                                                             : "button.modbus.link",
           "the turntable's Modbus link can be shared only when turntable.backend = \"modbus-tcp\" "
-          "(got \"" + c.turntable.backend + "\"); give the button its own link (link = \"tcp\" or \"rtu\")");
+          "(got \"" +
+              c.turntable.backend +
+              "\"); give the button its own link (link = \"tcp\" or \"rtu\")");
     }
     if (button_link_used && l.link == "tcp" && l.host.empty()) {
-      Add("button.modbus.host", "link = \"tcp\" needs the controller's address, e.g. host = \"192.168.1.50\"");
+      Add("button.modbus.host",
+          "link = \"tcp\" needs the controller's address, e.g. host = \"192.168.1.50\"");
     }
     if (button_link_used && l.link == "rtu" && l.device.empty()) {
-      Add("button.modbus.device", "link = \"rtu\" needs the serial device, e.g. device = \"/dev/ttyUSB1\"");
+      Add("button.modbus.device",
+          "link = \"rtu\" needs the serial device, e.g. device = \"/dev/ttyUSB1\"");
     }
   }
 
@@ -1172,8 +1185,7 @@ class Validator {
       for (size_t j = 0; j + 1 < papers.size(); ++j) {
         if (overlap(papers[j], papers.back())) {
           Add(prefix + "x_mm", "the marker's paper overlaps that of " + std::string(kArucoKey) +
-                                   "[" + std::to_string(j) +
-                                   "]; place the markers further apart");
+                                   "[" + std::to_string(j) + "]; place the markers further apart");
         }
       }
       for (const RigMarker& l : rig.markers) {
@@ -1236,12 +1248,11 @@ class Validator {
       }
     }
     if (b.square_mm > 0 && disc > 0 && reach > disc / 2) {
-      Add("sim.board_x_mm", "the board placed at (" + FormatDouble(c.sim.board_x_mm) + ", " +
-                                FormatDouble(c.sim.board_y_mm) + ") mm, yaw " +
-                                FormatDouble(c.sim.board_yaw_deg) + " deg reaches " +
-                                FormatDouble(std::round(reach)) +
-                                " mm from the axis, beyond the disc edge (" +
-                                FormatDouble(disc / 2) + " mm)");
+      Add("sim.board_x_mm",
+          "the board placed at (" + FormatDouble(c.sim.board_x_mm) + ", " +
+              FormatDouble(c.sim.board_y_mm) + ") mm, yaw " + FormatDouble(c.sim.board_yaw_deg) +
+              " deg reaches " + FormatDouble(std::round(reach)) +
+              " mm from the axis, beyond the disc edge (" + FormatDouble(disc / 2) + " mm)");
     }
   }
 

@@ -21,10 +21,14 @@ struct DaemonConfig {
   std::string listen_address = "127.0.0.1";    // HTTP API bind address
   int listen_port = 8470;                      // HTTP API port (0 = pick a free one, tests)
   std::string log_level = "info";              // error|warning|notice|info|debug
-  double time_scale = 1.0;  // sim rig only (> 1 with a real device is refused): clock runs this many times faster
-  TimeNs reopen_backoff_min = 1 * kNsPerSec;   // first retry of a device that failed to open (real time)
-  TimeNs reopen_backoff_max = 30 * kNsPerSec;  // retries double up to this; reset when the device opens
-  TimeNs health_probe_interval = 5 * kNsPerSec;  // turntable status read while no side runs (0 = off)
+  double time_scale =
+      1.0;  // sim rig only (> 1 with a real device is refused): clock runs this many times faster
+  TimeNs reopen_backoff_min =
+      1 * kNsPerSec;  // first retry of a device that failed to open (real time)
+  TimeNs reopen_backoff_max =
+      30 * kNsPerSec;  // retries double up to this; reset when the device opens
+  TimeNs health_probe_interval =
+      5 * kNsPerSec;  // turntable status read while no side runs (0 = off)
   // Host names (or addresses, IPv6 in brackets) the API answers to besides localhost,
   // 127.0.0.1, [::1] and listen_address, comma-separated, each with or without ":port"
   std::string allowed_hosts;
@@ -44,27 +48,27 @@ struct DaemonConfig {
 //             other than 360/views_per_side is a problem.
 //   custom    every value as given.
 struct CaptureConfig {
-  std::string profile = "paper";  // paper | full-turn | custom
-  int sides = 2;                  // poses of the rock (operator flips between sides)
-  int views_per_side = 30;        // photos per side
-  double step_deg = 30.0;         // turntable step between views (full-turn: 360/views_per_side)
-  TimeNs interval = 2 * kNsPerSec;         // view i of a side is due at t0 + i*interval
-  TimeNs settle = 300 * kNsPerMs;          // wait after in-position before the shot (platter oscillation)
-  TimeNs home_timeout = 30 * kNsPerSec;    // homing must finish within this
-  TimeNs move_timeout = 5 * kNsPerSec;     // one step must reach in-position within this
-  TimeNs frame_timeout = 5 * kNsPerSec;    // a still must arrive within this after the trigger
-  TimeNs poll_interval = 20 * kNsPerMs;    // turntable status polling period while moving
-  TimeNs stall_timeout = 1 * kNsPerSec;    // moving but position unchanged this long = stalled
-  int comm_retries = 2;                    // turntable communication retries before a fault
+  std::string profile = "paper";    // paper | full-turn | custom
+  int sides = 2;                    // poses of the rock (operator flips between sides)
+  int views_per_side = 30;          // photos per side
+  double step_deg = 30.0;           // turntable step between views (full-turn: 360/views_per_side)
+  TimeNs interval = 2 * kNsPerSec;  // view i of a side is due at t0 + i*interval
+  TimeNs settle = 300 * kNsPerMs;   // wait after in-position before the shot (platter oscillation)
+  TimeNs home_timeout = 30 * kNsPerSec;  // homing must finish within this
+  TimeNs move_timeout = 5 * kNsPerSec;   // one step must reach in-position within this
+  TimeNs frame_timeout = 5 * kNsPerSec;  // a still must arrive within this after the trigger
+  TimeNs poll_interval = 20 * kNsPerMs;  // turntable status polling period while moving
+  TimeNs stall_timeout = 1 * kNsPerSec;  // moving but position unchanged this long = stalled
+  int comm_retries = 2;                  // turntable communication retries before a fault
 
   bool operator==(const CaptureConfig&) const = default;
 };
 
 struct ExposureConfig {
-  bool manual = true;            // lock exposure so all views of a rock share it
-  double exposure_us = 8000.0;   // shutter time, microseconds
-  double gain = 1.0;             // analogue gain (1.0 = base ISO)
-  double wb_red = 1.0;           // white balance gains, locked like exposure
+  bool manual = true;           // lock exposure so all views of a rock share it
+  double exposure_us = 8000.0;  // shutter time, microseconds
+  double gain = 1.0;            // analogue gain (1.0 = base ISO)
+  double wb_red = 1.0;          // white balance gains, locked like exposure
   double wb_blue = 1.0;
 
   bool operator==(const ExposureConfig&) const = default;
@@ -73,15 +77,17 @@ struct ExposureConfig {
 // The V4L2 camera backend (drivers/v4l2/): pixel format, buffers, timeout and
 // how the locked settings map onto the device's controls.
 struct V4l2CameraConfig {
-  std::string pixel_format = "auto";  // auto (MJPEG if offered, else raw) | mjpeg | yuyv | uyvy | nv12 | rgb24 | bgr24 | grey
+  std::string pixel_format = "auto";  // auto (MJPEG if offered, else raw) | mjpeg | yuyv | uyvy |
+                                      // nv12 | rgb24 | bgr24 | grey
   int buffers = 3;                    // mmap buffers requested from the driver, 2..32
   TimeNs frame_timeout = 2 * kNsPerSec;  // no frame this long after a still request = timeout
   // Gain and red/blue balance controls are unitless on most devices: the device
   // value is round(factor x reference), the reference being the control's own
   // default value unless gain_unit is set (> 0).
-  int gain_unit = 0;                  // device gain value that means gain 1.0 (0 = the control's default)
-  int focus = -1;                     // manual focus position in device units (FOCUS_ABSOLUTE); -1 = leave focus alone
-  bool strict_controls = true;        // refuse to configure when a locked setting has no control on the device
+  int gain_unit = 0;  // device gain value that means gain 1.0 (0 = the control's default)
+  int focus = -1;  // manual focus position in device units (FOCUS_ABSOLUTE); -1 = leave focus alone
+  bool strict_controls =
+      true;  // refuse to configure when a locked setting has no control on the device
 
   bool operator==(const V4l2CameraConfig&) const = default;
 };
@@ -91,24 +97,28 @@ struct V4l2CameraConfig {
 // are set through libcamera controls on every request and read back from the
 // completed request's metadata.
 struct LibcameraCameraConfig {
-  std::string camera_id;              // libcamera camera id (`cam -l`); empty = the camera at `index`
-  int index = 0;                      // position in libcamera's camera list when camera_id is empty
-  std::string role = "still";         // stream role asked of the pipeline: still | raw | video | viewfinder
-  std::string pixel_format = "auto";  // auto (the pipeline's choice, if encodable) | mjpeg | yuyv | uyvy | nv12 | rgb888 | bgr888 | r8
-  int buffers = 0;                    // frame buffers to allocate, 1..32; 0 = the pipeline's default
-  TimeNs frame_timeout = 2 * kNsPerSec;  // no completed frame this long after a still request = timeout
-  bool strict_controls = true;        // refuse to configure when a locked setting has no libcamera control
+  std::string camera_id;  // libcamera camera id (`cam -l`); empty = the camera at `index`
+  int index = 0;          // position in libcamera's camera list when camera_id is empty
+  std::string role =
+      "still";  // stream role asked of the pipeline: still | raw | video | viewfinder
+  std::string pixel_format = "auto";  // auto (the pipeline's choice, if encodable) | mjpeg | yuyv |
+                                      // uyvy | nv12 | rgb888 | bgr888 | r8
+  int buffers = 0;  // frame buffers to allocate, 1..32; 0 = the pipeline's default
+  TimeNs frame_timeout =
+      2 * kNsPerSec;  // no completed frame this long after a still request = timeout
+  bool strict_controls =
+      true;  // refuse to configure when a locked setting has no libcamera control
 
   bool operator==(const LibcameraCameraConfig&) const = default;
 };
 
 struct CameraConfig {
-  std::string backend = "sim";   // sim | v4l2 | libcamera
-  std::string id = "sim-cam0";   // camera id recorded in every sidecar
-  std::string device;            // device path or udev name for real backends
-  int width = 2016;              // still resolution, pixels
+  std::string backend = "sim";  // sim | v4l2 | libcamera
+  std::string id = "sim-cam0";  // camera id recorded in every sidecar
+  std::string device;           // device path or udev name for real backends
+  int width = 2016;             // still resolution, pixels
   int height = 1512;
-  int jpeg_quality = 92;         // 1..100, when the driver encodes JPEG itself
+  int jpeg_quality = 92;  // 1..100, when the driver encodes JPEG itself
   // The lens's nominal focal length and the sensor's active width (datasheet
   // values; 0 = unknown). Without a rig calibration the SfM path holds
   // lens_focal_mm / sensor_width_mm * width as the focal while it poses the
@@ -123,9 +133,9 @@ struct CameraConfig {
 };
 
 struct SimTurntableFaults {
-  std::optional<double> stall_at_deg;        // motion stops at this absolute angle (stall)
-  int timeout_every_n_moves = 0;             // every n-th move the controller stops answering (0 = never)
-  std::optional<TimeNs> disconnect_after;    // device disappears this long after open
+  std::optional<double> stall_at_deg;  // motion stops at this absolute angle (stall)
+  int timeout_every_n_moves = 0;       // every n-th move the controller stops answering (0 = never)
+  std::optional<TimeNs> disconnect_after;  // device disappears this long after open
 
   bool operator==(const SimTurntableFaults&) const = default;
 };
@@ -133,73 +143,84 @@ struct SimTurntableFaults {
 // The Modbus turntable backends (drivers/modbus/): the link, the register map
 // (a profile file in config/turntables/) and the drive train's scaling.
 struct ModbusTurntableConfig {
-  std::string profile = "generic";    // profile name (PROFILE_DIR/NAME.toml) or a path to a .toml
+  std::string profile = "generic";  // profile name (PROFILE_DIR/NAME.toml) or a path to a .toml
   std::string profile_dir = "/etc/aggscan/turntables";  // where profile names are looked up
-  int unit_id = 1;                    // Modbus unit (slave) id, 1..247
+  int unit_id = 1;                                      // Modbus unit (slave) id, 1..247
   // modbus-tcp:
-  std::string host;                   // controller or gateway address
-  int port = 502;                     // Modbus/TCP port
+  std::string host;  // controller or gateway address
+  int port = 502;    // Modbus/TCP port
   // modbus-rtu:
-  std::string device;                 // serial device, e.g. /dev/ttyUSB0 or /dev/aggscan/turntable
-  int baud = 19200;                   // line speed, bit/s
-  std::string parity = "none";        // none | even | odd
-  int data_bits = 8;                  // 5..8
-  int stop_bits = 1;                  // 1 | 2
-  bool rs485 = false;                 // switch the port to RS-485 mode (TIOCSRS485) where it supports it
+  std::string device;           // serial device, e.g. /dev/ttyUSB0 or /dev/aggscan/turntable
+  int baud = 19200;             // line speed, bit/s
+  std::string parity = "none";  // none | even | odd
+  int data_bits = 8;            // 5..8
+  int stop_bits = 1;            // 1 | 2
+  bool rs485 = false;           // switch the port to RS-485 mode (TIOCSRS485) where it supports it
   TimeNs response_timeout = 200 * kNsPerMs;  // one request must be answered within this
-  int retries = 2;                    // a request that got no answer is repeated this many times
+  int retries = 2;  // a request that got no answer is repeated this many times
   // Scaling: steps per platter revolution = motor_steps_per_rev * microsteps * gear_ratio.
-  int motor_steps_per_rev = 200;      // full steps (or encoder counts) per motor revolution
-  int microsteps = 16;                // microstepping factor set on the drive
-  double gear_ratio = 1.0;            // motor revolutions per platter revolution
+  int motor_steps_per_rev = 200;  // full steps (or encoder counts) per motor revolution
+  int microsteps = 16;            // microstepping factor set on the drive
+  double gear_ratio = 1.0;        // motor revolutions per platter revolution
   // Motion options:
-  bool shortest_path = false;         // go to the target's position modulo 360 the shorter way round
-  double backlash_comp_deg = 0.0;     // approach every target from one side, overshooting by this (0 = off)
-  std::string backlash_approach = "positive";  // positive | negative: the side targets are approached from
-  double in_position_window_deg = 0.05;  // in-position also needs the measured angle this close to the target
+  bool shortest_path = false;  // go to the target's position modulo 360 the shorter way round
+  double backlash_comp_deg =
+      0.0;  // approach every target from one side, overshooting by this (0 = off)
+  std::string backlash_approach =
+      "positive";  // positive | negative: the side targets are approached from
+  double in_position_window_deg =
+      0.05;  // in-position also needs the measured angle this close to the target
 
   /// Steps per platter revolution.
-  double steps_per_rev() const { return motor_steps_per_rev * static_cast<double>(microsteps) * gear_ratio; }
+  double steps_per_rev() const {
+    return motor_steps_per_rev * static_cast<double>(microsteps) * gear_ratio;
+  }
   bool operator==(const ModbusTurntableConfig&) const = default;
 };
 
 // The USB turntable backend "usb-tic" (drivers/usb/): a Pololu Tic stepper
 // controller on its native USB interface, through libusb.
 struct UsbTicConfig {
-  std::string serial_number;          // the Tic's USB serial number ("00123456"); empty = the only Tic attached
-  int vendor_id = 0x1FFB;             // USB vendor ID (Pololu's)
-  int product_id = 0;                 // USB product ID; 0 = any Tic model (T825, T834, T500, N825, T249, 36v4)
+  std::string
+      serial_number;  // the Tic's USB serial number ("00123456"); empty = the only Tic attached
+  int vendor_id = 0x1FFB;  // USB vendor ID (Pololu's)
+  int product_id = 0;      // USB product ID; 0 = any Tic model (T825, T834, T500, N825, T249, 36v4)
   // Scaling: microsteps per platter revolution = motor_steps_per_rev * microsteps * gear_ratio.
-  int motor_steps_per_rev = 200;      // full steps per motor revolution
-  int microsteps = 8;                 // step mode set on open: 1, 2, 4, 8, 16, 32 (36v4 also 64, 128, 256)
-  double gear_ratio = 1.0;            // motor revolutions per platter revolution
-  std::string home = "reverse";       // reverse | forward: the Tic's homing (limit switch) direction;
-                                      // here: the platter's place at StartHome is angle 0
-  TimeNs timeout = 500 * kNsPerMs;    // one control transfer must complete within this
-  bool shortest_path = false;         // go to the target's position modulo 360 the shorter way round
-  double backlash_comp_deg = 0.0;     // approach every target from one side, overshooting by this (0 = off)
-  std::string backlash_approach = "positive";  // positive | negative: the side targets are approached from
-  double in_position_window_deg = 0.05;  // in-position also needs the position this close to the target
+  int motor_steps_per_rev = 200;  // full steps per motor revolution
+  int microsteps = 8;       // step mode set on open: 1, 2, 4, 8, 16, 32 (36v4 also 64, 128, 256)
+  double gear_ratio = 1.0;  // motor revolutions per platter revolution
+  std::string home = "reverse";     // reverse | forward: the Tic's homing (limit switch) direction;
+                                    // here: the platter's place at StartHome is angle 0
+  TimeNs timeout = 500 * kNsPerMs;  // one control transfer must complete within this
+  bool shortest_path = false;       // go to the target's position modulo 360 the shorter way round
+  double backlash_comp_deg =
+      0.0;  // approach every target from one side, overshooting by this (0 = off)
+  std::string backlash_approach =
+      "positive";  // positive | negative: the side targets are approached from
+  double in_position_window_deg =
+      0.05;  // in-position also needs the position this close to the target
 
   /// Microsteps per platter revolution.
-  double steps_per_rev() const { return motor_steps_per_rev * static_cast<double>(microsteps) * gear_ratio; }
+  double steps_per_rev() const {
+    return motor_steps_per_rev * static_cast<double>(microsteps) * gear_ratio;
+  }
   bool operator==(const UsbTicConfig&) const = default;
 };
 
 struct TurntableConfig {
-  std::string backend = "sim";        // sim | modbus-tcp | modbus-rtu | usb-tic
-  double max_speed_deg_s = 60.0;      // trapezoidal profile speed limit
-  double accel_deg_s2 = 180.0;        // and acceleration limit
+  std::string backend = "sim";    // sim | modbus-tcp | modbus-rtu | usb-tic
+  double max_speed_deg_s = 60.0;  // trapezoidal profile speed limit
+  double accel_deg_s2 = 180.0;    // and acceleration limit
   // Sim model of a real platter:
-  double repeatability_deg = 0.05;    // 1-sigma random angle error per move
-  double backlash_deg = 0.1;          // lost motion on direction reversal
-  double settle_amplitude_deg = 0.3;  // oscillation amplitude when the move ends
+  double repeatability_deg = 0.05;               // 1-sigma random angle error per move
+  double backlash_deg = 0.1;                     // lost motion on direction reversal
+  double settle_amplitude_deg = 0.3;             // oscillation amplitude when the move ends
   TimeNs settle_time_constant = 120 * kNsPerMs;  // exponential decay of that oscillation
-  double settle_frequency_hz = 6.0;   // its frequency
-  TimeNs home_duration = 1500 * kNsPerMs;  // sim homing time
+  double settle_frequency_hz = 6.0;              // its frequency
+  TimeNs home_duration = 1500 * kNsPerMs;        // sim homing time
   SimTurntableFaults faults;
-  ModbusTurntableConfig modbus;       // modbus-tcp / modbus-rtu only
-  UsbTicConfig usb;                   // usb-tic only
+  ModbusTurntableConfig modbus;  // modbus-tcp / modbus-rtu only
+  UsbTicConfig usb;              // usb-tic only
 
   bool operator==(const TurntableConfig&) const = default;
 };
@@ -227,27 +248,27 @@ struct EvdevButtonConfig {
 // link of its own or the turntable's (link = "turntable": the
 // [turntable.modbus] settings of a modbus-tcp turntable, a second connection).
 struct ModbusButtonConfig {
-  std::string link = "turntable";  // turntable | tcp | rtu
-  std::string host;                // tcp: controller or gateway address
-  int port = 502;                  // tcp: port
-  std::string device;              // rtu: serial device
-  int baud = 19200;                // rtu: line speed, bit/s (8 data bits, 1 stop bit)
-  std::string parity = "none";     // rtu: none | even | odd
-  int unit_id = 1;                 // Modbus unit (slave) id
+  std::string link = "turntable";            // turntable | tcp | rtu
+  std::string host;                          // tcp: controller or gateway address
+  int port = 502;                            // tcp: port
+  std::string device;                        // rtu: serial device
+  int baud = 19200;                          // rtu: line speed, bit/s (8 data bits, 1 stop bit)
+  std::string parity = "none";               // rtu: none | even | odd
+  int unit_id = 1;                           // Modbus unit (slave) id
   TimeNs response_timeout = 200 * kNsPerMs;  // one request must be answered within this
-  std::string input = "discrete";  // discrete (function 2) | coil (function 1)
-  int address = 0;                 // bit address, 0-based as on the wire
-  TimeNs poll_interval = 20 * kNsPerMs;  // read period; a press must last longer than this
+  std::string input = "discrete";            // discrete (function 2) | coil (function 1)
+  int address = 0;                           // bit address, 0-based as on the wire
+  TimeNs poll_interval = 20 * kNsPerMs;      // read period; a press must last longer than this
 
   bool operator==(const ModbusButtonConfig&) const = default;
 };
 
 struct ButtonConfig {
-  std::string backend = "sim";   // sim | gpio | evdev | modbus
+  std::string backend = "sim";      // sim | gpio | evdev | modbus
   TimeNs debounce = 50 * kNsPerMs;  // presses closer than this are one press
-  GpioLineConfig gpio;           // gpio only
-  EvdevButtonConfig evdev;       // evdev only
-  ModbusButtonConfig modbus;     // modbus only
+  GpioLineConfig gpio;              // gpio only
+  EvdevButtonConfig evdev;          // evdev only
+  ModbusButtonConfig modbus;        // modbus only
 
   bool operator==(const ButtonConfig&) const = default;
 };
@@ -256,8 +277,9 @@ struct ButtonConfig {
 // ready = steady, capturing = slow blink, flip the rock = fast blink,
 // fault = double flash, off while aggscand is not running.
 struct ModbusLightConfig {
-  std::string link = "turntable";  // turntable ([turntable.modbus]) | button ([button.modbus]'s link)
-  int coil = 0;                    // coil address written (function 5), 0-based as on the wire
+  std::string link =
+      "turntable";  // turntable ([turntable.modbus]) | button ([button.modbus]'s link)
+  int coil = 0;     // coil address written (function 5), 0-based as on the wire
 
   bool operator==(const ModbusLightConfig&) const = default;
 };
@@ -271,30 +293,30 @@ struct LightConfig {
 };
 
 struct SimConfig {
-  uint64_t seed = 1;                  // procedural rock, noise and turntable errors
-  std::string rock_mesh;              // PLY/OBJ/STL file; empty = procedural rock from seed
-  std::string rock_unit = "mm";       // unit of rock_mesh coordinates: mm | cm | m
-  double rock_size_mm = 0.0;          // procedural rock longest dimension; 0 = random 70..200 mm
-  double camera_elevation_deg = 35.0; // camera above the turntable plane, 30..45
-  double camera_distance_mm = 650.0;  // from the turntable centre
-  double hfov_deg = 40.0;             // horizontal field of view
-  double k1 = -0.08;                  // radial distortion (Brown) coefficients
+  uint64_t seed = 1;                   // procedural rock, noise and turntable errors
+  std::string rock_mesh;               // PLY/OBJ/STL file; empty = procedural rock from seed
+  std::string rock_unit = "mm";        // unit of rock_mesh coordinates: mm | cm | m
+  double rock_size_mm = 0.0;           // procedural rock longest dimension; 0 = random 70..200 mm
+  double camera_elevation_deg = 35.0;  // camera above the turntable plane, 30..45
+  double camera_distance_mm = 650.0;   // from the turntable centre
+  double hfov_deg = 40.0;              // horizontal field of view
+  double k1 = -0.08;                   // radial distortion (Brown) coefficients
   double k2 = 0.02;
-  double noise_sigma = 2.0;           // sensor noise, 8-bit levels
-  bool write_truth = false;           // write ground-truth masks/poses next to the sample (tests)
+  double noise_sigma = 2.0;  // sensor noise, 8-bit levels
+  bool write_truth = false;  // write ground-truth masks/poses next to the sample (tests)
   // What lies on the turntable: "rock" (the procedural or mesh rock) or
   // "charuco" (the [calibration] board, printed on paper, lying flat on the
   // disc; no rock), for rendering a rig calibration capture.
   std::string scene = "rock";
-  std::string board_image;            // charuco: greyscale PGM (P5) of the board area, no margin
-                                      // (`aggscan calibrate board --out FILE.pgm --margin-mm 0`)
-  double board_x_mm = 0.0;            // charuco: board centre on the disc (turntable frame), mm
+  std::string board_image;  // charuco: greyscale PGM (P5) of the board area, no margin
+                            // (`aggscan calibrate board --out FILE.pgm --margin-mm 0`)
+  double board_x_mm = 0.0;  // charuco: board centre on the disc (turntable frame), mm
   double board_y_mm = 0.0;
-  double board_yaw_deg = 0.0;         // charuco: board x axis from the turntable x axis, ccw, degrees
-  std::string aruco_image;            // rig.aruco_markers: greyscale PGM (P5) of the markers side by
-                                      // side in list order, each its black square only, no margin
-                                      // (`aggscan calibrate aruco --out FILE.pgm`); needed by the sim
-                                      // camera when rig.aruco_markers is not empty
+  double board_yaw_deg = 0.0;  // charuco: board x axis from the turntable x axis, ccw, degrees
+  std::string aruco_image;     // rig.aruco_markers: greyscale PGM (P5) of the markers side by
+                               // side in list order, each its black square only, no margin
+                               // (`aggscan calibrate aruco --out FILE.pgm`); needed by the sim
+                               // camera when rig.aruco_markers is not empty
 
   bool operator==(const SimConfig&) const = default;
 };
@@ -315,8 +337,8 @@ struct CalibrationConfig {
 };
 
 struct RigMarker {
-  std::string color;   // red | green | blue | yellow
-  double x_mm = 0.0;   // centre in the turntable frame (z up, origin at the axis)
+  std::string color;  // red | green | blue | yellow
+  double x_mm = 0.0;  // centre in the turntable frame (z up, origin at the axis)
   double y_mm = 0.0;
 
   bool operator==(const RigMarker&) const = default;
@@ -328,8 +350,8 @@ struct RigMarker {
 // printed image's columns, y towards its top row; turntable frame p =
 // Rz(yaw_deg) * p_marker + (x_mm, y_mm, 0).
 struct ArucoMarker {
-  int id = -1;           // marker id in rig.aruco_dictionary
-  double x_mm = 0.0;     // centre of the black square, turntable frame (z up, origin at the axis)
+  int id = -1;        // marker id in rig.aruco_dictionary
+  double x_mm = 0.0;  // centre of the black square, turntable frame (z up, origin at the axis)
   double y_mm = 0.0;
   double yaw_deg = 0.0;  // marker x axis from the turntable x axis, counter-clockwise, degrees
 
@@ -341,13 +363,17 @@ struct ArucoMarker {
 inline constexpr double kArucoPaperMarginFrac = 0.25;
 
 struct RigConfig {
-  double turntable_diameter_mm = 305.0;   // 30.5 cm disc, as in the source study
-  double marker_size_mm = 20.0;           // side of each square colour label
-  std::vector<RigMarker> markers = {      // the study's four background labels
-      {"red", 120.0, 0.0}, {"green", 0.0, 120.0}, {"blue", -120.0, 0.0}, {"yellow", 0.0, -120.0}};
+  double turntable_diameter_mm = 305.0;  // 30.5 cm disc, as in the source study
+  double marker_size_mm = 20.0;          // side of each square colour label
+  std::vector<RigMarker> markers = {     // the study's four background labels
+      {"red", 120.0, 0.0},
+      {"green", 0.0, 120.0},
+      {"blue", -120.0, 0.0},
+      {"yellow", 0.0, -120.0}};
   std::string aruco_dictionary = "DICT_4X4_50";  // ArUco dictionary of aruco_markers (OpenCV name)
-  double aruco_size_mm = 30.0;            // side of each ArUco marker's black square, as printed
-  std::vector<ArucoMarker> aruco_markers;  // ArUco scale markers on the disc; empty = none (default)
+  double aruco_size_mm = 30.0;  // side of each ArUco marker's black square, as printed
+  std::vector<ArucoMarker>
+      aruco_markers;  // ArUco scale markers on the disc; empty = none (default)
 
   bool operator==(const RigConfig&) const = default;
 };
@@ -360,16 +386,16 @@ struct RigConfig {
 struct MaskConfig {
   std::string method = "classical";  // classical | onnx
   std::string model;                 // onnx: path of the .onnx file
-  int input_width = 320;             // onnx: network input size, pixels (the photo is resized to it)
+  int input_width = 320;  // onnx: network input size, pixels (the photo is resized to it)
   int input_height = 320;
-  double mean_r = 0.485;             // onnx: per-channel mean subtracted from value/255 (ImageNet's)
+  double mean_r = 0.485;  // onnx: per-channel mean subtracted from value/255 (ImageNet's)
   double mean_g = 0.456;
   double mean_b = 0.406;
-  double std_r = 0.229;              // onnx: and the standard deviation it is divided by
+  double std_r = 0.229;  // onnx: and the standard deviation it is divided by
   double std_g = 0.224;
   double std_b = 0.225;
   std::string output = "probability";  // onnx: probability (sigmoid already applied) | logits
-  double threshold = 0.5;            // onnx: probability above which a pixel is rock
+  double threshold = 0.5;              // onnx: probability above which a pixel is rock
 
   bool operator==(const MaskConfig&) const = default;
 };
@@ -411,8 +437,8 @@ struct Config {
 /// One problem found in a config file.
 struct ConfigProblem {
   std::string file;
-  int line = 0;      // 1-based, 0 when not tied to a line
-  std::string key;   // dotted key, e.g. "capture.interval"
+  int line = 0;     // 1-based, 0 when not tied to a line
+  std::string key;  // dotted key, e.g. "capture.interval"
   std::string message;
   std::string ToString() const;  // "file:line: key: message"
 };

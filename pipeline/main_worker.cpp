@@ -26,8 +26,8 @@
 
 #include <algorithm>
 #include <atomic>
-#include <chrono>
 #include <cerrno>
+#include <chrono>
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
@@ -36,9 +36,9 @@
 #include <thread>
 #include <vector>
 
+#include "common/fsutil.h"
 #include "common/log.h"
 #include "config/config.h"
-#include "common/fsutil.h"
 #include "pipeline/reconstruct.h"
 #include "pipeline/side_job.h"
 #include "pipeline/stage.h"
@@ -83,7 +83,8 @@ extern "C" void ChildStageObserver(const char* stage) {
   const size_t n = std::min(std::strlen(stage), sizeof g_report->stage - 1);
   std::memcpy(g_report->stage, stage, n);
   g_report->stage[n] = '\0';
-  if (g_abort_stage[0] != '\0' && std::strncmp(stage, g_abort_stage, std::strlen(g_abort_stage)) == 0)
+  if (g_abort_stage[0] != '\0' &&
+      std::strncmp(stage, g_abort_stage, std::strlen(g_abort_stage)) == 0)
     std::abort();
 }
 
@@ -92,16 +93,19 @@ std::atomic<bool> g_stop{false};
 extern "C" void OnSignal(int) { g_stop.store(true); }
 
 void Usage(FILE* f) {
-  std::fprintf(f,
-               "usage: aggscan-worker --state-dir DIR [--config FILE] [--once] [--poll-ms N] [--log-level L]\n"
-               "       aggscan-worker --sample SAMPLE_DIR [--config FILE] [--log-level L]\n"
-               "  --sample DIR      process one sample directory now (every captured side, then\n"
-               "                    the sample stage), without the queue; exit 1 on failure\n"
-               "  --state-dir DIR   aggscan state directory (samples/, queue.db)\n"
-               "  --config FILE     TOML config (worker.nice, worker.poll_interval, worker.poses); defaults otherwise\n"
-               "  --once            exit when the queue is empty (exit 1 if a job failed for good)\n"
-               "  --poll-ms N       idle queue polling period in ms (overrides the config)\n"
-               "  --log-level L     error|warning|notice|info|debug\n");
+  std::fprintf(
+      f,
+      "usage: aggscan-worker --state-dir DIR [--config FILE] [--once] [--poll-ms N] [--log-level "
+      "L]\n"
+      "       aggscan-worker --sample SAMPLE_DIR [--config FILE] [--log-level L]\n"
+      "  --sample DIR      process one sample directory now (every captured side, then\n"
+      "                    the sample stage), without the queue; exit 1 on failure\n"
+      "  --state-dir DIR   aggscan state directory (samples/, queue.db)\n"
+      "  --config FILE     TOML config (worker.nice, worker.poll_interval, worker.poses); defaults "
+      "otherwise\n"
+      "  --once            exit when the queue is empty (exit 1 if a job failed for good)\n"
+      "  --poll-ms N       idle queue polling period in ms (overrides the config)\n"
+      "  --log-level L     error|warning|notice|info|debug\n");
 }
 
 struct Args {
@@ -138,7 +142,8 @@ bool ParseArgs(int argc, char** argv, Args* a) {
       char* end = nullptr;
       a->poll_ms = std::strtol(v.c_str(), &end, 10);
       if (end == v.c_str() || *end || a->poll_ms < 1) {
-        std::fprintf(stderr, "aggscan-worker: --poll-ms needs a positive integer, got '%s'\n", v.c_str());
+        std::fprintf(stderr, "aggscan-worker: --poll-ms needs a positive integer, got '%s'\n",
+                     v.c_str());
         return false;
       }
     } else if (k == "--log-level") {
@@ -167,13 +172,15 @@ void IdleWait(long ms) {
 // The sample stage: the 3D reconstruction when the sample carries its rig
 // calibration or [worker] poses asks for SfM (auto, sfm), the 2D figures
 // alone otherwise.
-Status RunSampleStage(const std::string& dir, const std::string& state_dir, const WorkerOptions& opts,
-                      PosesPath poses) {
+Status RunSampleStage(const std::string& dir, const std::string& state_dir,
+                      const WorkerOptions& opts, PosesPath poses) {
   if (poses == PosesPath::kTurntable && !PathExists(dir + "/" + layout::kCalibrationCopy)) {
-    AGG_LOGW(kCat, "%s: no rig calibration recorded in the sample: 2D figures only; run `aggscan calibrate` "
-                   "(the daemon records it in every later sample), or give this sample a calibration.json and "
-                   "run `aggscan reconstruct %s`",
-             dir.c_str(), dir.c_str());
+    AGG_LOGW(
+        kCat,
+        "%s: no rig calibration recorded in the sample: 2D figures only; run `aggscan calibrate` "
+        "(the daemon records it in every later sample), or give this sample a calibration.json and "
+        "run `aggscan reconstruct %s`",
+        dir.c_str(), dir.c_str());
     return ProcessSample(dir, opts);
   }
   ReconstructOptions ro;
@@ -184,11 +191,14 @@ Status RunSampleStage(const std::string& dir, const std::string& state_dir, cons
   return ReconstructSample(dir, ro);
 }
 
-Status RunJob(const std::string& state_dir, const Job& job, const WorkerOptions& opts, PosesPath poses) {
+Status RunJob(const std::string& state_dir, const Job& job, const WorkerOptions& opts,
+              PosesPath poses) {
   if (!layout::IsValidSampleId(job.sample_id))
-    return MakeError(ErrorClass::kCorrupt, "job " + std::to_string(job.id) + " names an invalid sample id");
+    return MakeError(ErrorClass::kCorrupt,
+                     "job " + std::to_string(job.id) + " names an invalid sample id");
   const std::string dir = layout::SampleDir(state_dir, job.sample_id);
-  return job.side > 0 ? ProcessSide(dir, job.side, opts) : RunSampleStage(dir, state_dir, opts, poses);
+  return job.side > 0 ? ProcessSide(dir, job.side, opts)
+                      : RunSampleStage(dir, state_dir, opts, poses);
 }
 
 // How a child process ended.
@@ -199,7 +209,8 @@ struct ChildEnd {
 
 std::string SignalText(int sig) {
   const char* abbrev = ::sigabbrev_np(sig);
-  return (abbrev ? "SIG" + std::string(abbrev) : "signal " + std::to_string(sig)) + " (" + ::strsignal(sig) + ")";
+  return (abbrev ? "SIG" + std::string(abbrev) : "signal " + std::to_string(sig)) + " (" +
+         ::strsignal(sig) + ")";
 }
 
 // Runs fn() -> exit code in a forked child and waits for it; a stop request
@@ -242,20 +253,25 @@ Result<ChildEnd> RunInChild(F&& fn) {
     end.kind = ChildEnd::kDone;
   } else if (WIFEXITED(status) && WEXITSTATUS(status) == kChildStopped) {
     end.kind = ChildEnd::kStopped;
-  } else if (WIFEXITED(status) && WEXITSTATUS(status) == kChildFailed && g_report->message[0] != '\0') {
+  } else if (WIFEXITED(status) && WEXITSTATUS(status) == kChildFailed &&
+             g_report->message[0] != '\0') {
     end.kind = ChildEnd::kFailed;
-    end.reason = std::string(g_report->message, strnlen(g_report->message, sizeof g_report->message));
-  } else if (WIFSIGNALED(status) && forwarded && (WTERMSIG(status) == SIGTERM || WTERMSIG(status) == SIGKILL)) {
+    end.reason =
+        std::string(g_report->message, strnlen(g_report->message, sizeof g_report->message));
+  } else if (WIFSIGNALED(status) && forwarded &&
+             (WTERMSIG(status) == SIGTERM || WTERMSIG(status) == SIGKILL)) {
     end.kind = ChildEnd::kStopped;  // stopped with us (systemd stops the whole unit)
   } else if (WIFSIGNALED(status)) {
     const int sig = WTERMSIG(status);
-    end.reason = (sig == SIGKILL ? "killed by " : "crashed with ") + SignalText(sig) + in_stage +
-                 (sig == SIGKILL ? ": out of memory? check the kernel log for the OOM killer (journalctl -k)"
-                                 : ": a library failed on this sample's data (the worker log has its message); "
-                                   "check that stage's files, fix or re-capture them");
+    end.reason =
+        (sig == SIGKILL ? "killed by " : "crashed with ") + SignalText(sig) + in_stage +
+        (sig == SIGKILL
+             ? ": out of memory? check the kernel log for the OOM killer (journalctl -k)"
+             : ": a library failed on this sample's data (the worker log has its message); "
+               "check that stage's files, fix or re-capture them");
   } else {
-    end.reason = "the job's process ended with exit code " + std::to_string(WEXITSTATUS(status)) + in_stage +
-                 " without a failure record; see the worker log";
+    end.reason = "the job's process ended with exit code " + std::to_string(WEXITSTATUS(status)) +
+                 in_stage + " without a failure record; see the worker log";
   }
   return end;
 }
@@ -303,8 +319,10 @@ int main(int argc, char** argv) {
     std::vector<ConfigProblem> problems;
     auto loaded = LoadConfigFile(args.config, &problems);
     if (!loaded.ok()) {
-      for (const auto& p : problems) std::fprintf(stderr, "aggscan-worker: %s\n", p.ToString().c_str());
-      std::fprintf(stderr, "aggscan-worker: invalid config: %s\n", loaded.error().ToString().c_str());
+      for (const auto& p : problems)
+        std::fprintf(stderr, "aggscan-worker: %s\n", p.ToString().c_str());
+      std::fprintf(stderr, "aggscan-worker: invalid config: %s\n",
+                   loaded.error().ToString().c_str());
       return 2;
     }
     cfg = std::move(loaded.value());
@@ -316,13 +334,16 @@ int main(int argc, char** argv) {
     return 2;
   }
   SetLogLevel(lvl);
-  const long poll_ms = args.poll_ms > 0 ? args.poll_ms : static_cast<long>(cfg.worker.poll_interval / kNsPerMs);
+  const long poll_ms =
+      args.poll_ms > 0 ? args.poll_ms : static_cast<long>(cfg.worker.poll_interval / kNsPerMs);
 
   // Below the capture daemon. Lowering niceness needs privileges: only warn.
   errno = 0;
   const int current = getpriority(PRIO_PROCESS, 0);
-  if (errno == 0 && current != cfg.worker.nice && setpriority(PRIO_PROCESS, 0, cfg.worker.nice) != 0)
-    AGG_LOGW(kCat, "cannot set nice %d (staying at %d): %s", cfg.worker.nice, current, std::strerror(errno));
+  if (errno == 0 && current != cfg.worker.nice &&
+      setpriority(PRIO_PROCESS, 0, cfg.worker.nice) != 0)
+    AGG_LOGW(kCat, "cannot set nice %d (staying at %d): %s", cfg.worker.nice, current,
+             std::strerror(errno));
 
   PosesPath poses = PosesPath::kTurntable;
   ParsePosesPath(cfg.worker.poses, &poses);  // validated with the config
@@ -352,7 +373,8 @@ int main(int argc, char** argv) {
   sigaction(SIGTERM, &sa, nullptr);
   sigaction(SIGINT, &sa, nullptr);
 
-  void* shared = ::mmap(nullptr, sizeof(ChildReport), PROT_READ | PROT_WRITE, MAP_SHARED | MAP_ANONYMOUS, -1, 0);
+  void* shared = ::mmap(nullptr, sizeof(ChildReport), PROT_READ | PROT_WRITE,
+                        MAP_SHARED | MAP_ANONYMOUS, -1, 0);
   if (shared == MAP_FAILED) {
     AGG_LOGE(kCat, "cannot map the job report page: %s", std::strerror(errno));
     return 1;
@@ -371,7 +393,7 @@ int main(int argc, char** argv) {
     });
     if (!probe.ok() || probe->kind != ChildEnd::kDone) {
       std::fprintf(stderr, "aggscan-worker: %s\n",
-                   !probe.ok() ? probe.error().ToString().c_str()
+                   !probe.ok()                         ? probe.error().ToString().c_str()
                    : probe->kind == ChildEnd::kStopped ? "stopped while checking the mask network"
                                                        : probe->reason.c_str());
       return 2;
@@ -381,7 +403,8 @@ int main(int argc, char** argv) {
 
   auto q = JobQueue::Open(layout::QueuePath(args.state_dir));
   if (!q.ok()) {
-    AGG_LOGE(kCat, "cannot open the job queue in %s: %s", args.state_dir.c_str(), q.error().ToString().c_str());
+    AGG_LOGE(kCat, "cannot open the job queue in %s: %s", args.state_dir.c_str(),
+             q.error().ToString().c_str());
     return 1;
   }
   JobQueue& queue = **q;
@@ -389,12 +412,14 @@ int main(int argc, char** argv) {
     AGG_LOGE(kCat, "requeue of interrupted jobs failed: %s", n.error().ToString().c_str());
   } else {
     if (n->requeued > 0)
-      AGG_LOGI(kCat, "requeued %d job(s) cut off when the worker was killed or lost power", n->requeued);
+      AGG_LOGI(kCat, "requeued %d job(s) cut off when the worker was killed or lost power",
+               n->requeued);
     if (n->failed > 0)
-      AGG_LOGE(kCat, "%d job(s) failed: interrupted %d times in a row (see `aggscan status`)", n->failed,
-               cfg.worker.max_interruptions);
+      AGG_LOGE(kCat, "%d job(s) failed: interrupted %d times in a row (see `aggscan status`)",
+               n->failed, cfg.worker.max_interruptions);
   }
-  AGG_LOGI(kCat, "started: state dir %s, poll %ld ms%s", args.state_dir.c_str(), poll_ms, args.once ? ", once" : "");
+  AGG_LOGI(kCat, "started: state dir %s, poll %ld ms%s", args.state_dir.c_str(), poll_ms,
+           args.once ? ", once" : "");
   bool failed_for_good = false;
   while (!g_stop.load()) {
     auto next = queue.ClaimNext();
@@ -410,7 +435,8 @@ int main(int argc, char** argv) {
       continue;
     }
     const Job job = **next;
-    const std::string what = job.side > 0 ? "side " + std::to_string(job.side) : std::string("sample stage");
+    const std::string what =
+        job.side > 0 ? "side " + std::to_string(job.side) : std::string("sample stage");
     const std::string name = "job " + std::to_string(job.id);
     LogLine(LogLevel::kInfo, kCat, job.sample_id,
             name + ": " + what + ", attempt " + std::to_string(job.attempts + 1) + " of " +
@@ -418,21 +444,25 @@ int main(int argc, char** argv) {
     auto end = RunInChild([&] { return ChildRunJob(args.state_dir, job, cfg, poses); });
     if (!end.ok()) {
       // No process for the job (out of processes or memory): not its fault.
-      LogLine(LogLevel::kError, kCat, job.sample_id, name + ": " + end.error().ToString() + "; will retry");
+      LogLine(LogLevel::kError, kCat, job.sample_id,
+              name + ": " + end.error().ToString() + "; will retry");
       if (Status r = queue.Release(job.id); !r.ok())
-        LogLine(LogLevel::kError, kCat, job.sample_id, "cannot put the job back: " + r.error().ToString());
+        LogLine(LogLevel::kError, kCat, job.sample_id,
+                "cannot put the job back: " + r.error().ToString());
       IdleWait(poll_ms);
       continue;
     }
     if (end->kind == ChildEnd::kDone) {
       if (Status c = queue.Complete(job.id); !c.ok())
-        LogLine(LogLevel::kError, kCat, job.sample_id, "cannot mark job done: " + c.error().ToString());
+        LogLine(LogLevel::kError, kCat, job.sample_id,
+                "cannot mark job done: " + c.error().ToString());
       else
         LogLine(LogLevel::kInfo, kCat, job.sample_id, name + " done");
     } else if (end->kind == ChildEnd::kStopped) {
       LogLine(LogLevel::kNotice, kCat, job.sample_id, name + " interrupted, will resume");
       if (Status r = queue.Release(job.id); !r.ok())
-        LogLine(LogLevel::kError, kCat, job.sample_id, "cannot put the job back: " + r.error().ToString());
+        LogLine(LogLevel::kError, kCat, job.sample_id,
+                "cannot put the job back: " + r.error().ToString());
       if (g_stop.load()) break;
     } else {
       const bool requeue = job.attempts + 1 < cfg.worker.max_attempts;
@@ -441,10 +471,12 @@ int main(int argc, char** argv) {
               name + kind + end->reason +
                   (requeue ? "; will retry"
                            : "; giving up after " + std::to_string(job.attempts + 1) +
-                                 " attempts: fix the cause, then run `aggscan retry " + job.sample_id + "`"));
+                                 " attempts: fix the cause, then run `aggscan retry " +
+                                 job.sample_id + "`"));
       if (!requeue) failed_for_good = true;
       if (Status f = queue.Fail(job.id, end->reason, requeue); !f.ok())
-        LogLine(LogLevel::kError, kCat, job.sample_id, "cannot record the failure: " + f.error().ToString());
+        LogLine(LogLevel::kError, kCat, job.sample_id,
+                "cannot record the failure: " + f.error().ToString());
     }
   }
   AGG_LOGI(kCat, "%s", g_stop.load() ? "stopped by signal" : "queue empty, exiting");

@@ -2,9 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
-#include <vector>
-
 #include <opencv2/imgproc.hpp>
+#include <vector>
 
 #include "pipeline/mask_graphcut.h"
 #include "pipeline/morph2d.h"
@@ -12,7 +11,9 @@
 namespace aggscan {
 namespace {
 
-cv::Mat Disk(int r) { return cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * r + 1, 2 * r + 1)); }
+cv::Mat Disk(int r) {
+  return cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * r + 1, 2 * r + 1));
+}
 
 // Seeds OpenCV's per-thread RNG for one scope and restores it afterwards:
 // cv::kmeans and cv::grabCut draw their initial centres from it, and a mask
@@ -58,9 +59,9 @@ float Quantile(const cv::Mat& m, const cv::Mat& sel, double q) {
 // One colour of the background: a k-means centre of the border pixels and how
 // far its members stray from its hue.
 struct Cluster {
-  cv::Vec3f mean;   // BGR, 8-bit levels (after light smoothing)
-  float norm = 0;   // |mean|
-  float spread = 0; // 90th percentile of the members' chromatic distortion / brightness
+  cv::Vec3f mean;    // BGR, 8-bit levels (after light smoothing)
+  float norm = 0;    // |mean|
+  float spread = 0;  // 90th percentile of the members' chromatic distortion / brightness
 };
 
 // Horprasert-style decomposition of pixel c against background colour mu:
@@ -68,13 +69,15 @@ struct Cluster {
 // |c - a mu|. Outside [shade_min, shade_max] the factor is clamped, so a pixel
 // much darker or brighter than any background colour is far from it too.
 // Returned in units of the cluster's own spread plus sensor noise.
-inline float ClusterDistance(const cv::Vec3f& c, const Cluster& k, float lo, float hi, float noise) {
+inline float ClusterDistance(const cv::Vec3f& c, const Cluster& k, float lo, float hi,
+                             float noise) {
   const float a = std::clamp(c.dot(k.mean) / (k.norm * k.norm), lo, hi);
   const cv::Vec3f d = c - a * k.mean;
   return std::sqrt(d.dot(d)) / (a * k.norm * k.spread + noise);
 }
 
-std::vector<Cluster> FitBackground(const cv::Mat& img32, const cv::Mat& sample, const MaskOptions& o) {
+std::vector<Cluster> FitBackground(const cv::Mat& img32, const cv::Mat& sample,
+                                   const MaskOptions& o) {
   constexpr int kMaxSamples = 6000;
   const int n = cv::countNonZero(sample);
   const int step = std::max(1, n / kMaxSamples);
@@ -94,7 +97,8 @@ std::vector<Cluster> FitBackground(const cv::Mat& img32, const cv::Mat& sample, 
   cv::Mat labels, centers;
   {
     ScopedRngSeed seed(0x6167677363616eULL);
-    cv::kmeans(data, k, labels, cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 20, 0.5), 2,
+    cv::kmeans(data, k, labels,
+               cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 20, 0.5), 2,
                cv::KMEANS_PP_CENTERS, centers);
   }
   std::vector<std::vector<float>> nd(static_cast<size_t>(k));
@@ -108,7 +112,8 @@ std::vector<Cluster> FitBackground(const cv::Mat& img32, const cv::Mat& sample, 
     const Cluster& c = out[static_cast<size_t>(labels.at<int>(static_cast<int>(j)))];
     const float a = std::max(1e-3f, pts[j].dot(c.mean) / (c.norm * c.norm));
     const cv::Vec3f d = pts[j] - a * c.mean;
-    nd[static_cast<size_t>(labels.at<int>(static_cast<int>(j)))].push_back(std::sqrt(d.dot(d)) / (a * c.norm));
+    nd[static_cast<size_t>(labels.at<int>(static_cast<int>(j)))].push_back(std::sqrt(d.dot(d)) /
+                                                                           (a * c.norm));
   }
   for (int j = 0; j < k; ++j) {
     auto& v = nd[static_cast<size_t>(j)];
@@ -123,7 +128,8 @@ std::vector<Cluster> FitBackground(const cv::Mat& img32, const cv::Mat& sample, 
   return out;
 }
 
-cv::Mat ColorDistanceMap(const cv::Mat& img32, const std::vector<Cluster>& bg, const MaskOptions& o) {
+cv::Mat ColorDistanceMap(const cv::Mat& img32, const std::vector<Cluster>& bg,
+                         const MaskOptions& o) {
   cv::Mat out(img32.size(), CV_32F, cv::Scalar(1e6f));
   const auto lo = static_cast<float>(o.shade_min), hi = static_cast<float>(o.shade_max);
   const auto noise = static_cast<float>(o.noise_levels);
@@ -154,8 +160,8 @@ struct Scene {
   std::vector<Cluster> background;  // border colour model
   cv::Mat color_distance;           // CV_32F, ColorDistanceMap of `small`
   cv::Vec2f rock_ab{0, 0};          // median Lab a,b of the rock's first estimate
-  cv::Mat paint;                    // 0/255: unexplained and far from the rock's colour (labels, markers)
-  cv::Mat texture;                  // CV_32F, TextureMap of `small`
+  cv::Mat paint;    // 0/255: unexplained and far from the rock's colour (labels, markers)
+  cv::Mat texture;  // CV_32F, TextureMap of `small`
 };
 
 // Hysteresis (0/255): the 8-connected regions of `strong | weak` that hold a
@@ -181,7 +187,8 @@ cv::Mat Hysteresis(const cv::Mat& strong, const cv::Mat& weak) {
 }
 
 cv::Mat BorderStrip(cv::Size size, const MaskOptions& o) {
-  const int b = std::max(2, static_cast<int>(std::lround(o.border_fraction * std::min(size.width, size.height))));
+  const int b = std::max(
+      2, static_cast<int>(std::lround(o.border_fraction * std::min(size.width, size.height))));
   cv::Mat strip(size, CV_8UC1, cv::Scalar(255));
   strip(cv::Rect(b, b, std::max(0, size.width - 2 * b), std::max(0, size.height - 2 * b))).setTo(0);
   return strip;
@@ -201,7 +208,8 @@ cv::Mat AbOf(const cv::Mat& bgr, double smooth_sigma) {
 // With hysteresis: a connected region farther than half that, holding such a
 // pixel, is paint too, so the blurred fringe of a label (a mixture of paint and
 // disc) goes with the label instead of bridging it to the rock.
-cv::Mat PaintMap(const cv::Mat& ab, const cv::Mat& color_distance, cv::Vec2f rock_ab, const MaskOptions& o) {
+cv::Mat PaintMap(const cv::Mat& ab, const cv::Mat& color_distance, cv::Vec2f rock_ab,
+                 const MaskOptions& o) {
   cv::Mat d = ab - cv::Scalar(rock_ab[0], rock_ab[1]);
   cv::Mat ch[2];
   cv::split(d, ch);
@@ -237,8 +245,9 @@ void SetRockColor(Scene& s, const cv::Mat& rock, const MaskOptions& o) {
   if (cv::countNonZero(core) == 0) core = rock;
   cv::Mat ch[2];
   cv::split(s.ab, ch);
-  s.rock_ab = cv::countNonZero(core) > 0 ? cv::Vec2f(Quantile(ch[0], core, 0.5), Quantile(ch[1], core, 0.5))
-                                         : cv::Vec2f(0, 0);
+  s.rock_ab = cv::countNonZero(core) > 0
+                  ? cv::Vec2f(Quantile(ch[0], core, 0.5), Quantile(ch[1], core, 0.5))
+                  : cv::Vec2f(0, 0);
   s.paint = PaintMap(s.ab, s.color_distance, s.rock_ab, o);
 }
 
@@ -287,7 +296,8 @@ cv::Mat CoarseMask(Scene& s, const MaskOptions& o) {
   // A busy background (cloth, wood grain) raises the bar until the border
   // itself is not "textured"; the rig's plain table leaves it at the floor.
   const cv::Mat strip = BorderStrip(tex.size(), o);
-  const double tex_threshold = std::max(o.texture_threshold, o.texture_border_factor * Quantile(tex, strip, 0.99));
+  const double tex_threshold =
+      std::max(o.texture_threshold, o.texture_border_factor * Quantile(tex, strip, 0.99));
   cv::Mat evidence = (tex > tex_threshold) | (s.color_distance > o.color_threshold);
   // A busy background (stone2: a patterned cloth) widens its colour clusters,
   // which shrinks every distance measured in their spread: the rock may lie
@@ -296,8 +306,10 @@ cv::Mat CoarseMask(Scene& s, const MaskOptions& o) {
   // join where they hold such a pixel (hysteresis, as in Canny's edge linking);
   // the lower threshold never drops into the border's own distances.
   const double weak_threshold =
-      std::max(o.color_weak_ratio * o.color_threshold, o.color_border_factor * Quantile(s.color_distance, strip, 0.99));
-  if (weak_threshold < o.color_threshold) evidence = Hysteresis(evidence, s.color_distance > weak_threshold);
+      std::max(o.color_weak_ratio * o.color_threshold,
+               o.color_border_factor * Quantile(s.color_distance, strip, 0.99));
+  if (weak_threshold < o.color_threshold)
+    evidence = Hysteresis(evidence, s.color_distance > weak_threshold);
   // First estimate with everything, for the rock's colour. The graph cut takes
   // it as it is (paint is neutral there); the other refinements want the paint
   // set aside (a label touching the rock must not join it) and re-attach
@@ -336,11 +348,13 @@ cv::Mat ThickPaint(const cv::Mat& paint, const cv::Mat& seed, const MaskOptions&
   }
   float reference = 0;
   for (int i = 1; i < n; ++i)
-    if (!touches[static_cast<size_t>(i)]) reference = std::max(reference, radius[static_cast<size_t>(i)]);
+    if (!touches[static_cast<size_t>(i)])
+      reference = std::max(reference, radius[static_cast<size_t>(i)]);
   if (reference < 2.0f) return out;
   std::vector<uchar> thick(static_cast<size_t>(n), 0);
   for (int i = 1; i < n; ++i)
-    if (radius[static_cast<size_t>(i)] >= o.label_thickness * reference) thick[static_cast<size_t>(i)] = 255;
+    if (radius[static_cast<size_t>(i)] >= o.label_thickness * reference)
+      thick[static_cast<size_t>(i)] = 255;
   for (int y = 0; y < labels.rows; ++y) {
     const int* l = labels.ptr<int>(y);
     uchar* p = out.ptr<uchar>(y);
@@ -359,8 +373,9 @@ cv::Mat GraphCutRefine(const Scene& s, const cv::Mat& seed, const MaskOptions& o
   const double size = std::sqrt(static_cast<double>(cv::countNonZero(seed)));
   const int r = std::max(2, static_cast<int>(std::lround(o.graphcut_band * size)));
   const int margin = 3 * r + 4;
-  const cv::Rect roi = cv::Rect(box.x - margin, box.y - margin, box.width + 2 * margin, box.height + 2 * margin) &
-                       cv::Rect(0, 0, seed.cols, seed.rows);
+  const cv::Rect roi =
+      cv::Rect(box.x - margin, box.y - margin, box.width + 2 * margin, box.height + 2 * margin) &
+      cv::Rect(0, 0, seed.cols, seed.rows);
   const cv::Mat m = seed(roi);
   cv::Mat inner, outer;
   cv::erode(m, inner, Disk(r));
@@ -374,16 +389,19 @@ cv::Mat GraphCutRefine(const Scene& s, const cv::Mat& seed, const MaskOptions& o
   // (cut along the occlusion edge) and a marker running to the silhouette in
   // (cut along the silhouette). Paint in the sure background stays there.
   cv::Mat neutral, thick = ThickPaint(s.paint, seed, o)(roi);
-  cv::dilate(s.paint(roi) & ~thick, neutral, Disk(o.paint_fringe_px));  // the blurred rim of the paint is mixed colour
+  cv::dilate(s.paint(roi) & ~thick, neutral,
+             Disk(o.paint_fringe_px));  // the blurred rim of the paint is mixed colour
   neutral &= outer;
   cv::dilate(thick, thick, Disk(o.paint_fringe_px));
   gc.setTo(cv::GC_BGD, thick);
   gc.setTo(cv::GC_PR_FGD, neutral & m);
-  if (cv::countNonZero(gc == cv::GC_BGD) == 0 || cv::countNonZero(gc == cv::GC_FGD) == 0) return seed.clone();
+  if (cv::countNonZero(gc == cv::GC_BGD) == 0 || cv::countNonZero(gc == cv::GC_FGD) == 0)
+    return seed.clone();
 
-  const double f = o.refine_long_side > 0 ? std::min(1.0, static_cast<double>(o.refine_long_side) /
-                                                              std::max(roi.width, roi.height))
-                                          : 1.0;
+  const double f =
+      o.refine_long_side > 0
+          ? std::min(1.0, static_cast<double>(o.refine_long_side) / std::max(roi.width, roi.height))
+          : 1.0;
   cv::Mat img = s.small(roi), tex = s.texture(roi);
   if (f < 1.0) {
     cv::resize(img, img, cv::Size(), f, f, cv::INTER_AREA);
@@ -394,7 +412,8 @@ cv::Mat GraphCutRefine(const Scene& s, const cv::Mat& seed, const MaskOptions& o
   mask_detail::GraphCutOptions g;
   g.iterations = o.graphcut_iterations;
   g.texture_weight = o.graphcut_texture_weight;
-  cv::Mat fg = mask_detail::SegmentGraphCut(img, o.graphcut_texture_weight > 0 ? tex : cv::Mat(), gc, neutral, g);
+  cv::Mat fg = mask_detail::SegmentGraphCut(img, o.graphcut_texture_weight > 0 ? tex : cv::Mat(),
+                                            gc, neutral, g);
   if (f < 1.0) {
     cv::resize(fg, fg, roi.size(), 0, 0, cv::INTER_LINEAR);
     fg = fg > 127;
@@ -414,7 +433,8 @@ cv::Mat GraphCutRefine(const Scene& s, const cv::Mat& seed, const MaskOptions& o
 // instead failed on markers lying along the silhouette: the cut, with paint
 // neutral, sided with the background and left a notch that carved a groove
 // into the visual hull.)
-void AttachPaintBlobs(const cv::Mat& paint, const cv::Mat& thick, const MaskOptions& o, cv::Mat& mask) {
+void AttachPaintBlobs(const cv::Mat& paint, const cv::Mat& thick, const MaskOptions& o,
+                      cv::Mat& mask) {
   cv::Mat labels, stats, centroids;
   const int n = cv::connectedComponentsWithStats(paint, labels, stats, centroids, 8, CV_32S);
   const cv::Mat k = Disk(2);
@@ -430,14 +450,15 @@ void AttachPaintBlobs(const cv::Mat& paint, const cv::Mat& thick, const MaskOpti
     cv::dilate(blob, grown, k);
     const cv::Mat rim = grown & ~blob;
     const double rim_n = cv::countNonZero(rim);
-    if (rim_n > 0 && cv::countNonZero(rim & mask(box)) >= o.marker_touch_fraction * rim_n) mask(box).setTo(255, blob);
+    if (rim_n > 0 && cv::countNonZero(rim & mask(box)) >= o.marker_touch_fraction * rim_n)
+      mask(box).setTo(255, blob);
   }
 }
 
 // Full-resolution band step around `coarse_full` (ROI-sized 0/255): each band
 // pixel goes to the nearer of the local rock and local background mean colours.
-cv::Mat BandRefine(const cv::Mat& bgr_roi, const cv::Mat& coarse_full, const cv::Mat& saturated, int inner_px,
-                   int outer_px, const MaskOptions& o) {
+cv::Mat BandRefine(const cv::Mat& bgr_roi, const cv::Mat& coarse_full, const cv::Mat& saturated,
+                   int inner_px, int outer_px, const MaskOptions& o) {
   cv::Mat lab = ToLab(bgr_roi, 1.0);
   {
     cv::Mat ch[3];
@@ -490,7 +511,8 @@ cv::Mat BandRefine(const cv::Mat& bgr_roi, const cv::Mat& coarse_full, const cv:
 // `narrow`: the band after a graph cut seeded by our own coarse mask is
 // graphcut_band_px wide; a rough mask from elsewhere (a network's blurred
 // map) keeps the wide band of kBand.
-cv::Mat FinishMask(const cv::Mat& bgr, const Scene& s, cv::Mat work, const MaskOptions& o, bool narrow) {
+cv::Mat FinishMask(const cv::Mat& bgr, const Scene& s, cv::Mat work, const MaskOptions& o,
+                   bool narrow) {
   cv::Mat out = cv::Mat::zeros(bgr.size(), CV_8UC1);
   if (o.refine == MaskRefine::kGraphCut) work = GraphCutRefine(s, work, o);
   const cv::Rect wbox = cv::boundingRect(work);
@@ -521,11 +543,13 @@ cv::Mat FinishMask(const cv::Mat& bgr, const Scene& s, cv::Mat work, const MaskO
     const cv::Mat f = ToFloatSmoothed(bgr(roi));
     saturated = PaintMap(AbOf(bgr(roi), 1.0), ColorDistanceMap(f, s.background, o), s.rock_ab, o);
   }
-  const bool band = o.refine == MaskRefine::kBand || (o.refine == MaskRefine::kGraphCut && scale < 1.0);
+  const bool band =
+      o.refine == MaskRefine::kBand || (o.refine == MaskRefine::kGraphCut && scale < 1.0);
   const bool after_cut = narrow && o.refine == MaskRefine::kGraphCut;
-  cv::Mat refined = band ? BandRefine(bgr(roi), full, saturated, after_cut ? o.graphcut_band_px : o.band_inner_px,
-                                      after_cut ? o.graphcut_band_px : o.band_outer_px, o)
-                         : full;
+  cv::Mat refined =
+      band ? BandRefine(bgr(roi), full, saturated, after_cut ? o.graphcut_band_px : o.band_inner_px,
+                        after_cut ? o.graphcut_band_px : o.band_outer_px, o)
+           : full;
   refined &= ~saturated;
   cv::morphologyEx(refined, refined, cv::MORPH_OPEN, Disk(1));
   cv::morphologyEx(refined, refined, cv::MORPH_CLOSE, Disk(2));

@@ -45,43 +45,54 @@ enum class MaskRefine {
 };
 
 struct MaskOptions {
-  int work_long_side = 1008;        // coarse stage runs at this long side (px); 0 = full resolution
+  int work_long_side = 1008;  // coarse stage runs at this long side (px); 0 = full resolution
   // Background model (working resolution):
-  double border_fraction = 0.03;    // width of the border strip sampled, fraction of the short side
-  int background_clusters = 6;      // k-means clusters of the border colours
-  double shade_min = 0.3;           // brightness factors of a background colour still taken as it
-  double shade_max = 1.3;           //   (shadow .. highlight)
-  double color_threshold = 4.0;     // normalised distance to the nearest cluster above which a pixel is rock
-  double noise_levels = 3.0;        // 8-bit levels of colour noise added to every cluster's spread
-  double color_weak_ratio = 0.5;    // hysteresis: pixels above this times color_threshold join a rock region
-  double color_border_factor = 1.5; //   when also above this times the border's 99th percentile distance
+  double border_fraction = 0.03;  // width of the border strip sampled, fraction of the short side
+  int background_clusters = 6;    // k-means clusters of the border colours
+  double shade_min = 0.3;         // brightness factors of a background colour still taken as it
+  double shade_max = 1.3;         //   (shadow .. highlight)
+  double color_threshold =
+      4.0;  // normalised distance to the nearest cluster above which a pixel is rock
+  double noise_levels = 3.0;  // 8-bit levels of colour noise added to every cluster's spread
+  double color_weak_ratio =
+      0.5;  // hysteresis: pixels above this times color_threshold join a rock region
+  double color_border_factor =
+      1.5;  //   when also above this times the border's 99th percentile distance
   // Texture cue:
-  double texture_sigma = 1.5;       // coarse px, scale of the texture high-pass and of its local RMS
-  double texture_threshold = 0.02;  // RMS of high-passed ln(gray + 8) above which a pixel is textured
+  double texture_sigma = 1.5;  // coarse px, scale of the texture high-pass and of its local RMS
+  double texture_threshold =
+      0.02;  // RMS of high-passed ln(gray + 8) above which a pixel is textured
   double texture_border_factor = 1.5;  // and above this times the border's 99th percentile
-  double saturated_chroma = 38.0;   // Lab chroma above which an unexplained pixel is a label/marker colour
-  int open_radius = 3;              // coarse px; removes edge lines thinner than 2r+1
-  int close_radius = 4;             // coarse px; bridges gaps in the textured rock region
+  double saturated_chroma =
+      38.0;              // Lab chroma above which an unexplained pixel is a label/marker colour
+  int open_radius = 3;   // coarse px; removes edge lines thinner than 2r+1
+  int close_radius = 4;  // coarse px; bridges gaps in the textured rock region
   // Refinement:
   MaskRefine refine = MaskRefine::kGraphCut;
-  int refine_long_side = 512;       // the graph cut runs on the rock's neighbourhood scaled to at most this (px)
-  int graphcut_iterations = 3;      // model re-estimation rounds of the graph cut
-  double graphcut_texture_weight = 1.0;  // texture against colour in its data term (0 = plain GrabCut)
-  double label_thickness = 0.4;     // a paint blob this thick relative to the thickest one clear of the rock is a label
-  int paint_fringe_px = 2;          // coarse px of mixed colour around paint, neutral in the graph cut too
-  double graphcut_band = 0.06;      // uncertain band half-width around the seed mask, fraction of the rock's size
-  int band_inner_px = 14;           // kBand: the full-res band reaches this far inside the coarse boundary
-  int band_outer_px = 6;            //   and this far outside
-  int graphcut_band_px = 2;         // kGraphCut: the band reaches this far on both sides of the cut's boundary
-                                    // (when the cut was seeded by the coarse mask; after a network's seed the
-                                    // band is band_inner_px / band_outer_px wide).
-                                    // The cut is good to ~1.5 px; a wider band lets the local-mean rule take
-                                    // rock faces as bright as the table or as dark as the shadow (sim 2016 x 1512,
-                                    // 20 rocks: worst view 2.5 px of rock lost per px of outline at 14/6, 0.36 at 2)
-  double local_sigma_px = 10.0;     // full-res Gaussian of the local mean colours
-  double chroma_weight = 2.0;       // weight of a,b against L in the local colour distance
-  double marker_touch_fraction = 0.1;   // a thin paint blob (not label-thick) joins the rock if this much of its rim is rock
-                                        // (a marker along the silhouette has the background on most of its rim)
+  int refine_long_side =
+      512;  // the graph cut runs on the rock's neighbourhood scaled to at most this (px)
+  int graphcut_iterations = 3;  // model re-estimation rounds of the graph cut
+  double graphcut_texture_weight =
+      1.0;  // texture against colour in its data term (0 = plain GrabCut)
+  double label_thickness =
+      0.4;  // a paint blob this thick relative to the thickest one clear of the rock is a label
+  int paint_fringe_px = 2;  // coarse px of mixed colour around paint, neutral in the graph cut too
+  double graphcut_band =
+      0.06;  // uncertain band half-width around the seed mask, fraction of the rock's size
+  int band_inner_px = 14;  // kBand: the full-res band reaches this far inside the coarse boundary
+  int band_outer_px = 6;   //   and this far outside
+  int graphcut_band_px =
+      2;  // kGraphCut: the band reaches this far on both sides of the cut's boundary
+          // (when the cut was seeded by the coarse mask; after a network's seed the
+          // band is band_inner_px / band_outer_px wide).
+          // The cut is good to ~1.5 px; a wider band lets the local-mean rule take
+          // rock faces as bright as the table or as dark as the shadow (sim 2016 x 1512,
+          // 20 rocks: worst view 2.5 px of rock lost per px of outline at 14/6, 0.36 at 2)
+  double local_sigma_px = 10.0;  // full-res Gaussian of the local mean colours
+  double chroma_weight = 2.0;    // weight of a,b against L in the local colour distance
+  double marker_touch_fraction =
+      0.1;  // a thin paint blob (not label-thick) joins the rock if this much of its rim is rock
+            // (a marker along the silhouette has the background on most of its rim)
 };
 
 /// 0/255 CV_8UC1 mask of the rock in a CV_8UC3 BGR photo (same size). An
@@ -92,7 +103,8 @@ cv::Mat ComputeForegroundMask(const cv::Mat& bgr, const MaskOptions& opts = {});
 /// is resized to the photo's) is cleaned (largest component, holes filled),
 /// refined against the photo as opts.refine says, and markers crossing its
 /// edge are attached. Used by the classical method and by the network.
-cv::Mat RefineForegroundMask(const cv::Mat& bgr, const cv::Mat& rough, const MaskOptions& opts = {});
+cv::Mat RefineForegroundMask(const cv::Mat& bgr, const cv::Mat& rough,
+                             const MaskOptions& opts = {});
 
 /// The texture cue alone (CV_32F, same size as `bgr`), exposed for diagnostics
 /// and tests: local RMS of the high-passed log brightness.

@@ -1,10 +1,9 @@
 #include "pipeline/mask_net.h"
 
 #include <filesystem>
+#include <opencv2/imgproc.hpp>
 #include <string>
 #include <vector>
-
-#include <opencv2/imgproc.hpp>
 
 namespace aggscan {
 namespace {
@@ -34,26 +33,31 @@ Result<std::unique_ptr<MaskNet>> MaskNet::Load(const MaskNetOptions& opts) {
   const std::string& path = opts.model_path;
   std::error_code ec;
   if (path.empty())
-    return MakeError(ErrorClass::kInvalidConfig, "mask network: no model file given; " + std::string(kFixConfig));
+    return MakeError(ErrorClass::kInvalidConfig,
+                     "mask network: no model file given; " + std::string(kFixConfig));
   if (!std::filesystem::is_regular_file(path, ec))
-    return MakeError(ErrorClass::kInvalidConfig, "mask network " + path +
-                                                     " does not exist or is not a file; put the .onnx file there, " +
-                                                     kFixConfig);
+    return MakeError(ErrorClass::kInvalidConfig,
+                     "mask network " + path +
+                         " does not exist or is not a file; put the .onnx file there, " +
+                         kFixConfig);
   if (opts.input_size.width < 1 || opts.input_size.height < 1)
-    return MakeError(ErrorClass::kInvalidConfig, "mask network " + path + ": input size must be positive; fix "
-                                                                           "mask.input_width / mask.input_height");
+    return MakeError(ErrorClass::kInvalidConfig, "mask network " + path +
+                                                     ": input size must be positive; fix "
+                                                     "mask.input_width / mask.input_height");
   cv::dnn::Net net;
   try {
     net = cv::dnn::readNetFromONNX(path);
   } catch (const cv::Exception& e) {
     return MakeError(ErrorClass::kInvalidConfig,
-                     "mask network " + path + " cannot be read as an ONNX model (corrupt, truncated, or ops "
-                                              "OpenCV DNN does not support); re-export it or " + kFixConfig,
+                     "mask network " + path +
+                         " cannot be read as an ONNX model (corrupt, truncated, or ops "
+                         "OpenCV DNN does not support); re-export it or " +
+                         kFixConfig,
                      e.what());
   }
   if (net.empty())
-    return MakeError(ErrorClass::kInvalidConfig, "mask network " + path + " holds no layers; re-export it or " +
-                                                     kFixConfig);
+    return MakeError(ErrorClass::kInvalidConfig,
+                     "mask network " + path + " holds no layers; re-export it or " + kFixConfig);
   net.setPreferableBackend(cv::dnn::DNN_BACKEND_OPENCV);
   net.setPreferableTarget(cv::dnn::DNN_TARGET_CPU);
   std::unique_ptr<MaskNet> m(new MaskNet(opts, std::move(net)));
@@ -72,7 +76,8 @@ Result<cv::Mat> MaskNet::Forward(const cv::Mat& bgr) {
   rgb.convertTo(rgb, CV_32FC3, 1.0 / 255.0);
   cv::subtract(rgb, opts_.mean_rgb, rgb);
   cv::divide(rgb, opts_.std_rgb, rgb);
-  const cv::Mat blob = cv::dnn::blobFromImage(rgb, 1.0, cv::Size(), cv::Scalar(), false, false, CV_32F);
+  const cv::Mat blob =
+      cv::dnn::blobFromImage(rgb, 1.0, cv::Size(), cv::Scalar(), false, false, CV_32F);
   cv::Mat out;
   {
     std::lock_guard<std::mutex> lock(mu_);
@@ -80,12 +85,14 @@ Result<cv::Mat> MaskNet::Forward(const cv::Mat& bgr) {
       net_.setInput(blob);
       out = net_.forward();
     } catch (const cv::Exception& e) {
-      return MakeError(ErrorClass::kInvalidConfig,
-                       "mask network " + path + " does not run on a 1x3x" + std::to_string(opts_.input_size.height) +
-                           "x" + std::to_string(opts_.input_size.width) +
-                           " RGB input; check mask.input_width / mask.input_height against the model, or " +
-                           kFixConfig,
-                       e.what());
+      return MakeError(
+          ErrorClass::kInvalidConfig,
+          "mask network " + path + " does not run on a 1x3x" +
+              std::to_string(opts_.input_size.height) + "x" +
+              std::to_string(opts_.input_size.width) +
+              " RGB input; check mask.input_width / mask.input_height against the model, or " +
+              kFixConfig,
+          e.what());
     }
   }
   // 1x1xhxw, 1xhxw or hxw: one map.
@@ -93,11 +100,11 @@ Result<cv::Mat> MaskNet::Forward(const cv::Mat& bgr) {
   for (int i = 0; i + 2 < out.dims; ++i) lead *= out.size[i];
   if (out.empty() || out.dims < 2 || out.dims > 4 || lead != 1 || out.size[out.dims - 2] < 2 ||
       out.size[out.dims - 1] < 2)
-    return MakeError(ErrorClass::kInvalidConfig, "mask network " + path + " gives an output of shape " +
-                                                     ShapeText(out) +
-                                                     "; a mask network must give one map (1x1xHxW, 1xHxW or HxW): "
-                                                     "export a salient-object model with a single-channel output, or " +
-                                                     kFixConfig);
+    return MakeError(ErrorClass::kInvalidConfig,
+                     "mask network " + path + " gives an output of shape " + ShapeText(out) +
+                         "; a mask network must give one map (1x1xHxW, 1xHxW or HxW): "
+                         "export a salient-object model with a single-channel output, or " +
+                         kFixConfig);
   cv::Mat map(out.size[out.dims - 2], out.size[out.dims - 1], CV_32F);
   out.reshape(1, map.rows).convertTo(map, CV_32F);
   return map;
@@ -105,7 +112,8 @@ Result<cv::Mat> MaskNet::Forward(const cv::Mat& bgr) {
 
 Result<cv::Mat> MaskNet::Probability(const cv::Mat& bgr) {
   if (bgr.empty() || bgr.type() != CV_8UC3)
-    return MakeError(ErrorClass::kInvalidArgument, "mask network: the photo must be a non-empty 8-bit BGR image");
+    return MakeError(ErrorClass::kInvalidArgument,
+                     "mask network: the photo must be a non-empty 8-bit BGR image");
   auto map = Forward(bgr);
   if (!map.ok()) return map.error();
   cv::Mat p = *map;

@@ -12,10 +12,9 @@
 
 #include <memory>
 #include <mutex>
-#include <string>
-
 #include <opencv2/core.hpp>
 #include <opencv2/dnn.hpp>
+#include <string>
 
 #include "common/error.h"
 #include "config/config.h"
@@ -24,12 +23,12 @@
 namespace aggscan {
 
 struct MaskNetOptions {
-  std::string model_path;                         // the .onnx file
-  cv::Size input_size{320, 320};                  // network input, pixels
-  cv::Scalar mean_rgb{0.485, 0.456, 0.406};       // subtracted from value/255, per channel
-  cv::Scalar std_rgb{0.229, 0.224, 0.225};        // then divided by this
-  bool logits = false;                            // the output needs a sigmoid
-  double threshold = 0.5;                         // probability above which a pixel is rock
+  std::string model_path;                    // the .onnx file
+  cv::Size input_size{320, 320};             // network input, pixels
+  cv::Scalar mean_rgb{0.485, 0.456, 0.406};  // subtracted from value/255, per channel
+  cv::Scalar std_rgb{0.229, 0.224, 0.225};   // then divided by this
+  bool logits = false;                       // the output needs a sigmoid
+  double threshold = 0.5;                    // probability above which a pixel is rock
 };
 
 /// The network options of a [mask] section (method is not looked at).

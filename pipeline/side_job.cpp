@@ -4,11 +4,10 @@
 #include <cstdint>
 #include <filesystem>
 #include <map>
-#include <set>
-#include <vector>
-
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <set>
+#include <vector>
 
 #include "common/clock.h"
 #include "common/fsutil.h"
@@ -36,13 +35,16 @@ std::string SampleIdOf(const std::string& sample_dir) {
   return p.filename().string();
 }
 
-std::string ResultsDir(const std::string& sample_dir) { return sample_dir + "/" + layout::kResultsDir; }
+std::string ResultsDir(const std::string& sample_dir) {
+  return sample_dir + "/" + layout::kResultsDir;
+}
 std::string MasksDir(const std::string& sample_dir, int side) {
   return ResultsDir(sample_dir) + "/masks/" + layout::SideDirName(side);
 }
 
 json StatsJson(const Stats& s) {
-  return {{"mean", s.mean}, {"min", s.min}, {"max", s.max}, {"std", s.std}, {"cov", s.cov}, {"n", s.n}};
+  return {{"mean", s.mean}, {"min", s.min}, {"max", s.max},
+          {"std", s.std},   {"cov", s.cov}, {"n", s.n}};
 }
 
 json StatsBlock(const std::map<std::string, std::vector<double>>& values) {
@@ -56,7 +58,8 @@ json StatsBlock(const std::map<std::string, std::vector<double>>& values) {
 
 // A plain file name inside the side directory: nothing that could leave it.
 bool IsPlainName(const std::string& n) {
-  return !n.empty() && n[0] != '.' && n.find('/') == std::string::npos && n.find('\0') == std::string::npos;
+  return !n.empty() && n[0] != '.' && n.find('/') == std::string::npos &&
+         n.find('\0') == std::string::npos;
 }
 
 struct ManifestView {
@@ -65,18 +68,21 @@ struct ManifestView {
   std::string sidecar;
 };
 
-Result<std::vector<ManifestView>> ReadManifest(const std::string& side_dir, int side, const std::string& sample_id) {
+Result<std::vector<ManifestView>> ReadManifest(const std::string& side_dir, int side,
+                                               const std::string& sample_id) {
   const std::string path = side_dir + "/" + layout::kManifest;
   if (!PathExists(path))
-    return MakeError(ErrorClass::kNotFound, "side " + std::to_string(side) + " of sample " + sample_id +
-                                                " has no manifest (not captured, or the capture did not finish): " + path);
+    return MakeError(ErrorClass::kNotFound,
+                     "side " + std::to_string(side) + " of sample " + sample_id +
+                         " has no manifest (not captured, or the capture did not finish): " + path);
   auto text = ReadFile(path);
   if (!text.ok()) return text.error();
   json m;
   try {
     m = json::parse(*text);
   } catch (const json::exception& e) {
-    return MakeError(ErrorClass::kCorrupt, "manifest " + path + " is not valid JSON; re-capture the side", e.what());
+    return MakeError(ErrorClass::kCorrupt,
+                     "manifest " + path + " is not valid JSON; re-capture the side", e.what());
   }
   auto corrupt = [&](const std::string& what) {
     return MakeError(ErrorClass::kCorrupt, "manifest " + path + " is inconsistent: " + what);
@@ -84,23 +90,26 @@ Result<std::vector<ManifestView>> ReadManifest(const std::string& side_dir, int 
   if (!m.is_object()) return corrupt("not a JSON object");
   if (!m.contains("side") || !m["side"].is_number_integer() || m["side"].get<int>() != side)
     return corrupt("\"side\" is missing or is not " + std::to_string(side));
-  if (m.contains("sample_id") && (!m["sample_id"].is_string() || m["sample_id"].get<std::string>() != sample_id))
+  if (m.contains("sample_id") &&
+      (!m["sample_id"].is_string() || m["sample_id"].get<std::string>() != sample_id))
     return corrupt("\"sample_id\" does not match the sample directory " + sample_id);
   if (!m.contains("views") || !m["views"].is_array() || m["views"].empty())
     return corrupt("\"views\" is missing or empty");
   std::vector<ManifestView> views;
   std::set<int> seen;
   for (const auto& v : m["views"]) {
-    if (!v.is_object() || !v.contains("view") || !v["view"].is_number_integer() || !v.contains("image") ||
-        !v["image"].is_string())
+    if (!v.is_object() || !v.contains("view") || !v["view"].is_number_integer() ||
+        !v.contains("image") || !v["image"].is_string())
       return corrupt("a view entry lacks an integer \"view\" or a string \"image\"");
     ManifestView mv;
     mv.view = v["view"].get<int>();
     mv.image = v["image"].get<std::string>();
     if (mv.view < 0 || !seen.insert(mv.view).second)
       return corrupt("view index " + std::to_string(mv.view) + " is negative or repeated");
-    if (!IsPlainName(mv.image)) return corrupt("image name \"" + mv.image + "\" is not a plain file name");
-    if (v.contains("sidecar") && v["sidecar"].is_string() && IsPlainName(v["sidecar"].get<std::string>()))
+    if (!IsPlainName(mv.image))
+      return corrupt("image name \"" + mv.image + "\" is not a plain file name");
+    if (v.contains("sidecar") && v["sidecar"].is_string() &&
+        IsPlainName(v["sidecar"].get<std::string>()))
       mv.sidecar = v["sidecar"].get<std::string>();
     const std::string img = side_dir + "/" + mv.image;
     std::error_code ec;
@@ -108,12 +117,13 @@ Result<std::vector<ManifestView>> ReadManifest(const std::string& side_dir, int 
     if (ec) return corrupt("listed image " + mv.image + " is missing");
     if (v.contains("bytes")) {
       if (!v["bytes"].is_number_unsigned() || v["bytes"].get<uint64_t>() != size)
-        return corrupt("image " + mv.image + " has " + std::to_string(size) + " bytes, the manifest says " +
-                       v["bytes"].dump());
+        return corrupt("image " + mv.image + " has " + std::to_string(size) +
+                       " bytes, the manifest says " + v["bytes"].dump());
     }
     views.push_back(std::move(mv));
   }
-  std::sort(views.begin(), views.end(), [](const auto& a, const auto& b) { return a.view < b.view; });
+  std::sort(views.begin(), views.end(),
+            [](const auto& a, const auto& b) { return a.view < b.view; });
   return views;
 }
 
@@ -183,15 +193,18 @@ std::string CheckSideMasks(json* jviews) {
   }
   std::string msg;
   if (!cut.empty()) {
-    msg = "the rock reaches the edge of the photo in view" + std::string(cut.size() > 1 ? "s " : " ") + ViewList(cut) +
-          " (left out): move the camera back or use a wider lens so the whole rock is in every photo, then "
+    msg = "the rock reaches the edge of the photo in view" +
+          std::string(cut.size() > 1 ? "s " : " ") + ViewList(cut) +
+          " (left out): move the camera back or use a wider lens so the whole rock is in every "
+          "photo, then "
           "re-capture";
   }
   if (!small.empty()) {
     msg += std::string(msg.empty() ? "" : "; ") + "the rock was lost by the segmentation in view" +
-           (small.size() > 1 ? "s " : " ") + ViewList(small) +
-           " (masks under " + std::to_string(static_cast<int>(100 * kMaskMinAreaOfLargest)) +
-           " % of the side's largest; left out): check those photos (rock leaving the frame, background of the "
+           (small.size() > 1 ? "s " : " ") + ViewList(small) + " (masks under " +
+           std::to_string(static_cast<int>(100 * kMaskMinAreaOfLargest)) +
+           " % of the side's largest; left out): check those photos (rock leaving the frame, "
+           "background of the "
            "rock's colour, lighting)";
   }
   return msg;
@@ -211,14 +224,18 @@ Status SideHasEnoughWholeViews(const json& side_result) {
 
 namespace {
 
-Status WriteJson(const std::string& path, const json& j) { return WriteFileAtomic(path, j.dump(2) + "\n"); }
+Status WriteJson(const std::string& path, const json& j) {
+  return WriteFileAtomic(path, j.dump(2) + "\n");
+}
 
 }  // namespace
 
 std::string SideResultPath(const std::string& sample_dir, int side) {
   return ResultsDir(sample_dir) + "/" + layout::SideDirName(side) + "_morph2d.json";
 }
-std::string SampleResultPath(const std::string& sample_dir) { return ResultsDir(sample_dir) + "/morph2d.json"; }
+std::string SampleResultPath(const std::string& sample_dir) {
+  return ResultsDir(sample_dir) + "/morph2d.json";
+}
 std::string ViewMaskPath(const std::string& sample_dir, int side, int view) {
   return MasksDir(sample_dir, side) + "/" + layout::ViewStem(view) + ".png";
 }
@@ -227,10 +244,13 @@ namespace {
 
 Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOptions& opts) {
   const std::string sample_id = SampleIdOf(sample_dir);
-  if (side < 1) return MakeError(ErrorClass::kInvalidArgument, "side must be >= 1, got " + std::to_string(side));
+  if (side < 1)
+    return MakeError(ErrorClass::kInvalidArgument,
+                     "side must be >= 1, got " + std::to_string(side));
   const std::string result_path = SideResultPath(sample_dir, side);
   if (PathExists(result_path)) {
-    LogLine(LogLevel::kInfo, kCat, sample_id, "side " + std::to_string(side) + ": already done, skipped");
+    LogLine(LogLevel::kInfo, kCat, sample_id,
+            "side " + std::to_string(side) + ": already done, skipped");
     return OkStatus();
   }
   const std::string side_dir = sample_dir + "/" + layout::SideDirName(side);
@@ -250,9 +270,11 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
   std::string image_reasons;
   for (const ManifestView& v : *views) {
     if (opts.cancel && opts.cancel->load())
-      return MakeError(ErrorClass::kInvalidState, "interrupted: side " + std::to_string(side) + " of " + sample_id +
-                                                      " will resume from view " + std::to_string(v.view));
-    const StageScope view_stage("masks side " + std::to_string(side) + " view " + std::to_string(v.view));
+      return MakeError(ErrorClass::kInvalidState,
+                       "interrupted: side " + std::to_string(side) + " of " + sample_id +
+                           " will resume from view " + std::to_string(v.view));
+    const StageScope view_stage("masks side " + std::to_string(side) + " view " +
+                                std::to_string(v.view));
     const TimeNs t0 = MonotonicNs();
     const std::string mask_path = ViewMaskPath(sample_dir, side, v.view);
     cv::Mat mask;
@@ -267,21 +289,25 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
     if (mask.empty()) {
       auto bytes = ReadFile(side_dir + "/" + v.image);
       if (!bytes.ok()) return bytes.error();
-      auto img = DecodeImage(*bytes, ImageMode::kColor, layout::SideDirName(side) + "/" + v.image, opts.image_limits);
+      auto img = DecodeImage(*bytes, ImageMode::kColor, layout::SideDirName(side) + "/" + v.image,
+                             opts.image_limits);
       if (!img.ok()) {
         // A photo damaged in the camera, on the link or in storage: the view
         // is left out (a grey, half-decoded photo would carve rock away) and
         // named with what to do.
         image_problems.push_back(v.view);
         image_reasons += (image_reasons.empty() ? "" : "; ") + img.error().message;
-        json jv = {{"view", v.view},
-                   {"image", v.image},
-                   {"ok", false},
-                   {"image_problem", img.error().message},
-                   {"error", img.error().message + ": re-shoot the side (arm the sample again) and check the camera's "
-                                                   "link and the storage"}};
+        json jv = {
+            {"view", v.view},
+            {"image", v.image},
+            {"ok", false},
+            {"image_problem", img.error().message},
+            {"error", img.error().message +
+                          ": re-shoot the side (arm the sample again) and check the camera's "
+                          "link and the storage"}};
         LogLine(LogLevel::kWarning, kCat, sample_id,
-                "side " + std::to_string(side) + " view " + std::to_string(v.view) + ": " + img.error().ToString());
+                "side " + std::to_string(side) + " view " + std::to_string(v.view) + ": " +
+                    img.error().ToString());
         jviews.push_back(std::move(jv));
         continue;
       }
@@ -295,13 +321,17 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
       }
       std::vector<unsigned char> png;
       if (!cv::imencode(".png", mask, png))
-        return MakeError(ErrorClass::kInternal, "PNG encoding of the mask of view " + std::to_string(v.view) + " failed");
-      if (Status s = WriteFileAtomic(mask_path, std::span<const unsigned char>(png)); !s.ok()) return s;
+        return MakeError(ErrorClass::kInternal,
+                         "PNG encoding of the mask of view " + std::to_string(v.view) + " failed");
+      if (Status s = WriteFileAtomic(mask_path, std::span<const unsigned char>(png)); !s.ok())
+        return s;
     }
     const double mask_ms = static_cast<double>(MonotonicNs() - t0) / 1e6;
 
-    json jv = {{"view", v.view}, {"image", v.image}, {"mask", "masks/" + layout::SideDirName(side) + "/" +
-                                                                  layout::ViewStem(v.view) + ".png"}};
+    json jv = {
+        {"view", v.view},
+        {"image", v.image},
+        {"mask", "masks/" + layout::SideDirName(side) + "/" + layout::ViewStem(v.view) + ".png"}};
     if (!v.sidecar.empty()) {
       auto sc = ReadFile(side_dir + "/" + v.sidecar);
       json js = sc.ok() ? json::parse(*sc, nullptr, false) : json();
@@ -309,7 +339,8 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
         for (const char* k : {"commanded_angle_deg", "measured_angle_deg"})
           if (js.contains(k) && js[k].is_number()) jv[k] = js[k];
       } else {
-        LogLine(LogLevel::kWarning, kCat, sample_id, "sidecar " + v.sidecar + " is missing or unreadable");
+        LogLine(LogLevel::kWarning, kCat, sample_id,
+                "sidecar " + v.sidecar + " is missing or unreadable");
       }
     }
     const double total_px = static_cast<double>(image_size.area());
@@ -329,7 +360,8 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
       jv["ok"] = false;
       jv["error"] = "no rock found in this view";
       LogLine(LogLevel::kWarning, kCat, sample_id,
-              "side " + std::to_string(side) + " view " + std::to_string(v.view) + ": no rock found in the mask");
+              "side " + std::to_string(side) + " view " + std::to_string(v.view) +
+                  ": no rock found in the mask");
     }
     jv["timing_ms"] = mask_ms;
     jviews.push_back(std::move(jv));
@@ -344,9 +376,10 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
   }
   std::string damaged;
   if (!image_problems.empty()) {
-    damaged = "the photo of view" + std::string(image_problems.size() > 1 ? "s " : " ") + ViewList(image_problems) +
-              " cannot be used (" + image_reasons +
-              "; left out): re-shoot the side (arm the sample again) and check the camera's link and the storage";
+    damaged = "the photo of view" + std::string(image_problems.size() > 1 ? "s " : " ") +
+              ViewList(image_problems) + " cannot be used (" + image_reasons +
+              "; left out): re-shoot the side (arm the sample again) and check the camera's link "
+              "and the storage";
     LogLine(LogLevel::kWarning, kCat, sample_id, "side " + std::to_string(side) + ": " + damaged);
   }
   for (const json& jv : jviews) {
@@ -358,27 +391,23 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
   }
   const int ok_views = static_cast<int>(values["fer_2d"].size());
   if (ok_views == 0)
-    return MakeError(ErrorClass::kCorrupt, "side " + std::to_string(side) + " of " + sample_id +
-                                               ": no rock found in any view (empty turntable or wrong exposure?)" +
-                                               (lost.empty() ? "" : "; " + lost) +
-                                               (damaged.empty() ? "" : "; " + damaged));
+    return MakeError(ErrorClass::kCorrupt,
+                     "side " + std::to_string(side) + " of " + sample_id +
+                         ": no rock found in any view (empty turntable or wrong exposure?)" +
+                         (lost.empty() ? "" : "; " + lost) +
+                         (damaged.empty() ? "" : "; " + damaged));
   const double total_ms = static_cast<double>(MonotonicNs() - t_start) / 1e6;
-  json out = {{"sample_id", sample_id},
-              {"side", side},
-              {"views", jviews},
-              {"views_total", static_cast<int>(views->size())},
-              {"views_ok", ok_views},
-              {"mask_problems", lost},
-              {"image_problems", damaged},
-              {"stats", StatsBlock(values)},
-              {"std_kind", "sample"},
-              {"mask_method", opts.mask_net ? "onnx" : "classical"},
+  json out = {{"sample_id", sample_id},    {"side", side},
+              {"views", jviews},           {"views_total", static_cast<int>(views->size())},
+              {"views_ok", ok_views},      {"mask_problems", lost},
+              {"image_problems", damaged}, {"stats", StatsBlock(values)},
+              {"std_kind", "sample"},      {"mask_method", opts.mask_net ? "onnx" : "classical"},
               {"timing_ms", total_ms}};
   if (Status s = WriteJson(result_path, out); !s.ok()) return s;
   LogLine(LogLevel::kInfo, kCat, sample_id,
-          "side " + std::to_string(side) + ": " + std::to_string(ok_views) + "/" + std::to_string(views->size()) +
-              " views measured (" + std::to_string(reused) + " masks reused) in " +
-              std::to_string(static_cast<long>(total_ms)) + " ms");
+          "side " + std::to_string(side) + ": " + std::to_string(ok_views) + "/" +
+              std::to_string(views->size()) + " views measured (" + std::to_string(reused) +
+              " masks reused) in " + std::to_string(static_cast<long>(total_ms)) + " ms");
   return OkStatus();
 }
 
@@ -395,12 +424,15 @@ Status ProcessSampleStage(const std::string& sample_dir, const WorkerOptions& op
     const std::string n = e.path().filename().string();
     if (!e.is_directory() || n.size() <= 4 || n.rfind("side", 0) != 0) continue;
     const std::string num = n.substr(4);
-    if (!std::all_of(num.begin(), num.end(), [](char c) { return c >= '0' && c <= '9'; }) || num.size() > 4) continue;
+    if (!std::all_of(num.begin(), num.end(), [](char c) { return c >= '0' && c <= '9'; }) ||
+        num.size() > 4)
+      continue;
     sides.push_back(std::stoi(num));
   }
   if (ec) return ErrnoError("cannot list sample directory " + sample_dir, ec.value());
   std::sort(sides.begin(), sides.end());
-  if (sides.empty()) return MakeError(ErrorClass::kNotFound, "sample " + sample_id + " has no captured side");
+  if (sides.empty())
+    return MakeError(ErrorClass::kNotFound, "sample " + sample_id + " has no captured side");
 
   json jsides = json::array();
   std::map<std::string, std::vector<double>> all;
@@ -414,7 +446,8 @@ Status ProcessSampleStage(const std::string& sample_dir, const WorkerOptions& op
     if (!text.ok()) return text.error();
     const json j = json::parse(*text, nullptr, false);
     if (!j.is_object() || !j.contains("views") || !j["views"].is_array())
-      return MakeError(ErrorClass::kCorrupt, "side result " + side_result + " is unreadable; delete it to recompute");
+      return MakeError(ErrorClass::kCorrupt,
+                       "side result " + side_result + " is unreadable; delete it to recompute");
     std::map<std::string, std::vector<double>> vals;
     for (const auto& v : j["views"]) {
       if (!Flag(v, "ok")) continue;
@@ -425,7 +458,8 @@ Status ProcessSampleStage(const std::string& sample_dir, const WorkerOptions& op
         }
     }
     views_ok += static_cast<int>(vals["fer_2d"].size());
-    jsides.push_back({{"side", side}, {"views_ok", vals["fer_2d"].size()}, {"stats", StatsBlock(vals)}});
+    jsides.push_back(
+        {{"side", side}, {"views_ok", vals["fer_2d"].size()}, {"stats", StatsBlock(vals)}});
   }
   json out = {{"sample_id", sample_id},
               {"sides", jsides},
@@ -433,14 +467,16 @@ Status ProcessSampleStage(const std::string& sample_dir, const WorkerOptions& op
               {"std_kind", "sample"}};
   if (Status s = WriteJson(result_path, out); !s.ok()) return s;
   LogLine(LogLevel::kInfo, kCat, sample_id,
-          "sample morphology written: " + std::to_string(sides.size()) + " sides, " + std::to_string(views_ok) + " views");
+          "sample morphology written: " + std::to_string(sides.size()) + " sides, " +
+              std::to_string(views_ok) + " views");
   return OkStatus();
 }
 
 }  // namespace
 
 Status ProcessSide(const std::string& sample_dir, int side, const WorkerOptions& opts) {
-  return RunStage("masks side " + std::to_string(side), [&] { return ProcessSideStage(sample_dir, side, opts); });
+  return RunStage("masks side " + std::to_string(side),
+                  [&] { return ProcessSideStage(sample_dir, side, opts); });
 }
 
 Status ProcessSample(const std::string& sample_dir, const WorkerOptions& opts) {

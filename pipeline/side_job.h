@@ -15,9 +15,8 @@
 
 #include <atomic>
 #include <memory>
-#include <string>
-
 #include <nlohmann/json.hpp>
+#include <string>
 
 #include "common/error.h"
 #include "pipeline/image_io.h"
@@ -27,11 +26,12 @@
 namespace aggscan {
 
 struct WorkerOptions {
-  MaskOptions mask;                           // segmentation parameters (and the network's refinement)
-  std::shared_ptr<MaskNet> mask_net;          // set ([mask] method = "onnx"): its output seeds the mask
-  bool reuse_masks = true;                    // reuse results/masks/... PNGs written by an earlier attempt
-  ImageLimits image_limits;                   // photos outside these are refused before decoding
-  const std::atomic<bool>* cancel = nullptr;  // checked between views; set -> kInvalidState "interrupted"
+  MaskOptions mask;                   // segmentation parameters (and the network's refinement)
+  std::shared_ptr<MaskNet> mask_net;  // set ([mask] method = "onnx"): its output seeds the mask
+  bool reuse_masks = true;            // reuse results/masks/... PNGs written by an earlier attempt
+  ImageLimits image_limits;           // photos outside these are refused before decoding
+  const std::atomic<bool>* cancel =
+      nullptr;  // checked between views; set -> kInvalidState "interrupted"
 };
 
 /// Masks and 2D morphology of side `side` (>= 1) of the sample at `sample_dir`.

@@ -44,7 +44,8 @@ std::vector<int> CompleteViews(const std::string& side_dir) {
   for (const auto& n : ListDir(side_dir)) {
     int v = -1;
     char tail[8] = {0};
-    if (std::sscanf(n.c_str(), "view_%d.%4s", &v, tail) == 2 && std::string(tail) == "json" && v >= 0) {
+    if (std::sscanf(n.c_str(), "view_%d.%4s", &v, tail) == 2 && std::string(tail) == "json" &&
+        v >= 0) {
       if (PathExists(side_dir + "/" + layout::ViewImageName(v))) views.push_back(v);
     }
   }
@@ -140,7 +141,9 @@ T SidecarField(const json& car, const char* key, T fallback) {
 
 }  // namespace
 
-std::string SampleStore::SampleDir(const std::string& id) const { return layout::SampleDir(state_dir_, id); }
+std::string SampleStore::SampleDir(const std::string& id) const {
+  return layout::SampleDir(state_dir_, id);
+}
 
 Status SampleStore::Init() { return MakeDirsDurable(layout::SamplesDir(state_dir_)); }
 
@@ -161,7 +164,8 @@ Status SampleStore::UpdateRecord(const std::string& id, const std::function<void
 Result<json> SampleStore::LoadRecord(const std::string& id) const {
   if (!layout::IsValidSampleId(id)) return BadId(id);
   const std::string path = SampleDir(id) + "/" + layout::kSampleRecord;
-  if (!PathExists(SampleDir(id))) return MakeError(ErrorClass::kNotFound, "no sample \"" + id + "\"");
+  if (!PathExists(SampleDir(id)))
+    return MakeError(ErrorClass::kNotFound, "no sample \"" + id + "\"");
   Result<std::string> text = ReadFile(path);
   if (!text) return text.error();
   json rec = json::parse(*text, nullptr, false);
@@ -303,20 +307,25 @@ Result<int> SampleStore::PrepareArm(const std::string& id, const SamplePlan& pla
   if (!rec) return rec.error();
   const std::string st = rec->value("state", "");
   if (st == "captured") {
-    return MakeError(ErrorClass::kConflict, "sample \"" + id + "\" is already complete; choose a new id");
+    return MakeError(ErrorClass::kConflict,
+                     "sample \"" + id + "\" is already complete; choose a new id");
   }
   if (!SamePlan((*rec)["plan"], plan)) {
-    return MakeError(ErrorClass::kConflict, "sample \"" + id +
-                                                "\" was started with a different capture plan; resume it with the "
-                                                "same profile or choose a new id");
+    return MakeError(ErrorClass::kConflict,
+                     "sample \"" + id +
+                         "\" was started with a different capture plan; resume it with the "
+                         "same profile or choose a new id");
   }
   for (int side = 1; side <= plan.sides; ++side) {
-    if (!PathExists(SampleDir(id) + "/" + layout::SideDirName(side) + "/" + layout::kManifest)) return side;
+    if (!PathExists(SampleDir(id) + "/" + layout::SideDirName(side) + "/" + layout::kManifest))
+      return side;
   }
-  return MakeError(ErrorClass::kConflict, "sample \"" + id + "\" has every side captured; choose a new id");
+  return MakeError(ErrorClass::kConflict,
+                   "sample \"" + id + "\" has every side captured; choose a new id");
 }
 
-Status SampleStore::CreateOrResume(const std::string& id, const SamplePlan& plan, const std::string& config_toml) {
+Status SampleStore::CreateOrResume(const std::string& id, const SamplePlan& plan,
+                                   const std::string& config_toml) {
   if (!layout::IsValidSampleId(id)) return BadId(id);
   const std::string dir = SampleDir(id);
   json rec;
@@ -328,7 +337,10 @@ Status SampleStore::CreateOrResume(const std::string& id, const SamplePlan& plan
   } else {
     Status s = MakeDirsDurable(dir);
     if (!s) return s;
-    rec = {{"id", id}, {"created_utc", NowUtcString()}, {"plan", PlanToJson(plan)}, {"sides", json::array()}};
+    rec = {{"id", id},
+           {"created_utc", NowUtcString()},
+           {"plan", PlanToJson(plan)},
+           {"sides", json::array()}};
     for (int side = 1; side <= plan.sides; ++side) {
       rec["sides"].push_back({{"side", side}, {"state", "pending"}, {"attempts", 0}});
     }
@@ -336,8 +348,9 @@ Status SampleStore::CreateOrResume(const std::string& id, const SamplePlan& plan
   // The config in effect for this capture; a resume keeps the first copy too.
   const std::string cfg = dir + "/" + layout::kConfigCopy;
   if (PathExists(cfg)) {
-    Status s = WriteFileAtomic(dir + "/config.resumed-" + std::to_string(rec.value("resumes", 0) + 1) + ".toml",
-                               config_toml, true);
+    Status s = WriteFileAtomic(
+        dir + "/config.resumed-" + std::to_string(rec.value("resumes", 0) + 1) + ".toml",
+        config_toml, true);
     if (!s) return s;
     rec["resumes"] = rec.value("resumes", 0) + 1;
   } else {
@@ -369,7 +382,8 @@ Status SampleStore::BeginSide(const std::string& id, int side) {
   const std::string dir = SampleDir(id);
   const std::string side_dir = dir + "/" + layout::SideDirName(side);
   if (PathExists(side_dir + "/" + layout::kManifest)) {
-    return MakeError(ErrorClass::kConflict, "side " + std::to_string(side) + " of \"" + id + "\" is already complete");
+    return MakeError(ErrorClass::kConflict,
+                     "side " + std::to_string(side) + " of \"" + id + "\" is already complete");
   }
   if (PathExists(side_dir)) {
     int k = 1;
@@ -389,10 +403,11 @@ Status SampleStore::BeginSide(const std::string& id, int side) {
   });
 }
 
-Status SampleStore::WriteView(const std::string& id, int side, int view, std::span<const unsigned char> image,
-                              const json& sidecar) {
+Status SampleStore::WriteView(const std::string& id, int side, int view,
+                              std::span<const unsigned char> image, const json& sidecar) {
   const std::string side_dir = SampleDir(id) + "/" + layout::SideDirName(side);
-  Status s = WriteFileAtomic(side_dir + "/" + layout::ViewImageName(view), image, /*no_replace=*/true);
+  Status s =
+      WriteFileAtomic(side_dir + "/" + layout::ViewImageName(view), image, /*no_replace=*/true);
   if (!s) return s;
   return WriteFileAtomic(side_dir + "/" + layout::ViewSidecarName(view), JsonText(sidecar), true);
 }
@@ -410,7 +425,8 @@ Result<json> SampleStore::WriteManifest(const std::string& id, int side) {
                      {"sidecar", layout::ViewSidecarName(v)},
                      {"bytes", static_cast<int64_t>(st.st_size)}});
   }
-  json manifest = {{"sample_id", id}, {"side", side}, {"views", views}, {"completed_utc", NowUtcString()}};
+  json manifest = {
+      {"sample_id", id}, {"side", side}, {"views", views}, {"completed_utc", NowUtcString()}};
   Status s = WriteFileAtomic(side_dir + "/" + layout::kManifest, JsonText(manifest), true);
   if (!s) return s.error();
   return manifest;
@@ -428,8 +444,8 @@ Status SampleStore::FinishSide(const std::string& id, int side) {
   });
 }
 
-Status SampleStore::SetSampleState(const std::string& id, const std::string& state, int side_in_progress,
-                                   const std::string& side_state) {
+Status SampleStore::SetSampleState(const std::string& id, const std::string& state,
+                                   int side_in_progress, const std::string& side_state) {
   return UpdateRecord(id, [&](json& r) {
     r["state"] = state;
     if (side_in_progress > 0 && !side_state.empty()) {
@@ -453,7 +469,9 @@ Result<json> SampleStore::List() const {
     int sides_done = 0, views = 0;
     for (const auto& sd : (*rec)["sides"]) {
       if (sd.value("state", "") == "done") ++sides_done;
-      views += static_cast<int>(CompleteViews(samples + "/" + id + "/" + layout::SideDirName(sd.value("side", 0))).size());
+      views += static_cast<int>(
+          CompleteViews(samples + "/" + id + "/" + layout::SideDirName(sd.value("side", 0)))
+              .size());
     }
     out.push_back({{"id", id},
                    {"state", rec->value("state", "")},
@@ -477,7 +495,8 @@ std::vector<std::pair<std::string, int>> SampleStore::CapturedWork(const std::st
     if (!rec) continue;
     for (const auto& sd : (*rec)["sides"]) {
       const int side = sd["side"].get<int>();
-      if (PathExists(samples + "/" + id + "/" + layout::SideDirName(side) + "/" + layout::kManifest)) {
+      if (PathExists(samples + "/" + id + "/" + layout::SideDirName(side) + "/" +
+                     layout::kManifest)) {
         work.emplace_back(id, side);
       }
     }

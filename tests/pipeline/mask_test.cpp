@@ -1,13 +1,13 @@
 #include "pipeline/mask.h"
 
+#include <gtest/gtest.h>
+
 #include <algorithm>
 #include <cstdio>
 #include <filesystem>
-#include <string>
-
-#include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <string>
 
 #include "common/clock.h"
 #include "synth_scene.h"
@@ -40,13 +40,20 @@ void CheckScene(const SceneParams& p, double* iou_out = nullptr, double* ms_out 
   cv::Mat near_rock;
   cv::dilate(sc.truth, near_rock, cv::Mat(), cv::Point(-1, -1), 2);
   const int labels_hit = cv::countNonZero(mask & sc.labels & ~near_rock);
-  const double markers_kept = static_cast<double>(cv::countNonZero(mask & sc.markers)) / cv::countNonZero(sc.markers);
-  std::printf("scene %dx%d seed %llu albedo %.2f: IoU %.4f, label px in mask %d, markers kept %.4f, %.0f ms\n",
-              p.size.width, p.size.height, static_cast<unsigned long long>(p.seed), p.albedo, iou, labels_hit,
-              markers_kept, ms);
+  const double markers_kept =
+      static_cast<double>(cv::countNonZero(mask & sc.markers)) / cv::countNonZero(sc.markers);
+  std::printf(
+      "scene %dx%d seed %llu albedo %.2f: IoU %.4f, label px in mask %d, markers kept %.4f, %.0f "
+      "ms\n",
+      p.size.width, p.size.height, static_cast<unsigned long long>(p.seed), p.albedo, iou,
+      labels_hit, markers_kept, ms);
   if ((iou < 0.97 || labels_hit > 0) && std::getenv("AGGSCAN_DUMP")) {
     const std::string stem = "/tmp/mask_seed" + std::to_string(p.seed);
-    { cv::Mat half; cv::resize(sc.bgr, half, cv::Size(), 0.5, 0.5, cv::INTER_AREA); cv::imwrite(stem + "_img.png", half); }
+    {
+      cv::Mat half;
+      cv::resize(sc.bgr, half, cv::Size(), 0.5, 0.5, cv::INTER_AREA);
+      cv::imwrite(stem + "_img.png", half);
+    }
     cv::Mat vis;
     cv::merge(std::vector<cv::Mat>{mask & ~sc.truth, sc.truth & mask, sc.truth & ~mask}, vis);
     cv::imwrite(stem + "_err.png", vis);
@@ -61,9 +68,10 @@ void CheckScene(const SceneParams& p, double* iou_out = nullptr, double* ms_out 
 // The rig's still size (2016 x 1512) unless AGGSCAN_MASK_SIZE_HALF is set.
 TEST(Mask, SyntheticScenes) {
   const Case cases[] = {
-      {1, 0.25, 0.14, 0, 135, false},  {2, 0.4, 0.12, 20, 120, false}, {3, 0.6, 0.16, 45, 150, false},
-      {4, 0.3, 0.10, 70, 100, true},   {5, 0.5, 0.18, 10, 160, true},  {6, 0.6, 0.13, 33, 45, false},
-      {7, 0.25, 0.17, 80, 60, true},   {8, 0.45, 0.11, 5, 135, false},
+      {1, 0.25, 0.14, 0, 135, false}, {2, 0.4, 0.12, 20, 120, false},
+      {3, 0.6, 0.16, 45, 150, false}, {4, 0.3, 0.10, 70, 100, true},
+      {5, 0.5, 0.18, 10, 160, true},  {6, 0.6, 0.13, 33, 45, false},
+      {7, 0.25, 0.17, 80, 60, true},  {8, 0.45, 0.11, 5, 135, false},
   };
   for (const auto& c : cases) {
     SceneParams p;
@@ -104,9 +112,11 @@ TEST(Mask, TextureCueSeparatesRockFromShadow) {
       return v[static_cast<size_t>(q * (v.size() - 1))];
     };
     const cv::Mat bg = outer == 0;
-    std::printf("texture seed %llu: rock p01 %.4f p05 %.4f p50 %.4f | background p50 %.4f p99 %.4f p999 %.4f\n",
-                static_cast<unsigned long long>(seed), pct(inner, 0.01), pct(inner, 0.05), pct(inner, 0.5), pct(bg, 0.5),
-                pct(bg, 0.99), pct(bg, 0.999));
+    std::printf(
+        "texture seed %llu: rock p01 %.4f p05 %.4f p50 %.4f | background p50 %.4f p99 %.4f p999 "
+        "%.4f\n",
+        static_cast<unsigned long long>(seed), pct(inner, 0.01), pct(inner, 0.05), pct(inner, 0.5),
+        pct(bg, 0.5), pct(bg, 0.99), pct(bg, 0.999));
     EXPECT_GT(pct(inner, 0.05), pct(bg, 0.99));
   }
 }
@@ -134,7 +144,8 @@ TEST(Mask, GrabCutStoneReport) {
   } stones[] = {{"stone1", 0.9857 - 0.01}, {"stone2", 0.9616 - 0.01}};
   for (const auto& stone : stones) {
     const cv::Mat img = cv::imread(dir + "/data_GT/" + stone.name + ".JPG", cv::IMREAD_COLOR);
-    const cv::Mat gt = cv::imread(dir + "/boundary_GT/" + stone.name + ".bmp", cv::IMREAD_GRAYSCALE);
+    const cv::Mat gt =
+        cv::imread(dir + "/boundary_GT/" + stone.name + ".bmp", cv::IMREAD_GRAYSCALE);
     if (img.empty() || gt.empty()) GTEST_SKIP() << "unreadable " << stone.name << " in " << dir;
     ASSERT_EQ(img.size(), gt.size());
     const cv::Mat mask = ComputeForegroundMask(img);

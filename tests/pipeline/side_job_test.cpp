@@ -1,15 +1,15 @@
 #include "pipeline/side_job.h"
 
+#include <gtest/gtest.h>
+
 #include <atomic>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
-#include <string>
-
-#include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <string>
 
 #include "common/fsutil.h"
 #include "store/layout.h"
@@ -27,8 +27,9 @@ using nlohmann::json;
 class SideJobTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    root_ = fs::temp_directory_path() / ("aggscan_sidejob_" + std::to_string(::getpid()) + "_" +
-                                         ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    root_ = fs::temp_directory_path() /
+            ("aggscan_sidejob_" + std::to_string(::getpid()) + "_" +
+             ::testing::UnitTest::GetInstance()->current_test_info()->name());
     fs::remove_all(root_);
     dir_ = (root_ / "samples" / "S-0001").string();
     fs::create_directories(dir_);
@@ -46,14 +47,19 @@ class SideJobTest : public ::testing::Test {
       p.turntable_deg = 30.0 * v;
       const auto sc = testing::MakeScene(p);
       Write(sd + "/" + layout::ViewImageName(v), std::string(sc.jpeg.begin(), sc.jpeg.end()));
-      Write(sd + "/" + layout::ViewSidecarName(v),
-            json{{"view", v}, {"commanded_angle_deg", 30.0 * v}, {"measured_angle_deg", 30.0 * v + 0.02}}.dump());
+      Write(sd + "/" + layout::ViewSidecarName(v), json{{"view", v},
+                                                        {"commanded_angle_deg", 30.0 * v},
+                                                        {"measured_angle_deg", 30.0 * v + 0.02}}
+                                                       .dump());
       jviews.push_back({{"view", v},
                         {"image", layout::ViewImageName(v)},
                         {"sidecar", layout::ViewSidecarName(v)},
                         {"bytes", sc.jpeg.size()}});
     }
-    manifest_ = {{"sample_id", "S-0001"}, {"side", side}, {"views", jviews}, {"completed_utc", "2026-01-01T00:00:00.000Z"}};
+    manifest_ = {{"sample_id", "S-0001"},
+                 {"side", side},
+                 {"views", jviews},
+                 {"completed_utc", "2026-01-01T00:00:00.000Z"}};
     Write(sd + "/" + layout::kManifest, manifest_.dump());
   }
   static void Write(const std::string& path, const std::string& data) {
@@ -85,8 +91,9 @@ TEST_F(SideJobTest, ProcessesSidesAndSample) {
   EXPECT_EQ(r["side"], 1);
   ASSERT_EQ(r["views"].size(), 3u);
   for (const auto& v : r["views"]) {
-    for (const char* k : {"l_max_px", "l_min_px", "fer_2d", "area_px", "perimeter_px", "circularity",
-                          "mask_area_fraction", "commanded_angle_deg", "measured_angle_deg", "timing_ms"})
+    for (const char* k :
+         {"l_max_px", "l_min_px", "fer_2d", "area_px", "perimeter_px", "circularity",
+          "mask_area_fraction", "commanded_angle_deg", "measured_angle_deg", "timing_ms"})
       EXPECT_TRUE(v.contains(k) && v[k].is_number()) << k;
     EXPECT_GT(v["fer_2d"].get<double>(), 1.0);
     EXPECT_GT(v["circularity"].get<double>(), 0.5);
@@ -94,7 +101,8 @@ TEST_F(SideJobTest, ProcessesSidesAndSample) {
     EXPECT_GT(v["mask_area_fraction"].get<double>(), 0.01);
   }
   for (const char* f : {"fer_2d", "circularity", "l_max_px", "l_min_px"})
-    for (const char* k : {"mean", "min", "max", "std", "cov"}) EXPECT_TRUE(r["stats"][f][k].is_number()) << f << k;
+    for (const char* k : {"mean", "min", "max", "std", "cov"})
+      EXPECT_TRUE(r["stats"][f][k].is_number()) << f << k;
   EXPECT_EQ(r["stats"]["fer_2d"]["n"], 3);
   EXPECT_TRUE(r["timing_ms"].is_number());
 
@@ -131,11 +139,13 @@ TEST_F(SideJobTest, FinishedSideIsSkippedAndMasksAreReused) {
     for (auto& v : m["views"]) v.erase("bytes");
     return m.dump();
   }());
-  for (int v = 0; v < 3; ++v) Write(dir_ + "/side1/" + layout::ViewImageName(v), "x");  // not decodable
+  for (int v = 0; v < 3; ++v)
+    Write(dir_ + "/side1/" + layout::ViewImageName(v), "x");  // not decodable
   ASSERT_TRUE(ProcessSide(dir_, 1).ok());
   const json again = ReadJson(SideResultPath(dir_, 1));
   for (int v = 0; v < 3; ++v)
-    EXPECT_DOUBLE_EQ(again["views"][v]["fer_2d"].get<double>(), first["views"][v]["fer_2d"].get<double>());
+    EXPECT_DOUBLE_EQ(again["views"][v]["fer_2d"].get<double>(),
+                     first["views"][v]["fer_2d"].get<double>());
 }
 
 // A rock cut by the photo's edge, or lost by the segmentation, must not
@@ -155,7 +165,8 @@ TEST_F(SideJobTest, MasksCutByTheFrameOrLostAreLeftOut) {
   cv::rectangle(cut, cv::Rect(250, 0, 140, 200), cv::Scalar(255), cv::FILLED);
   ASSERT_TRUE(cv::imwrite(ViewMaskPath(dir_, 1, 1), cut));
   cv::Mat speck = cv::Mat::zeros(cut.size(), CV_8UC1);
-  const int side_px = static_cast<int>(std::sqrt(0.05 * first["views"][0]["area_px"].get<double>()));
+  const int side_px =
+      static_cast<int>(std::sqrt(0.05 * first["views"][0]["area_px"].get<double>()));
   cv::rectangle(speck, cv::Rect(300, 240, side_px, side_px), cv::Scalar(255), cv::FILLED);
   ASSERT_TRUE(cv::imwrite(ViewMaskPath(dir_, 1, 2), speck));
   fs::remove(SideResultPath(dir_, 1));
@@ -179,8 +190,10 @@ TEST_F(SideJobTest, MasksCutByTheFrameOrLostAreLeftOut) {
   const Status enough = SideHasEnoughWholeViews(r);
   ASSERT_FALSE(enough.ok());
   EXPECT_EQ(enough.error().cls, ErrorClass::kCorrupt);
-  EXPECT_NE(enough.error().message.find("side 1: only 2 of 4 views"), std::string::npos) << enough.error().message;
-  EXPECT_NE(enough.error().message.find("move the camera back"), std::string::npos) << enough.error().message;
+  EXPECT_NE(enough.error().message.find("side 1: only 2 of 4 views"), std::string::npos)
+      << enough.error().message;
+  EXPECT_NE(enough.error().message.find("move the camera back"), std::string::npos)
+      << enough.error().message;
   EXPECT_TRUE(SideHasEnoughWholeViews(first).ok());
 }
 
@@ -189,8 +202,9 @@ TEST(CheckSideMasks, ThresholdsAndMessages) {
     return json{{"view", v}, {"ok", true}, {"mask_area_fraction", area}, {"mask_frame_px", frame}};
   };
   json views = json::array({view(0, 0.20, 0), view(1, 0.20 * kMaskMinAreaOfLargest * 1.01, 0),
-                            view(2, 0.20 * kMaskMinAreaOfLargest * 0.99, 0), view(3, 0.18, kMaskFrameMinPx - 1),
-                            view(4, 0.19, kMaskFrameMinPx), view(5, 0.19, 0)});
+                            view(2, 0.20 * kMaskMinAreaOfLargest * 0.99, 0),
+                            view(3, 0.18, kMaskFrameMinPx - 1), view(4, 0.19, kMaskFrameMinPx),
+                            view(5, 0.19, 0)});
   views[5]["ok"] = false;  // already without a rock: untouched
   const std::string msg = CheckSideMasks(&views);
   std::vector<bool> ok;
@@ -318,9 +332,11 @@ TEST_F(SideJobTest, UnusablePhotosAreLeftOutAndNamed) {
   const json r = ReadJson(SideResultPath(dir_, 1));
   EXPECT_EQ(r["views_ok"].get<int>(), 4);
   EXPECT_FALSE(r["views"][1]["ok"].get<bool>());
-  EXPECT_NE(r["views"][1]["error"].get<std::string>().find("Premature end of JPEG file"), std::string::npos)
+  EXPECT_NE(r["views"][1]["error"].get<std::string>().find("Premature end of JPEG file"),
+            std::string::npos)
       << r["views"][1].dump();
-  EXPECT_NE(r["views"][3]["error"].get<std::string>().find("is 1x1: too small to measure"), std::string::npos)
+  EXPECT_NE(r["views"][3]["error"].get<std::string>().find("is 1x1: too small to measure"),
+            std::string::npos)
       << r["views"][3].dump();
   const std::string problems = r["image_problems"].get<std::string>();
   EXPECT_NE(problems.find("the photo of views 1, 3 cannot be used"), std::string::npos) << problems;
@@ -332,7 +348,8 @@ TEST_F(SideJobTest, UnusablePhotosAreLeftOutAndNamed) {
   fewer["views_ok"] = 3;
   Status s = SideHasEnoughWholeViews(fewer);
   ASSERT_FALSE(s.ok());
-  EXPECT_NE(s.error().message.find("the photo of views 1, 3 cannot be used"), std::string::npos) << s.error().message;
+  EXPECT_NE(s.error().message.find("the photo of views 1, 3 cannot be used"), std::string::npos)
+      << s.error().message;
 }
 
 TEST_F(SideJobTest, SampleWithoutSidesIsNotFound) {
@@ -380,7 +397,8 @@ TEST_F(SideJobTest, WorkerBinaryDrainsTheQueue) {
       EXPECT_NE(j.error.find("manifest"), std::string::npos) << j.error;
     }
   EXPECT_TRUE(seen);
-  std::string text((std::istreambuf_iterator<char>(std::ifstream(log).rdbuf())), std::istreambuf_iterator<char>());
+  std::string text((std::istreambuf_iterator<char>(std::ifstream(log).rdbuf())),
+                   std::istreambuf_iterator<char>());
   EXPECT_NE(text.find("S-0001"), std::string::npos) << "log lines carry the sample id";
 }
 

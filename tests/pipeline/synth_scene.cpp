@@ -2,10 +2,9 @@
 
 #include <cmath>
 #include <numbers>
-#include <random>
-
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <random>
 
 namespace aggscan::testing {
 namespace {
@@ -17,7 +16,8 @@ cv::Mat NoiseField(cv::Size size, std::mt19937_64& rng, std::initializer_list<do
   cv::Mat acc = cv::Mat::zeros(size, CV_32F);
   std::normal_distribution<float> n01(0, 1);
   for (double s : sigmas) {
-    cv::Mat small(cv::Size(std::max(4, static_cast<int>(size.width / s)), std::max(4, static_cast<int>(size.height / s))),
+    cv::Mat small(cv::Size(std::max(4, static_cast<int>(size.width / s)),
+                           std::max(4, static_cast<int>(size.height / s))),
                   CV_32F);
     for (int y = 0; y < small.rows; ++y)
       for (int x = 0; x < small.cols; ++x) small.at<float>(y, x) = n01(rng);
@@ -38,7 +38,8 @@ Scene MakeScene(const SceneParams& p) {
 
   // Lighting: floor gets 1.0; a surface with unit normal n gets amb + dif * (n.l).
   const double el = 50 * kPi / 180, az = p.light_azimuth_deg * kPi / 180;
-  const cv::Vec3d light(std::cos(el) * std::cos(az), -std::cos(el) * std::sin(az), std::sin(el));  // x right, y down, z up
+  const cv::Vec3d light(std::cos(el) * std::cos(az), -std::cos(el) * std::sin(az),
+                        std::sin(el));  // x right, y down, z up
   const double amb = 0.35, dif = (1.0 - amb) / light[2];
 
   cv::Mat img(p.size, CV_32FC3);
@@ -53,14 +54,15 @@ Scene MakeScene(const SceneParams& p) {
   const cv::Point2d disc_c(W * 0.5, H * 0.60);
   const cv::Size2d disc_ax(W * 0.32, W * 0.32 * std::sin(35 * kPi / 180));
   cv::Mat disc = cv::Mat::zeros(p.size, CV_8UC1);
-  cv::ellipse(disc, cv::RotatedRect(disc_c, cv::Size2f(2 * disc_ax.width, 2 * disc_ax.height), 0), cv::Scalar(255),
-              cv::FILLED, cv::LINE_AA);
+  cv::ellipse(disc, cv::RotatedRect(disc_c, cv::Size2f(2 * disc_ax.width, 2 * disc_ax.height), 0),
+              cv::Scalar(255), cv::FILLED, cv::LINE_AA);
   img.setTo(cv::Scalar(200, 202, 204), disc > 128);
 
   // Colour labels: 20 mm squares at 120 mm from the axis (disc radius 152.5 mm).
   Scene sc;
   sc.labels = cv::Mat::zeros(p.size, CV_8UC1);
-  const cv::Scalar colors[4] = {{40, 40, 205}, {60, 175, 50}, {200, 90, 30}, {40, 215, 235}};  // BGR r, g, b, y
+  const cv::Scalar colors[4] = {
+      {40, 40, 205}, {60, 175, 50}, {200, 90, 30}, {40, 215, 235}};  // BGR r, g, b, y
   for (int k = 0; k < 4; ++k) {
     const double a = (p.turntable_deg + 90.0 * k) * kPi / 180;
     const double rr = 120.0 / 152.5, half = 10.0 / 152.5;
@@ -68,7 +70,8 @@ Scene MakeScene(const SceneParams& p) {
     for (auto [dx, dy] : {std::pair{-1, -1}, {1, -1}, {1, 1}, {-1, 1}}) {
       const double lx = rr * std::cos(a) + half * (dx * std::cos(a) - dy * std::sin(a));
       const double ly = rr * std::sin(a) + half * (dx * std::sin(a) + dy * std::cos(a));
-      quad.emplace_back(cvRound(disc_c.x + lx * disc_ax.width), cvRound(disc_c.y + ly * disc_ax.height));
+      quad.emplace_back(cvRound(disc_c.x + lx * disc_ax.width),
+                        cvRound(disc_c.y + ly * disc_ax.height));
     }
     cv::fillConvexPoly(img, quad, colors[k], cv::LINE_AA);
     cv::fillConvexPoly(sc.labels, quad, cv::Scalar(255), cv::LINE_8);
@@ -90,18 +93,22 @@ Scene MakeScene(const SceneParams& p) {
     double r = 1.0;
     for (int k = 0; k < 6; ++k) r += amp[k] * std::cos((k + 2) * t + ph[k]);
     double x = r * std::cos(t) * elong, y = r * std::sin(t);
-    const double xr = std::cos(rot) * x - std::sin(rot) * y, yr = std::sin(rot) * x + std::cos(rot) * y;
-    poly.emplace_back(cvRound((rc.x + R * xr / std::sqrt(elong)) * 16), cvRound((rc.y + R * yr / std::sqrt(elong)) * 16));
+    const double xr = std::cos(rot) * x - std::sin(rot) * y,
+                 yr = std::sin(rot) * x + std::cos(rot) * y;
+    poly.emplace_back(cvRound((rc.x + R * xr / std::sqrt(elong)) * 16),
+                      cvRound((rc.y + R * yr / std::sqrt(elong)) * 16));
   }
   sc.truth = cv::Mat::zeros(p.size, CV_8UC1);
-  cv::fillPoly(sc.truth, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(255), cv::LINE_8, kShift);
+  cv::fillPoly(sc.truth, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(255), cv::LINE_8,
+               kShift);
 
   // Cast shadow on the floor: the rock pushed away from the light, blurred.
   cv::Mat shadow = cv::Mat::zeros(p.size, CV_32F);
   {
     cv::Mat m;
     sc.truth.convertTo(m, CV_32F, 1.0 / 255);
-    const cv::Mat shift = (cv::Mat_<double>(2, 3) << 1, 0, -light[0] * 0.45 * R, 0, 1, -light[1] * 0.25 * R);
+    const cv::Mat shift =
+        (cv::Mat_<double>(2, 3) << 1, 0, -light[0] * 0.45 * R, 0, 1, -light[1] * 0.25 * R);
     cv::Mat moved;
     cv::warpAffine(m, moved, shift, p.size);
     cv::max(moved, m, shadow);
@@ -130,8 +137,8 @@ Scene MakeScene(const SceneParams& p) {
       cv::Vec3d n(-gx.at<float>(y, x), -gy.at<float>(y, x), 1.0);
       n /= cv::norm(n);
       const double shade = amb + dif * std::max(0.0, n.dot(light));
-      const double alb =
-          std::clamp(p.albedo * (1.0 + 0.22 * tex.at<float>(y, x) + 0.08 * grain.at<float>(y, x)), 0.05, 0.95);
+      const double alb = std::clamp(
+          p.albedo * (1.0 + 0.22 * tex.at<float>(y, x) + 0.08 * grain.at<float>(y, x)), 0.05, 0.95);
       const float v = static_cast<float>(255.0 * alb * shade);
       img.at<cv::Vec3f>(y, x) = cv::Vec3f(v * brown[0], v * brown[1], v * brown[2]);
     }
@@ -156,9 +163,12 @@ Scene MakeScene(const SceneParams& p) {
       for (int y = 0; y < H; ++y)
         for (int x = 0; x < W; ++x)
           if (stroke.at<uchar>(y, x)) {
-            const float v = img.at<cv::Vec3f>(y, x)[1] / (255.0f * static_cast<float>(p.albedo) * brown[1]);
-            img.at<cv::Vec3f>(y, x) = cv::Vec3f(static_cast<float>(stroke_col[k][0]), static_cast<float>(stroke_col[k][1]),
-                                                static_cast<float>(stroke_col[k][2])) * std::min(1.1f, v);
+            const float v =
+                img.at<cv::Vec3f>(y, x)[1] / (255.0f * static_cast<float>(p.albedo) * brown[1]);
+            img.at<cv::Vec3f>(y, x) = cv::Vec3f(static_cast<float>(stroke_col[k][0]),
+                                                static_cast<float>(stroke_col[k][1]),
+                                                static_cast<float>(stroke_col[k][2])) *
+                                      std::min(1.1f, v);
           }
       sc.markers |= stroke;
     }

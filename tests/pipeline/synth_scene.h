@@ -6,31 +6,30 @@
 #pragma once
 
 #include <cstdint>
+#include <opencv2/core.hpp>
 #include <string>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 namespace aggscan::testing {
 
 struct SceneParams {
   cv::Size size{2016, 1512};
   uint64_t seed = 1;
-  double albedo = 0.4;            // rock base albedo, 0.25..0.6
-  double rock_radius_frac = 0.14; // mean rock radius as a fraction of the image width
-  double turntable_deg = 0;       // rotates the labels around the disc
-  double light_azimuth_deg = 135; // light from the upper left
-  bool marker_on_edge = false;    // one stroke runs out to the silhouette border
-  double noise_sigma = 2.0;       // 8-bit levels
+  double albedo = 0.4;             // rock base albedo, 0.25..0.6
+  double rock_radius_frac = 0.14;  // mean rock radius as a fraction of the image width
+  double turntable_deg = 0;        // rotates the labels around the disc
+  double light_azimuth_deg = 135;  // light from the upper left
+  bool marker_on_edge = false;     // one stroke runs out to the silhouette border
+  double noise_sigma = 2.0;        // 8-bit levels
   int jpeg_quality = 92;
 };
 
 struct Scene {
-  cv::Mat bgr;        // the photo (after the JPEG round trip)
+  cv::Mat bgr;                      // the photo (after the JPEG round trip)
   std::vector<unsigned char> jpeg;  // its encoded bytes
-  cv::Mat truth;      // rock silhouette, 0/255
-  cv::Mat labels;     // visible colour-label pixels, 0/255
-  cv::Mat markers;    // object-marker pixels on the rock, 0/255
+  cv::Mat truth;                    // rock silhouette, 0/255
+  cv::Mat labels;                   // visible colour-label pixels, 0/255
+  cv::Mat markers;                  // object-marker pixels on the rock, 0/255
 };
 
 Scene MakeScene(const SceneParams& p);
