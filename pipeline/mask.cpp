@@ -145,6 +145,69 @@ cv::Mat ColorDistanceMap(const cv::Mat& img32, const std::vector<Cluster>& bg,
   return out;
 }
 
+// The empty turntable's photo brought to the lighting of `img32` (both
+// CV_32FC3, smoothed alike): a gain per channel, the median ratio over the
+// border strip, where the rock never is. Outdoors the sun and clouds change
+// the light between the empty photos and the rock's; a camera with locked
+// exposure sees that as a scale per channel.
+cv::Mat MatchLighting(const cv::Mat& img32, const cv::Mat& empty32, const cv::Mat& strip) {
+  std::vector<float> r[3];
+  for (int y = 0; y < img32.rows; ++y) {
+    const cv::Vec3f* p = img32.ptr<cv::Vec3f>(y);
+    const cv::Vec3f* e = empty32.ptr<cv::Vec3f>(y);
+    const uchar* s = strip.ptr<uchar>(y);
+    for (int x = 0; x < img32.cols; ++x)
+      if (s[x])
+        for (int c = 0; c < 3; ++c) r[c].push_back((p[x][c] + 1.0f) / (e[x][c] + 1.0f));
+  }
+  cv::Scalar gain(1, 1, 1);
+  for (int c = 0; c < 3; ++c) {
+    if (r[c].empty()) continue;
+    auto mid = r[c].begin() + static_cast<long>(r[c].size() / 2);
+    std::nth_element(r[c].begin(), mid, r[c].end());
+    gain[c] = std::clamp(static_cast<double>(*mid), 0.25, 4.0);
+  }
+  cv::Mat out;
+  cv::multiply(empty32, gain, out);
+  return out;
+}
+
+// ClusterDistance against the empty turntable pixel by pixel: each pixel is
+// explained by the colour the same pixel had with no rock, scaled by a
+// brightness factor (the rock's shadow darkens it; light it reflects
+// brightens the disc a little). `spread` is the chromatic noise of the pair,
+// measured on the border strip.
+cv::Mat ReferenceDistanceMap(const cv::Mat& img32, const cv::Mat& empty32, const cv::Mat& strip,
+                             const MaskOptions& o) {
+  const auto lo = static_cast<float>(o.shade_min), hi = static_cast<float>(o.reference_shade_max);
+  const auto noise = static_cast<float>(o.noise_levels);
+  cv::Mat rel(img32.size(), CV_32F), out(img32.size(), CV_32F);
+  for (int y = 0; y < img32.rows; ++y) {
+    const cv::Vec3f* p = img32.ptr<cv::Vec3f>(y);
+    const cv::Vec3f* e = empty32.ptr<cv::Vec3f>(y);
+    float* r = rel.ptr<float>(y);
+    for (int x = 0; x < img32.cols; ++x) {
+      const float n2 = std::max(1.0f, e[x].dot(e[x]));
+      const float a = std::max(1e-3f, p[x].dot(e[x]) / n2);
+      const cv::Vec3f d = p[x] - a * e[x];
+      r[x] = std::sqrt(d.dot(d)) / (a * std::sqrt(n2));
+    }
+  }
+  const float spread = std::max(0.01f, Quantile(rel, strip, 0.9));
+  for (int y = 0; y < img32.rows; ++y) {
+    const cv::Vec3f* p = img32.ptr<cv::Vec3f>(y);
+    const cv::Vec3f* e = empty32.ptr<cv::Vec3f>(y);
+    float* d = out.ptr<float>(y);
+    for (int x = 0; x < img32.cols; ++x) {
+      const float n = std::max(1.0f, std::sqrt(e[x].dot(e[x])));
+      const float a = std::clamp(p[x].dot(e[x]) / (n * n), lo, hi);
+      const cv::Vec3f r = p[x] - a * e[x];
+      d[x] = std::sqrt(r.dot(r)) / (a * n * spread + noise);
+    }
+  }
+  return out;
+}
+
 cv::Mat ToFloatSmoothed(const cv::Mat& bgr) {
   cv::Mat f;
   bgr.convertTo(f, CV_32FC3);
@@ -161,7 +224,8 @@ struct Scene {
   cv::Mat color_distance;           // CV_32F, ColorDistanceMap of `small`
   cv::Vec2f rock_ab{0, 0};          // median Lab a,b of the rock's first estimate
   cv::Mat paint;    // 0/255: unexplained and far from the rock's colour (labels, markers)
-  cv::Mat texture;  // CV_32F, TextureMap of `small`
+  cv::Mat texture;  // CV_32F, TextureMap of `small` (against `empty` when there is one)
+  cv::Mat empty;    // CV_32FC3, the empty turntable at this view, lighting matched (or empty)
 };
 
 // Hysteresis (0/255): the 8-connected regions of `strong | weak` that hold a
@@ -221,7 +285,7 @@ cv::Mat PaintMap(const cv::Mat& ab, const cv::Mat& color_distance, cv::Vec2f roc
   return Hysteresis(strong, weak);
 }
 
-Scene PrepareScene(const cv::Mat& bgr, const MaskOptions& o) {
+Scene PrepareScene(const cv::Mat& bgr, const cv::Mat& empty, const MaskOptions& o) {
   Scene s;
   const int long_side = std::max(bgr.cols, bgr.rows);
   s.scale = (o.work_long_side > 0 && long_side > o.work_long_side)
@@ -230,10 +294,19 @@ Scene PrepareScene(const cv::Mat& bgr, const MaskOptions& o) {
   s.small = bgr;
   if (s.scale < 1.0) cv::resize(bgr, s.small, cv::Size(), s.scale, s.scale, cv::INTER_AREA);
   const cv::Mat f = ToFloatSmoothed(s.small);
-  s.background = FitBackground(f, BorderStrip(f.size(), o), o);
-  s.color_distance = ColorDistanceMap(f, s.background, o);
+  const cv::Mat strip = BorderStrip(f.size(), o);
+  s.background = FitBackground(f, strip, o);
   s.ab = AbOf(s.small, 0.8);
-  s.texture = TextureMap(s.small, o);
+  if (!empty.empty()) {
+    cv::Mat small_empty = empty;
+    if (s.scale < 1.0) cv::resize(empty, small_empty, s.small.size(), 0, 0, cv::INTER_AREA);
+    s.empty = MatchLighting(f, ToFloatSmoothed(small_empty), strip);
+    s.color_distance = ReferenceDistanceMap(f, s.empty, strip, o);
+    s.texture = TextureMap(s.small, o, s.empty);
+  } else {
+    s.color_distance = ColorDistanceMap(f, s.background, o);
+    s.texture = TextureMap(s.small, o);
+  }
   return s;
 }
 
@@ -511,8 +584,8 @@ cv::Mat BandRefine(const cv::Mat& bgr_roi, const cv::Mat& coarse_full, const cv:
 // `narrow`: the band after a graph cut seeded by our own coarse mask is
 // graphcut_band_px wide; a rough mask from elsewhere (a network's blurred
 // map) keeps the wide band of kBand.
-cv::Mat FinishMask(const cv::Mat& bgr, const Scene& s, cv::Mat work, const MaskOptions& o,
-                   bool narrow) {
+cv::Mat FinishMask(const cv::Mat& bgr, const cv::Mat& empty, const Scene& s, cv::Mat work,
+                   const MaskOptions& o, bool narrow) {
   cv::Mat out = cv::Mat::zeros(bgr.size(), CV_8UC1);
   if (o.refine == MaskRefine::kGraphCut) work = GraphCutRefine(s, work, o);
   const cv::Rect wbox = cv::boundingRect(work);
@@ -541,7 +614,16 @@ cv::Mat FinishMask(const cv::Mat& bgr, const Scene& s, cv::Mat work, const MaskO
   cv::Mat saturated;
   {
     const cv::Mat f = ToFloatSmoothed(bgr(roi));
-    saturated = PaintMap(AbOf(bgr(roi), 1.0), ColorDistanceMap(f, s.background, o), s.rock_ab, o);
+    cv::Mat distance;
+    if (!empty.empty()) {
+      // The working-resolution distance brought up: the full-resolution
+      // photo's own gain is that of the working one.
+      cv::resize(s.color_distance, distance, bgr.size(), 0, 0, cv::INTER_LINEAR);
+      distance = distance(roi).clone();
+    } else {
+      distance = ColorDistanceMap(f, s.background, o);
+    }
+    saturated = PaintMap(AbOf(bgr(roi), 1.0), distance, s.rock_ab, o);
   }
   const bool band =
       o.refine == MaskRefine::kBand || (o.refine == MaskRefine::kGraphCut && scale < 1.0);
@@ -573,17 +655,27 @@ cv::Mat FinishMask(const cv::Mat& bgr, const Scene& s, cv::Mat work, const MaskO
 
 }  // namespace
 
-cv::Mat TextureMap(const cv::Mat& bgr, const MaskOptions& o) {
+cv::Mat TextureMap(const cv::Mat& bgr, const MaskOptions& o, const cv::Mat& empty32) {
   // Local RMS of the high-pass of log brightness: the rock is textured, the
   // table, disc and shadow are smooth. Albedo texture is multiplicative, so in
   // the log domain it has the same strength on the lit and the shaded side; the
   // high-pass (image minus its Gaussian blur) is blind to linear ramps such as a
-  // shadow's penumbra.
+  // shadow's penumbra. Against the empty turntable the log brightness is that
+  // of the ratio of the two photos: the grain of a wooden disc, a rubber mat
+  // or a gravel floor cancels, and so does it under the rock's shadow.
   cv::Mat gray, logi;
   cv::cvtColor(bgr, gray, cv::COLOR_BGR2GRAY);
   gray.convertTo(logi, CV_32F);
   cv::GaussianBlur(logi, logi, cv::Size(0, 0), 0.7);
   cv::log(logi + 8.0, logi);
+  if (!empty32.empty()) {
+    CV_Assert(empty32.type() == CV_32FC3 && empty32.size() == bgr.size());
+    cv::Mat eg, loge;
+    cv::cvtColor(empty32, eg, cv::COLOR_BGR2GRAY);
+    cv::GaussianBlur(eg, eg, cv::Size(0, 0), 0.7);
+    cv::log(eg + 8.0, loge);
+    logi -= loge;
+  }
   cv::Mat low;
   cv::GaussianBlur(logi, low, cv::Size(0, 0), o.texture_sigma);
   cv::Mat hp = logi - low;
@@ -593,23 +685,35 @@ cv::Mat TextureMap(const cv::Mat& bgr, const MaskOptions& o) {
   return energy;
 }
 
-cv::Mat BackgroundColorDistance(const cv::Mat& bgr, const MaskOptions& o) {
+cv::Mat BackgroundColorDistance(const cv::Mat& bgr, const MaskOptions& o, const cv::Mat& empty) {
   CV_Assert(bgr.type() == CV_8UC3 && !bgr.empty());
+  CV_Assert(empty.empty() || (empty.type() == CV_8UC3 && empty.size() == bgr.size()));
   MaskOptions full = o;
   full.work_long_side = 0;
-  return PrepareScene(bgr, full).color_distance;
+  return PrepareScene(bgr, empty, full).color_distance;
 }
 
 cv::Mat ComputeForegroundMask(const cv::Mat& bgr, const MaskOptions& o) {
+  return ComputeForegroundMask(bgr, cv::Mat(), o);
+}
+
+cv::Mat ComputeForegroundMask(const cv::Mat& bgr, const cv::Mat& empty, const MaskOptions& o) {
   CV_Assert(bgr.type() == CV_8UC3 && !bgr.empty());
-  Scene s = PrepareScene(bgr, o);
+  CV_Assert(empty.empty() || (empty.type() == CV_8UC3 && empty.size() == bgr.size()));
+  Scene s = PrepareScene(bgr, empty, o);
   const cv::Mat coarse = CoarseMask(s, o);
-  return FinishMask(bgr, s, coarse, o, /*narrow=*/true);
+  return FinishMask(bgr, empty, s, coarse, o, /*narrow=*/true);
 }
 
 cv::Mat RefineForegroundMask(const cv::Mat& bgr, const cv::Mat& rough, const MaskOptions& o) {
+  return RefineForegroundMask(bgr, cv::Mat(), rough, o);
+}
+
+cv::Mat RefineForegroundMask(const cv::Mat& bgr, const cv::Mat& empty, const cv::Mat& rough,
+                             const MaskOptions& o) {
   CV_Assert(bgr.type() == CV_8UC3 && !bgr.empty() && rough.type() == CV_8UC1 && !rough.empty());
-  Scene s = PrepareScene(bgr, o);
+  CV_Assert(empty.empty() || (empty.type() == CV_8UC3 && empty.size() == bgr.size()));
+  Scene s = PrepareScene(bgr, empty, o);
   cv::Mat work;
   if (rough.size() == s.small.size()) {
     work = rough > 127;
@@ -619,7 +723,7 @@ cv::Mat RefineForegroundMask(const cv::Mat& bgr, const cv::Mat& rough, const Mas
   }
   work = LargestComponentFilled(work);
   SetRockColor(s, work, o);
-  return FinishMask(bgr, s, work, o, /*narrow=*/false);
+  return FinishMask(bgr, empty, s, work, o, /*narrow=*/false);
 }
 
 }  // namespace aggscan

@@ -32,6 +32,15 @@
 //   5. Thin saturated blobs touching the rock (a marker along or across the
 //      silhouette edge) join it; label-thick blobs (labels on the disc, even
 //      when the rock touches or partly hides them) do not.
+//
+// With a photo of the empty turntable at the same angle (same camera, same
+// settings, shot before the rock was put on) the background model of step 1
+// is that photo pixel by pixel, brought to the rock photo's lighting by a gain
+// per channel, and the texture cue of step 2 is that of the ratio of the two
+// photos: a wooden disc, a dark rubber mat or a gravel floor, whose colours
+// and grain the border cannot describe, drop out. A pixel brighter than the
+// empty photo by more than reference_shade_max is rock (light the rock throws
+// onto the disc brightens it by less).
 #pragma once
 
 #include <opencv2/core.hpp>
@@ -93,11 +102,17 @@ struct MaskOptions {
   double marker_touch_fraction =
       0.1;  // a thin paint blob (not label-thick) joins the rock if this much of its rim is rock
             // (a marker along the silhouette has the background on most of its rim)
+  double reference_shade_max = 1.1;  // with an empty-turntable photo: brightness factor above which
+                                     // a pixel is not explained by it (shade_min: below which)
 };
 
 /// 0/255 CV_8UC1 mask of the rock in a CV_8UC3 BGR photo (same size). An
 /// all-zero mask when nothing rock-like is found; never throws on content.
 cv::Mat ComputeForegroundMask(const cv::Mat& bgr, const MaskOptions& opts = {});
+
+/// The same against `empty`, the photo of the empty turntable at this view's
+/// angle (CV_8UC3, the photo's size); an empty Mat is the call above.
+cv::Mat ComputeForegroundMask(const cv::Mat& bgr, const cv::Mat& empty, const MaskOptions& opts);
 
 /// The shared tail of every mask method: `rough` (0/255 CV_8UC1, any size; it
 /// is resized to the photo's) is cleaned (largest component, holes filled),
@@ -105,14 +120,20 @@ cv::Mat ComputeForegroundMask(const cv::Mat& bgr, const MaskOptions& opts = {});
 /// edge are attached. Used by the classical method and by the network.
 cv::Mat RefineForegroundMask(const cv::Mat& bgr, const cv::Mat& rough,
                              const MaskOptions& opts = {});
+cv::Mat RefineForegroundMask(const cv::Mat& bgr, const cv::Mat& empty, const cv::Mat& rough,
+                             const MaskOptions& opts);
 
 /// The texture cue alone (CV_32F, same size as `bgr`), exposed for diagnostics
-/// and tests: local RMS of the high-passed log brightness.
-cv::Mat TextureMap(const cv::Mat& bgr, const MaskOptions& opts = {});
+/// and tests: local RMS of the high-passed log brightness (of its ratio to
+/// `empty32`, the empty turntable as CV_32FC3 of the same size, when given).
+cv::Mat TextureMap(const cv::Mat& bgr, const MaskOptions& opts = {},
+                   const cv::Mat& empty32 = cv::Mat());
 
 /// The colour cue alone (CV_32F, same size as `bgr`): normalised distance of
 /// each pixel to the background model fitted on the border strip (step 1);
-/// exposed for diagnostics and tests.
-cv::Mat BackgroundColorDistance(const cv::Mat& bgr, const MaskOptions& opts = {});
+/// exposed for diagnostics and tests. With `empty` (CV_8UC3, the photo's
+/// size): the distance to that photo pixel by pixel.
+cv::Mat BackgroundColorDistance(const cv::Mat& bgr, const MaskOptions& opts = {},
+                                const cv::Mat& empty = cv::Mat());
 
 }  // namespace aggscan

@@ -125,11 +125,11 @@ Result<cv::Mat> MaskNet::Probability(const cv::Mat& bgr) {
   return cv::Mat(cv::min(cv::max(p, 0.0), 1.0));
 }
 
-Result<cv::Mat> MaskNet::Mask(const cv::Mat& bgr, const MaskOptions& refine) {
+Result<cv::Mat> MaskNet::Mask(const cv::Mat& bgr, const MaskOptions& refine, const cv::Mat& empty) {
   auto p = Probability(bgr);
   if (!p.ok()) return p.error();
   const cv::Mat rough = *p > opts_.threshold;
-  return RefineForegroundMask(bgr, rough, refine);
+  return RefineForegroundMask(bgr, empty, rough, refine);
 }
 
 Result<std::shared_ptr<MaskNet>> LoadMaskNet(const MaskConfig& c) {

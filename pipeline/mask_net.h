@@ -46,8 +46,10 @@ class MaskNet {
   Result<cv::Mat> Probability(const cv::Mat& bgr);
 
   /// 0/255 rock mask: Probability > threshold, refined by
-  /// RefineForegroundMask(bgr, rough, refine).
-  Result<cv::Mat> Mask(const cv::Mat& bgr, const MaskOptions& refine = {});
+  /// RefineForegroundMask(bgr, empty, rough, refine) (`empty`: the empty
+  /// turntable at this view, or none).
+  Result<cv::Mat> Mask(const cv::Mat& bgr, const MaskOptions& refine = {},
+                       const cv::Mat& empty = cv::Mat());
 
   const MaskNetOptions& options() const { return opts_; }
 

@@ -194,4 +194,66 @@ double MaskIoU(const cv::Mat& a, const cv::Mat& b, const cv::Mat& ignore) {
   return uni > 0 ? inter / uni : 1.0;
 }
 
+FloorScene MakeFloorScene(uint64_t seed) {
+  const cv::Size size(1008, 756);
+  cv::RNG rng(seed);
+  cv::Mat scene(size, CV_32FC3, cv::Scalar(70, 82, 90));  // BGR: the floor between the pebbles
+  for (int i = 0; i < 2500; ++i) {
+    const cv::Point c(rng.uniform(0, size.width), rng.uniform(0, size.height));
+    const double l = rng.uniform(0.6, 1.6);
+    cv::ellipse(scene, c, cv::Size(rng.uniform(4, 14), rng.uniform(3, 9)), rng.uniform(0.0, 180.0),
+                0, 360, cv::Scalar(95 * l, 105 * l, 115 * l), cv::FILLED, cv::LINE_AA);
+  }
+  const cv::Point centre(size.width / 2, size.height / 2 + 40);
+  cv::ellipse(scene, centre, cv::Size(330, 190), 0, 0, 360, cv::Scalar(188, 190, 192), cv::FILLED,
+              cv::LINE_AA);
+  const cv::Mat empty_scene = scene.clone();
+  // The stone: a textured grey ellipse, shaded, and its soft shadow on the disc.
+  FloorScene sc;
+  sc.truth = cv::Mat::zeros(size, CV_8UC1);
+  const cv::Point c = centre + cv::Point(static_cast<int>(rng.uniform(-40, 40)), -30);
+  const cv::Size axes(120 + static_cast<int>(rng.uniform(0, 30)),
+                      80 + static_cast<int>(rng.uniform(0, 20)));
+  cv::ellipse(sc.truth, c, axes, rng.uniform(0.0, 40.0), 0, 360, cv::Scalar(255), cv::FILLED,
+              cv::LINE_8);
+  cv::Mat shadow = cv::Mat::zeros(size, CV_32F);
+  cv::ellipse(shadow, c + cv::Point(50, 40), axes, 0, 0, 360, cv::Scalar(1.0), cv::FILLED);
+  cv::GaussianBlur(shadow, shadow, cv::Size(0, 0), 12);
+  // Granite-like grain: dark and pale speckles of 2-3 px.
+  cv::Mat grain = cv::Mat::zeros(size, CV_32F);
+  for (int i = 0; i < 6000; ++i) {
+    const cv::Point p =
+        c + cv::Point(rng.uniform(-axes.width, axes.width), rng.uniform(-axes.width, axes.width));
+    cv::circle(grain, p, rng.uniform(1, 3), cv::Scalar(rng.uniform(0, 2) ? 45.0 : -45.0),
+               cv::FILLED);
+  }
+  for (int y = 0; y < size.height; ++y) {
+    for (int x = 0; x < size.width; ++x) {
+      cv::Vec3f& px = scene.at<cv::Vec3f>(y, x);
+      if (sc.truth.at<uchar>(y, x)) {
+        const double dx = (x - c.x) / static_cast<double>(axes.width),
+                     dy = (y - c.y) / static_cast<double>(axes.height);
+        const double shade = 1.0 - 0.3 * std::clamp(dx * 0.6 + dy * 0.8, -1.0, 1.0);
+        const float gr = grain.at<float>(y, x);
+        px = cv::Vec3f(static_cast<float>(105 * shade + gr), static_cast<float>(112 * shade + gr),
+                       static_cast<float>(118 * shade + gr));
+      } else {
+        px *= static_cast<float>(1.0 - 0.45 * shadow.at<float>(y, x));
+      }
+    }
+  }
+  auto finish = [&](const cv::Mat& f32, double gain) {
+    cv::Mat noise(size, CV_32FC3), out, lens;
+    rng.fill(noise, cv::RNG::NORMAL, 0, 2.0);
+    cv::GaussianBlur(f32, lens, cv::Size(0, 0), 0.8);  // the lens: no edge is one pixel sharp
+    cv::Mat(lens * gain + noise).convertTo(out, CV_8UC3);
+    std::vector<unsigned char> jpeg;
+    cv::imencode(".jpg", out, jpeg, {cv::IMWRITE_JPEG_QUALITY, 92});
+    return cv::imdecode(jpeg, cv::IMREAD_COLOR);
+  };
+  sc.photo = finish(scene, 1.0);
+  sc.empty = finish(empty_scene, 1.08);
+  return sc;
+}
+
 }  // namespace aggscan::testing

@@ -34,6 +34,16 @@ struct Scene {
 
 Scene MakeScene(const SceneParams& p);
 
+// A stone on a light-grey disc that stands on a pebbled quarry floor: the
+// border of the frame shows only the floor, so the border's colours do not
+// describe the disc, and the floor's pebbles are as textured as the stone.
+// `empty` = the same scene without the stone (independent noise, the light
+// 8 % brighter, as between two photos a while apart). 1008 x 756.
+struct FloorScene {
+  cv::Mat photo, empty, truth;  // BGR after a JPEG round trip; truth 0/255
+};
+FloorScene MakeFloorScene(uint64_t seed);
+
 /// Intersection over union of two 0/255 masks; pixels where `ignore` is
 /// non-zero (optional) are excluded.
 double MaskIoU(const cv::Mat& a, const cv::Mat& b, const cv::Mat& ignore = cv::Mat());
