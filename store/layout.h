@@ -12,6 +12,8 @@
 //     side<N>.interrupted-<k>/ an interrupted attempt, moved aside before a re-shoot
 //     results/                 worker output (masks/, side<N>_morph2d.json, morph2d.json)
 //     truth/                   sim ground truth (only when sim.write_truth)
+//     empty/                   photos of the empty turntable, linked in at arm time from the
+//                              rig's current set (store/empty_turntable.h): the masks' background
 //   <state_dir>/queue.db       SQLite queue of side and sample jobs
 //
 // Files appear only under their final names when complete (see fsutil.h).
@@ -35,6 +37,7 @@ inline constexpr const char* kConfigCopy = "config.toml";
 inline constexpr const char* kCalibrationCopy = "calibration.json";  // rig calibration at arm time
 inline constexpr const char* kResultsDir = "results";
 inline constexpr const char* kTruthDir = "truth";
+inline constexpr const char* kEmptyDir = "empty";
 inline std::string QueuePath(const std::string& state_dir) { return state_dir + "/queue.db"; }
 
 /// Sample ids: 1..64 chars of [A-Za-z0-9._-], not starting with '.' or '-'.

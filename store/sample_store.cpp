@@ -12,6 +12,7 @@
 #include "common/clock.h"
 #include "common/fsutil.h"
 #include "common/rig_calibration.h"
+#include "store/empty_turntable.h"
 #include "store/layout.h"
 
 namespace aggscan {
@@ -374,6 +375,10 @@ Status SampleStore::CreateOrResume(const std::string& id, const SamplePlan& plan
       rec["calibration"] = {{"file", nullptr}, {"reason", text.error().ToString()}};
     }
   }
+  // The empty-turntable photos in effect, linked in once, like the
+  // calibration: the sample keeps the set its views were shot against.
+  if (!rec.contains("empty_turntable"))
+    rec["empty_turntable"] = LinkEmptyTurntableSet(state_dir_, dir);
   rec["state"] = "armed";
   return SaveRecord(id, rec);
 }
