@@ -8,6 +8,7 @@
 
 #include "cli/calibrate_command.h"
 #include "cli/client.h"
+#include "cli/empty_turntable_command.h"
 #include "cli/masks_command.h"
 #include "cli/morph_command.h"
 #include "cli/reconstruct_command.h"
@@ -54,6 +55,7 @@ void Usage(std::ostream& o) {
        "      [calibration] board on the disc instead of a rock (one side over a full turn),\n"
        "      input for `aggscan calibrate`; --calibration: recorded in the sample as\n"
        "      aggscand records state_dir/calibration.json\n";
+  aggscan::PrintEmptyTurntableUsage(o);
   aggscan::PrintMasksUsage(o);
   aggscan::PrintValidateUsage(o);
 }
@@ -202,6 +204,8 @@ int main(int argc, char** argv) {
   if (cmd == "reconstruct")
     return aggscan::RunReconstructCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
   if (cmd == "sim") return SimCommand(args);
+  if (cmd == "empty-turntable")
+    return aggscan::RunEmptyTurntableCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
   if (cmd == "masks")
     return aggscan::RunMasksCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
   if (cmd == "validate")

@@ -21,6 +21,7 @@
 #include "pipeline/mask.h"
 #include "pipeline/mask_dataset.h"
 #include "pipeline/mask_net.h"
+#include "pipeline/side_job.h"
 #include "pipeline/subprocess.h"
 #include "store/layout.h"
 
@@ -275,16 +276,18 @@ int TrainCommand(const std::vector<std::string>& args, std::ostream& out, std::o
 // --- eval ------------------------------------------------------------------
 
 struct Scores {
-  double classical = -1, net_raw = -1, net = -1;   // -1: not scored
-  cv::Mat classical_mask, net_raw_mask, net_mask;  // 0/255, for --save
+  double classical = -1, empty = -1, net_raw = -1, net = -1;   // -1: not scored
+  cv::Mat classical_mask, empty_mask, net_raw_mask, net_mask;  // 0/255, for --save
 };
 
 // The masks scored, as 0/255 PNGs next to each other under `dir` (made on
 // demand): STEM_classical.png, STEM_trained.png, STEM_network.png.
 Status SaveMasks(const std::string& dir, const std::string& stem, const Scores& s) {
   if (Status st = MakeDirsDurable(dir); !st) return st;
-  const std::pair<const char*, const cv::Mat*> masks[] = {
-      {"classical", &s.classical_mask}, {"trained", &s.net_mask}, {"network", &s.net_raw_mask}};
+  const std::pair<const char*, const cv::Mat*> masks[] = {{"classical", &s.classical_mask},
+                                                          {"empty", &s.empty_mask},
+                                                          {"trained", &s.net_mask},
+                                                          {"network", &s.net_raw_mask}};
   for (const auto& [what, m] : masks) {
     if (m->empty()) continue;
     const std::string path = dir + "/" + stem + "_" + what + ".png";
@@ -294,9 +297,10 @@ Status SaveMasks(const std::string& dir, const std::string& stem, const Scores& 
 }
 
 struct Summary {
-  std::vector<double> classical, net_raw, net;
+  std::vector<double> classical, empty, net_raw, net;
   void Add(const Scores& s) {
     classical.push_back(s.classical);
+    if (s.empty >= 0) empty.push_back(s.empty);
     if (s.net >= 0) {
       net_raw.push_back(s.net_raw);
       net.push_back(s.net);
@@ -315,6 +319,7 @@ struct Summary {
   }
   json ToJson() const {
     json j = {{"classical", Stat(classical)}};
+    if (!empty.empty()) j["classical_empty_turntable"] = Stat(empty);
     if (!net.empty()) {
       j["trained_raw"] = Stat(net_raw);
       j["trained"] = Stat(net);
@@ -326,16 +331,23 @@ struct Summary {
 class Scorer {
  public:
   explicit Scorer(MaskNet* net) : net_(net) {}
-  Scores Score(const cv::Mat& bgr, const cv::Mat& truth, const cv::Mat& ignore) {
+  // `empty`: the empty turntable at this view, or none; the trained mask is
+  // refined against it as the worker refines it.
+  Scores Score(const cv::Mat& bgr, const cv::Mat& truth, const cv::Mat& ignore,
+               const cv::Mat& empty = cv::Mat()) {
     Scores s;
     s.classical_mask = ComputeForegroundMask(bgr);
     s.classical = MaskIoUIgnoring(s.classical_mask, truth, ignore);
+    if (!empty.empty()) {
+      s.empty_mask = ComputeForegroundMask(bgr, empty, MaskOptions{});
+      s.empty = MaskIoUIgnoring(s.empty_mask, truth, ignore);
+    }
     if (net_) {
       auto p = net_->Probability(bgr);
       if (p) {
         s.net_raw_mask = *p > net_->options().threshold;
         s.net_raw = MaskIoUIgnoring(s.net_raw_mask, truth, ignore);
-        s.net_mask = RefineForegroundMask(bgr, s.net_raw_mask);
+        s.net_mask = RefineForegroundMask(bgr, empty, s.net_raw_mask, MaskOptions{});
         s.net = MaskIoUIgnoring(s.net_mask, truth, ignore);
       }
     }
@@ -348,11 +360,17 @@ class Scorer {
 
 void PrintScores(std::ostream& out, const std::string& what, const Scores& s) {
   char buf[256];
+  std::string empty;
+  if (s.empty >= 0) {
+    std::snprintf(buf, sizeof buf, "  with empty turntable %.4f", s.empty);
+    empty = buf;
+  }
   if (s.net >= 0) {
-    std::snprintf(buf, sizeof buf, "%-44s classical %.4f  trained %.4f  (network alone %.4f)\n",
-                  what.c_str(), s.classical, s.net, s.net_raw);
+    std::snprintf(buf, sizeof buf, "%-44s classical %.4f%s  trained %.4f  (network alone %.4f)\n",
+                  what.c_str(), s.classical, empty.c_str(), s.net, s.net_raw);
   } else {
-    std::snprintf(buf, sizeof buf, "%-44s classical %.4f\n", what.c_str(), s.classical);
+    std::snprintf(buf, sizeof buf, "%-44s classical %.4f%s\n", what.c_str(), s.classical,
+                  empty.c_str());
   }
   out << buf;
 }
@@ -367,18 +385,25 @@ void PrintSummary(std::ostream& out, const std::string& what, const Summary& s) 
   };
   double cl, cm;
   mm(s.classical, &cl, &cm);
+  std::string empty;
+  if (!s.empty.empty()) {
+    double el, em;
+    mm(s.empty, &el, &em);
+    std::snprintf(buf, sizeof buf, " | with empty turntable min %.4f mean %.4f", el, em);
+    empty = buf;
+  }
   if (!s.net.empty()) {
     double nl, nm, rl, rm;
     mm(s.net, &nl, &nm);
     mm(s.net_raw, &rl, &rm);
     std::snprintf(buf, sizeof buf,
-                  "%-36s %3zu views  classical min %.4f mean %.4f | trained min %.4f mean %.4f | "
+                  "%-36s %3zu views  classical min %.4f mean %.4f%s | trained min %.4f mean %.4f | "
                   "network alone "
                   "min %.4f mean %.4f\n",
-                  what.c_str(), s.classical.size(), cl, cm, nl, nm, rl, rm);
+                  what.c_str(), s.classical.size(), cl, cm, empty.c_str(), nl, nm, rl, rm);
   } else {
-    std::snprintf(buf, sizeof buf, "%-36s %3zu views  classical min %.4f mean %.4f\n", what.c_str(),
-                  s.classical.size(), cl, cm);
+    std::snprintf(buf, sizeof buf, "%-36s %3zu views  classical min %.4f mean %.4f%s\n",
+                  what.c_str(), s.classical.size(), cl, cm, empty.c_str());
   }
   out << buf;
 }
@@ -466,6 +491,14 @@ int EvalCommand(const std::vector<std::string>& args, std::ostream& out, std::os
     }
     const std::string split =
         trained_on.empty() ? "" : (trained_on.count(name) ? "trained on" : "held out");
+    // The sample's empty-turntable photos, matched to the views as the worker
+    // matches them.
+    const Result<EmptyTurntableSet> empty_set =
+        LoadEmptyTurntableSet(dir + "/" + layout::kEmptyDir);
+    if (!empty_set && empty_set.error().cls != ErrorClass::kNotFound) {
+      err << "aggscan masks eval: " << empty_set.error().message << "\n";
+      return 1;
+    }
     int views = 0;
     for (int side = 1; side <= 8; ++side) {
       const std::string td = truth_dir + "/" + layout::SideDirName(side);
@@ -486,7 +519,20 @@ int EvalCommand(const std::vector<std::string>& args, std::ostream& out, std::os
               << " (unreadable, or not the size of its truth mask)\n";
           continue;
         }
-        const Scores s = scorer.Score(*bgr, *truth > 127, cv::Mat());
+        // The empty turntable at this view, where the sample has it; one that
+        // is not usable is named and the view scored without it.
+        cv::Mat empty;
+        if (empty_set) {
+          std::string why;
+          const std::string side_dir = dir + "/" + layout::SideDirName(side);
+          empty = EmptyTurntablePhoto(dir, *empty_set, MeasuredAngle(side_dir, stem + ".json"),
+                                      *bgr, WorkerOptions{}, &why);
+          if (empty.empty()) {
+            err << "aggscan masks eval: " << photo << ": " << why
+                << "; the view is scored without an empty-turntable photo\n";
+          }
+        }
+        const Scores s = scorer.Score(*bgr, *truth > 127, cv::Mat(), empty);
         if (!save.empty()) {
           if (Status st = SaveMasks(save + "/" + name + "/" + layout::SideDirName(side), stem, s);
               !st) {
@@ -498,6 +544,7 @@ int EvalCommand(const std::vector<std::string>& args, std::ostream& out, std::os
         if (!quiet && !as_json) PrintScores(out, what, s);
         json v = {{"set", "simulated"}, {"sample", name}, {"look", look},
                   {"side", side},       {"view", stem},   {"classical", s.classical}};
+        if (s.empty >= 0) v["classical_empty_turntable"] = s.empty;
         if (s.net >= 0) v["trained"] = s.net, v["trained_raw"] = s.net_raw;
         if (!split.empty()) v["split"] = split;
         report["views"].push_back(v);
@@ -563,7 +610,9 @@ int EvalCommand(const std::vector<std::string>& args, std::ostream& out, std::os
   }
   if (!samples.empty()) {
     out << "\nIoU against the truth masks (goal " << kIouGoal
-        << " on every view); 'trained' = the network's map "
+        << " on every view); 'with empty turntable' = the classical method against the photo of\n"
+        << "the empty turntable at that view's angle (SAMPLE/empty/), 'trained' = the network's "
+           "map "
         << "refined as the worker does, 'network alone' = its map thresholded:\n";
     for (const auto& [k, s] : by_sample) {
       PrintSummary(out,
@@ -597,7 +646,9 @@ void PrintMasksUsage(std::ostream& o) {
        "[--save DIR] [--threshold P] SAMPLE_DIR...\n"
        "      IoU of the classical and the trained masks side by side against the truth masks\n"
        "      of simulated samples, per view and summarised (min/mean), and on the GrabCut\n"
-       "      set's stone photos; --save: every mask scored, as PNGs under DIR/SAMPLE/sideN/;\n"
+       "      set's stone photos; where a sample has empty-turntable photos (SAMPLE/empty/)\n"
+       "      the classical mask against the one of each view's angle too, and the trained\n"
+       "      one refined against it; --save: every mask scored, as PNGs under DIR/SAMPLE/sideN/;\n"
        "      --threshold: the network's probability above which a pixel is rock (the worker's\n"
        "      [mask] threshold, 0.5)\n";
 }

@@ -96,6 +96,7 @@ int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& ou
       return 2;
     }
     opts.worker.mask_net = *net;
+    opts.worker.empty_turntable_max_angle_deg = cfg->mask.empty_turntable_max_angle_deg;
     if (poses.empty())
       ParsePosesPath(cfg->worker.poses, &opts.poses);  // validated by LoadConfigFile
   }

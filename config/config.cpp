@@ -386,6 +386,9 @@ const std::vector<Field<Config>>& Fields() {
       F(mask.output, OneOf({"probability", "logits"}),
         "onnx: probability (sigmoid already applied) | logits"),
       F(mask.threshold, Above(0, 1), "onnx: probability above which a pixel is rock (0..1)"),
+      F(mask.empty_turntable_max_angle_deg, Range(0, 5),
+        "a view is masked against the empty-turntable photo shot within this many degrees of its "
+        "angle, or without one"),
 
       D(worker.poll_interval, Above(0, 60 * kSec), "queue polling period when idle"),
       F(worker.nice, Range(0, 19), "CPU priority below the capture daemon (0..19)"),

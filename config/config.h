@@ -396,6 +396,11 @@ struct MaskConfig {
   double std_b = 0.225;
   std::string output = "probability";  // onnx: probability (sigmoid already applied) | logits
   double threshold = 0.5;              // onnx: probability above which a pixel is rock
+  // The empty-turntable photo of a view (store/empty_turntable.h) is the one
+  // shot nearest to its measured angle, when within this: farther, the
+  // disc's labels and grain would not line up (0.5 deg is 0.9 mm at the rim
+  // of a 200 mm disc).
+  double empty_turntable_max_angle_deg = 0.5;
 
   bool operator==(const MaskConfig&) const = default;
 };

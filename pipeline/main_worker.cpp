@@ -293,6 +293,7 @@ int ChildRunJob(const std::string& state_dir, const Job& job, const Config& cfg,
     WorkerOptions opts;
     opts.cancel = &g_stop;
     opts.mask_net = *mask_net;
+    opts.empty_turntable_max_angle_deg = cfg.mask.empty_turntable_max_angle_deg;
     return RunJob(state_dir, job, opts, poses);
   });
   if (st.ok()) return kChildDone;
@@ -358,6 +359,7 @@ int main(int argc, char** argv) {
     }
     WorkerOptions one;
     one.mask_net = *mask_net;
+    one.empty_turntable_max_angle_deg = cfg.mask.empty_turntable_max_angle_deg;
     Status st = RunSampleStage(args.sample_dir, "", one, poses);
     if (!st.ok()) {
       AGG_LOGE(kCat, "%s: %s", args.sample_dir.c_str(), st.error().ToString().c_str());

@@ -1,7 +1,9 @@
 #include "pipeline/side_job.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <filesystem>
 #include <map>
 #include <nlohmann/json.hpp>
@@ -15,6 +17,7 @@
 #include "pipeline/image_io.h"
 #include "pipeline/morph2d.h"
 #include "pipeline/stage.h"
+#include "store/empty_turntable.h"
 #include "store/layout.h"
 
 namespace aggscan {
@@ -240,6 +243,47 @@ std::string ViewMaskPath(const std::string& sample_dir, int side, int view) {
   return MasksDir(sample_dir, side) + "/" + layout::ViewStem(view) + ".png";
 }
 
+double MeasuredAngle(const std::string& side_dir, const std::string& sidecar) {
+  if (sidecar.empty()) return std::nan("");
+  auto text = ReadFile(side_dir + "/" + sidecar);
+  const json j = text.ok() ? json::parse(*text, nullptr, false) : json();
+  return j.is_object() && j.contains("measured_angle_deg") && j["measured_angle_deg"].is_number()
+             ? j["measured_angle_deg"].get<double>()
+             : std::nan("");
+}
+
+cv::Mat EmptyTurntablePhoto(const std::string& sample_dir, const EmptyTurntableSet& set,
+                            double angle_deg, const cv::Mat& photo, const WorkerOptions& opts,
+                            std::string* why) {
+  if (!std::isfinite(angle_deg)) {
+    *why = "no measured turntable angle to match an empty-turntable photo by";
+    return cv::Mat();
+  }
+  double d = 0;
+  const EmptyTurntableView* v = set.Nearest(angle_deg, &d);
+  if (!v || d > opts.empty_turntable_max_angle_deg) {
+    char buf[200];
+    std::snprintf(buf, sizeof buf,
+                  "the nearest empty-turntable photo was shot %.2f deg away (more than %.2f)", d,
+                  opts.empty_turntable_max_angle_deg);
+    *why = buf;
+    return cv::Mat();
+  }
+  const std::string path = sample_dir + "/" + layout::kEmptyDir + "/" + v->image;
+  auto img = LoadImage(path, ImageMode::kColor, opts.image_limits);
+  if (!img.ok()) {
+    *why = img.error().message;
+    return cv::Mat();
+  }
+  if (img->size() != photo.size()) {
+    *why = "the empty-turntable photo " + v->image + " is " + std::to_string(img->cols) + "x" +
+           std::to_string(img->rows) + ", the view " + std::to_string(photo.cols) + "x" +
+           std::to_string(photo.rows);
+    return cv::Mat();
+  }
+  return std::move(*img);
+}
+
 namespace {
 
 Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOptions& opts) {
@@ -268,6 +312,14 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
   int reused = 0;
   std::vector<int> image_problems;  // views whose photo cannot be decoded or is of an unusable size
   std::string image_reasons;
+  // The sample's empty-turntable photos (linked in when it was armed), if any.
+  Result<EmptyTurntableSet> empty_set = LoadEmptyTurntableSet(sample_dir + "/" + layout::kEmptyDir);
+  int empty_used = 0;  // views masked against an empty-turntable photo
+  std::vector<std::string>
+      empty_problems;  // views of a sample with a set masked without one, and why
+  if (!empty_set && empty_set.error().cls != ErrorClass::kNotFound) {
+    empty_problems.push_back(empty_set.error().message);
+  }
   for (const ManifestView& v : *views) {
     if (opts.cancel && opts.cancel->load())
       return MakeError(ErrorClass::kInvalidState,
@@ -312,12 +364,23 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
         continue;
       }
       image_size = img->size();
+      cv::Mat empty;
+      if (empty_set) {
+        std::string why;
+        empty = EmptyTurntablePhoto(sample_dir, *empty_set, MeasuredAngle(side_dir, v.sidecar),
+                                    *img, opts, &why);
+        if (empty.empty()) {
+          empty_problems.push_back(layout::ViewStem(v.view) + ": " + why);
+        } else {
+          ++empty_used;
+        }
+      }
       if (opts.mask_net) {
-        auto m = opts.mask_net->Mask(*img, opts.mask);
+        auto m = opts.mask_net->Mask(*img, opts.mask, empty);
         if (!m.ok()) return m.error();
         mask = std::move(*m);
       } else {
-        mask = ComputeForegroundMask(*img, opts.mask);
+        mask = ComputeForegroundMask(*img, empty, opts.mask);
       }
       std::vector<unsigned char> png;
       if (!cv::imencode(".png", mask, png))
@@ -397,12 +460,29 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
                          (lost.empty() ? "" : "; " + lost) +
                          (damaged.empty() ? "" : "; " + damaged));
   const double total_ms = static_cast<double>(MonotonicNs() - t_start) / 1e6;
-  json out = {{"sample_id", sample_id},    {"side", side},
-              {"views", jviews},           {"views_total", static_cast<int>(views->size())},
-              {"views_ok", ok_views},      {"mask_problems", lost},
-              {"image_problems", damaged}, {"stats", StatsBlock(values)},
-              {"std_kind", "sample"},      {"mask_method", opts.mask_net ? "onnx" : "classical"},
+  json out = {{"sample_id", sample_id},
+              {"side", side},
+              {"views", jviews},
+              {"views_total", static_cast<int>(views->size())},
+              {"views_ok", ok_views},
+              {"mask_problems", lost},
+              {"image_problems", damaged},
+              {"stats", StatsBlock(values)},
+              {"std_kind", "sample"},
+              {"mask_method", opts.mask_net ? "onnx" : "classical"},
+              {"mask_empty_turntable", empty_set ? json(empty_set->id) : json(nullptr)},
+              {"mask_empty_turntable_views", empty_used},
               {"timing_ms", total_ms}};
+  if (!empty_problems.empty()) {
+    out["mask_empty_turntable_problems"] = empty_problems;
+    std::string list;
+    for (const std::string& p : empty_problems) list += (list.empty() ? "" : "; ") + p;
+    LogLine(LogLevel::kWarning, kCat, sample_id,
+            "side " + std::to_string(side) + ": " + std::to_string(empty_problems.size()) +
+                " view(s) masked without an empty-turntable photo (" + list +
+                "); shoot the empty turntable again at the sample's angles and camera settings "
+                "(aggscan empty-turntable)");
+  }
   if (Status s = WriteJson(result_path, out); !s.ok()) return s;
   LogLine(LogLevel::kInfo, kCat, sample_id,
           "side " + std::to_string(side) + ": " + std::to_string(ok_views) + "/" +

@@ -22,6 +22,7 @@
 #include "pipeline/image_io.h"
 #include "pipeline/mask.h"
 #include "pipeline/mask_net.h"
+#include "store/empty_turntable.h"
 
 namespace aggscan {
 
@@ -30,6 +31,8 @@ struct WorkerOptions {
   std::shared_ptr<MaskNet> mask_net;  // set ([mask] method = "onnx"): its output seeds the mask
   bool reuse_masks = true;            // reuse results/masks/... PNGs written by an earlier attempt
   ImageLimits image_limits;           // photos outside these are refused before decoding
+  double empty_turntable_max_angle_deg =
+      0.5;  // [mask]: the empty-turntable photo's angle within this of the view's
   const std::atomic<bool>* cancel =
       nullptr;  // checked between views; set -> kInvalidState "interrupted"
 };
@@ -70,5 +73,19 @@ Status SideHasEnoughWholeViews(const nlohmann::json& side_result);
 std::string SideResultPath(const std::string& sample_dir, int side);
 std::string SampleResultPath(const std::string& sample_dir);
 std::string ViewMaskPath(const std::string& sample_dir, int side, int view);
+
+/// The measured turntable angle of a view from its sidecar file in side_dir
+/// (NaN without one).
+double MeasuredAngle(const std::string& side_dir, const std::string& sidecar);
+
+/// The empty-turntable photo of a view shot at `angle_deg` (the sample's
+/// SAMPLE/empty/ set, nearest angle), decoded: the masks' per-pixel
+/// background. An empty Mat, with the reason in *why, when the nearest was
+/// shot farther away than opts.empty_turntable_max_angle_deg, cannot be
+/// decoded or is not the photo's size: a set from another camera mode or
+/// angle must not decide what is rock.
+cv::Mat EmptyTurntablePhoto(const std::string& sample_dir, const EmptyTurntableSet& set,
+                            double angle_deg, const cv::Mat& photo, const WorkerOptions& opts,
+                            std::string* why);
 
 }  // namespace aggscan

@@ -117,6 +117,102 @@ TEST_F(SideJobTest, ProcessesSidesAndSample) {
               r["stats"]["circularity"]["mean"].get<double>(), 1e-12);
 }
 
+// The empty-turntable photos linked into a sample are matched to its views
+// by the measured angle: a view with one within the tolerance is masked
+// against it (the stone on the disc the frame's border does not show is
+// found), a view without one, or with one of another size, is masked without
+// and named in the side result.
+TEST_F(SideJobTest, EmptyTurntablePhotosAreMatchedByAngle) {
+  const std::string sd = dir_ + "/" + layout::SideDirName(1);
+  const std::string staging = root_.string() + "/staging";
+  fs::create_directories(sd);
+  fs::create_directories(staging);
+  const double angles[] = {0.0, 90.0, 180.0, 270.0};  // measured angle of each view
+  json jviews = json::array();
+  EmptyTurntableSet set;
+  set.id = "test-set";
+  set.width = 1008;
+  set.height = 756;
+  std::vector<std::string> photos;
+  std::vector<cv::Mat> truth;
+  for (int v = 0; v < 4; ++v) {
+    const testing::FloorScene sc = testing::MakeFloorScene(20 + v);
+    truth.push_back(sc.truth);
+    cv::imwrite(sd + "/" + layout::ViewImageName(v), sc.photo);
+    Write(sd + "/" + layout::ViewSidecarName(v), json{{"view", v},
+                                                      {"commanded_angle_deg", angles[v]},
+                                                      {"measured_angle_deg", angles[v] + 0.03}}
+                                                     .dump());
+    jviews.push_back({{"view", v},
+                      {"image", layout::ViewImageName(v)},
+                      {"sidecar", layout::ViewSidecarName(v)}});
+    // The set: views 0 and 1 shot 0.2 deg off theirs; view 2's photo is of
+    // another camera mode; nothing near view 3's 270 deg.
+    if (v == 3) continue;
+    cv::Mat empty = sc.empty;
+    if (v == 2) cv::resize(empty, empty, cv::Size(640, 480), 0, 0, cv::INTER_AREA);
+    const std::string name = "e" + std::to_string(v) + ".jpg";
+    cv::imwrite(staging + "/" + name, empty);
+    photos.push_back(staging + "/" + name);
+    set.views.push_back({name, angles[v] - 0.2});
+  }
+  Write(sd + "/" + layout::kManifest,
+        json{{"sample_id", "S-0001"}, {"side", 1}, {"views", jviews}}.dump());
+  ASSERT_TRUE(WriteEmptyTurntableSet(dir_ + "/" + layout::kEmptyDir, set, photos).ok());
+
+  ASSERT_TRUE(ProcessSide(dir_, 1).ok());
+  const json r = ReadJson(SideResultPath(dir_, 1));
+  EXPECT_EQ(r["mask_empty_turntable"], "test-set");
+  EXPECT_EQ(r["mask_empty_turntable_views"], 2);
+  ASSERT_TRUE(r.contains("mask_empty_turntable_problems")) << r.dump();
+  const std::string problems = r["mask_empty_turntable_problems"].dump();
+  EXPECT_NE(
+      problems.find("view_002: the empty-turntable photo e2.jpg is 640x480, the view 1008x756"),
+      std::string::npos)
+      << problems;
+  EXPECT_NE(problems.find("view_003: the nearest empty-turntable photo was shot 89.77 deg away"),
+            std::string::npos)
+      << problems;
+  for (int v : {0, 1}) {
+    const cv::Mat m = cv::imread(ViewMaskPath(dir_, 1, v), cv::IMREAD_GRAYSCALE);
+    ASSERT_FALSE(m.empty());
+    EXPECT_GE(testing::MaskIoU(m, truth[static_cast<size_t>(v)]), 0.97) << "view " << v;
+  }
+}
+
+// A tighter tolerance than the set was shot to leaves every view without.
+TEST_F(SideJobTest, EmptyTurntableToleranceIsTheWorkersOption) {
+  const std::string sd = dir_ + "/" + layout::SideDirName(1);
+  fs::create_directories(sd);
+  const testing::FloorScene sc = testing::MakeFloorScene(30);
+  cv::imwrite(sd + "/" + layout::ViewImageName(0), sc.photo);
+  Write(sd + "/" + layout::ViewSidecarName(0),
+        json{{"view", 0}, {"measured_angle_deg", 10.0}}.dump());
+  Write(sd + "/" + layout::kManifest,
+        json{{"sample_id", "S-0001"},
+             {"side", 1},
+             {"views", json::array({{{"view", 0},
+                                     {"image", layout::ViewImageName(0)},
+                                     {"sidecar", layout::ViewSidecarName(0)}}})}}
+            .dump());
+  const std::string staging = root_.string() + "/e0.jpg";
+  cv::imwrite(staging, sc.empty);
+  EmptyTurntableSet set;
+  set.id = "loose";
+  set.width = 1008;
+  set.height = 756;
+  set.views.push_back({"e0.jpg", 10.3});
+  ASSERT_TRUE(WriteEmptyTurntableSet(dir_ + "/" + layout::kEmptyDir, set, {staging}).ok());
+  WorkerOptions o;
+  o.empty_turntable_max_angle_deg = 0.1;
+  ASSERT_TRUE(ProcessSide(dir_, 1, o).ok());
+  const json r = ReadJson(SideResultPath(dir_, 1));
+  EXPECT_EQ(r["mask_empty_turntable_views"], 0);
+  EXPECT_NE(r["mask_empty_turntable_problems"].dump().find("0.30 deg away (more than 0.10)"),
+            std::string::npos)
+      << r.dump();
+}
+
 TEST_F(SideJobTest, FinishedSideIsSkippedAndMasksAreReused) {
   MakeSide(1);
   // Leftover of a crashed attempt: ignored and cleaned up.
