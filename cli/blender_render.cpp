@@ -12,12 +12,15 @@
 #include <opencv2/imgproc.hpp>
 #include <sstream>
 
+#include "common/clock.h"
 #include "common/fsutil.h"
 #include "config/config.h"
 #include "drivers/sim/board.h"
 #include "drivers/sim/jpeg.h"
 #include "drivers/sim/world.h"
+#include "pipeline/side_job.h"
 #include "pipeline/subprocess.h"
+#include "store/empty_turntable.h"
 #include "store/layout.h"
 
 #ifndef AGGSCAN_SOURCE_DIR
@@ -32,7 +35,6 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 constexpr const char* kScriptName = "render_capture.py";
-constexpr const char* kBackgroundDir = "background";  // empty-turntable photos of the look
 
 json Vec(const sim::Vec3& v) { return json::array({v.x, v.y, v.z}); }
 
@@ -155,7 +157,9 @@ Result<json> SceneJson(const std::string& sample_dir, const std::string& scene_d
                      {"rock_to_world_4x4", Mat((camera_to_world * r2c).Matrix4())},
                      {"image", std::string(stem) + ".png"},
                      {"mask", std::string(stem) + "_mask.png"}});
-    if (o.empty_plates && world.rock().vertices.size() > 0)
+    // The empty turntable once, at side 1's angles: the rig's set serves
+    // every side (matched by angle).
+    if (o.empty_plates && world.rock().vertices.size() > 0 && side == 1)
       views.back()["empty_image"] = "empty/" + std::string(stem) + ".png";
   }
   if (views.empty())
@@ -229,18 +233,49 @@ Status UpdateManifest(const std::string& side_dir) {
   return WriteFileAtomic(path, m.dump(1) + "\n");
 }
 
-// The view's empty-turntable frame as SAMPLE/background/sideN/view_NNN.jpg,
-// encoded as the rig encodes its photos.
-Status IngestEmptyPlate(const std::string& sample_dir, const std::string& scene_dir,
-                        const json& view, int jpeg_quality) {
-  const std::string dir =
-      sample_dir + "/" + kBackgroundDir + "/" + layout::SideDirName(view["side"].get<int>());
-  if (Status s = MakeDirsDurable(dir); !s) return s;
-  Result<cv::Size> size = StoreFrameAsJpeg(
-      scene_dir + "/" + view["empty_image"].get<std::string>(), "empty-turntable frame",
-      jpeg_quality, dir + "/" + layout::ViewImageName(view["view"].get<int>()));
-  if (!size) return size.error();
-  return {};
+// The empty-turntable frames (side 1's views) as the sample's own set of
+// empty-turntable photos (SAMPLE/empty/, store/empty_turntable.h), encoded as
+// the rig encodes its photos, each at the angle the turntable measured for
+// that view; sample.json records the set as arming records the rig's.
+Status IngestEmptyTurntable(const std::string& sample_dir, const std::string& scene_dir,
+                            const std::vector<json>& views, int jpeg_quality,
+                            const BlenderLook& look) {
+  const std::string staging = scene_dir + "/empty-jpeg";
+  if (Status s = MakeDirsDurable(staging); !s) return s;
+  EmptyTurntableSet set;
+  set.id = "blender-" + look.Name();
+  std::replace(set.id.begin(), set.id.end(), '/', '-');
+  set.source = "Blender render of " + look.Name() + " without the rock";
+  set.captured_utc = NowUtcString();
+  std::vector<std::string> photos;
+  for (const json& view : views) {
+    const int side = view["side"].get<int>(), v = view["view"].get<int>();
+    const std::string name = layout::ViewImageName(v);
+    Result<cv::Size> size =
+        StoreFrameAsJpeg(scene_dir + "/" + view["empty_image"].get<std::string>(),
+                         "empty-turntable frame", jpeg_quality, staging + "/" + name);
+    if (!size) return size.error();
+    set.width = size->width;
+    set.height = size->height;
+    const std::string side_dir = sample_dir + "/" + layout::SideDirName(side);
+    const double angle = MeasuredAngle(side_dir, layout::ViewSidecarName(v));
+    if (!std::isfinite(angle))
+      return MakeError(ErrorClass::kCorrupt,
+                       side_dir + "/" + layout::ViewSidecarName(v) +
+                           " has no measured angle for the empty-turntable photo");
+    set.views.push_back({name, angle});
+    photos.push_back(staging + "/" + name);
+  }
+  if (set.views.empty()) return {};
+  if (Status s = WriteEmptyTurntableSet(sample_dir + "/" + layout::kEmptyDir, set, photos); !s)
+    return s;
+  auto rec_text = ReadFile(sample_dir + "/" + layout::kSampleRecord);
+  json rec = rec_text ? json::parse(*rec_text, nullptr, false) : json();
+  if (!rec.is_object())
+    return MakeError(ErrorClass::kCorrupt, sample_dir + "/sample.json is unreadable");
+  rec["empty_turntable"] = {
+      {"set", set.id}, {"captured_utc", set.captured_utc}, {"views", set.views.size()}};
+  return WriteFileAtomic(sample_dir + "/" + layout::kSampleRecord, rec.dump(2) + "\n");
 }
 
 }  // namespace
@@ -435,6 +470,7 @@ Result<BlenderRenderReport> RerenderWithBlender(const std::string& sample_dir,
   int iou_n = 0;
   rep.silhouette_iou_min = 1;
   std::vector<int> sides;
+  std::vector<json> empty_views;
   for (const json& v : (*scene)["views"]) {
     Result<double> iou = IngestView(sample_dir, scene_dir, v, config.camera.jpeg_quality, !charuco);
     if (!iou) return iou.error();
@@ -445,11 +481,12 @@ Result<BlenderRenderReport> RerenderWithBlender(const std::string& sample_dir,
     }
     const int side = v["side"].get<int>();
     if (std::find(sides.begin(), sides.end(), side) == sides.end()) sides.push_back(side);
-    if (v.contains("empty_image")) {
-      if (Status s = IngestEmptyPlate(sample_dir, scene_dir, v, config.camera.jpeg_quality); !s)
-        return s.error();
-    }
+    if (v.contains("empty_image")) empty_views.push_back(v);
   }
+  if (Status s = IngestEmptyTurntable(sample_dir, scene_dir, empty_views,
+                                      config.camera.jpeg_quality, look);
+      !s)
+    return s.error();
   rep.silhouette_iou_mean = iou_n > 0 ? iou_sum / iou_n : 0;
   if (iou_n == 0) rep.silhouette_iou_min = 0;
   for (int side : sides) {

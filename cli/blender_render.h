@@ -56,10 +56,11 @@ struct BlenderOptions {
   int samples = 16;                 // Cycles samples per pixel
   int threads = 0;                  // render threads (0: all cores)
   double frame_timeout_s = 600;     // per frame; the whole run gets frames x this + 120 s
-  // Also render every view with the rock taken away (the disc at that view's
-  // angle, same lights and exposure) into SAMPLE/background/sideN/ as JPEGs:
-  // the environment's empty-turntable photos, which `aggscan masks train
-  // --backgrounds` composites the rig's own rocks onto.
+  // Also render side 1's views with the rock taken away (the disc at those
+  // angles, same lights and exposure) as the sample's empty-turntable photos
+  // (SAMPLE/empty/, store/empty_turntable.h): the worker's masks take them as
+  // their background, and `aggscan masks train --backgrounds` composites the
+  // rig's own rocks onto them.
   bool empty_plates = false;
 };
 

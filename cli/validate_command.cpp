@@ -948,8 +948,9 @@ void PrintValidateUsage(std::ostream& o) {
        "      object markers drawn like coloured pencil;\n"
        "      --samples: Cycles samples per pixel (default 16); render time per frame is "
        "reported;\n"
-       "      --backgrounds: also every view with the rock taken away, the look's empty-turntable\n"
-       "      photos (SAMPLE/background/, for aggscan masks train --backgrounds);\n"
+       "      --backgrounds: also side 1's views with the rock taken away, the look's\n"
+       "      empty-turntable photos, as the sample's set (SAMPLE/empty/): the worker masks every\n"
+       "      view against the one of its angle (and aggscan masks train --backgrounds takes them);\n"
        "      --render-only: capture and render into --keep DIR, reconstruct nothing (mask sets);\n"
        "      exit 0 all targets met, 1 a target missed or a rock failed, 2 usage\n";
 }

@@ -42,7 +42,7 @@ struct ValidateOptions {
                              // empty: BatchLook(i) per rock, the variety cycled
   int samples = 16;          // blender: Cycles samples per pixel
   int look_index = 0;        // blender: BatchLook index of the first rock (to continue a batch)
-  bool backgrounds = false;  // blender: also each view's empty-turntable photo (SAMPLE/background/)
+  bool backgrounds = false;  // blender: also each view's empty-turntable photo (SAMPLE/empty/)
   bool render_only = false;  // capture (and render) the samples into --keep, reconstruct nothing:
                              // test sets for `aggscan masks eval`
 };
