@@ -245,11 +245,8 @@ int SolveCommand(const std::vector<std::string>& a, std::ostream& out, std::ostr
     return 1;
   }
   if (out_path.empty()) {
-    if (state_dir.empty()) {
-      // STATE_DIR/samples/ID: the calibration belongs to that state directory.
-      const fs::path parent = fs::absolute(sample).lexically_normal().parent_path();
-      if (parent.filename() == "samples") state_dir = parent.parent_path().string();
-    }
+    // STATE_DIR/samples/ID: the calibration belongs to that state directory.
+    if (state_dir.empty()) state_dir = layout::StateDirOfSample(sample);
     if (state_dir.empty()) {
       err << "aggscan calibrate: " << sample
           << " is not inside a state directory (STATE_DIR/samples/ID); say where the calibration goes "

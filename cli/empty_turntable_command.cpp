@@ -85,10 +85,7 @@ int RunEmptyTurntableCommand(const std::vector<std::string>& args, std::ostream&
     err << "aggscan empty-turntable: " << sample << " is not a sample directory\n";
     return 1;
   }
-  if (state_dir.empty()) {
-    const fs::path parent = fs::absolute(sample).lexically_normal().parent_path();
-    if (parent.filename() == "samples") state_dir = parent.parent_path().string();
-  }
+  if (state_dir.empty()) state_dir = layout::StateDirOfSample(sample);
   if (state_dir.empty()) {
     err << "aggscan empty-turntable: " << sample
         << " is not inside a state directory (STATE_DIR/samples/ID); say which rig's photos these "

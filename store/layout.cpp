@@ -1,6 +1,7 @@
 #include "store/layout.h"
 
 #include <cstdio>
+#include <filesystem>
 
 namespace aggscan::layout {
 
@@ -14,11 +15,17 @@ bool IsValidSampleId(const std::string& id) {
   if (id.empty() || id.size() > 64) return false;
   if (id[0] == '.' || id[0] == '-') return false;
   for (char c : id) {
-    const bool ok = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '.' ||
-                    c == '_' || c == '-';
+    const bool ok = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
+                    c == '.' || c == '_' || c == '-';
     if (!ok) return false;
   }
   return true;
+}
+
+std::string StateDirOfSample(const std::string& sample_dir) {
+  const std::filesystem::path parent =
+      std::filesystem::absolute(sample_dir).lexically_normal().parent_path();
+  return parent.filename() == "samples" ? parent.parent_path().string() : std::string();
 }
 
 }  // namespace aggscan::layout

@@ -39,6 +39,9 @@ inline constexpr const char* kResultsDir = "results";
 inline constexpr const char* kTruthDir = "truth";
 inline constexpr const char* kEmptyDir = "empty";
 inline std::string QueuePath(const std::string& state_dir) { return state_dir + "/queue.db"; }
+/// The state directory a sample directory lies in (STATE_DIR/samples/ID), or
+/// "" when it is not laid out so.
+std::string StateDirOfSample(const std::string& sample_dir);
 
 /// Sample ids: 1..64 chars of [A-Za-z0-9._-], not starting with '.' or '-'.
 /// Anything else could name a path outside the state directory.

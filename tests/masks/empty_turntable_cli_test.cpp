@@ -12,6 +12,7 @@
 #include "store/empty_turntable.h"
 #include "store/layout.h"
 #include "store/sample_store.h"
+#include "tests/util/shell.h"
 #include "tests/util/temp_dir.h"
 
 namespace aggscan {
@@ -21,16 +22,7 @@ using ::testing::HasSubstr;
 
 const std::string kAggscan = std::string(AGGSCAN_BINARY_DIR) + "/cli/aggscan";
 
-int Shell(const std::string& cmd, std::string* output) {
-  output->clear();
-  FILE* p = ::popen((cmd + " 2>&1").c_str(), "r");
-  if (!p) return -1;
-  char buf[4096];
-  size_t n;
-  while ((n = std::fread(buf, 1, sizeof buf, p)) > 0) output->append(buf, n);
-  const int st = ::pclose(p);
-  return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
-}
+using test::Shell;
 
 TEST(EmptyTurntableCommand, InstallsACaptureAndShowsIt) {
   test::TempDir t;

@@ -19,6 +19,7 @@
 
 #include "pipeline/mask_dataset.h"
 #include "pipeline/mask_net.h"
+#include "tests/util/shell.h"
 
 namespace aggscan {
 namespace {
@@ -28,17 +29,7 @@ using ::testing::HasSubstr;
 
 const std::string kAggscan = std::string(AGGSCAN_BINARY_DIR) + "/cli/aggscan";
 
-// Runs a shell command; its exit status, stdout+stderr in *output.
-int Shell(const std::string& cmd, std::string* output) {
-  output->clear();
-  FILE* p = ::popen((cmd + " 2>&1").c_str(), "r");
-  if (!p) return -1;
-  char buf[4096];
-  size_t n;
-  while ((n = std::fread(buf, 1, sizeof buf, p)) > 0) output->append(buf, n);
-  const int st = ::pclose(p);
-  return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
-}
+using test::Shell;
 
 bool TorchAvailable() {
   return std::system("/usr/bin/python3 -c 'import torch, cv2' >/dev/null 2>&1") == 0;
