@@ -273,6 +273,16 @@ void PrintStatus(const json& st, std::ostream& out) {
   }
   if (HasNumber(st, "queue_depth"))
     out << "queue: " << Scalar(st["queue_depth"]) << " job(s) waiting\n";
+  if (st.contains("worker") && st["worker"].is_object()) {
+    const json& w = st["worker"];
+    const bool ok = w.contains("healthy") && w["healthy"].is_boolean() && w["healthy"].get<bool>();
+    out << "worker: " << (ok ? "" : "UNHEALTHY ") << FieldText(w, "state");
+    if (HasText(w, "message") && w["message"].get<std::string>() != FieldText(w, "state"))
+      out << " (" << Clean(w["message"].get<std::string>()) << ")";
+    if (ok && HasNumber(w, "stage_s") && HasText(w, "stage"))
+      out << ", " << Duration(w["stage_s"].get<double>()) << " in this stage";
+    out << "\n";
+  }
   if (st.contains("failed_jobs") && st["failed_jobs"].is_array() && !st["failed_jobs"].empty()) {
     const json& failed = st["failed_jobs"];
     size_t total = failed.size();

@@ -403,6 +403,11 @@ const std::vector<Field<Config>>& Fields() {
       F(worker.max_interruptions, Range(1, 1000),
         "starts in a row that find a job cut off (worker killed, power lost) before it is marked "
         "failed"),
+      D(worker.heartbeat_interval, Range(100 * kMs, 600 * kSec),
+        "the worker reports its state, job and stage this often (and when its stage changes)"),
+      D(worker.silent_after, Range(0, 24 * 3600 * kSec),
+        "aggscand calls the worker unhealthy when it has not reported for this long (0 = not "
+        "watched)"),
   };
   return k;
 }
@@ -912,6 +917,13 @@ class Validator {
 
  private:
   void CrossField(const Config& c) {
+    if (c.worker.silent_after > 0 && c.worker.silent_after < 2 * c.worker.heartbeat_interval) {
+      Add("worker.silent_after", FormatDuration(c.worker.silent_after) +
+                                     " is shorter than twice worker.heartbeat_interval (" +
+                                     FormatDuration(c.worker.heartbeat_interval) +
+                                     "): a worker that is running would be called silent; raise it "
+                                     "or set 0 to not watch the worker");
+    }
     if (c.daemon.reopen_backoff_max < c.daemon.reopen_backoff_min) {
       Add("daemon.reopen_backoff_max", FormatDuration(c.daemon.reopen_backoff_max) +
                                            " is shorter than daemon.reopen_backoff_min (" +

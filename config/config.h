@@ -419,6 +419,14 @@ struct WorkerConfig {
   /// worker killed or powered off during it each time, e.g. by the OOM
   /// killer) is marked failed.
   int max_interruptions = 10;
+  /// The worker reports itself (state, job, stage, progress) in the queue
+  /// database this often, and at once when its stage changes (at most twice
+  /// a second).
+  TimeNs heartbeat_interval = 5 * kNsPerSec;
+  /// aggscand calls the worker unhealthy when it has not reported for this
+  /// long (0: the daemon does not watch it). Kept in real time, whatever
+  /// daemon.time_scale.
+  TimeNs silent_after = 60 * kNsPerSec;
 
   bool operator==(const WorkerConfig&) const = default;
 };

@@ -229,7 +229,24 @@ void CaptureService::Start() {
   if (config_.daemon.health_probe_interval > 0) {
     loop_.AddRealTimer(MonotonicNs() + config_.daemon.health_probe_interval, [this] { ProbeDevices(); });
   }
+  if (queue_ && config_.worker.silent_after > 0) WatchWorker();
   NotifyStatus();
+}
+
+void CaptureService::WatchWorker() {
+  const json w = WorkerOnLoop();
+  const bool healthy = w.is_object() && w.value("healthy", false);
+  if (healthy != worker_healthy_) {
+    LogLine(healthy ? LogLevel::kNotice : LogLevel::kWarning, "worker", "",
+            healthy ? "aggscan-worker is reporting again: " + w.value("message", std::string())
+                    : w.value("message", std::string()));
+    worker_healthy_ = healthy;
+  }
+  // A quarter of the silence allowed, within 1..5 s: the change is logged
+  // soon after it is due without reading the queue often.
+  const TimeNs period =
+      std::clamp<TimeNs>(config_.worker.silent_after / 4, kNsPerSec, 5 * kNsPerSec);
+  loop_.AddRealTimer(MonotonicNs() + period, [this] { WatchWorker(); });
 }
 
 bool CaptureService::SideRunning() const {
@@ -963,6 +980,10 @@ json CaptureService::HealthOnLoop() const {
                         {"side_needs_bytes", st.side_needs_bytes},
                         {"side_needs_files", st.side_needs_files}};
   all_ok = all_ok && st.healthy;
+  // The worker is no device of the capture (a side is stored and queued
+  // without it), but a rig whose results never come is not healthy.
+  const json worker = WorkerOnLoop();
+  if (worker.is_object()) all_ok = all_ok && worker.value("healthy", false);
   json fault = nullptr;
   if (state_.phase == cs::Phase::kFaulted) {
     // A capture stopped on a fault is not healthy, even once the device is back.
@@ -974,10 +995,92 @@ json CaptureService::HealthOnLoop() const {
       {"state", cs::PhaseName(state_.phase)},
       {"fault", fault},
       {"devices", devices},
+      {"worker", worker},
       {"checked_utc", FormatUtc(now_utc)},
       {"reopen_backoff_s",
        {{"min", static_cast<double>(config_.daemon.reopen_backoff_min) / 1e9},
         {"max", static_cast<double>(config_.daemon.reopen_backoff_max) / 1e9}}}};
+}
+
+json CaptureService::WorkerOnLoop() const {
+  if (!queue_) return nullptr;
+  const bool watched = config_.worker.silent_after > 0;
+  const double silent_after_s = static_cast<double>(config_.worker.silent_after) / 1e9;
+  const double daemon_up_s = static_cast<double>(MonotonicNs() - started_real_) / 1e9;
+  std::string waiting;
+  if (auto d = queue_->Depth(); d && *d > 0)
+    waiting = "; " + std::to_string(*d) + " job(s) wait in the queue";
+  const std::string look =
+      ": is it running? `systemctl status aggscan-worker`, its log `journalctl -u aggscan-worker`";
+  json out = {{"watched", watched},     {"silent_after_s", silent_after_s},
+              {"pid", nullptr},         {"heard_utc", nullptr},
+              {"heard_s_ago", nullptr}, {"up_s", nullptr},
+              {"job", nullptr},         {"stage", nullptr},
+              {"stage_s", nullptr},     {"progress", nullptr}};
+  auto seen = queue_->Worker();
+  if (!seen) {
+    out["state"] = "unknown";
+    out["healthy"] = false;
+    out["message"] = "cannot read the worker's report from the queue: " + seen.error().ToString();
+    return out;
+  }
+  if (!seen->has_value() || !(*seen)->this_boot) {
+    // The worker is started beside the daemon: give it the same time to say so.
+    const bool healthy = !watched || daemon_up_s <= silent_after_s;
+    out["state"] = "not_seen";
+    out["healthy"] = healthy;
+    char b[160];
+    std::snprintf(b, sizeof b,
+                  "no aggscan-worker has reported since this machine started (aggscand up %.0f s)",
+                  daemon_up_s);
+    out["message"] =
+        healthy ? std::string("waiting for aggscan-worker's first report") : b + look + waiting;
+    return out;
+  }
+  const WorkerSeen& w = **seen;
+  const WorkerReport& r = w.report;
+  out["pid"] = r.pid;
+  out["heard_utc"] = w.heard_utc;
+  out["heard_s_ago"] = w.heard_s_ago;
+  out["up_s"] = w.up_s;
+  const bool busy = r.state == "busy";
+  std::string doing = r.state;
+  if (busy) {
+    out["job"] = {{"id", r.job_id},
+                  {"sample_id", r.sample_id},
+                  {"side", r.side},
+                  {"kind", r.side > 0 ? "side" : "sample"},
+                  {"running_s", w.job_s}};
+    out["stage"] = r.stage;
+    out["stage_s"] = w.stage_s;
+    if (r.total > 0) {
+      out["progress"] = {{"done", r.done},
+                         {"total", r.total},
+                         {"fraction", static_cast<double>(r.done) / static_cast<double>(r.total)}};
+    }
+    doing = "busy with job " + std::to_string(r.job_id) + " (" + r.sample_id + " " +
+            (r.side > 0 ? "side " + std::to_string(r.side) : std::string("sample stage")) + ")";
+    if (!r.stage.empty()) doing += ", stage \"" + r.stage + "\"";
+    if (r.total > 0) doing += " " + std::to_string(r.done) + " of " + std::to_string(r.total);
+  }
+  const bool silent = watched && w.heard_s_ago > silent_after_s;
+  out["healthy"] = !silent;
+  char ago[96];
+  std::snprintf(ago, sizeof ago, "%.0f s (limit %.0f s, worker.silent_after)", w.heard_s_ago,
+                silent_after_s);
+  if (!silent) {
+    out["state"] = r.state;
+    out["message"] = doing;
+  } else if (r.state == "stopped") {
+    out["state"] = "stopped";
+    out["message"] = "aggscan-worker stopped at " + w.heard_utc + " and has not started since, " +
+                     ago + ": start it (`systemctl start aggscan-worker`)" + waiting;
+  } else {
+    out["state"] = "silent";
+    out["message"] = "aggscan-worker has not reported for " + std::string(ago) +
+                     "; last heard at " + w.heard_utc + ", " + doing + look + waiting;
+  }
+  return out;
 }
 
 json CaptureService::StatusOnLoop() const {
@@ -1017,8 +1120,8 @@ json CaptureService::StatusOnLoop() const {
           {"sample_id", state_.sample_id.empty() ? json(nullptr) : json(state_.sample_id)},
           {"side", state_.side},
           // 1-based number of the view being taken; 0 when no side is running.
-          {"view", (state_.Active() && state_.phase != cs::Phase::kArmed && state_.phase != cs::Phase::kAwaitingPose &&
-                    state_.phase != cs::Phase::kHoming)
+          {"view", (state_.Active() && state_.phase != cs::Phase::kArmed &&
+                    state_.phase != cs::Phase::kAwaitingPose && state_.phase != cs::Phase::kHoming)
                        ? state_.view + 1
                        : 0},
           {"views_per_side", config_.capture.views_per_side},
@@ -1033,7 +1136,8 @@ json CaptureService::StatusOnLoop() const {
           {"views_captured", views_captured_},
           {"time_scale", loop_.clock().Scale()},
           {"uptime_s", static_cast<double>(MonotonicNs() - started_real_) / 1e9},
-          {"calibration", calibration_}};
+          {"calibration", calibration_},
+          {"worker", WorkerOnLoop()}};
 }
 
 Result<json> CaptureService::ArmOnLoop(const std::string& sample_id) {
@@ -1235,6 +1339,34 @@ std::string CaptureService::Metrics() {
       if (d) depth = *d;
       auto f = queue_->FailedCount();
       if (f) failed = *f;
+    }
+    if (queue_) {
+      const json w = WorkerOnLoop();
+      auto num = [&w](const char* key) {
+        return w.contains(key) && w[key].is_number() ? w[key].get<double>() : 0.0;
+      };
+      const bool busy = w.value("state", std::string()) == "busy";
+      const json& progress = w["progress"];
+      m << "# HELP aggscan_worker_up 1 when the worker has reported within worker.silent_after.\n"
+        << "# TYPE aggscan_worker_up gauge\n"
+        << "aggscan_worker_up " << (w.value("healthy", false) ? 1 : 0) << "\n"
+        << "# HELP aggscan_worker_report_age_seconds Seconds since the worker's last report (-1: "
+           "none this boot).\n"
+        << "# TYPE aggscan_worker_report_age_seconds gauge\n"
+        << "aggscan_worker_report_age_seconds "
+        << (w["heard_s_ago"].is_number() ? num("heard_s_ago") : -1.0) << "\n"
+        << "# HELP aggscan_worker_busy 1 while the worker runs a job.\n"
+        << "# TYPE aggscan_worker_busy gauge\n"
+        << "aggscan_worker_busy " << (busy ? 1 : 0) << "\n"
+        << "# HELP aggscan_worker_stage_seconds Seconds the running job has been in its current "
+           "stage.\n"
+        << "# TYPE aggscan_worker_stage_seconds gauge\n"
+        << "aggscan_worker_stage_seconds " << (busy ? num("stage_s") : 0.0) << "\n"
+        << "# HELP aggscan_worker_stage_progress_ratio Done fraction of the running stage's units "
+           "(views, steps).\n"
+        << "# TYPE aggscan_worker_stage_progress_ratio gauge\n"
+        << "aggscan_worker_stage_progress_ratio "
+        << (busy && progress.is_object() ? progress.value("fraction", 0.0) : 0.0) << "\n";
     }
     m << "# HELP aggscan_queue_depth Side and sample jobs waiting for or in the worker.\n"
       << "# TYPE aggscan_queue_depth gauge\n"

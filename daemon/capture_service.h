@@ -89,6 +89,11 @@ class CaptureService final : public DaemonControl {
   /// Each device's health (state, message, last ok, retries, next retry) and
   /// "status": "ok" when every device is healthy, else "unhealthy".
   nlohmann::json HealthOnLoop() const;
+  /// The worker as it last reported itself in the queue: state, job, stage,
+  /// progress, and whether it is healthy (heard from within
+  /// worker.silent_after), with what to do when it is not. Null without a
+  /// queue.
+  nlohmann::json WorkerOnLoop() const;
   const capture::State& state() const { return state_; }
   std::string StatusLine() const;
   /// Loop thread (or before the loop runs): checks state_dir/calibration.json
@@ -138,6 +143,8 @@ class CaptureService final : public DaemonControl {
   /// Reads the turntable's status every daemon.health_probe_interval while no
   /// side runs; comm_retries consecutive failures make it unhealthy.
   void ProbeDevices();
+  /// Logs the worker turning silent or coming back; every few seconds.
+  void WatchWorker();
   /// Turns a runtime fault recorded by the button or light thread into health.
   void ProbeButtonAndLight();
   /// The status light's pattern for the current state and device health.
@@ -183,6 +190,7 @@ class CaptureService final : public DaemonControl {
   RateLimitedLog device_log_{"devices"};
   int probe_failures_ = 0;  // consecutive failed turntable status reads of the idle probe  // keys "device/class": one line per class until recovery
   TimeNs started_real_ = 0;
+  bool worker_healthy_ = true;  // WatchWorker()'s last finding
   std::string last_status_;
   nlohmann::json calibration_;  // CheckRigCalibration() result; null = never checked
   std::function<void(const std::string&)> on_status_;

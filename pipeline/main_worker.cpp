@@ -17,6 +17,12 @@
 // killed or lost power) is requeued uncounted, [worker] max_interruptions
 // times in a row at most.
 //
+// The worker tells aggscand what it does through the queue database (store/
+// queue.h WorkerReport): idle, or busy with a job, its innermost stage and
+// that stage's progress, every [worker] heartbeat_interval and whenever the
+// stage changes. The child keeps its stage in the page it shares with the
+// parent; the parent, which is never blocked by a library, writes the report.
+//
 //   aggscan-worker --state-dir DIR [--config FILE] [--once] [--poll-ms N] [--log-level L]
 #include <sys/mman.h>
 #include <sys/prctl.h>
@@ -32,6 +38,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <new>
 #include <string>
 #include <thread>
 #include <vector>
@@ -57,14 +64,20 @@ constexpr int kChildFailed = 1;   // a named failure, described in the report
 constexpr int kChildStopped = 3;  // stopped between views on request
 
 // What a child leaves for the parent, in memory shared across fork(): the
-// stage it is in (kept current while it runs, so it survives a crash) and
-// its failure. Written only by the child, read by the parent after the
-// child ended.
+// stage it is in and that stage's progress (kept current while it runs, so
+// it survives a crash) and its failure. Written only by the child. The
+// parent reads the stage while the child runs under `seq` (odd while the
+// child writes: a sequence lock), the failure after the child ended.
 struct ChildReport {
+  std::atomic<uint32_t> seq;
+  std::atomic<int> done;
+  std::atomic<int> total;
   char stage[256];
   char error_class[32];
   char message[16384];
 };
+static_assert(std::atomic<uint32_t>::is_always_lock_free && std::atomic<int>::is_always_lock_free,
+              "the child and the parent share these across processes");
 
 ChildReport* g_report = nullptr;
 
@@ -79,10 +92,16 @@ void CopyText(char* dst, size_t size, const std::string& s) {
 // it enters a matching stage, as a library's failed assertion would.
 char g_abort_stage[256];
 
-extern "C" void ChildStageObserver(const char* stage) {
+extern "C" void ChildStageObserver(const char* stage, int done, int total) {
+  const uint32_t seq = g_report->seq.load(std::memory_order_relaxed);
+  g_report->seq.store(seq + 1, std::memory_order_relaxed);
+  std::atomic_thread_fence(std::memory_order_release);
   const size_t n = std::min(std::strlen(stage), sizeof g_report->stage - 1);
   std::memcpy(g_report->stage, stage, n);
   g_report->stage[n] = '\0';
+  g_report->done.store(done, std::memory_order_relaxed);
+  g_report->total.store(total, std::memory_order_relaxed);
+  g_report->seq.store(seq + 2, std::memory_order_release);
   if (g_abort_stage[0] != '\0' &&
       std::strncmp(stage, g_abort_stage, std::strlen(g_abort_stage)) == 0)
     std::abort();
@@ -164,9 +183,105 @@ bool ParseArgs(int argc, char** argv, Args* a) {
 }
 
 // Sleeps up to `ms`, waking early on a stop request.
-void IdleWait(long ms) {
-  for (long waited = 0; waited < ms && !g_stop.load(); waited += 20)
+// The running child's stage and progress, read while it may be writing them;
+// false when it was mid-write on every try (the next tick reads again).
+bool ReadChildStage(std::string* stage, int* done, int* total) {
+  char copy[sizeof g_report->stage];
+  for (int attempt = 0; attempt < 8; ++attempt) {
+    const uint32_t before = g_report->seq.load(std::memory_order_acquire);
+    if (before & 1u) continue;
+    std::memcpy(copy, g_report->stage, sizeof copy);
+    const int d = g_report->done.load(std::memory_order_relaxed);
+    const int t = g_report->total.load(std::memory_order_relaxed);
+    std::atomic_thread_fence(std::memory_order_acquire);
+    if (g_report->seq.load(std::memory_order_relaxed) != before) continue;
+    *stage = std::string(copy, strnlen(copy, sizeof copy));
+    *done = d;
+    *total = t;
+    return true;
+  }
+  return false;
+}
+
+// Keeps the worker's report in the queue current: on every change of state
+// or stage (at most every kMinGap) and every heartbeat interval.
+class WorkerReporter {
+ public:
+  WorkerReporter(JobQueue* queue, int64_t interval_ns) : queue_(queue), interval_ns_(interval_ns) {
+    r_.pid = ::getpid();
+    r_.started_boot_ns = BootTimeNs();
+  }
+
+  void Idle() {
+    Clear("idle");
+    Write();
+  }
+  void Stopped() {
+    Clear("stopped");
+    Write();
+  }
+  void Busy(const Job& job) {
+    Clear("busy");
+    r_.job_id = job.id;
+    r_.sample_id = job.sample_id;
+    r_.side = job.side;
+    r_.job_started_boot_ns = r_.stage_since_boot_ns = BootTimeNs();
+    Write();
+  }
+  // The running job's stage, as the child last wrote it.
+  void Stage(const std::string& stage, int done, int total) {
+    if (stage != r_.stage) r_.stage_since_boot_ns = BootTimeNs();
+    if (stage != r_.stage || done != r_.done || total != r_.total) dirty_ = true;
+    r_.stage = stage;
+    r_.done = done;
+    r_.total = total;
+    Tick();
+  }
+  void Tick() {
+    const int64_t now = BootTimeNs();
+    if ((dirty_ && now - last_write_ns_ >= kMinGapNs) || now - last_write_ns_ >= interval_ns_)
+      Write();
+  }
+
+ private:
+  static constexpr int64_t kMinGapNs = 500'000'000;
+
+  void Clear(const char* state) {
+    r_.state = state;
+    r_.job_id = 0;
+    r_.sample_id.clear();
+    r_.side = 0;
+    r_.stage.clear();
+    r_.done = r_.total = 0;
+    r_.job_started_boot_ns = 0;
+    r_.stage_since_boot_ns = BootTimeNs();
+  }
+  void Write() {
+    last_write_ns_ = BootTimeNs();
+    dirty_ = false;
+    Status st = queue_->ReportWorker(r_);
+    // Said once per run of failures: a locked or full disk must not flood the log.
+    if (!st.ok() && !failing_)
+      AGG_LOGW(kCat,
+               "cannot report to aggscand through the queue (it will call the worker silent): %s",
+               st.error().ToString().c_str());
+    if (st.ok() && failing_) AGG_LOGI(kCat, "reporting to aggscand through the queue again");
+    failing_ = !st.ok();
+  }
+
+  JobQueue* queue_;
+  int64_t interval_ns_;
+  WorkerReport r_;
+  int64_t last_write_ns_ = 0;
+  bool dirty_ = false;
+  bool failing_ = false;
+};
+
+void IdleWait(long ms, WorkerReporter* reporter) {
+  for (long waited = 0; waited < ms && !g_stop.load(); waited += 20) {
+    if (reporter) reporter->Tick();
     std::this_thread::sleep_for(std::chrono::milliseconds(std::min<long>(20, ms - waited)));
+  }
 }
 
 // The sample stage: the 3D reconstruction when the sample carries its rig
@@ -213,11 +328,17 @@ std::string SignalText(int sig) {
          ::strsignal(sig) + ")";
 }
 
-// Runs fn() -> exit code in a forked child and waits for it; a stop request
-// to this process is forwarded to the child once.
+// Runs fn() -> exit code in a forked child and waits for it, passing the
+// child's stage to `reporter` as it goes (when given); a stop request to this
+// process is forwarded to the child once.
 template <typename F>
-Result<ChildEnd> RunInChild(F&& fn) {
-  std::memset(g_report, 0, sizeof *g_report);
+Result<ChildEnd> RunInChild(F&& fn, WorkerReporter* reporter = nullptr) {
+  g_report->seq.store(0);
+  g_report->done.store(0);
+  g_report->total.store(0);
+  std::memset(g_report->stage, 0, sizeof g_report->stage);
+  std::memset(g_report->error_class, 0, sizeof g_report->error_class);
+  std::memset(g_report->message, 0, sizeof g_report->message);
   std::fflush(nullptr);  // buffered output must not be written twice
   const pid_t parent = ::getpid();
   const pid_t pid = ::fork();
@@ -243,6 +364,11 @@ Result<ChildEnd> RunInChild(F&& fn) {
     if (g_stop.load() && !forwarded) {
       ::kill(pid, SIGTERM);
       forwarded = true;
+    }
+    if (reporter) {
+      std::string stage;
+      int done = 0, total = 0;
+      if (ReadChildStage(&stage, &done, &total)) reporter->Stage(stage, done, total);
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
@@ -381,7 +507,7 @@ int main(int argc, char** argv) {
     AGG_LOGE(kCat, "cannot map the job report page: %s", std::strerror(errno));
     return 1;
   }
-  g_report = static_cast<ChildReport*>(shared);
+  g_report = new (shared) ChildReport();
 
   // The mask network (if configured) is checked once, at start, in a child
   // of its own: a missing or broken model is a config error, reported before
@@ -422,18 +548,20 @@ int main(int argc, char** argv) {
   }
   AGG_LOGI(kCat, "started: state dir %s, poll %ld ms%s", args.state_dir.c_str(), poll_ms,
            args.once ? ", once" : "");
+  WorkerReporter reporter(&queue, cfg.worker.heartbeat_interval);
+  reporter.Idle();
   bool failed_for_good = false;
   while (!g_stop.load()) {
     auto next = queue.ClaimNext();
     if (!next.ok()) {
       AGG_LOGE(kCat, "queue error: %s", next.error().ToString().c_str());
       if (args.once) return 1;
-      IdleWait(poll_ms);
+      IdleWait(poll_ms, &reporter);
       continue;
     }
     if (!next->has_value()) {
       if (args.once) break;
-      IdleWait(poll_ms);
+      IdleWait(poll_ms, &reporter);
       continue;
     }
     const Job job = **next;
@@ -443,7 +571,9 @@ int main(int argc, char** argv) {
     LogLine(LogLevel::kInfo, kCat, job.sample_id,
             name + ": " + what + ", attempt " + std::to_string(job.attempts + 1) + " of " +
                 std::to_string(cfg.worker.max_attempts));
-    auto end = RunInChild([&] { return ChildRunJob(args.state_dir, job, cfg, poses); });
+    reporter.Busy(job);
+    auto end = RunInChild([&] { return ChildRunJob(args.state_dir, job, cfg, poses); }, &reporter);
+    reporter.Idle();
     if (!end.ok()) {
       // No process for the job (out of processes or memory): not its fault.
       LogLine(LogLevel::kError, kCat, job.sample_id,
@@ -451,7 +581,7 @@ int main(int argc, char** argv) {
       if (Status r = queue.Release(job.id); !r.ok())
         LogLine(LogLevel::kError, kCat, job.sample_id,
                 "cannot put the job back: " + r.error().ToString());
-      IdleWait(poll_ms);
+      IdleWait(poll_ms, &reporter);
       continue;
     }
     if (end->kind == ChildEnd::kDone) {
@@ -481,6 +611,7 @@ int main(int argc, char** argv) {
                 "cannot record the failure: " + f.error().ToString());
     }
   }
+  reporter.Stopped();
   AGG_LOGI(kCat, "%s", g_stop.load() ? "stopped by signal" : "queue empty, exiting");
   return failed_for_good && args.once ? 1 : 0;
 }

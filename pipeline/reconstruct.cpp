@@ -953,6 +953,11 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
 
   auto use_sfm = ChoosePosesPath(sample_dir, opts);
   if (!use_sfm) return use_sfm.error();
+  // Progress of the reconstruction: calibration, each side's poses, stitch,
+  // surface, morphology.
+  const int steps = 4 + static_cast<int>(sides.size());
+  int steps_done = 0;
+  ReportStageProgress(steps_done, steps);
   std::optional<RigCalibration> cal;
   if (!*use_sfm || HasCalibration(sample_dir, opts)) {
     auto c = RunStage("calibration", [&] { return CalibrationStage(sample_dir, opts, image_size, &timings); });
@@ -997,6 +1002,7 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
       sfm_setup.camera_source = "sfm " + layout::SideDirName(sides[0]);
     }
     std::string method;
+    ReportStageProgress(++steps_done, steps);
     auto v = RunStage("poses side " + std::to_string(side), [&] {
       return PosesStage(sample_dir, side, cal ? &*cal : nullptr, *use_sfm ? &sfm_setup : nullptr, opts, &timings,
                         &method);
@@ -1029,6 +1035,7 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
     }
   }
   const std::string stitch_path = ResultsPath(sample_dir, results::kStitch);
+  ReportStageProgress(++steps_done, steps);
   if (!PathExists(stitch_path)) {
     auto st = RunStage("stitch", [&] { return RunStitchStage(sin); });
     if (!st) return st.error();
@@ -1051,6 +1058,7 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
   timings["stitch_s"] = stitch->value("stage_seconds", 0.0);
 
   if (opts.cancel && opts.cancel->load()) return MakeError(ErrorClass::kInvalidState, "interrupted before the surface");
+  ReportStageProgress(++steps_done, steps);
   auto surface = RunStage("surface", [&] {
     return SurfaceStage(sample_dir, all_views, table_from_object, *cal, opts, sample_id);
   });
@@ -1059,6 +1067,7 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
   timings["surface_detail_s"] = surface->value("timings_s", json::object());
 
   // Morphology (to the end: ReconstructSample's own boundary catches it).
+  ReportStageProgress(++steps_done, steps);
   const StageScope morphology_stage("morphology");
   const auto t_m = std::chrono::steady_clock::now();
   auto mesh = LoadMesh(ResultsPath(sample_dir, results::kMeshPly), "mm");

@@ -320,11 +320,14 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
   if (!empty_set && empty_set.error().cls != ErrorClass::kNotFound) {
     empty_problems.push_back(empty_set.error().message);
   }
+  const int view_count = static_cast<int>(views->size());
+  int views_done = 0;
   for (const ManifestView& v : *views) {
     if (opts.cancel && opts.cancel->load())
       return MakeError(ErrorClass::kInvalidState,
                        "interrupted: side " + std::to_string(side) + " of " + sample_id +
                            " will resume from view " + std::to_string(v.view));
+    ReportStageProgress(views_done++, view_count);
     const StageScope view_stage("masks side " + std::to_string(side) + " view " +
                                 std::to_string(v.view));
     const TimeNs t0 = MonotonicNs();

@@ -1,5 +1,6 @@
 #include "pipeline/stage.h"
 
+#include <algorithm>
 #include <mutex>
 #include <new>
 #include <opencv2/core.hpp>
@@ -9,9 +10,15 @@
 namespace aggscan {
 namespace {
 
+struct Frame {
+  std::string name;
+  int done = 0;
+  int total = 0;  // 0: this stage reported no progress
+};
+
 struct StageState {
   std::mutex mu;
-  std::vector<std::string> stack;
+  std::vector<Frame> stack;
   std::string threw_in;  // innermost stage an exception unwound through
   StageObserver observer = nullptr;
 };
@@ -22,7 +29,16 @@ StageState& State() {
 }
 
 void Notify(StageState& s) {
-  if (s.observer) s.observer(s.stack.empty() ? "" : s.stack.back().c_str());
+  if (!s.observer) return;
+  int done = 0, total = 0;
+  for (auto f = s.stack.rbegin(); f != s.stack.rend(); ++f) {
+    if (f->total > 0) {
+      done = f->done;
+      total = f->total;
+      break;
+    }
+  }
+  s.observer(s.stack.empty() ? "" : s.stack.back().name.c_str(), done, total);
 }
 
 }  // namespace
@@ -36,14 +52,23 @@ void SetStageObserver(StageObserver observer) {
 std::string CurrentStage() {
   StageState& s = State();
   std::lock_guard<std::mutex> lock(s.mu);
-  return s.stack.empty() ? std::string() : s.stack.back();
+  return s.stack.empty() ? std::string() : s.stack.back().name;
+}
+
+void ReportStageProgress(int done, int total) {
+  StageState& s = State();
+  std::lock_guard<std::mutex> lock(s.mu);
+  if (s.stack.empty()) return;
+  s.stack.back().done = std::max(0, std::min(done, total));
+  s.stack.back().total = std::max(0, total);
+  Notify(s);
 }
 
 StageScope::StageScope(std::string name) : uncaught_(std::uncaught_exceptions()) {
   StageState& s = State();
   std::lock_guard<std::mutex> lock(s.mu);
   s.threw_in.clear();  // a stage starting means nothing is unwinding
-  s.stack.push_back(std::move(name));
+  s.stack.push_back(Frame{std::move(name)});
   Notify(s);
 }
 
@@ -51,7 +76,8 @@ StageScope::~StageScope() {
   StageState& s = State();
   std::lock_guard<std::mutex> lock(s.mu);
   if (s.stack.empty()) return;
-  if (std::uncaught_exceptions() > uncaught_ && s.threw_in.empty()) s.threw_in = s.stack.back();
+  if (std::uncaught_exceptions() > uncaught_ && s.threw_in.empty())
+    s.threw_in = s.stack.back().name;
   s.stack.pop_back();
   Notify(s);
 }

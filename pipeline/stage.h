@@ -16,14 +16,21 @@
 
 namespace aggscan {
 
-/// Called with the innermost running stage ("" when none) each time a stage
-/// starts or ends. Runs on the stage's thread, so it must be cheap; it must
-/// not throw. nullptr: none (the default).
-using StageObserver = void (*)(const char* stage);
+/// Called with the innermost running stage ("" when none) and the progress
+/// of the innermost stage that reported one (`done` of `total` units; 0 of 0
+/// when none did) each time a stage starts or ends or reports progress. Runs
+/// on the stage's thread, so it must be cheap; it must not throw. nullptr:
+/// none (the default).
+using StageObserver = void (*)(const char* stage, int done, int total);
 void SetStageObserver(StageObserver observer);
 
 /// The innermost running stage ("" outside any), e.g. "masks side 1 view 7".
 std::string CurrentStage();
+
+/// The innermost running stage has done `done` of its `total` units (views,
+/// sub-stages). Kept by that stage until it ends, so the stages nested in it
+/// show its progress ("masks side 1 view 7" shows 6 of 30 views done).
+void ReportStageProgress(int done, int total);
 
 /// Marks a stage for its lifetime (nested stages name the innermost). When an
 /// exception unwinds through it, it remembers itself as the stage that threw

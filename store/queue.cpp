@@ -1,6 +1,9 @@
 #include "store/queue.h"
 
 #include <sqlite3.h>
+#include <time.h>
+
+#include <fstream>
 
 #include "common/clock.h"
 
@@ -71,18 +74,36 @@ Result<std::unique_ptr<JobQueue>> JobQueue::Open(const std::string& path) {
   // Another process (daemon or worker) may hold the write lock briefly.
   sqlite3_busy_timeout(db, 5000);
   // WAL + FULL: a committed enqueue survives power loss; readers never block the writer.
-  for (const char* sql : {"PRAGMA journal_mode=WAL", "PRAGMA synchronous=FULL",
-                          "CREATE TABLE IF NOT EXISTS jobs ("
-                          " id INTEGER PRIMARY KEY AUTOINCREMENT,"
-                          " sample_id TEXT NOT NULL,"
-                          " side INTEGER NOT NULL,"
-                          " state TEXT NOT NULL CHECK (state IN ('queued','running','done','failed')),"
-                          " attempts INTEGER NOT NULL DEFAULT 0,"
-                          " error TEXT,"
-                          " created_utc TEXT NOT NULL,"
-                          " updated_utc TEXT NOT NULL)",
-                          "CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state, id)",
-                          "CREATE INDEX IF NOT EXISTS jobs_sample ON jobs(sample_id, side)"}) {
+  for (const char* sql :
+       {"PRAGMA journal_mode=WAL", "PRAGMA synchronous=FULL",
+        "CREATE TABLE IF NOT EXISTS jobs ("
+        " id INTEGER PRIMARY KEY AUTOINCREMENT,"
+        " sample_id TEXT NOT NULL,"
+        " side INTEGER NOT NULL,"
+        " state TEXT NOT NULL CHECK (state IN ('queued','running','done','failed')),"
+        " attempts INTEGER NOT NULL DEFAULT 0,"
+        " error TEXT,"
+        " created_utc TEXT NOT NULL,"
+        " updated_utc TEXT NOT NULL)",
+        "CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state, id)",
+        // One row: the worker's last report (WorkerReport).
+        "CREATE TABLE IF NOT EXISTS worker ("
+        " id INTEGER PRIMARY KEY CHECK (id = 1),"
+        " pid INTEGER NOT NULL,"
+        " state TEXT NOT NULL,"
+        " job_id INTEGER NOT NULL,"
+        " sample_id TEXT NOT NULL,"
+        " side INTEGER NOT NULL,"
+        " stage TEXT NOT NULL,"
+        " done INTEGER NOT NULL,"
+        " total INTEGER NOT NULL,"
+        " started_boot_ns INTEGER NOT NULL,"
+        " job_started_boot_ns INTEGER NOT NULL,"
+        " stage_since_boot_ns INTEGER NOT NULL,"
+        " boot_id TEXT NOT NULL,"
+        " heard_boot_ns INTEGER NOT NULL,"
+        " heard_utc TEXT NOT NULL)",
+        "CREATE INDEX IF NOT EXISTS jobs_sample ON jobs(sample_id, side)"}) {
     Status s = q->Exec(sql);
     if (!s) return s.error();
   }
@@ -308,6 +329,91 @@ Result<int> JobQueue::FailedCount() {
   Stmt sel(db_, "SELECT COUNT(*) FROM jobs WHERE state='failed'");
   if (sel.Step() != SQLITE_ROW) return DbError(db_, "cannot count failed jobs");
   return static_cast<int>(sel.Int(0));
+}
+
+int64_t BootTimeNs() {
+  timespec ts{};
+  ::clock_gettime(CLOCK_BOOTTIME, &ts);
+  return static_cast<int64_t>(ts.tv_sec) * kNsPerSec + ts.tv_nsec;
+}
+
+const std::string& BootId() {
+  static const std::string id = [] {
+    std::ifstream in("/proc/sys/kernel/random/boot_id");
+    std::string s;
+    std::getline(in, s);
+    return s;
+  }();
+  return id;
+}
+
+Status JobQueue::ReportWorker(const WorkerReport& r) {
+  // NORMAL in WAL mode: the commit is not synced, yet the database stays
+  // consistent through a power cut. Back to FULL for the jobs' own changes.
+  if (Status s = Exec("PRAGMA synchronous=NORMAL"); !s) return s;
+  Stmt up(
+      db_,
+      "INSERT OR REPLACE INTO worker(id, pid, state, job_id, sample_id, side, stage, done, total,"
+      " started_boot_ns, job_started_boot_ns, stage_since_boot_ns, boot_id, heard_boot_ns, "
+      "heard_utc)"
+      " VALUES(1,?,?,?,?,?,?,?,?,?,?,?,?,?,?)");
+  up.Bind(1, r.pid);
+  up.Bind(2, r.state);
+  up.Bind(3, r.job_id);
+  up.Bind(4, r.sample_id);
+  up.Bind(5, static_cast<int64_t>(r.side));
+  up.Bind(6, r.stage);
+  up.Bind(7, static_cast<int64_t>(r.done));
+  up.Bind(8, static_cast<int64_t>(r.total));
+  up.Bind(9, r.started_boot_ns);
+  up.Bind(10, r.job_started_boot_ns);
+  up.Bind(11, r.stage_since_boot_ns);
+  up.Bind(12, BootId());
+  up.Bind(13, BootTimeNs());
+  up.Bind(14, NowUtcString());
+  std::optional<Error> failed;
+  if (up.Step() != SQLITE_DONE) failed = DbError(db_, "cannot record the worker's report");
+  Status back = Exec("PRAGMA synchronous=FULL");
+  if (failed) return *failed;
+  return back;
+}
+
+Result<std::optional<WorkerSeen>> JobQueue::Worker() {
+  Stmt sel(db_,
+           "SELECT pid, state, job_id, sample_id, side, stage, done, total, started_boot_ns,"
+           " job_started_boot_ns, stage_since_boot_ns, boot_id, heard_boot_ns, heard_utc"
+           " FROM worker WHERE id=1");
+  const int rc = sel.Step();
+  if (rc == SQLITE_DONE) return std::optional<WorkerSeen>();
+  if (rc != SQLITE_ROW) return DbError(db_, "cannot read the worker's report");
+  WorkerSeen w;
+  WorkerReport& r = w.report;
+  r.pid = sel.Int(0);
+  r.state = sel.Text(1);
+  r.job_id = sel.Int(2);
+  r.sample_id = sel.Text(3);
+  r.side = static_cast<int>(sel.Int(4));
+  r.stage = sel.Text(5);
+  r.done = static_cast<int>(sel.Int(6));
+  r.total = static_cast<int>(sel.Int(7));
+  r.started_boot_ns = sel.Int(8);
+  r.job_started_boot_ns = sel.Int(9);
+  r.stage_since_boot_ns = sel.Int(10);
+  const std::string boot = sel.Text(11);
+  const int64_t heard = sel.Int(12);
+  w.heard_utc = sel.Text(13);
+  const int64_t now = BootTimeNs();
+  w.this_boot = !boot.empty() && boot == BootId() && heard <= now;
+  if (w.this_boot) {
+    auto secs = [now](int64_t t) {
+      return t > 0 && t <= now ? static_cast<double>(now - t) / 1e9 : 0.0;
+    };
+    w.heard_s_ago = secs(heard);
+    w.job_s = secs(r.job_started_boot_ns);
+    w.stage_s = secs(r.stage_since_boot_ns);
+    w.up_s = secs(r.started_boot_ns);
+  }
+  return std::optional<WorkerSeen>(std::move(w));
 }
 
 }  // namespace aggscan

@@ -28,6 +28,39 @@ struct Job {
   std::string updated_utc;
 };
 
+/// What the worker last told the daemon about itself (one row in the queue
+/// database: the two processes share no other channel). Times are on the
+/// machine's boot clock (CLOCK_BOOTTIME), which neither an NTP step nor a
+/// suspend can make run backwards, tagged with the boot they belong to.
+struct WorkerReport {
+  int64_t pid = 0;
+  std::string state;   // idle | busy | stopped
+  int64_t job_id = 0;  // busy: the job it runs
+  std::string sample_id;
+  int side = 0;       // of that job: 1..N a side, 0 the sample stage
+  std::string stage;  // innermost stage, e.g. "masks side 1 view 7" ("" between stages)
+  int done = 0;       // progress of that stage: done of total units; total 0 when unknown
+  int total = 0;
+  int64_t started_boot_ns = 0;      // the worker process started
+  int64_t job_started_boot_ns = 0;  // busy: the job started
+  int64_t stage_since_boot_ns = 0;  // the stage started
+};
+
+/// The worker's report as read by the daemon, with its age on the same clock.
+struct WorkerSeen {
+  WorkerReport report;
+  std::string heard_utc;   // wall-clock time of the report, for people
+  bool this_boot = false;  // written since this machine last booted
+  double heard_s_ago = 0;  // this_boot: seconds since the report
+  double job_s = 0;        // busy: seconds since the job started
+  double stage_s = 0;      // seconds since the stage started
+  double up_s = 0;         // seconds since the worker started
+};
+
+/// CLOCK_BOOTTIME in nanoseconds, and this boot's id (the kernel's boot_id).
+int64_t BootTimeNs();
+const std::string& BootId();
+
 class JobQueue {
  public:
   /// Opens (creating if needed) the queue database at `path`.
@@ -68,6 +101,13 @@ class JobQueue {
   Result<std::vector<Job>> FailedJobs(int limit);
   /// Number of failed jobs.
   Result<int> FailedCount();
+
+  /// The worker's heartbeat: replaces its report, stamped with the time now.
+  /// Not synced to disk on its own (a report lost in a power cut is of no
+  /// use after it), so it costs no fsync of the queue's journal.
+  Status ReportWorker(const WorkerReport& r);
+  /// The worker's last report; nullopt when none was ever written.
+  Result<std::optional<WorkerSeen>> Worker();
 
  private:
   explicit JobQueue(sqlite3* db) : db_(db) {}

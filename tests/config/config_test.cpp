@@ -535,6 +535,10 @@ TEST(Config, CrossFieldRules) {
   ExpectOneProblem("[sim]\ncamera_distance_mm = 100\n", 2, "sim.camera_distance_mm",
                    "outside the turntable");
   ExpectOneProblem("[sim]\nrock_size_mm = 5\n", 2, "sim.rock_size_mm", "at least 10");
+  // A running worker must not be called silent between two of its reports.
+  ExpectOneProblem("[worker]\nheartbeat_interval = \"10s\"\nsilent_after = \"15s\"\n", 3,
+                   "worker.silent_after", "twice worker.heartbeat_interval");
+  EXPECT_TRUE(Load("[worker]\nheartbeat_interval = \"10s\"\nsilent_after = \"0s\"\n").result.ok());
   // A faster table makes the short interval fine.
   Loaded l = Load(
       "[capture]\nprofile = \"custom\"\ninterval = \"1s\"\n[turntable]\nmax_speed_deg_s = 120\n"
@@ -775,6 +779,8 @@ TEST(ConfigToToml, RoundTripEveryFieldChanged) {
   c.sim.aruco_image = "markers/aruco \"6x6\".pgm";
   c.worker.poll_interval = 60 * kNsPerSec;
   c.worker.nice = 0;
+  c.worker.heartbeat_interval = 250 * kNsPerMs;
+  c.worker.silent_after = 0;
   c.mask = {"onnx", "models/u2net \"rig\".onnx", 288, 4096, -0.5, 0.0, 1e-9, 0.1, 1.0 / 3, 10.0,
             "logits", 0.999};
   std::vector<ConfigProblem> problems;

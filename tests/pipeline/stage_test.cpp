@@ -13,7 +13,13 @@ namespace aggscan {
 namespace {
 
 std::vector<std::string> g_seen;
-void Record(const char* stage) { g_seen.emplace_back(stage); }
+void Record(const char* stage, int, int) { g_seen.emplace_back(stage); }
+
+std::vector<std::string> g_progress;  // "stage done/total"
+void RecordProgress(const char* stage, int done, int total) {
+  g_progress.push_back(std::string(stage) + " " + std::to_string(done) + "/" +
+                       std::to_string(total));
+}
 
 TEST(RunStage, LibraryExceptionsBecomeNamedErrors) {
   // A real OpenCV assertion: a blur kernel on an empty image.
@@ -90,6 +96,29 @@ TEST(RunStage, InnermostStageIsNamedAndObserved) {
   EXPECT_EQ(CurrentStage(), "");
   EXPECT_EQ(g_seen, (std::vector<std::string>{"job", "masks side 1", "masks side 1 view 4",
                                               "masks side 1", "job", ""}));
+}
+
+// A stage's progress shows in the stages nested in it and ends with it; the
+// figures are clamped to 0..total.
+TEST(RunStage, ProgressIsTheInnermostReportingStages) {
+  g_progress.clear();
+  SetStageObserver(RecordProgress);
+  Status st = RunStage("job", []() -> Status {
+    return RunStage("masks side 1", []() -> Status {
+      for (int v = 0; v < 2; ++v) {
+        ReportStageProgress(v, 2);
+        const StageScope view("view " + std::to_string(v + 1));
+      }
+      ReportStageProgress(5, 2);
+      return OkStatus();
+    });
+  });
+  SetStageObserver(nullptr);
+  ASSERT_TRUE(st.ok());
+  EXPECT_EQ(g_progress, (std::vector<std::string>{
+                            "job 0/0", "masks side 1 0/0", "masks side 1 0/2", "view 1 0/2",
+                            "masks side 1 0/2", "masks side 1 1/2", "view 2 1/2",
+                            "masks side 1 1/2", "masks side 1 2/2", "job 0/0", " 0/0"}));
 }
 
 }  // namespace

@@ -14,6 +14,8 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <optional>
+#include <set>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -305,6 +307,83 @@ TEST_F(WorkerSupervisionTest, KilledAndStoppedWorkerCountsNoAttempt) {
   const std::string log = ReadText(log_);
   EXPECT_NE(log.find("interrupted, will resume"), std::string::npos) << log;
   EXPECT_NE(log.find("requeued 1 job(s) cut off"), std::string::npos) << log;
+}
+
+// What the worker tells aggscand through the queue: idle, then busy with the
+// side's job in its masks stage with the views done counting up to the
+// side's, idle again when it is done, stopped after SIGTERM; heard from at
+// least every heartbeat interval throughout.
+TEST_F(WorkerSupervisionTest, ReportsItsJobStageAndProgressThroughTheQueue) {
+  constexpr int kViews = 24;
+  MakeSide("watched", 1, kViews);
+  const std::string cfg = root_ + "/worker.toml";
+  Write(cfg, "[worker]\nheartbeat_interval = \"300ms\"\nsilent_after = \"2s\"\n");
+  auto q = Queue();
+  ASSERT_TRUE(q);
+  const pid_t pid = StartWorker({"--config", cfg});
+  // Idle first (no job queued yet).
+  auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+  std::optional<WorkerSeen> seen;
+  while (std::chrono::steady_clock::now() < deadline) {
+    auto w = q->Worker();
+    ASSERT_TRUE(w.ok()) << w.error().ToString();
+    if (w->has_value() && (*w)->report.pid == pid) {
+      seen = **w;
+      break;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  ASSERT_TRUE(seen) << ReadText(log_);
+  EXPECT_EQ(seen->report.state, "idle");
+  EXPECT_TRUE(seen->this_boot);
+
+  auto job_id = q->Enqueue("watched", 1);
+  ASSERT_TRUE(job_id.ok());
+  std::set<int> done_seen;
+  std::set<std::string> stages;
+  double longest_silence_s = 0;
+  bool busy_seen = false;
+  deadline = std::chrono::steady_clock::now() + std::chrono::seconds(240);
+  while (std::chrono::steady_clock::now() < deadline) {
+    auto w = q->Worker();
+    ASSERT_TRUE(w.ok() && w->has_value());
+    const WorkerSeen& now = **w;
+    longest_silence_s = std::max(longest_silence_s, now.heard_s_ago);
+    if (now.report.state == "busy") {
+      busy_seen = true;
+      EXPECT_EQ(now.report.job_id, *job_id);
+      EXPECT_EQ(now.report.sample_id, "watched");
+      EXPECT_EQ(now.report.side, 1);
+      stages.insert(now.report.stage);
+      if (now.report.stage.rfind("masks side 1", 0) == 0) {
+        EXPECT_EQ(now.report.total, kViews) << now.report.stage;
+        done_seen.insert(now.report.done);
+      }
+    } else if (busy_seen && now.report.state == "idle") {
+      break;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  ASSERT_TRUE(busy_seen) << ReadText(log_);
+  EXPECT_EQ(q->Worker()->value().report.state, "idle") << ReadText(log_);
+  EXPECT_EQ(JobOf("watched", 1).state, "done");
+  // Views of 640x480 take a fraction of a second each: several of the 24
+  // counts show at two reports a second.
+  RecordProperty("progress_counts_seen", static_cast<int>(done_seen.size()));
+  EXPECT_GE(done_seen.size(), 3u) << ::testing::PrintToString(done_seen);
+  EXPECT_LE(*done_seen.rbegin(), kViews - 1);
+  bool view_stage = false;
+  for (const std::string& st : stages)
+    view_stage = view_stage || st.find(" view ") != std::string::npos;
+  EXPECT_TRUE(view_stage) << ::testing::PrintToString(stages);
+  // A report at least every 300 ms, read on a loaded machine.
+  EXPECT_LT(longest_silence_s, 1.5);
+
+  ASSERT_EQ(::kill(pid, SIGTERM), 0);
+  EXPECT_EQ(Wait(pid), 0) << ReadText(log_);
+  auto last = q->Worker();
+  ASSERT_TRUE(last.ok() && last->has_value());
+  EXPECT_EQ((*last)->report.state, "stopped");
 }
 
 // The photos fixed after the job failed: `retry` puts it back with its

@@ -505,6 +505,121 @@ TEST(CaptureScenario, FailedJobsAreShownAndRetriedAfterAFix) {
 }
 
 // A damaged sample record is reported to the operator; the daemon keeps running.
+// The worker as aggscand shows it: not seen (unhealthy once
+// worker.silent_after has passed since the start), busy with each job and
+// its stage and progress while it runs, idle and healthy after, and stopped
+// (unhealthy again, saying to start it) once it has been stopped that long;
+// in the status, the health, /metrics, `aggscan status` and the journal.
+TEST(CaptureScenario, WorkerIsShownInStatusHealthAndMetrics) {
+  TempDir t;
+  const std::string cfg =
+      WriteConfig(t.path(), "[worker]\nheartbeat_interval = \"200ms\"\nsilent_after = \"2s\"\n");
+  Daemon d(cfg, t.path());
+  ASSERT_TRUE(d.ok()) << ReadAll(d.log());
+  int code = 0;
+  json h;
+  auto health_is = [&](int want) {
+    const auto end = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+    while (std::chrono::steady_clock::now() < end) {
+      h = d.Get("/api/v1/health", &code);
+      if (code == want) return true;
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+    return false;
+  };
+  ASSERT_TRUE(health_is(503)) << h.dump();
+  EXPECT_EQ(h["worker"]["state"], "not_seen") << h.dump();
+  EXPECT_FALSE(h["worker"]["healthy"].get<bool>());
+  EXPECT_NE(h["worker"]["message"].get<std::string>().find("systemctl status aggscan-worker"),
+            std::string::npos)
+      << h.dump();
+  for (const char* dev : {"camera", "turntable", "button"})
+    EXPECT_TRUE(h["devices"][dev]["healthy"]) << dev;
+
+  // A sample captured meanwhile waits in the queue.
+  d.Post("/api/v1/samples", R"({"id": "rock-w"})", &code);
+  ASSERT_EQ(code, 200);
+  d.Post("/api/v1/button", "{}", &code);
+  json last;
+  ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "awaiting_pose"; }, 60, &last))
+      << last.dump();
+  d.Post("/api/v1/button", "{}", &code);
+  ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "idle"; }, 60, &last))
+      << last.dump();
+  EXPECT_EQ(last["queue_depth"], 3);
+  EXPECT_NE(last["worker"]["message"].get<std::string>().find("3 job(s) wait in the queue"),
+            std::string::npos)
+      << last.dump();
+
+  const std::string wlog = t.path() + "/worker.log";
+  const pid_t worker = Spawn({Bin("pipeline/aggscan-worker"), "--state-dir", t.path() + "/state",
+                              "--config", cfg, "--poll-ms", "20"},
+                             wlog);
+  std::set<std::string> stages;
+  std::set<int> side_jobs;
+  std::set<double> fractions;
+  std::string metrics_busy;
+  ASSERT_TRUE(d.WaitFor(
+      [&](const json& s) {
+        const json& w = s["worker"];
+        if (w.value("state", "") == "busy") {
+          EXPECT_TRUE(w["healthy"].get<bool>()) << w.dump();
+          EXPECT_EQ(w["job"]["sample_id"], "rock-w") << w.dump();
+          side_jobs.insert(w["job"]["side"].get<int>());
+          stages.insert(w["stage"].get<std::string>());
+          if (w["progress"].is_object()) {
+            EXPECT_EQ(w["progress"]["total"].get<int>() > 0, true) << w.dump();
+            fractions.insert(w["progress"]["fraction"].get<double>());
+          }
+          if (metrics_busy.empty()) metrics_busy = d.Get("/metrics").get<std::string>();
+        }
+        return s["queue_depth"] == 0 && w.value("state", "") == "idle";
+      },
+      240, &last))
+      << last.dump() << ReadAll(wlog);
+  // The sample job (side 0) of a sample without a calibration is the 2D
+  // figures alone, over in a moment: not always seen.
+  EXPECT_TRUE(side_jobs.count(1) && side_jobs.count(2)) << ::testing::PrintToString(side_jobs);
+  bool masks = false;
+  for (const std::string& st : stages) masks = masks || st.rfind("masks side 1 view ", 0) == 0;
+  EXPECT_TRUE(masks) << ::testing::PrintToString(stages);
+  EXPECT_GE(fractions.size(), 3u) << ::testing::PrintToString(fractions);
+  EXPECT_NE(metrics_busy.find("aggscan_worker_busy 1"), std::string::npos) << metrics_busy;
+  EXPECT_NE(metrics_busy.find("aggscan_worker_up 1"), std::string::npos) << metrics_busy;
+  ASSERT_TRUE(health_is(200)) << h.dump();
+  EXPECT_EQ(h["worker"]["state"], "idle") << h.dump();
+  EXPECT_LT(h["worker"]["heard_s_ago"].get<double>(), 2.0) << h.dump();
+
+  ::kill(worker, SIGTERM);
+  EXPECT_EQ(WaitExit(worker), 0) << ReadAll(wlog);
+  ASSERT_TRUE(health_is(503)) << h.dump();
+  EXPECT_EQ(h["worker"]["state"], "stopped") << h.dump();
+  EXPECT_NE(h["worker"]["message"].get<std::string>().find("systemctl start aggscan-worker"),
+            std::string::npos)
+      << h.dump();
+  const std::string metrics = d.Get("/metrics").get<std::string>();
+  EXPECT_NE(metrics.find("aggscan_worker_up 0"), std::string::npos) << metrics;
+  EXPECT_NE(metrics.find("aggscan_worker_busy 0"), std::string::npos) << metrics;
+
+  const std::string cli_log = t.path() + "/cli.log";
+  WaitExit(
+      Spawn({Bin("cli/aggscan"), "--url", "http://127.0.0.1:" + std::to_string(d.port()), "status"},
+            cli_log));
+  EXPECT_NE(ReadAll(cli_log).find("worker: UNHEALTHY stopped (aggscan-worker stopped at "),
+            std::string::npos)
+      << ReadAll(cli_log);
+  // The daemon looks every second: the last change reaches the log soon after.
+  std::string log;
+  for (int i = 0; i < 100 && log.find("aggscan-worker stopped at") == std::string::npos; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    log = ReadAll(d.log());
+  }
+  EXPECT_NE(log.find("no aggscan-worker has reported since"), std::string::npos) << log;
+  EXPECT_NE(log.find("aggscan-worker is reporting again"), std::string::npos) << log;
+  EXPECT_NE(log.find("aggscan-worker stopped at"), std::string::npos) << log;
+  EXPECT_EQ(d.Stop(), 0);
+}
+
 TEST(CaptureScenario, DamagedRecordIsAClearErrorNotACrash) {
   TempDir t;
   const std::string cfg = WriteConfig(t.path(), "", 20, kTinyPlan);

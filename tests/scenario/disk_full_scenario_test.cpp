@@ -133,7 +133,9 @@ TEST(DiskFullScenario, EveryStoreStepIsANamedFaultAndNothingIsLost) {
   const std::string state = t.path() + "/state";
   PrivateTmpfs tmpfs(state, "size=64m,nr_inodes=4096,mode=0755");
   if (!tmpfs.ok()) GTEST_SKIP() << tmpfs.why();
-  const std::string cfg = WriteConfig(t.path(), "", 4, kPlan);
+  // No worker runs beside this daemon for longer than worker.silent_after:
+  // health here is the storage's alone.
+  const std::string cfg = WriteConfig(t.path(), "[worker]\nsilent_after = \"0s\"\n", 4, kPlan);
   Daemon d(cfg, t.path(), 20);
   ASSERT_TRUE(d.ok()) << ReadAll(d.log());
   const std::string filler = state + "/filler";

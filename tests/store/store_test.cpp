@@ -588,6 +588,75 @@ TEST(JobQueue, TwoProcessesShareTheQueue) {
   EXPECT_EQ(claimed, 50);
 }
 
+// The worker's report: read back as written, aged on the boot clock by the
+// reader (another connection, as aggscand's is), replaced by the next one,
+// and not taken for this boot's when an earlier boot wrote it.
+TEST(JobQueue, WorkerReportIsReadBackWithItsAge) {
+  TempDir t;
+  const std::string path = t.path() + "/queue.db";
+  auto worker = JobQueue::Open(path);
+  auto daemon = JobQueue::Open(path);
+  ASSERT_TRUE(worker.ok() && daemon.ok());
+  auto none = (*daemon)->Worker();
+  ASSERT_TRUE(none.ok()) << none.error().ToString();
+  EXPECT_FALSE(none->has_value());
+
+  const int64_t t0 = BootTimeNs();
+  WorkerReport r;
+  r.pid = 4242;
+  r.state = "busy";
+  r.job_id = 7;
+  r.sample_id = "rock-3";
+  r.side = 2;
+  r.stage = "masks side 2 view 5";
+  r.done = 4;
+  r.total = 30;
+  r.started_boot_ns = t0 - 60'000'000'000;      // a minute ago
+  r.job_started_boot_ns = t0 - 12'000'000'000;  // 12 s ago
+  r.stage_since_boot_ns = t0 - 2'000'000'000;   // 2 s ago
+  ASSERT_TRUE((*worker)->ReportWorker(r).ok());
+  auto seen = (*daemon)->Worker();
+  ASSERT_TRUE(seen.ok() && seen->has_value());
+  const WorkerSeen& w = **seen;
+  EXPECT_TRUE(w.this_boot);
+  EXPECT_EQ(w.report.pid, 4242);
+  EXPECT_EQ(w.report.state, "busy");
+  EXPECT_EQ(w.report.job_id, 7);
+  EXPECT_EQ(w.report.sample_id, "rock-3");
+  EXPECT_EQ(w.report.side, 2);
+  EXPECT_EQ(w.report.stage, "masks side 2 view 5");
+  EXPECT_EQ(w.report.done, 4);
+  EXPECT_EQ(w.report.total, 30);
+  EXPECT_GE(w.heard_s_ago, 0.0);
+  EXPECT_LT(w.heard_s_ago, 5.0);
+  EXPECT_NEAR(w.up_s, 60.0, 5.0);
+  EXPECT_NEAR(w.job_s, 12.0, 5.0);
+  EXPECT_NEAR(w.stage_s, 2.0, 5.0);
+  EXPECT_EQ(w.heard_utc.size(), std::string("2026-01-01T00:00:00.000Z").size()) << w.heard_utc;
+
+  r.state = "idle";
+  r.job_id = 0;
+  ASSERT_TRUE((*worker)->ReportWorker(r).ok());
+  seen = (*daemon)->Worker();
+  ASSERT_TRUE(seen.ok() && seen->has_value());
+  EXPECT_EQ((*seen)->report.state, "idle");
+  EXPECT_EQ((*seen)->report.job_id, 0);
+
+  // The connection goes on with jobs after a report.
+  ASSERT_TRUE((*worker)->Enqueue("rock-4", 1).ok());
+  ASSERT_TRUE((*worker)->ClaimNext()->has_value());
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+  ASSERT_EQ(
+      sqlite3_exec(db, "UPDATE worker SET boot_id='an-earlier-boot'", nullptr, nullptr, nullptr),
+      SQLITE_OK);
+  sqlite3_close(db);
+  seen = (*daemon)->Worker();
+  ASSERT_TRUE(seen.ok() && seen->has_value());
+  EXPECT_FALSE((*seen)->this_boot);
+  EXPECT_EQ((*seen)->heard_s_ago, 0.0);
+}
+
 TEST(JobQueue, UnwritableLocationIsAClearError) {
   auto q = JobQueue::Open("/nonexistent-dir/queue.db");
   ASSERT_FALSE(q.ok());
