@@ -362,8 +362,9 @@ std::string BlenderScriptPath() {
 }
 
 bool BlenderAvailable(const BlenderOptions& o) {
-  auto r = RunSubprocess({o.blender, "-b", "--factory-startup", "-noaudio", "--version"},
-                         SubprocessOptions{.timeout_s = 60});
+  SubprocessOptions so;
+  so.timeout_s = 60;
+  auto r = RunSubprocess({o.blender, "-b", "--factory-startup", "-noaudio", "--version"}, so);
   return r && r->Succeeded();
 }
 

@@ -130,8 +130,10 @@ Result<std::string> FindPython(const std::string& wanted) {
   else
     candidates = {"/usr/bin/python3", "python3"};
   std::string last;
+  SubprocessOptions so;
+  so.timeout_s = 120;
   for (const auto& py : candidates) {
-    auto r = RunSubprocess({py, "-c", "import torch, cv2"}, SubprocessOptions{.timeout_s = 120});
+    auto r = RunSubprocess({py, "-c", "import torch, cv2"}, so);
     if (r && r->Succeeded()) return py;
     last = py + (r ? ": " + r->Describe() : ": " + r.error().message);
   }
@@ -239,7 +241,9 @@ int TrainCommand(const std::vector<std::string>& args, std::ostream& out, std::o
     argv.push_back("--backgrounds");
     argv.insert(argv.end(), backgrounds.begin(), backgrounds.end());
   }
-  auto r = RunSubprocess(argv, SubprocessOptions{.log_path = log});
+  SubprocessOptions so;
+  so.log_path = log;
+  auto r = RunSubprocess(argv, so);
   if (!r) {
     err << "aggscan masks train: cannot run " << *py << ": " << r.error().message << "\n";
     return 1;

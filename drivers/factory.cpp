@@ -195,7 +195,7 @@ Result<RigDevices> CreateRig(const Config& config, Clock& clock) {
   }
 
   RigDevices rig;
-  Context ctx{config, clock, &rig, {}};
+  Context ctx{config, clock, &rig, {}, {}};
   // The turntable first: the sim camera needs its platter angle.
   auto t = turntable->make(ctx);
   if (!t) return t.error();

@@ -353,7 +353,9 @@ TEST_F(Hardening, HostHeaderMustNameThisRig) {
     ::close(fd);
     EXPECT_EQ(got.rfind("HTTP/1.1 " + std::to_string(c.status), 0), 0u)
         << c.host << ": " << got.substr(0, 300);
-    if (c.status == 421) EXPECT_NE(got.find("daemon.allowed_hosts"), std::string::npos) << got;
+    if (c.status == 421) {
+      EXPECT_NE(got.find("daemon.allowed_hosts"), std::string::npos) << got;
+    }
   }
   EXPECT_EQ(fake_.CallCount(), 5u);  // the five allowed ones
   // A configured name, with and without the port.
@@ -398,8 +400,9 @@ TEST_F(Hardening, OriginIsCheckedOnStateChangingRequests) {
     auto r = cl.Post("/api/v1/button", h, "", "application/json");
     ASSERT_TRUE(r) << c.origin;
     EXPECT_EQ(r->status, c.status) << c.origin << ": " << r->body;
-    if (c.status == 403)
+    if (c.status == 403) {
       EXPECT_NE(r->body.find("daemon.allowed_origins"), std::string::npos) << r->body;
+    }
     if (c.status == 200) ++presses;
   }
   EXPECT_EQ(fake_.CallCount(), presses);
