@@ -230,7 +230,35 @@ void CaptureService::Start() {
     loop_.AddRealTimer(MonotonicNs() + config_.daemon.health_probe_interval, [this] { ProbeDevices(); });
   }
   if (queue_ && config_.worker.silent_after > 0) WatchWorker();
+  if (queue_ && events_) FollowWorker();
   NotifyStatus();
+}
+
+void CaptureService::Publish(const std::string& type, json data) {
+  if (events_) events_->Publish(type, std::move(data));
+}
+
+void CaptureService::FollowWorker() {
+  json w = WorkerOnLoop();
+  if (w.is_object()) {
+    // Ages tick on every read: what changed is the state, job, stage and progress.
+    const json key = {w["state"], w["job"].is_object() ? w["job"]["id"] : json(nullptr), w["stage"],
+                      w["progress"]};
+    const std::string said = key.dump();
+    if (said != published_worker_) {
+      published_worker_ = said;
+      Publish("worker", w);
+    }
+    const bool healthy = w.value("healthy", false);
+    if (healthy != published_worker_healthy_) {
+      published_worker_healthy_ = healthy;
+      Publish("health", {{"device", "worker"},
+                         {"healthy", healthy},
+                         {"state", w["state"]},
+                         {"message", w["message"]}});
+    }
+  }
+  loop_.AddRealTimer(MonotonicNs() + 500 * kNsPerMs, [this] { FollowWorker(); });
 }
 
 void CaptureService::WatchWorker() {
@@ -367,6 +395,7 @@ void CaptureService::MarkHealthy(const std::string& name) {
     h.since_utc_ns = now;
     device_log_.ClearPrefix(name + "/", name + ": ok again after " + std::to_string(h.retries) +
                                             " failed open attempt" + (h.retries == 1 ? "" : "s"));
+    Publish("health", {{"device", name}, {"healthy", true}, {"state", "ok"}, {"message", "ok"}});
   }
   h.healthy = true;
   h.message = "ok";
@@ -383,6 +412,10 @@ void CaptureService::MarkUnhealthy(const std::string& name, ErrorClass cls, cons
     h.since_utc_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(
                          std::chrono::system_clock::now().time_since_epoch())
                          .count();
+    Publish("health", {{"device", name},
+                       {"healthy", false},
+                       {"state", ErrorClassName(cls)},
+                       {"message", message}});
   }
   h.healthy = false;
   h.cls = cls;
@@ -568,6 +601,26 @@ void CaptureService::Dispatch(cs::Event e) {
     for (const auto& eff : r.effects) Execute(eff);
     if (state_.phase == cs::Phase::kIdle) state_.sample_id = keep_id;
     if (on_transition_) on_transition_(state_);
+    if (events_) {
+      const std::string now = std::string(cs::PhaseName(state_.phase)) + "/" + state_.sample_id +
+                              "/" + std::to_string(state_.side);
+      if (now != published_state_) {
+        published_state_ = now;
+        Publish("state",
+                {{"state", cs::PhaseName(state_.phase)},
+                 {"sample_id", state_.sample_id.empty() ? json(nullptr) : json(state_.sample_id)},
+                 {"side", state_.side},
+                 {"views_per_side", config_.capture.views_per_side},
+                 {"sides", config_.capture.sides},
+                 {"status_line", StatusLine()}});
+        if (state_.phase == cs::Phase::kFaulted && before != cs::Phase::kFaulted) {
+          Publish("fault", {{"class", ErrorClassName(state_.fault_class)},
+                            {"message", state_.fault_message},
+                            {"sample_id", sample},
+                            {"side", state_.side}});
+        }
+      }
+    }
     NotifyStatus();
   }
   dispatching_ = false;
@@ -718,6 +771,13 @@ void CaptureService::Execute(const cs::Effect& eff) {
             return;
           }
           ++views_captured_;
+          Publish("view",
+                  {{"sample_id", id},
+                   {"side", e.side},
+                   {"view", e.view},
+                   {"number", e.view + 1},
+                   {"views_per_side", config_.capture.views_per_side},
+                   {"image", layout::SideDirName(e.side) + "/" + layout::ViewImageName(e.view)}});
           {
             // A stored view proves both devices work: the health API's last_ok.
             const int64_t now_utc = std::chrono::duration_cast<std::chrono::nanoseconds>(

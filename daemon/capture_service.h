@@ -16,6 +16,7 @@
 #include "common/log.h"
 #include "config/config.h"
 #include "daemon/control.h"
+#include "daemon/event_hub.h"
 #include "daemon/event_loop.h"
 #include "daemon/state_machine.h"
 #include "drivers/factory.h"
@@ -66,6 +67,9 @@ class CaptureService final : public DaemonControl {
   void SetStatusListener(std::function<void(const std::string&)> fn) { on_status_ = std::move(fn); }
   /// Called on the loop thread after every accepted transition.
   void SetTransitionListener(std::function<void(const capture::State&)> fn) { on_transition_ = std::move(fn); }
+  /// Publishes the live events (state, view, worker, health, fault) there;
+  /// set before Start(). Borrowed: must outlive the service.
+  void SetEventHub(EventHub* hub) { events_ = hub; }
 
   // DaemonControl (any thread).
   nlohmann::json GetStatus() override;
@@ -145,6 +149,10 @@ class CaptureService final : public DaemonControl {
   void ProbeDevices();
   /// Logs the worker turning silent or coming back; every few seconds.
   void WatchWorker();
+  /// Publishes the worker's report when it changed; every 500 ms while
+  /// events are published.
+  void FollowWorker();
+  void Publish(const std::string& type, nlohmann::json data);
   /// Turns a runtime fault recorded by the button or light thread into health.
   void ProbeButtonAndLight();
   /// The status light's pattern for the current state and device health.
@@ -191,6 +199,10 @@ class CaptureService final : public DaemonControl {
   int probe_failures_ = 0;  // consecutive failed turntable status reads of the idle probe  // keys "device/class": one line per class until recovery
   TimeNs started_real_ = 0;
   bool worker_healthy_ = true;  // WatchWorker()'s last finding
+  EventHub* events_ = nullptr;
+  std::string published_state_;   // phase/sample/side of the last "state" event
+  std::string published_worker_;  // what the last "worker" event said
+  bool published_worker_healthy_ = true;
   std::string last_status_;
   nlohmann::json calibration_;  // CheckRigCalibration() result; null = never checked
   std::function<void(const std::string&)> on_status_;

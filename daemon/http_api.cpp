@@ -175,7 +175,9 @@ enum class Endpoint {
   kButton,
   kAbort,
   kReset,
-  kMetrics
+  kMetrics,
+  kEvents,
+  kOpenApi
 };
 
 // Methods each endpoint accepts (HEAD is answered wherever GET is).
@@ -186,7 +188,10 @@ const char* AllowedMethods(Endpoint ep) {
     case Endpoint::kSample:
     case Endpoint::kSampleFile:
     case Endpoint::kMetrics:
+    case Endpoint::kOpenApi:
       return "GET, HEAD";
+    case Endpoint::kEvents:
+      return "GET";
     case Endpoint::kSamples:
       return "GET, HEAD, POST";
     case Endpoint::kSampleRetry:
@@ -223,6 +228,8 @@ Endpoint Match(const std::string& path, std::string* id, std::string* file) {
   if (path == "/api/v1/abort") return Endpoint::kAbort;
   if (path == "/api/v1/reset") return Endpoint::kReset;
   if (path == "/metrics") return Endpoint::kMetrics;
+  if (path == "/api/v1/events") return Endpoint::kEvents;
+  if (path == "/api/v1/openapi.json") return Endpoint::kOpenApi;
   if (path.rfind(kSamplesPrefix, 0) == 0) {
     *id = path.substr(std::strlen(kSamplesPrefix));
     const size_t slash = id->find('/');
@@ -525,6 +532,20 @@ ApiResponse ApiRouter::HandleUnsafe(const ApiRequest& req) {
       r.body = control_.Metrics();
       return r;
     }
+    case Endpoint::kOpenApi: {
+      ApiResponse r;
+      r.status = 200;
+      r.content_type = kJsonType;
+      r.body = OpenApiDocument();
+      return r;
+    }
+    case Endpoint::kEvents: {
+      // Admitted here (Host, method); the transport streams it.
+      ApiResponse r;
+      r.status = 200;
+      r.event_stream = true;
+      return r;
+    }
     case Endpoint::kNone:
       break;
   }
@@ -654,7 +675,8 @@ void LogMhd(void*, const char* fmt, va_list ap) {
 struct HttpApi::Server {
   // One TCP connection, from accept to close (libmicrohttpd's socket context).
   struct Conn {
-    enum Phase { kReceiving, kProcessing, kSending };
+    // kStreaming: an event stream, open for as long as its client wants.
+    enum Phase { kReceiving, kProcessing, kSending, kStreaming };
     int fd = -1;
     Phase phase = kReceiving;
     SteadyClock::time_point since;
@@ -672,10 +694,32 @@ struct HttpApi::Server {
     std::optional<ApiResponse> answer;   // set by a handler thread, sent after resume
   };
 
-  Server(DaemonControl& control, HostPolicy policy) : router(control, std::move(policy)) {}
+  // One open GET /api/v1/events. Its content reader runs on libmicrohttpd's
+  // thread; with nothing to send it suspends the connection, and a publish
+  // (or the watchdog, for the keep-alive, or Stop) resumes it. `mu` is held
+  // from the reader's look at the hub to its suspend, and by whoever
+  // resumes, so no event is missed between the two.
+  struct Stream {
+    Server* server = nullptr;
+    MHD_Connection* connection = nullptr;
+    std::mutex mu;
+    uint64_t after = 0;        // last event seq written to buf
+    std::string reset_reason;  // a "reset" event to send first
+    std::string buf;           // formatted, not yet all taken by libmicrohttpd
+    size_t off = 0;
+    bool suspended = false;
+    bool closing = false;  // the server stops: end the stream
+    bool closed = false;   // libmicrohttpd freed the response
+    SteadyClock::time_point last_write;
+  };
+
+  Server(DaemonControl& control, HostPolicy policy, EventHub* hub)
+      : router(control, std::move(policy)), events(hub) {}
 
   ApiRouter router;
+  EventHub* events;
   MHD_Daemon* daemon = nullptr;
+  std::unordered_set<std::shared_ptr<Stream>> streams;  // under mu
 
   std::mutex mu;
   std::condition_variable work_cv;
@@ -697,6 +741,132 @@ struct HttpApi::Server {
     const MHD_Result ret = MHD_queue_response(c, static_cast<unsigned>(r.status), resp);
     MHD_destroy_response(resp);
     return ret;
+  }
+
+  MHD_Result OpenStream(MHD_Connection* connection, Exchange* ex) {
+    if (events == nullptr) {
+      SetPhase(ex->conn, Conn::kSending);
+      return Queue(connection, ErrorResponse(404, ErrorClass::kNotFound,
+                                             "this daemon publishes no live events"));
+    }
+    auto stream = std::make_shared<Stream>();
+    stream->server = this;
+    stream->connection = connection;
+    stream->last_write = SteadyClock::now();
+    // The reconnect delay for EventSource, then a comment so the client sees
+    // the stream open at once.
+    stream->buf = "retry: 2000\n: aggscand events\n\n";
+    if (const std::string* last = ex->req.Header("Last-Event-ID"); last != nullptr) {
+      if (std::optional<uint64_t> seq = events->SeqAfter(*last)) {
+        stream->after = *seq;
+      } else {
+        stream->after = events->last_seq();
+        stream->reset_reason =
+            "Last-Event-ID \"" + Printable(*last, 80) +
+            "\" is not one of this run's events (aggscand restarted, or the id is not ours): "
+            "reload the state (GET /api/v1/status), then follow the events";
+      }
+    } else {
+      stream->after = events->last_seq();
+    }
+    {
+      std::lock_guard<std::mutex> lock(mu);
+      if (streams.size() >= HttpApi::kMaxEventStreams) {
+        if (ex->conn != nullptr) {
+          ex->conn->phase = Conn::kSending;
+          ex->conn->since = SteadyClock::now();
+        }
+        ApiResponse busy = ErrorResponse(503, ErrorClass::kConflict,
+                                         "too many event streams open (" +
+                                             std::to_string(HttpApi::kMaxEventStreams) +
+                                             "): close a console or dashboard, then retry");
+        return Queue(connection, busy);
+      }
+      streams.insert(stream);
+      if (ex->conn != nullptr) {
+        ex->conn->phase = Conn::kStreaming;
+        ex->conn->since = SteadyClock::now();
+      }
+    }
+    auto* holder = new std::shared_ptr<Stream>(stream);
+    MHD_Response* resp =
+        MHD_create_response_from_callback(MHD_SIZE_UNKNOWN, 4096, &StreamRead, holder, &StreamFree);
+    if (resp == nullptr) {
+      StreamFree(holder);
+      return MHD_NO;
+    }
+    MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, "text/event-stream");
+    MHD_add_response_header(resp, MHD_HTTP_HEADER_CACHE_CONTROL, "no-store");
+    const MHD_Result ret = MHD_queue_response(connection, MHD_HTTP_OK, resp);
+    MHD_destroy_response(resp);
+    return ret;
+  }
+
+  static ssize_t StreamRead(void* cls, uint64_t, char* out, size_t max) {
+    Stream& s = **static_cast<std::shared_ptr<Stream>*>(cls);
+    std::lock_guard<std::mutex> lock(s.mu);
+    if (s.closing) return MHD_CONTENT_READER_END_OF_STREAM;
+    if (s.off >= s.buf.size()) {
+      s.buf.clear();
+      s.off = 0;
+      bool gap = false;
+      const std::vector<LiveEvent> fresh = s.server->events->Since(s.after, &gap);
+      if (gap && s.reset_reason.empty())
+        s.reset_reason =
+            "events were missed (more than the daemon keeps): reload the state (GET "
+            "/api/v1/status), then follow the events";
+      if (!s.reset_reason.empty()) {
+        s.buf += FormatSse("", "reset", json{{"reason", s.reset_reason}}.dump());
+        s.reset_reason.clear();
+      }
+      for (const LiveEvent& e : fresh) {
+        s.buf += FormatSse(s.server->events->IdOf(e.seq), e.type, e.data);
+        s.after = e.seq;
+      }
+      if (s.buf.empty() && SteadyClock::now() - s.last_write >= HttpApi::kEventKeepAlive)
+        s.buf = ": keep-alive\n\n";
+      if (s.buf.empty()) {
+        s.suspended = true;
+        MHD_suspend_connection(s.connection);
+        return 0;
+      }
+    }
+    const size_t n = std::min(max, s.buf.size() - s.off);
+    std::memcpy(out, s.buf.data() + s.off, n);
+    s.off += n;
+    s.last_write = SteadyClock::now();
+    return static_cast<ssize_t>(n);
+  }
+
+  static void StreamFree(void* cls) {
+    auto* holder = static_cast<std::shared_ptr<Stream>*>(cls);
+    std::shared_ptr<Stream> s = *holder;
+    delete holder;
+    {
+      std::lock_guard<std::mutex> lock(s->mu);
+      s->closed = true;
+    }
+    std::lock_guard<std::mutex> lock(s->server->mu);
+    s->server->streams.erase(s);
+  }
+
+  // Resumes every suspended stream (to send what was published, or a
+  // keep-alive); `closing`: to end them. Takes mu: never call with it held.
+  void WakeStreams(bool closing) {
+    std::vector<std::shared_ptr<Stream>> open;
+    {
+      std::lock_guard<std::mutex> lock(mu);
+      open.assign(streams.begin(), streams.end());
+    }
+    for (const auto& s : open) {
+      std::lock_guard<std::mutex> lock(s->mu);
+      if (s->closed) continue;
+      if (closing) s->closing = true;
+      if (s->suspended) {
+        s->suspended = false;
+        MHD_resume_connection(s->connection);
+      }
+    }
   }
 
   static MHD_Result CollectHeader(void* cls, MHD_ValueKind, const char* key, const char* value) {
@@ -754,6 +924,7 @@ struct HttpApi::Server {
       return MHD_YES;
     }
     if (ex->answer) {
+      if (ex->answer->event_stream) return self->OpenStream(connection, ex);
       self->SetPhase(ex->conn, Conn::kSending);
       return Queue(connection, *ex->answer);
     }
@@ -888,8 +1059,16 @@ struct HttpApi::Server {
   // been taken, in time: libmicrohttpd's own timeout is reset by every byte.
   void WatchdogThread() {
     std::unique_lock<std::mutex> lock(mu);
+    auto keepalive_due = SteadyClock::now() + HttpApi::kEventKeepAlive;
     while (!stopping) {
       watchdog_cv.wait_for(lock, kWatchdogPeriod);
+      if (SteadyClock::now() >= keepalive_due && !stopping) {
+        // Idle event streams send their keep-alive.
+        keepalive_due = SteadyClock::now() + HttpApi::kEventKeepAlive;
+        lock.unlock();
+        WakeStreams(false);
+        lock.lock();
+      }
       const auto now = SteadyClock::now();
       for (Conn* c : conns) {
         if (c->cut || c->fd < 0) continue;
@@ -934,7 +1113,8 @@ Status HttpApi::Start() {
   }
   auto server = std::make_unique<Server>(
       control_,
-      HostPolicy::ForListen(address_, options_.allowed_hosts, options_.allowed_origins, port));
+      HostPolicy::ForListen(address_, options_.allowed_hosts, options_.allowed_origins, port),
+      options_.events);
   Server* s = server.get();
   s->daemon = MHD_start_daemon(
       MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_EPOLL | MHD_ALLOW_SUSPEND_RESUME |
@@ -959,6 +1139,7 @@ Status HttpApi::Start() {
   for (size_t i = 0; i < kHandlerThreads; ++i)
     s->handlers.emplace_back([s] { s->HandlerThread(); });
   s->watchdog = std::thread([s] { s->WatchdogThread(); });
+  if (s->events != nullptr) s->events->SetListener([s] { s->WakeStreams(false); });
   server_ = std::move(server);
   bound_port_ = port;
   AGG_LOGI(kCat, "HTTP API listening on http://%s", HostPort(address_, bound_port_).c_str());
@@ -974,6 +1155,9 @@ void HttpApi::Stop() {
   }
   s.work_cv.notify_all();
   s.watchdog_cv.notify_all();
+  // Event streams end (their readers see `closing` once resumed).
+  if (s.events != nullptr) s.events->SetListener({});
+  s.WakeStreams(true);
   // Handler threads answer what is queued with 503 and finish the calls in
   // flight (each bounded by kRequestBudget, and at once when the loop has
   // stopped), resuming every suspended connection.

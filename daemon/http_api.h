@@ -37,8 +37,13 @@
 
 #include "common/error.h"
 #include "daemon/control.h"
+#include "daemon/event_hub.h"
 
 namespace aggscan {
+
+/// The API's OpenAPI 3 document (daemon/openapi.json), as served at
+/// GET /api/v1/openapi.json.
+const char* OpenApiDocument();
 
 /// HTTP status for an error class: invalid_argument 400, not_found 404,
 /// conflict/invalid_state 409, device errors and timeout 503, disk_full 507,
@@ -77,6 +82,9 @@ struct ApiResponse {
   std::string body;
   std::vector<std::pair<std::string, std::string>> headers;  // Allow, Content-Disposition, ...
   bool close = false;  // close the connection after it (the request was not read to its end)
+  /// GET /api/v1/events, admitted: the transport answers with the event
+  /// stream (text/event-stream) instead of `body`.
+  bool event_stream = false;
 };
 
 /// The JSON error answer every refusal uses.
@@ -137,6 +145,9 @@ class ApiRouter {
 struct HttpApiOptions {
   std::vector<std::string> allowed_hosts;    // in addition to the defaults (see HostPolicy)
   std::vector<std::string> allowed_origins;  // extra allowed origins
+  /// The live events GET /api/v1/events streams; null: that endpoint is 404.
+  /// Borrowed: must outlive the HttpApi.
+  EventHub* events = nullptr;
 };
 
 class HttpApi {
@@ -154,8 +165,14 @@ class HttpApi {
   /// (or from the previous answer on a keep-alive connection): a client
   /// trickling one byte a second cannot hold a slot for longer.
   static constexpr std::chrono::seconds kReceiveLimit{10};
-  /// An answer must be taken by the client within this.
+  /// An answer must be taken by the client within this (event streams excepted).
   static constexpr std::chrono::seconds kSendLimit{60};
+  /// Event streams open at once at most: each holds a connection for as long
+  /// as its client wants, so they must leave room for the operator's calls.
+  static constexpr size_t kMaxEventStreams = 32;
+  /// An event stream with nothing to send for this long gets a comment line,
+  /// so proxies and the client see that it is alive.
+  static constexpr std::chrono::seconds kEventKeepAlive{15};
   /// A request fully received must have started on the capture loop within
   /// this, or it is answered 503 and never runs.
   static constexpr std::chrono::seconds kRequestBudget{4};

@@ -203,7 +203,10 @@ int main(int argc, char** argv) {
     truth = std::make_unique<sim::TruthRecorder>(rig->world);
     truth->Attach(*rig, [&store](const std::string& id) { return store.SampleDir(id) + "/" + layout::kTruthDir; });
   }
+  // Declared before the service and the API, which publish and stream it.
+  EventHub events;
   CaptureService service(loop, config, effective, std::move(*rig), store, queue->get());
+  service.SetEventHub(&events);
   // The rig calibration: checked now and at every arm; missing or invalid is a
   // warning and a status field, never a reason not to capture.
   service.RefreshCalibration();
@@ -213,7 +216,7 @@ int main(int argc, char** argv) {
 
   HttpApi api(service, config.daemon.listen_address, config.daemon.listen_port,
               HttpApiOptions{SplitCommaList(config.daemon.allowed_hosts),
-                             SplitCommaList(config.daemon.allowed_origins)});
+                             SplitCommaList(config.daemon.allowed_origins), &events});
   if (Status s = api.Start(); !s) {
     AGG_LOGE("main", "%s", s.error().ToString().c_str());
     service.Shutdown();

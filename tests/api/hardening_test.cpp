@@ -29,6 +29,7 @@
 #include "store/sample_store.h"
 #include "tests/api/fake_control.h"
 #include "tests/scenario/process.h"
+#include "tests/util/loopback.h"
 #include "tests/util/temp_dir.h"
 
 namespace aggscan {
@@ -42,18 +43,7 @@ double SecondsSince(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
-int Connect(int port) {
-  const int fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
-  sockaddr_in addr{};
-  addr.sin_family = AF_INET;
-  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  addr.sin_port = htons(static_cast<uint16_t>(port));
-  if (::connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0) {
-    ::close(fd);
-    return -1;
-  }
-  return fd;
-}
+int Connect(int port) { return test::ConnectLoopback(port); }
 
 bool SendAll(int fd, const std::string& s) {
   size_t sent = 0;

@@ -1,18 +1,24 @@
 #include "daemon/http_api.h"
 
 #include <gtest/gtest.h>
-
-#include <fstream>
 #include <httplib.h>
+#include <netinet/in.h>
 #include <poll.h>
+#include <sys/socket.h>
+#include <unistd.h>
 
 #include <atomic>
+#include <cctype>
+#include <chrono>
+#include <fstream>
 #include <memory>
+#include <set>
 #include <string>
 #include <thread>
 #include <vector>
 
 #include "tests/api/fake_control.h"
+#include "tests/util/loopback.h"
 
 namespace aggscan {
 namespace {
@@ -432,6 +438,7 @@ TEST_F(HttpApiTest, WrongMethodIs405WithAllow) {
       {"GET", "/api/v1/button", "POST"},         {"PUT", "/api/v1/samples", "GET, HEAD, POST"},
       {"GET", "/api/v1/abort", "POST"},          {"PATCH", "/api/v1/reset", "POST"},
       {"POST", "/metrics", "GET, HEAD"},         {"DELETE", "/api/v1/samples/rock-1", "GET, HEAD"},
+      {"POST", "/api/v1/events", "GET"},
   };
   for (const auto& c : cases) {
     httplib::Result r = c.method == "GET"     ? client_->Get(c.path)
@@ -445,6 +452,139 @@ TEST_F(HttpApiTest, WrongMethodIs405WithAllow) {
     EXPECT_EQ(ErrorClassOf(r), "invalid_argument");
   }
   EXPECT_EQ(fake_.CallCount(), 0u);
+}
+
+// The OpenAPI document is served, is OpenAPI 3, and agrees with the router:
+// every path it lists is routed, with exactly its methods (HEAD beside GET
+// but on the event stream), and an unlisted one is a 404.
+TEST_F(HttpApiTest, OpenApiDocumentListsWhatIsRouted) {
+  auto r = client_->Get("/api/v1/openapi.json");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 200);
+  const json doc = Body(r);
+  ASSERT_TRUE(doc.is_object()) << r->body.substr(0, 200);
+  EXPECT_EQ(doc["openapi"].get<std::string>().rfind("3.", 0), 0u);
+  ASSERT_TRUE(doc["paths"].is_object());
+  EXPECT_GE(doc["paths"].size(), 14u);
+  for (const auto& [path, item] : doc["paths"].items()) {
+    std::string concrete = path;
+    if (const size_t at = concrete.find("{id}"); at != std::string::npos)
+      concrete.replace(at, 4, "rock-1");
+    std::set<std::string> documented;
+    for (const auto& [method, op] : item.items()) {
+      if (method == "parameters") continue;
+      std::string upper = method;
+      for (char& c : upper) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+      documented.insert(upper);
+      if (upper == "GET" && path != "/api/v1/events") documented.insert("HEAD");
+    }
+    // OPTIONS answers with the router's Allow list for a routed path.
+    auto o = client_->Options(concrete);
+    ASSERT_TRUE(o) << path;
+    EXPECT_EQ(o->status, 204) << path << ": " << o->body;
+    std::set<std::string> allowed;
+    std::string allow = o->get_header_value("Allow");
+    for (size_t pos = 0; pos < allow.size();) {
+      size_t end = allow.find(", ", pos);
+      if (end == std::string::npos) end = allow.size();
+      allowed.insert(allow.substr(pos, end - pos));
+      pos = end + 2;
+    }
+    allowed.erase("OPTIONS");
+    EXPECT_EQ(allowed, documented) << path;
+  }
+  auto none = client_->Get("/api/v1/not-documented");
+  ASSERT_TRUE(none);
+  EXPECT_EQ(none->status, 404);
+}
+
+// Without an event hub (a daemon that publishes none) the stream is a 404.
+TEST_F(HttpApiTest, EventsWithoutAHubIs404) {
+  auto r = client_->Get("/api/v1/events");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 404);
+  EXPECT_EQ(ErrorClassOf(r), "not_found");
+}
+
+// Opens GET /api/v1/events on a raw socket; returns the fd (-1 on failure).
+int OpenEventStream(int port) {
+  const int fd = test::ConnectLoopback(port);
+  if (fd < 0) return -1;
+  const std::string req = "GET /api/v1/events HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n";
+  if (::send(fd, req.data(), req.size(), MSG_NOSIGNAL) != static_cast<ssize_t>(req.size())) {
+    ::close(fd);
+    return -1;
+  }
+  return fd;
+}
+
+// Reads from `fd` until `want` shows up, the peer closes or `ms` pass.
+std::string ReadUntil(int fd, const std::string& want, int ms) {
+  std::string got;
+  char buf[4096];
+  const auto end = std::chrono::steady_clock::now() + std::chrono::milliseconds(ms);
+  while (got.find(want) == std::string::npos && std::chrono::steady_clock::now() < end) {
+    pollfd p{fd, POLLIN, 0};
+    if (::poll(&p, 1, 50) <= 0) continue;
+    const ssize_t n = ::recv(fd, buf, sizeof buf, 0);
+    if (n <= 0) break;
+    got.append(buf, static_cast<size_t>(n));
+  }
+  return got;
+}
+
+// Streams take published events as they come (suspended in between, so an
+// idle stream costs no CPU); at most kMaxEventStreams are open, the next is
+// refused with 503 while the ordinary API still answers; Stop ends them all
+// at once.
+TEST(HttpApiEvents, StreamsTakeEventsAreBoundedAndEndWithTheServer) {
+  FakeControl fake;
+  EventHub hub;
+  HttpApiOptions o;
+  o.events = &hub;
+  HttpApi api(fake, "127.0.0.1", 0, o);
+  ASSERT_TRUE(api.Start().ok());
+  std::vector<int> fds;
+  for (size_t i = 0; i < HttpApi::kMaxEventStreams; ++i) {
+    const int fd = OpenEventStream(api.port());
+    ASSERT_GE(fd, 0);
+    const std::string head = ReadUntil(fd, ": aggscand events\n\n", 5000);
+    ASSERT_NE(head.find("HTTP/1.1 200"), std::string::npos) << head;
+    ASSERT_NE(head.find("text/event-stream"), std::string::npos) << head;
+    fds.push_back(fd);
+  }
+  const int extra = OpenEventStream(api.port());
+  const std::string refused = ReadUntil(extra, "too many event streams", 5000);
+  EXPECT_NE(refused.find("HTTP/1.1 503"), std::string::npos) << refused;
+  ::close(extra);
+  httplib::Client c("127.0.0.1", api.port());
+  auto status = c.Get("/api/v1/status");
+  ASSERT_TRUE(status);
+  EXPECT_EQ(status->status, 200);
+
+  const uint64_t seq = hub.Publish("view", {{"number", 7}});
+  const std::string id = "id: " + hub.IdOf(seq) + "\nevent: view\ndata: {\"number\":7";
+  for (int fd : fds) {
+    const std::string got = ReadUntil(fd, "\n\n", 5000);
+    EXPECT_NE(got.find(id), std::string::npos) << got;
+  }
+  const auto t0 = std::chrono::steady_clock::now();
+  api.Stop();
+  EXPECT_LT(std::chrono::steady_clock::now() - t0, std::chrono::seconds(5));
+  for (int fd : fds) {
+    // The stream's end: the peer closes (recv 0) after the last chunk.
+    char buf[256];
+    ssize_t n = 1;
+    for (int i = 0; i < 100 && n > 0; ++i) {
+      pollfd p{fd, POLLIN, 0};
+      if (::poll(&p, 1, 100) <= 0) continue;
+      n = ::recv(fd, buf, sizeof buf, 0);
+    }
+    EXPECT_LE(n, 0);
+    ::close(fd);
+  }
+  // Publishing after the server stopped reaches nobody and harms nothing.
+  hub.Publish("view", {{"number", 8}});
 }
 
 TEST_F(HttpApiTest, GarbageRequestsGetJsonErrors) {
