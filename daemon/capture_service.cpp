@@ -229,8 +229,7 @@ void CaptureService::Start() {
   if (config_.daemon.health_probe_interval > 0) {
     loop_.AddRealTimer(MonotonicNs() + config_.daemon.health_probe_interval, [this] { ProbeDevices(); });
   }
-  if (queue_ && config_.worker.silent_after > 0) WatchWorker();
-  if (queue_ && events_) FollowWorker();
+  if (queue_ && (config_.worker.silent_after > 0 || events_)) WatchWorker();
   NotifyStatus();
 }
 
@@ -238,8 +237,8 @@ void CaptureService::Publish(const std::string& type, json data) {
   if (events_) events_->Publish(type, std::move(data));
 }
 
-void CaptureService::FollowWorker() {
-  json w = WorkerOnLoop();
+void CaptureService::WatchWorker() {
+  const json w = WorkerOnLoop();
   if (w.is_object()) {
     // Ages tick on every read: what changed is the state, job, stage and progress.
     const json key = {w["state"], w["job"].is_object() ? w["job"]["id"] : json(nullptr), w["stage"],
@@ -250,30 +249,23 @@ void CaptureService::FollowWorker() {
       Publish("worker", w);
     }
     const bool healthy = w.value("healthy", false);
-    if (healthy != published_worker_healthy_) {
-      published_worker_healthy_ = healthy;
+    if (healthy != worker_healthy_) {
+      worker_healthy_ = healthy;
+      LogLine(healthy ? LogLevel::kNotice : LogLevel::kWarning, "worker", "",
+              healthy ? "aggscan-worker is reporting again: " + w.value("message", std::string())
+                      : w.value("message", std::string()));
       Publish("health", {{"device", "worker"},
                          {"healthy", healthy},
                          {"state", w["state"]},
                          {"message", w["message"]}});
     }
   }
-  loop_.AddRealTimer(MonotonicNs() + 500 * kNsPerMs, [this] { FollowWorker(); });
-}
-
-void CaptureService::WatchWorker() {
-  const json w = WorkerOnLoop();
-  const bool healthy = w.is_object() && w.value("healthy", false);
-  if (healthy != worker_healthy_) {
-    LogLine(healthy ? LogLevel::kNotice : LogLevel::kWarning, "worker", "",
-            healthy ? "aggscan-worker is reporting again: " + w.value("message", std::string())
-                    : w.value("message", std::string()));
-    worker_healthy_ = healthy;
-  }
-  // A quarter of the silence allowed, within 1..5 s: the change is logged
-  // soon after it is due without reading the queue often.
+  // Twice a second while events are followed (the worker's progress);
+  // otherwise a quarter of the silence allowed, within 1..5 s: the change is
+  // logged soon after it is due without reading the queue often.
   const TimeNs period =
-      std::clamp<TimeNs>(config_.worker.silent_after / 4, kNsPerSec, 5 * kNsPerSec);
+      events_ ? 500 * kNsPerMs
+              : std::clamp<TimeNs>(config_.worker.silent_after / 4, kNsPerSec, 5 * kNsPerSec);
   loop_.AddRealTimer(MonotonicNs() + period, [this] { WatchWorker(); });
 }
 

@@ -147,11 +147,10 @@ class CaptureService final : public DaemonControl {
   /// Reads the turntable's status every daemon.health_probe_interval while no
   /// side runs; comm_retries consecutive failures make it unhealthy.
   void ProbeDevices();
-  /// Logs the worker turning silent or coming back; every few seconds.
+  /// Logs and publishes the worker turning silent or coming back, and
+  /// publishes its report when it changed: every 500 ms while events are
+  /// published, else every few seconds.
   void WatchWorker();
-  /// Publishes the worker's report when it changed; every 500 ms while
-  /// events are published.
-  void FollowWorker();
   void Publish(const std::string& type, nlohmann::json data);
   /// Turns a runtime fault recorded by the button or light thread into health.
   void ProbeButtonAndLight();
@@ -202,7 +201,6 @@ class CaptureService final : public DaemonControl {
   EventHub* events_ = nullptr;
   std::string published_state_;   // phase/sample/side of the last "state" event
   std::string published_worker_;  // what the last "worker" event said
-  bool published_worker_healthy_ = true;
   std::string last_status_;
   nlohmann::json calibration_;  // CheckRigCalibration() result; null = never checked
   std::function<void(const std::string&)> on_status_;
