@@ -36,8 +36,12 @@ constexpr int kStatusFailedJobs = 20;
 
 // One worker job as the status, sample and retry answers show it.
 json JobJson(const Job& j) {
-  return {{"sample_id", j.sample_id}, {"side", j.side},   {"state", j.state},
-          {"attempts", j.attempts},   {"interruptions", j.interruptions}, {"error", j.error},
+  return {{"sample_id", j.sample_id},
+          {"side", j.side},
+          {"state", j.state},
+          {"attempts", j.attempts},
+          {"interruptions", j.interruptions},
+          {"error", j.error},
           {"updated_utc", j.updated_utc}};
 }
 
@@ -73,22 +77,26 @@ std::string RestedOutOfPosition(const TurntableConfig& tt, double angle_deg, dou
     steps_per_rev = tt.usb.steps_per_rev();
   }
   char b[256];
-  std::snprintf(b, sizeof b, "the platter came to rest at %.3f deg, %+.3f deg from the target", angle_deg, off);
+  std::snprintf(b, sizeof b, "the platter came to rest at %.3f deg, %+.3f deg from the target",
+                angle_deg, off);
   std::string msg = b;
   if (steps_per_rev > 0) {
-    std::snprintf(b, sizeof b, " (%+lld steps at %.0f steps per turn)", std::llround(off * steps_per_rev / 360.0),
-                  steps_per_rev);
+    std::snprintf(b, sizeof b, " (%+lld steps at %.0f steps per turn)",
+                  std::llround(off * steps_per_rev / 360.0), steps_per_rev);
     msg += b;
-    window_deg = std::max(window_deg, 360.0 / steps_per_rev);  // the backends' window is at least a step
+    window_deg =
+        std::max(window_deg, 360.0 / steps_per_rev);  // the backends' window is at least a step
   }
   if (key.empty()) return msg;
   if (std::fabs(off) > window_deg) {
     std::snprintf(b, sizeof b, "%.3f", window_deg);
     msg += ", outside " + key + " = " + b + " deg: if the drive cannot settle closer, raise " + key;
     std::snprintf(b, sizeof b, "%.3f", std::fabs(off));
-    msg += std::string(" above ") + b + " deg, else check the drive's tuning and the gear's backlash";
+    msg +=
+        std::string(" above ") + b + " deg, else check the drive's tuning and the gear's backlash";
   } else {
-    msg += ", inside " + key + ", but the controller never reported in position: check its own in-position "
+    msg += ", inside " + key +
+           ", but the controller never reported in position: check its own in-position "
            "setting";
   }
   return msg;
@@ -113,8 +121,8 @@ constexpr double kSideMargin = 1.5;
 constexpr int64_t kSideFixedBytes = 1 << 20;
 }  // namespace
 
-CaptureService::CaptureService(EventLoop& loop, Config config, std::string effective_config_toml, RigDevices devices,
-                               SampleStore& store, JobQueue* queue)
+CaptureService::CaptureService(EventLoop& loop, Config config, std::string effective_config_toml,
+                               RigDevices devices, SampleStore& store, JobQueue* queue)
     : loop_(loop),
       config_(std::move(config)),
       config_toml_(std::move(effective_config_toml)),
@@ -143,7 +151,8 @@ R Unavailable() {
   } else if constexpr (std::is_same_v<R, std::string>) {
     return std::string("# aggscand is stopping or busy\n");
   } else {
-    return MakeError(ErrorClass::kInternal, "aggscand could not run this request (stopping, or an internal error)");
+    return MakeError(ErrorClass::kInternal,
+                     "aggscand could not run this request (stopping, or an internal error)");
   }
 }
 
@@ -227,7 +236,8 @@ auto CaptureService::OnLoop(F fn, const CallContext& ctx) -> decltype(fn()) {
 void CaptureService::Start() {
   OpenDevices();
   if (config_.daemon.health_probe_interval > 0) {
-    loop_.AddRealTimer(MonotonicNs() + config_.daemon.health_probe_interval, [this] { ProbeDevices(); });
+    loop_.AddRealTimer(MonotonicNs() + config_.daemon.health_probe_interval,
+                       [this] { ProbeDevices(); });
   }
   if (queue_ && (config_.worker.silent_after > 0 || events_)) WatchWorker();
   NotifyStatus();
@@ -270,7 +280,8 @@ void CaptureService::WatchWorker() {
 }
 
 bool CaptureService::SideRunning() const {
-  return state_.Active() && state_.phase != cs::Phase::kArmed && state_.phase != cs::Phase::kAwaitingPose;
+  return state_.Active() && state_.phase != cs::Phase::kArmed &&
+         state_.phase != cs::Phase::kAwaitingPose;
 }
 
 void CaptureService::ProbeDevices() {
@@ -283,14 +294,16 @@ void CaptureService::ProbeDevices() {
       h.last_ok_utc_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(
                              std::chrono::system_clock::now().time_since_epoch())
                              .count();
-    } else if (++probe_failures_ > config_.capture.comm_retries || st.error().cls == ErrorClass::kDisconnected) {
+    } else if (++probe_failures_ > config_.capture.comm_retries ||
+               st.error().cls == ErrorClass::kDisconnected) {
       probe_failures_ = 0;
       MarkUnhealthy("turntable", st.error().cls, "turntable: " + st.error().ToString());
       ScheduleReopen("turntable");
       NotifyStatus();
     }
   }
-  loop_.AddRealTimer(MonotonicNs() + config_.daemon.health_probe_interval, [this] { ProbeDevices(); });
+  loop_.AddRealTimer(MonotonicNs() + config_.daemon.health_probe_interval,
+                     [this] { ProbeDevices(); });
 }
 
 void CaptureService::OpenDevices() {
@@ -313,7 +326,8 @@ void CaptureService::ProbeButtonAndLight() {
   for (const Probe& p : probes) {
     if (p.health) continue;
     if (std::string(p.name) == "button") dev_.button->Stop();
-    MarkUnhealthy(p.name, p.health.error().cls, std::string(p.name) + ": " + p.health.error().ToString());
+    MarkUnhealthy(p.name, p.health.error().cls,
+                  std::string(p.name) + ": " + p.health.error().ToString());
     ScheduleReopen(p.name);
     NotifyStatus();
   }
@@ -321,7 +335,8 @@ void CaptureService::ProbeButtonAndLight() {
 
 Status CaptureService::OpenDevice(const std::string& name) {
   if (name == "camera") {
-    if (!dev_.camera) return MakeError(ErrorClass::kInvalidConfig, "camera: none configured; check [camera]");
+    if (!dev_.camera)
+      return MakeError(ErrorClass::kInvalidConfig, "camera: none configured; check [camera]");
     if (dev_.camera->state() != Camera::State::kClosed) dev_.camera->Close();
     Status s = dev_.camera->Open();
     if (s) s = dev_.camera->Configure(CameraSettingsFor(config_));
@@ -329,7 +344,8 @@ Status CaptureService::OpenDevice(const std::string& name) {
     return s;
   }
   if (name == "turntable") {
-    if (!dev_.turntable) return MakeError(ErrorClass::kInvalidConfig, "turntable: none configured; check [turntable]");
+    if (!dev_.turntable)
+      return MakeError(ErrorClass::kInvalidConfig, "turntable: none configured; check [turntable]");
     dev_.turntable->Close();
     return dev_.turntable->Open();
   }
@@ -337,7 +353,8 @@ Status CaptureService::OpenDevice(const std::string& name) {
     dev_.light->Close();
     return dev_.light->Open();
   }
-  if (!dev_.button) return MakeError(ErrorClass::kInvalidConfig, "button: none configured; check [button]");
+  if (!dev_.button)
+    return MakeError(ErrorClass::kInvalidConfig, "button: none configured; check [button]");
   dev_.button->Stop();  // a reopen after a runtime fault
   return dev_.button->Start([this](const ButtonPress& p) {
     const std::string src = p.source;
@@ -398,7 +415,8 @@ void CaptureService::MarkHealthy(const std::string& name) {
   h.next_retry_real = 0;
 }
 
-void CaptureService::MarkUnhealthy(const std::string& name, ErrorClass cls, const std::string& message) {
+void CaptureService::MarkUnhealthy(const std::string& name, ErrorClass cls,
+                                   const std::string& message) {
   DeviceHealth& h = health_[name];
   if (h.healthy || h.cls != cls || h.since_utc_ns == 0) {
     h.since_utc_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(
@@ -574,8 +592,8 @@ void CaptureService::Dispatch(cs::Event e) {
     if (!r.accepted) {
       ++rejected_events_[cs::EventName(ev)];
       LogLine(LogLevel::kWarning, "capture", state_.sample_id,
-              std::string("dropped event ") + cs::EventName(ev) + " in state " + cs::PhaseName(state_.phase) + ": " +
-                  r.reason);
+              std::string("dropped event ") + cs::EventName(ev) + " in state " +
+                  cs::PhaseName(state_.phase) + ": " + r.reason);
       continue;
     }
     if (const auto* f = std::get_if<cs::StoreFailed>(&ev))
@@ -585,7 +603,8 @@ void CaptureService::Dispatch(cs::Event e) {
     state_ = r.next;
     if (before != state_.phase) {
       LogLine(LogLevel::kDebug, "capture", sample,
-              std::string(cs::PhaseName(before)) + " -> " + cs::PhaseName(state_.phase) + " on " + cs::EventName(ev));
+              std::string(cs::PhaseName(before)) + " -> " + cs::PhaseName(state_.phase) + " on " +
+                  cs::EventName(ev));
     }
     // Effects refer to the sample of the transition, even when it ends in idle.
     const std::string keep_id = state_.sample_id;
@@ -638,39 +657,53 @@ void CaptureService::Execute(const cs::Effect& eff) {
         if constexpr (std::is_same_v<T, cs::CreateSample>) {
           Status s = store_.CreateOrResume(e.sample_id, PlanFromConfig(config_), config_toml_);
           if (!s) {
-            pending_events_.push_back(cs::StoreFailed{s.error().cls, "cannot create sample: " + s.error().ToString()});
+            pending_events_.push_back(
+                cs::StoreFailed{s.error().cls, "cannot create sample: " + s.error().ToString()});
           } else {
-            LogLine(LogLevel::kInfo, "capture", e.sample_id, "armed: place the rock and press the start button");
+            LogLine(LogLevel::kInfo, "capture", e.sample_id,
+                    "armed: place the rock and press the start button");
           }
         } else if constexpr (std::is_same_v<T, cs::Home>) {
           Status s = dev_.turntable->StartHome();
           if (!s) {
-            pending_events_.push_back(cs::DeviceFault{s.error().cls, "turntable: cannot start homing: " + s.error().ToString()});
+            pending_events_.push_back(cs::DeviceFault{
+                s.error().cls, "turntable: cannot start homing: " + s.error().ToString()});
             return;
           }
-          motion_ = MotionWatch{true, true, 0.0, clock.Now() + config_.capture.home_timeout, 0.0, clock.Now(), 0, {}};
-          AddEpochTimer(clock.Now() + config_.capture.poll_interval, [this, ep = epoch_] { PollMotion(ep); });
+          motion_ = MotionWatch{true, true,        0.0, clock.Now() + config_.capture.home_timeout,
+                                0.0,  clock.Now(), 0,   {}};
+          AddEpochTimer(clock.Now() + config_.capture.poll_interval,
+                        [this, ep = epoch_] { PollMotion(ep); });
         } else if constexpr (std::is_same_v<T, cs::MoveTo>) {
           Status s = dev_.turntable->StartMoveTo(e.angle_deg);
           if (!s) {
-            pending_events_.push_back(
-                cs::DeviceFault{s.error().cls, "turntable: cannot start move to " + Deg(e.angle_deg) + " deg: " +
-                                                   s.error().ToString()});
+            pending_events_.push_back(cs::DeviceFault{
+                s.error().cls, "turntable: cannot start move to " + Deg(e.angle_deg) +
+                                   " deg: " + s.error().ToString()});
             return;
           }
-          motion_ = MotionWatch{true, false, e.angle_deg, clock.Now() + config_.capture.move_timeout,
-                                motion_.last_angle, clock.Now(), 0, {}};
-          AddEpochTimer(clock.Now() + config_.capture.poll_interval, [this, ep = epoch_] { PollMotion(ep); });
+          motion_ = MotionWatch{true,
+                                false,
+                                e.angle_deg,
+                                clock.Now() + config_.capture.move_timeout,
+                                motion_.last_angle,
+                                clock.Now(),
+                                0,
+                                {}};
+          AddEpochTimer(clock.Now() + config_.capture.poll_interval,
+                        [this, ep = epoch_] { PollMotion(ep); });
         } else if constexpr (std::is_same_v<T, cs::BeginSide>) {
           Status s = store_.BeginSide(id, e.side);
           if (!s) {
-            pending_events_.push_back(cs::StoreFailed{s.error().cls, "cannot start side: " + s.error().ToString()});
+            pending_events_.push_back(
+                cs::StoreFailed{s.error().cls, "cannot start side: " + s.error().ToString()});
             return;
           }
           side_t0_ = clock.Now() + config_.capture.settle;
           LogLine(LogLevel::kInfo, "capture", id, "side " + std::to_string(e.side) + " started");
         } else if constexpr (std::is_same_v<T, cs::StartSettle>) {
-          AddEpochTimer(clock.Now() + config_.capture.settle, [this] { Dispatch(cs::SettleDone{}); });
+          AddEpochTimer(clock.Now() + config_.capture.settle,
+                        [this] { Dispatch(cs::SettleDone{}); });
         } else if constexpr (std::is_same_v<T, cs::WaitUntilDue>) {
           const TimeNs due = side_t0_ + static_cast<TimeNs>(e.view) * config_.capture.interval;
           pending_.due = due;
@@ -682,7 +715,8 @@ void CaptureService::Execute(const cs::Effect& eff) {
         } else if constexpr (std::is_same_v<T, cs::TriggerCapture>) {
           Result<TurntableStatus> st = dev_.turntable->ReadStatus();
           if (!st) {
-            pending_events_.push_back(cs::DeviceFault{st.error().cls, "turntable: " + st.error().ToString()});
+            pending_events_.push_back(
+                cs::DeviceFault{st.error().cls, "turntable: " + st.error().ToString()});
             return;
           }
           pending_.side = e.side;
@@ -703,7 +737,8 @@ void CaptureService::Execute(const cs::Effect& eff) {
                 holding_ = false;
                 loop_.Release();
               }
-              if (ep != epoch_ || rid != pending_.request_id) return;  // late answer of an aborted shot
+              if (ep != epoch_ || rid != pending_.request_id)
+                return;  // late answer of an aborted shot
               if (!r.ok()) {
                 Fault(r.error().cls, "camera: " + r.error().ToString());
                 return;
@@ -715,7 +750,8 @@ void CaptureService::Execute(const cs::Effect& eff) {
           if (!s) {
             holding_ = false;
             loop_.Release();
-            pending_events_.push_back(cs::DeviceFault{s.error().cls, "camera: " + s.error().ToString()});
+            pending_events_.push_back(
+                cs::DeviceFault{s.error().cls, "camera: " + s.error().ToString()});
             return;
           }
           AddEpochTimer(clock.Now() + config_.capture.frame_timeout, [this, rid] {
@@ -724,7 +760,8 @@ void CaptureService::Execute(const cs::Effect& eff) {
                 holding_ = false;
                 loop_.Release();
               }
-              Fault(ErrorClass::kTimeout, "camera: no still within " + FormatDuration(config_.capture.frame_timeout) +
+              Fault(ErrorClass::kTimeout, "camera: no still within " +
+                                              FormatDuration(config_.capture.frame_timeout) +
                                               " of the trigger; check the camera connection");
             }
           });
@@ -759,7 +796,8 @@ void CaptureService::Execute(const cs::Effect& eff) {
           if (!f->missing_controls.empty()) car["missing_controls"] = f->missing_controls;
           Status s = store_.WriteView(id, e.side, e.view, f->data, car);
           if (!s) {
-            pending_events_.push_back(cs::StoreFailed{s.error().cls, "cannot store view: " + s.error().ToString()});
+            pending_events_.push_back(
+                cs::StoreFailed{s.error().cls, "cannot store view: " + s.error().ToString()});
             return;
           }
           ++views_captured_;
@@ -782,7 +820,8 @@ void CaptureService::Execute(const cs::Effect& eff) {
           if (overrun) {
             ++overruns_;
             LogLine(LogLevel::kWarning, "capture", id,
-                    "view " + std::to_string(e.view) + " taken " + Deg(err_ms) + " ms after its due time");
+                    "view " + std::to_string(e.view) + " taken " + Deg(err_ms) +
+                        " ms after its due time");
           }
           last_schedule_error_ms_ = err_ms;
           max_schedule_error_ms_ = std::max(max_schedule_error_ms_, std::fabs(err_ms));
@@ -837,17 +876,22 @@ void CaptureService::Execute(const cs::Effect& eff) {
         } else if constexpr (std::is_same_v<T, cs::MarkInterrupted>) {
           if (!id.empty()) {
             Status s = store_.SetSampleState(id, "interrupted", e.side, "interrupted");
-            if (!s) LogLine(LogLevel::kError, "capture", id, "cannot record interruption: " + s.error().ToString());
+            if (!s)
+              LogLine(LogLevel::kError, "capture", id,
+                      "cannot record interruption: " + s.error().ToString());
           }
         } else if constexpr (std::is_same_v<T, cs::MarkAborted>) {
           if (!id.empty()) {
             Status s = store_.SetSampleState(id, "aborted", e.side, "interrupted");
-            if (!s) LogLine(LogLevel::kError, "capture", id, "cannot record abort: " + s.error().ToString());
+            if (!s)
+              LogLine(LogLevel::kError, "capture", id,
+                      "cannot record abort: " + s.error().ToString());
           }
           LogLine(LogLevel::kNotice, "capture", id, "capture aborted by the operator");
         } else if constexpr (std::is_same_v<T, cs::RecordFault>) {
           ++faults_by_class_[ErrorClassName(e.cls)];
-          LogLine(LogLevel::kError, "capture", id, std::string("FAULT (") + ErrorClassName(e.cls) + "): " + e.message);
+          LogLine(LogLevel::kError, "capture", id,
+                  std::string("FAULT (") + ErrorClassName(e.cls) + "): " + e.message);
           if (e.cls == ErrorClass::kDisconnected || e.cls == ErrorClass::kDeviceMissing ||
               e.cls == ErrorClass::kTimeout) {
             // The device that failed is re-opened on reset.
@@ -874,7 +918,8 @@ void CaptureService::PollMotion(uint64_t epoch) {
   Result<TurntableStatus> st = dev_.turntable->ReadStatus();
   if (!st) {
     // Bounded retries: a single lost answer on a serial line is routine.
-    if (++motion_.comm_errors > config_.capture.comm_retries || st.error().cls == ErrorClass::kDisconnected) {
+    if (++motion_.comm_errors > config_.capture.comm_retries ||
+        st.error().cls == ErrorClass::kDisconnected) {
       motion_.active = false;
       Fault(st.error().cls, "turntable: " + st.error().ToString());
       return;
@@ -885,11 +930,12 @@ void CaptureService::PollMotion(uint64_t epoch) {
     const TurntableStatus& s = *st;
     if (s.alarm) {
       motion_.active = false;
-      Fault(ErrorClass::kDeviceFault, "turntable: alarm " + std::to_string(s.alarm_code) + " " + s.alarm_text +
-                                          "; clear the cause, then reset");
+      Fault(ErrorClass::kDeviceFault, "turntable: alarm " + std::to_string(s.alarm_code) + " " +
+                                          s.alarm_text + "; clear the cause, then reset");
       return;
     }
-    const bool done = motion_.homing ? (s.homed && s.in_position && !s.moving) : (s.in_position && !s.moving);
+    const bool done =
+        motion_.homing ? (s.homed && s.in_position && !s.moving) : (s.in_position && !s.moving);
     if (done) {
       motion_.active = false;
       motion_.last_angle = s.angle_deg;
@@ -899,12 +945,14 @@ void CaptureService::PollMotion(uint64_t epoch) {
     if (std::fabs(s.angle_deg - motion_.last_angle) > kStallEpsilonDeg) {
       motion_.last_angle = s.angle_deg;
       motion_.last_progress = now;
-    } else if (!motion_.homing && s.moving && now - motion_.last_progress > config_.capture.stall_timeout) {
+    } else if (!motion_.homing && s.moving &&
+               now - motion_.last_progress > config_.capture.stall_timeout) {
       // Homing is exempt: controllers often hold or reset the position count
       // while searching for the home sensor; home_timeout bounds it instead.
       motion_.active = false;
-      Fault(ErrorClass::kStalled, "turntable stalled at " + Deg(s.angle_deg) + " deg while moving to " +
-                                      Deg(motion_.target_deg) + " deg; check that nothing blocks the platter");
+      Fault(ErrorClass::kStalled, "turntable stalled at " + Deg(s.angle_deg) +
+                                      " deg while moving to " + Deg(motion_.target_deg) +
+                                      " deg; check that nothing blocks the platter");
       return;
     }
   }
@@ -913,13 +961,16 @@ void CaptureService::PollMotion(uint64_t epoch) {
     std::string why;
     const std::optional<TurntableStatus>& last = motion_.last_status;
     if (last && !last->moving && !last->in_position) {
-      why = ": " + RestedOutOfPosition(config_.turntable, last->angle_deg, motion_.homing ? 0.0 : motion_.target_deg);
+      why = ": " + RestedOutOfPosition(config_.turntable, last->angle_deg,
+                                       motion_.homing ? 0.0 : motion_.target_deg);
     }
-    Fault(ErrorClass::kTimeout, std::string("turntable: ") + (motion_.homing ? "homing" : "move to " + Deg(motion_.target_deg) + " deg") +
-                                    " did not finish within " +
-                                    FormatDuration(motion_.homing ? config_.capture.home_timeout
-                                                                  : config_.capture.move_timeout) +
-                                    why);
+    Fault(ErrorClass::kTimeout,
+          std::string("turntable: ") +
+              (motion_.homing ? "homing" : "move to " + Deg(motion_.target_deg) + " deg") +
+              " did not finish within " +
+              FormatDuration(motion_.homing ? config_.capture.home_timeout
+                                            : config_.capture.move_timeout) +
+              why);
     return;
   }
   AddEpochTimer(now + config_.capture.poll_interval, [this, ep = epoch_] { PollMotion(ep); });
@@ -930,13 +981,17 @@ void CaptureService::PollMotion(uint64_t epoch) {
 std::string CaptureService::StatusLine() const {
   const auto& s = state_;
   switch (s.phase) {
-    case cs::Phase::kIdle: return "idle: arm a sample to start";
-    case cs::Phase::kArmed: return "armed " + s.sample_id + ": place the rock and press start";
+    case cs::Phase::kIdle:
+      return "idle: arm a sample to start";
+    case cs::Phase::kArmed:
+      return "armed " + s.sample_id + ": place the rock and press start";
     case cs::Phase::kAwaitingPose:
-      return "side " + std::to_string(s.side - 1) + " done: flip the rock and press start for side " +
-             std::to_string(s.side);
-    case cs::Phase::kFaulted: return std::string("FAULT: ") + s.fault_message;
-    case cs::Phase::kHoming: return "side " + std::to_string(s.side) + ": homing";
+      return "side " + std::to_string(s.side - 1) +
+             " done: flip the rock and press start for side " + std::to_string(s.side);
+    case cs::Phase::kFaulted:
+      return std::string("FAULT: ") + s.fault_message;
+    case cs::Phase::kHoming:
+      return "side " + std::to_string(s.side) + ": homing";
     default:
       return "side " + std::to_string(s.side) + " view " + std::to_string(s.view + 1) + "/" +
              std::to_string(s.plan.views_per_side);
@@ -962,9 +1017,12 @@ LightPattern CaptureService::LightPatternFor() const {
   if (!SideRunning() && !CheckStorage().healthy) return LightPattern::kFault;
   switch (state_.phase) {
     case cs::Phase::kIdle:
-    case cs::Phase::kArmed: return LightPattern::kReady;
-    case cs::Phase::kAwaitingPose: return LightPattern::kFlip;
-    default: return LightPattern::kCapturing;
+    case cs::Phase::kArmed:
+      return LightPattern::kReady;
+    case cs::Phase::kAwaitingPose:
+      return LightPattern::kFlip;
+    default:
+      return LightPattern::kCapturing;
   }
 }
 
@@ -1194,9 +1252,11 @@ json CaptureService::StatusOnLoop() const {
 
 Result<json> CaptureService::ArmOnLoop(const std::string& sample_id) {
   if (state_.phase != cs::Phase::kIdle) {
-    return MakeError(ErrorClass::kInvalidState,
-                     std::string("cannot arm while ") + cs::PhaseName(state_.phase) +
-                         (state_.phase == cs::Phase::kFaulted ? ": reset the fault first" : ": abort the current sample first"));
+    return MakeError(
+        ErrorClass::kInvalidState,
+        std::string("cannot arm while ") + cs::PhaseName(state_.phase) +
+            (state_.phase == cs::Phase::kFaulted ? ": reset the fault first"
+                                                 : ": abort the current sample first"));
   }
   Status healthy = CheckDevicesHealthy({"camera", "turntable", "button"});
   if (!healthy) return healthy.error();
@@ -1216,7 +1276,8 @@ Result<json> CaptureService::ArmOnLoop(const std::string& sample_id) {
 }
 
 void CaptureService::RefreshCalibration() {
-  json now = CheckRigCalibration(config_.daemon.state_dir, config_.camera.width, config_.camera.height);
+  json now =
+      CheckRigCalibration(config_.daemon.state_dir, config_.camera.width, config_.camera.height);
   const std::string state = now.value("state", "");
   const bool changed = calibration_.is_null() || calibration_.value("state", "") != state ||
                        calibration_.value("created_utc", "") != now.value("created_utc", "");
@@ -1227,7 +1288,8 @@ void CaptureService::RefreshCalibration() {
     AGG_LOGI("calibration", "%s", msg.c_str());
   } else {
     // Not fatal: views are still captured; the worker needs full SfM without it.
-    AGG_LOGW("calibration", "rig calibration %s: %s; capture works, reconstruction falls back to full SfM",
+    AGG_LOGW("calibration",
+             "rig calibration %s: %s; capture works, reconstruction falls back to full SfM",
              state.c_str(), msg.c_str());
   }
 }
@@ -1262,11 +1324,13 @@ Result<json> CaptureService::PressOnLoop(const std::string& source) {
   // Same path as the hardware: through the button driver (debounced there).
   if (state_.phase != cs::Phase::kArmed && state_.phase != cs::Phase::kAwaitingPose) {
     return MakeError(ErrorClass::kInvalidState,
-                     std::string("the start button does nothing while ") + cs::PhaseName(state_.phase) +
+                     std::string("the start button does nothing while ") +
+                         cs::PhaseName(state_.phase) +
                          (state_.phase == cs::Phase::kIdle ? ": arm a sample first" : ""));
   }
   if (!dev_.button || !health_["button"].healthy) {
-    return MakeError(ErrorClass::kDeviceMissing, "button input is not available: " + health_["button"].message);
+    return MakeError(ErrorClass::kDeviceMissing,
+                     "button input is not available: " + health_["button"].message);
   }
   if (Status ok = CheckDevicesHealthy({"camera", "turntable"}); !ok) return ok.error();
   if (Status room = CheckStorageForSide(); !room) return room.error();
@@ -1314,7 +1378,9 @@ Result<json> CaptureService::GetSample(const std::string& sample_id) {
   }
   if (queue_) {
     // Our own queue handle is used from the loop thread only.
-    auto jobs = OnLoop([this, sample_id]() -> Result<std::vector<Job>> { return queue_->JobsForSample(sample_id); });
+    auto jobs = OnLoop([this, sample_id]() -> Result<std::vector<Job>> {
+      return queue_->JobsForSample(sample_id);
+    });
     if (jobs) {
       json js = json::array();
       for (const Job& j : *jobs) js.push_back(JobJson(j));
@@ -1327,7 +1393,9 @@ Result<json> CaptureService::GetSample(const std::string& sample_id) {
 Result<json> CaptureService::Retry(const std::string& sample_id) {
   Result<json> d = store_.Describe(sample_id);
   if (!d) return d.error();
-  if (!queue_) return MakeError(ErrorClass::kInvalidState, "this daemon runs without a job queue: nothing to retry");
+  if (!queue_)
+    return MakeError(ErrorClass::kInvalidState,
+                     "this daemon runs without a job queue: nothing to retry");
   return OnLoop([this, sample_id]() -> Result<json> {
     auto n = queue_->Retry(sample_id);
     if (!n) return n.error();
@@ -1341,11 +1409,13 @@ Result<json> CaptureService::Retry(const std::string& sample_id) {
   });
 }
 
-Result<std::string> CaptureService::ResultFile(const std::string& sample_id, const std::string& name) {
+Result<std::string> CaptureService::ResultFile(const std::string& sample_id,
+                                               const std::string& name) {
   const auto& names = ResultFileNames();
   if (std::find(names.begin(), names.end(), name) == names.end()) {
-    return MakeError(ErrorClass::kNotFound, "no result file \"" + name + "\"; results are morphology.json, mesh.ply, "
-                                            "mesh.obj and mesh.stl");
+    return MakeError(ErrorClass::kNotFound, "no result file \"" + name +
+                                                "\"; results are morphology.json, mesh.ply, "
+                                                "mesh.obj and mesh.stl");
   }
   const std::string dir = store_.SampleDir(sample_id);
   if (!PathExists(dir + "/" + layout::kSampleRecord)) {
@@ -1354,8 +1424,10 @@ Result<std::string> CaptureService::ResultFile(const std::string& sample_id, con
   const std::string path = dir + "/" + layout::kResultsDir + "/" + name;
   // The mesh files are complete once the worker has written morphology.json.
   if (!PathExists(dir + "/" + layout::kResultsDir + "/morphology.json") || !PathExists(path)) {
-    return MakeError(ErrorClass::kNotFound, "sample \"" + sample_id + "\" has no results yet: the worker has not "
-                                            "finished it (see GET /api/v1/samples/" + sample_id + " for its jobs)");
+    return MakeError(ErrorClass::kNotFound, "sample \"" + sample_id +
+                                                "\" has no results yet: the worker has not "
+                                                "finished it (see GET /api/v1/samples/" +
+                                                sample_id + " for its jobs)");
   }
   return path;
 }
@@ -1380,10 +1452,11 @@ std::string CaptureService::Metrics() {
       << "aggscan_schedule_error_max_ms " << max_schedule_error_ms_ << "\n"
       << "# HELP aggscan_faults_total Capture faults by class.\n"
       << "# TYPE aggscan_faults_total counter\n";
-    for (const char* cls : {"timeout", "stalled", "disconnected", "device_missing", "device_fault", "disk_full", "io"}) {
+    for (const char* cls : {"timeout", "stalled", "disconnected", "device_missing", "device_fault",
+                            "disk_full", "io"}) {
       auto it = faults_by_class_.find(cls);
-      m << "aggscan_faults_total{class=\"" << cls << "\"} " << (it == faults_by_class_.end() ? 0 : it->second)
-        << "\n";
+      m << "aggscan_faults_total{class=\"" << cls << "\"} "
+        << (it == faults_by_class_.end() ? 0 : it->second) << "\n";
     }
     int depth = 0, failed = 0;
     if (queue_) {
@@ -1432,7 +1505,8 @@ std::string CaptureService::Metrics() {
          {cs::Phase::kIdle, cs::Phase::kArmed, cs::Phase::kHoming, cs::Phase::kRotating,
           cs::Phase::kSettling, cs::Phase::kWaitingDue, cs::Phase::kCapturing, cs::Phase::kStoring,
           cs::Phase::kFinishing, cs::Phase::kAwaitingPose, cs::Phase::kFaulted}) {
-      m << "aggscan_state{state=\"" << cs::PhaseName(p) << "\"} " << (state_.phase == p ? 1 : 0) << "\n";
+      m << "aggscan_state{state=\"" << cs::PhaseName(p) << "\"} " << (state_.phase == p ? 1 : 0)
+        << "\n";
     }
     return m.str();
   });
@@ -1440,7 +1514,8 @@ std::string CaptureService::Metrics() {
 
 void CaptureService::Shutdown() {
   if (state_.Active()) {
-    LogLine(LogLevel::kNotice, "capture", state_.sample_id, "shutting down during a capture: marked interrupted");
+    LogLine(LogLevel::kNotice, "capture", state_.sample_id,
+            "shutting down during a capture: marked interrupted");
     Dispatch(cs::DeviceFault{ErrorClass::kInternal, "daemon stopped during the capture"});
   }
   if (dev_.button) dev_.button->Stop();

@@ -30,10 +30,10 @@ struct DeviceHealth {
   bool healthy = false;
   std::string message;  // "ok", or what is wrong with the device, its link and what to check
   ErrorClass cls = ErrorClass::kDeviceMissing;  // meaningful when unhealthy
-  bool tried = false;        // an open was attempted (false: "not opened yet")
-  int64_t since_utc_ns = 0;  // real wall time the current state (ok or this class) began
+  bool tried = false;                           // an open was attempted (false: "not opened yet")
+  int64_t since_utc_ns = 0;    // real wall time the current state (ok or this class) began
   int64_t last_ok_utc_ns = 0;  // real wall time it last opened or worked; 0 = never
-  int retries = 0;           // failed open attempts since it was last ok
+  int retries = 0;             // failed open attempts since it was last ok
   TimeNs next_retry_real = 0;  // MonotonicNs() of the next open attempt; 0 = none scheduled
   uint64_t retry_timer = 0;    // EventLoop timer of that attempt; 0 = none
 };
@@ -52,8 +52,8 @@ struct StorageHealth {
 
 class CaptureService final : public DaemonControl {
  public:
-  CaptureService(EventLoop& loop, Config config, std::string effective_config_toml, RigDevices devices,
-                 SampleStore& store, JobQueue* queue);
+  CaptureService(EventLoop& loop, Config config, std::string effective_config_toml,
+                 RigDevices devices, SampleStore& store, JobQueue* queue);
   ~CaptureService() override;
 
   /// Loop thread: opens the devices (retrying in the background with backoff
@@ -66,7 +66,9 @@ class CaptureService final : public DaemonControl {
   /// Called on the loop thread whenever the status line changes ("side 1 view 7/30").
   void SetStatusListener(std::function<void(const std::string&)> fn) { on_status_ = std::move(fn); }
   /// Called on the loop thread after every accepted transition.
-  void SetTransitionListener(std::function<void(const capture::State&)> fn) { on_transition_ = std::move(fn); }
+  void SetTransitionListener(std::function<void(const capture::State&)> fn) {
+    on_transition_ = std::move(fn);
+  }
   /// Publishes the live events (state, view, worker, health, fault) there;
   /// set before Start(). Borrowed: must outlive the service.
   void SetEventHub(EventHub* hub) { events_ = hub; }
@@ -195,7 +197,8 @@ class CaptureService final : public DaemonControl {
   // CheckStorage()'s last scan: sample id -> (stored views, their bytes).
   mutable std::pair<std::string, std::pair<int, int64_t>> view_bytes_;
   RateLimitedLog device_log_{"devices"};
-  int probe_failures_ = 0;  // consecutive failed turntable status reads of the idle probe  // keys "device/class": one line per class until recovery
+  int probe_failures_ = 0;  // consecutive failed turntable status reads of the idle probe  // keys
+                            // "device/class": one line per class until recovery
   TimeNs started_real_ = 0;
   bool worker_healthy_ = true;  // WatchWorker()'s last finding
   EventHub* events_ = nullptr;

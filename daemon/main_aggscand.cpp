@@ -28,16 +28,17 @@ namespace {
 constexpr int kExitConfig = 78;  // EX_CONFIG: systemd shows it; Restart= won't loop on it
 
 void Usage(std::FILE* f) {
-  std::fprintf(f,
-               "usage: aggscand [--config FILE] [--check-config] [--print-config]\n"
-               "                [--state-dir DIR] [--port N] [--port-file FILE] [--log-level LEVEL]\n"
-               "  --config FILE     TOML config (default: built-in defaults, sim rig)\n"
-               "  --check-config    validate the config, list every problem, exit (78 if invalid)\n"
-               "  --print-config    print the effective config as TOML and exit\n"
-               "  --state-dir DIR   override daemon.state_dir\n"
-               "  --port N          override daemon.listen_port (0 = any free port)\n"
-               "  --port-file FILE  write the bound HTTP port to FILE once listening\n"
-               "  --log-level L     error|warning|notice|info|debug\n");
+  std::fprintf(
+      f,
+      "usage: aggscand [--config FILE] [--check-config] [--print-config]\n"
+      "                [--state-dir DIR] [--port N] [--port-file FILE] [--log-level LEVEL]\n"
+      "  --config FILE     TOML config (default: built-in defaults, sim rig)\n"
+      "  --check-config    validate the config, list every problem, exit (78 if invalid)\n"
+      "  --print-config    print the effective config as TOML and exit\n"
+      "  --state-dir DIR   override daemon.state_dir\n"
+      "  --port N          override daemon.listen_port (0 = any free port)\n"
+      "  --port-file FILE  write the bound HTTP port to FILE once listening\n"
+      "  --log-level L     error|warning|notice|info|debug\n");
 }
 
 }  // namespace
@@ -56,10 +57,14 @@ int main(int argc, char** argv) {
       }
       return argv[++i];
     };
-    if (a == "--config") config_path = need("--config");
-    else if (a == "--check-config") check_only = true;
-    else if (a == "--print-config") print_only = true;
-    else if (a == "--state-dir") state_dir_override = need("--state-dir");
+    if (a == "--config")
+      config_path = need("--config");
+    else if (a == "--check-config")
+      check_only = true;
+    else if (a == "--print-config")
+      print_only = true;
+    else if (a == "--state-dir")
+      state_dir_override = need("--state-dir");
     else if (a == "--port") {
       const std::string v = need("--port");
       char* end = nullptr;
@@ -69,9 +74,10 @@ int main(int argc, char** argv) {
         return 2;
       }
       port_override = static_cast<int>(p);
-    }
-    else if (a == "--port-file") port_file = need("--port-file");
-    else if (a == "--log-level") log_level = need("--log-level");
+    } else if (a == "--port-file")
+      port_file = need("--port-file");
+    else if (a == "--log-level")
+      log_level = need("--log-level");
     else if (a == "-h" || a == "--help") {
       Usage(stdout);
       return 0;
@@ -116,8 +122,8 @@ int main(int argc, char** argv) {
   if (check_only) {
     // A Modbus turntable's register-map profile is a file of its own: check it too.
     if (config.turntable.backend.rfind("modbus-", 0) == 0) {
-      Result<TurntableProfile> profile =
-          FindTurntableProfile(config.turntable.modbus.profile, config.turntable.modbus.profile_dir);
+      Result<TurntableProfile> profile = FindTurntableProfile(config.turntable.modbus.profile,
+                                                              config.turntable.modbus.profile_dir);
       if (!profile) {
         std::fprintf(stderr, "aggscand: invalid turntable profile:\n  %s\n",
                      profile.error().message.c_str());
@@ -127,7 +133,8 @@ int main(int argc, char** argv) {
         return kExitConfig;
       }
     }
-    std::printf("%s: configuration is valid\n", config_path.empty() ? "<defaults>" : config_path.c_str());
+    std::printf("%s: configuration is valid\n",
+                config_path.empty() ? "<defaults>" : config_path.c_str());
     return 0;
   }
 
@@ -143,7 +150,8 @@ int main(int argc, char** argv) {
   // ---- durable store: recover from whatever the last run left ----
   SampleStore store(config.daemon.state_dir);
   if (Status s = store.Init(); !s) {
-    AGG_LOGE("main", "cannot use state directory %s: %s", config.daemon.state_dir.c_str(), s.error().ToString().c_str());
+    AGG_LOGE("main", "cannot use state directory %s: %s", config.daemon.state_dir.c_str(),
+             s.error().ToString().c_str());
     return 1;
   }
   Result<RecoveryReport> rec = store.Recover();
@@ -162,7 +170,8 @@ int main(int argc, char** argv) {
             "had every side stored: marked captured and queued for the worker");
   }
   for (const auto& id : rec->interrupted_samples) {
-    LogLine(LogLevel::kNotice, "main", id, "was interrupted by a crash or power loss: arm it again to re-shoot");
+    LogLine(LogLevel::kNotice, "main", id,
+            "was interrupted by a crash or power loss: arm it again to re-shoot");
   }
   auto queue = JobQueue::Open(layout::QueuePath(config.daemon.state_dir));
   if (!queue) {
@@ -178,8 +187,11 @@ int main(int argc, char** argv) {
     }
     if (!have) {
       auto q = (*queue)->Enqueue(id, side);
-      if (q) LogLine(LogLevel::kNotice, "main", id, "re-queued " + (side ? "side " + std::to_string(side) : std::string("sample job")));
-      else LogLine(LogLevel::kError, "main", id, "cannot queue: " + q.error().ToString());
+      if (q)
+        LogLine(LogLevel::kNotice, "main", id,
+                "re-queued " + (side ? "side " + std::to_string(side) : std::string("sample job")));
+      else
+        LogLine(LogLevel::kError, "main", id, "cannot queue: " + q.error().ToString());
     }
   }
 
@@ -201,7 +213,9 @@ int main(int argc, char** argv) {
   std::unique_ptr<sim::TruthRecorder> truth;
   if (config.sim.write_truth && rig->world) {
     truth = std::make_unique<sim::TruthRecorder>(rig->world);
-    truth->Attach(*rig, [&store](const std::string& id) { return store.SampleDir(id) + "/" + layout::kTruthDir; });
+    truth->Attach(*rig, [&store](const std::string& id) {
+      return store.SampleDir(id) + "/" + layout::kTruthDir;
+    });
   }
   // Declared before the service and the API, which publish and stream it.
   EventHub events;
@@ -222,7 +236,8 @@ int main(int argc, char** argv) {
     service.Shutdown();
     return 1;
   }
-  AGG_LOGI("main", "API listening on http://%s:%d", config.daemon.listen_address.c_str(), api.port());
+  AGG_LOGI("main", "API listening on http://%s:%d", config.daemon.listen_address.c_str(),
+           api.port());
   if (!port_file.empty()) {
     if (Status s = WriteFileAtomic(port_file, std::to_string(api.port()) + "\n"); !s) {
       AGG_LOGE("main", "%s", s.error().ToString().c_str());

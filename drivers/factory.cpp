@@ -107,7 +107,8 @@ Result<std::unique_ptr<Camera>> MakeV4l2Camera(Context& ctx) {
 // the name, so the config names the missing package rather than a typo.
 Result<std::unique_ptr<Camera>> MakeLibcameraCamera(Context& ctx) {
 #ifdef AGGSCAN_HAVE_LIBCAMERA
-  return std::unique_ptr<Camera>(std::make_unique<lc::LibcameraCamera>(ctx.clock, ctx.config.camera));
+  return std::unique_ptr<Camera>(
+      std::make_unique<lc::LibcameraCamera>(ctx.clock, ctx.config.camera));
 #else
   (void)ctx;
   return MakeError(ErrorClass::kInvalidConfig,
@@ -129,7 +130,8 @@ Result<std::unique_ptr<Button>> MakeGpioButton(Context& ctx) {
 }
 
 Result<std::unique_ptr<Button>> MakeEvdevButton(Context& ctx) {
-  return std::unique_ptr<Button>(std::make_unique<evdev::EvdevButton>(ctx.clock, ctx.config.button));
+  return std::unique_ptr<Button>(
+      std::make_unique<evdev::EvdevButton>(ctx.clock, ctx.config.button));
 }
 Result<std::unique_ptr<Button>> MakeModbusButton(Context& ctx) {
   return std::unique_ptr<Button>(std::make_unique<modbus::ModbusButton>(
@@ -137,7 +139,9 @@ Result<std::unique_ptr<Button>> MakeModbusButton(Context& ctx) {
 }
 
 // The status light is optional: "none" makes no device.
-Result<std::unique_ptr<StatusLight>> MakeNoLight(Context&) { return std::unique_ptr<StatusLight>(); }
+Result<std::unique_ptr<StatusLight>> MakeNoLight(Context&) {
+  return std::unique_ptr<StatusLight>();
+}
 Result<std::unique_ptr<StatusLight>> MakeGpioLight(Context& ctx) {
   return std::unique_ptr<StatusLight>(std::make_unique<gpio::GpioLight>(ctx.config.light.gpio));
 }
@@ -153,11 +157,12 @@ const Backend<Turntable> kTurntables[] = {{"sim", MakeSimTurntable},
                                           {"usb-tic", MakeUsbTicTurntable}};
 const Backend<Camera> kCameras[] = {
     {"sim", MakeSimCamera}, {"v4l2", MakeV4l2Camera}, {"libcamera", MakeLibcameraCamera}};
-const Backend<Button> kButtons[] = {{"sim", MakeSimButton}, {"gpio", MakeGpioButton},
+const Backend<Button> kButtons[] = {{"sim", MakeSimButton},
+                                    {"gpio", MakeGpioButton},
                                     {"evdev", MakeEvdevButton},
                                     {"modbus", MakeModbusButton}};
-const Backend<StatusLight> kLights[] = {{"none", MakeNoLight}, {"gpio", MakeGpioLight},
-                                        {"modbus", MakeModbusLight}};
+const Backend<StatusLight> kLights[] = {
+    {"none", MakeNoLight}, {"gpio", MakeGpioLight}, {"modbus", MakeModbusLight}};
 
 template <typename Device, size_t N>
 const Backend<Device>* Find(const Backend<Device> (&table)[N], const std::string& name) {

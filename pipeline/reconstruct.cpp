@@ -6,11 +6,10 @@
 #include <cstdio>
 #include <filesystem>
 #include <map>
-#include <optional>
-#include <thread>
-
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <optional>
+#include <thread>
 
 #include "common/clock.h"
 #include "common/fsutil.h"
@@ -48,14 +47,17 @@ std::string ResultsPath(const std::string& sample_dir, const std::string& name) 
   return sample_dir + "/" + layout::kResultsDir + "/" + name;
 }
 
-Status WriteJson(const std::string& path, const json& j) { return WriteFileAtomic(path, j.dump(2) + "\n"); }
+Status WriteJson(const std::string& path, const json& j) {
+  return WriteFileAtomic(path, j.dump(2) + "\n");
+}
 
 Result<json> ReadJson(const std::string& path, const std::string& what) {
   auto text = ReadFile(path);
   if (!text) return text.error();
   json j = json::parse(*text, nullptr, false);
   if (j.is_discarded() || !j.is_object()) {
-    return MakeError(ErrorClass::kCorrupt, what + " " + path + " is not valid JSON; delete it to recompute that stage");
+    return MakeError(ErrorClass::kCorrupt,
+                     what + " " + path + " is not valid JSON; delete it to recompute that stage");
   }
   return j;
 }
@@ -72,7 +74,8 @@ json IsoToJson(const Eigen::Isometry3d& T) {
 }
 
 Result<Eigen::Isometry3d> IsoFromJson(const json& j, const std::string& what) {
-  if (!j.is_array() || j.size() != 16) return MakeError(ErrorClass::kCorrupt, what + ": not a 4x4 matrix");
+  if (!j.is_array() || j.size() != 16)
+    return MakeError(ErrorClass::kCorrupt, what + ": not a 4x4 matrix");
   std::array<double, 16> m{};
   for (int i = 0; i < 16; ++i) {
     if (!j[i].is_number()) return MakeError(ErrorClass::kCorrupt, what + ": not a 4x4 matrix");
@@ -83,8 +86,9 @@ Result<Eigen::Isometry3d> IsoFromJson(const json& j, const std::string& what) {
 
 // --- stage: calibration --------------------------------------------------
 
-Result<RigCalibration> CalibrationStage(const std::string& sample_dir, const ReconstructOptions& opts,
-                                        const cv::Size& image_size, json* timings) {
+Result<RigCalibration> CalibrationStage(const std::string& sample_dir,
+                                        const ReconstructOptions& opts, const cv::Size& image_size,
+                                        json* timings) {
   const std::string out = ResultsPath(sample_dir, results::kCalibrationUsed);
   if (PathExists(out)) {
     auto j = ReadJson(out, "calibration record");
@@ -101,15 +105,19 @@ Result<RigCalibration> CalibrationStage(const std::string& sample_dir, const Rec
   if (!cal) {
     std::string alt;
     if (cal.error().cls == ErrorClass::kNotFound) {
-      alt = "; or pose the views by full SfM, which needs no calibration: [worker] poses = \"auto\" or \"sfm\" "
-            "(aggscan reconstruct --poses sfm)";
+      alt =
+          "; or pose the views by full SfM, which needs no calibration: [worker] poses = \"auto\" "
+          "or \"sfm\" "
+          "(aggscan reconstruct --poses sfm)";
     }
-    return MakeError(cal.error().cls, "calibration stage: " + cal.error().message + alt, cal.error().detail);
+    return MakeError(cal.error().cls, "calibration stage: " + cal.error().message + alt,
+                     cal.error().detail);
   }
   if (Status s = CheckCalibrationFits(*cal, image_size.width, image_size.height); !s) {
     return MakeError(ErrorClass::kInvalidConfig, "calibration stage: " + s.error().message);
   }
-  if (cal->camera.width != image_size.width) cal->camera = cal->camera.Resized(image_size.width, image_size.height);
+  if (cal->camera.width != image_size.width)
+    cal->camera = cal->camera.Resized(image_size.width, image_size.height);
   json j = CalibrationToJson(*cal);
   j["origin"] = path;
   j["stage_seconds"] = Seconds(t0);
@@ -148,12 +156,13 @@ Result<bool> ChoosePosesPath(const std::string& sample_dir, const ReconstructOpt
       return *used == "sfm" || !HasCalibration(sample_dir, opts);
     case PosesPath::kTurntable:
       if (*used == "sfm") {
-        return MakeError(ErrorClass::kInvalidState,
-                         "sample " + SampleIdOf(sample_dir) +
-                             " was reconstructed through SfM without a rig calibration (results/" +
-                             results::kCalibrationUsed +
-                             " is SfM's): reconstruct it with poses \"sfm\" or \"auto\", or give it a "
-                             "calibration.json and delete its results/ to start over on the turntable path");
+        return MakeError(
+            ErrorClass::kInvalidState,
+            "sample " + SampleIdOf(sample_dir) +
+                " was reconstructed through SfM without a rig calibration (results/" +
+                results::kCalibrationUsed +
+                " is SfM's): reconstruct it with poses \"sfm\" or \"auto\", or give it a "
+                "calibration.json and delete its results/ to start over on the turntable path");
       }
       return false;
   }
@@ -166,7 +175,8 @@ Result<RigCalibration> SfmCalibrationOfSide(const std::string& sample_dir, int s
   auto j = ReadJson(path, "poses");
   if (!j) return j.error();
   if (j->value("method", "") != "sfm" || !j->contains("calibration")) {
-    return MakeError(ErrorClass::kCorrupt, path + " holds no SfM camera (method " + j->value("method", "?") +
+    return MakeError(ErrorClass::kCorrupt, path + " holds no SfM camera (method " +
+                                               j->value("method", "?") +
                                                "); delete it to pose that side again");
   }
   return CalibrationFromJson((*j)["calibration"], path);
@@ -207,7 +217,8 @@ json BundleAdjustJson(const BundleAdjustResult& r) {
 // A side result view's measured turntable angle (from its sidecar).
 Result<double> MeasuredAngle(const json& v, int side) {
   if (!v.contains("measured_angle_deg") || !v["measured_angle_deg"].is_number()) {
-    return MakeError(ErrorClass::kCorrupt, "poses stage: view " + std::to_string(v.value("view", -1)) + " of " +
+    return MakeError(ErrorClass::kCorrupt, "poses stage: view " +
+                                               std::to_string(v.value("view", -1)) + " of " +
                                                layout::SideDirName(side) +
                                                " has no measured turntable angle in its sidecar");
   }
@@ -238,8 +249,9 @@ Result<json> SfmPosesRecord(const std::string& sample_dir, int side, const json&
   return RunSfmPoses(in, opts.sfm);
 }
 
-Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int side, const RigCalibration* cal,
-                                          const SfmPosesInput* sfm, const ReconstructOptions& opts, json* timings,
+Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int side,
+                                          const RigCalibration* cal, const SfmPosesInput* sfm,
+                                          const ReconstructOptions& opts, json* timings,
                                           std::string* method) {
   const std::string out = ResultsPath(sample_dir, results::PosesName(side));
   const std::string side_dir = sample_dir + "/" + layout::SideDirName(side);
@@ -253,10 +265,13 @@ Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int sid
     (*j)["stage_seconds"] = Seconds(t0);
     if (Status s = WriteJson(out, *j); !s) return s.error();
     LogLine(LogLevel::kInfo, kCat, SampleIdOf(sample_dir),
-            layout::SideDirName(side) + ": SfM registered " + std::to_string((*j)["sfm"].value("registered_views", 0)) +
-                " views, scale residual " + std::to_string((*j)["scale"].value("residual_mm", 0.0)) + " mm");
+            layout::SideDirName(side) + ": SfM registered " +
+                std::to_string((*j)["sfm"].value("registered_views", 0)) +
+                " views, scale residual " +
+                std::to_string((*j)["scale"].value("residual_mm", 0.0)) + " mm");
   } else if (!PathExists(out)) {
-    if (!cal) return MakeError(ErrorClass::kInternal, "poses stage: no calibration for the turntable path");
+    if (!cal)
+      return MakeError(ErrorClass::kInternal, "poses stage: no calibration for the turntable path");
     const auto t0 = std::chrono::steady_clock::now();
     auto side_result = ReadJson(SideResultPath(sample_dir, side), "side result");
     if (!side_result) return side_result.error();
@@ -277,9 +292,10 @@ Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int sid
                         {"cam_from_table_4x4", IsoToJson(T)}});
     }
     if (jviews.size() < 3) {
-      return MakeError(ErrorClass::kCorrupt, "poses stage: " + layout::SideDirName(side) + " has only " +
-                                                 std::to_string(jviews.size()) +
-                                                 " views with a rock; at least 3 are needed: re-capture the side");
+      return MakeError(ErrorClass::kCorrupt,
+                       "poses stage: " + layout::SideDirName(side) + " has only " +
+                           std::to_string(jviews.size()) +
+                           " views with a rock; at least 3 are needed: re-capture the side");
     }
     json j = {{"side", side},
               {"method", "turntable"},
@@ -290,7 +306,8 @@ Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int sid
       std::vector<double> measured;
       for (const auto& v : jviews) measured.push_back(v["angle_deg"].get<double>());
       auto load = [&](int i, cv::Mat* bgr, cv::Mat* mask) {
-        auto img = LoadImage(side_dir + "/" + jviews[i].value("image", ""), ImageMode::kColor, opts.worker.image_limits);
+        auto img = LoadImage(side_dir + "/" + jviews[i].value("image", ""), ImageMode::kColor,
+                             opts.worker.image_limits);
         auto m = LoadImage(ResultsPath(sample_dir, jviews[i].value("mask", "")), ImageMode::kGray,
                            opts.worker.image_limits);
         if (!img || !m) return false;
@@ -304,14 +321,16 @@ Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int sid
       if (ba.refined) {
         j["method"] = "turntable+ba";
         j["method_detail"] =
-            "calibrated turntable, angles refined by bundle adjustment (Ceres) over feature tracks inside the "
+            "calibrated turntable, angles refined by bundle adjustment (Ceres) over feature tracks "
+            "inside the "
             "rock masks";
         for (size_t i = 0; i < jviews.size(); ++i) {
           jviews[i]["measured_angle_deg"] = measured[i];
           jviews[i]["angle_deg"] = ba.angle_deg[i];
           jviews[i]["angle_correction_deg"] = ba.correction_deg[i];
           jviews[i]["ba_adjusted"] = static_cast<bool>(ba.adjusted[i]);
-          jviews[i]["cam_from_table_4x4"] = IsoToJson(geom::IsoFromRowMajor(ba.calibration.CamFromTable(ba.angle_deg[i])));
+          jviews[i]["cam_from_table_4x4"] =
+              IsoToJson(geom::IsoFromRowMajor(ba.calibration.CamFromTable(ba.angle_deg[i])));
         }
       } else {
         LogLine(LogLevel::kWarning, kCat, SampleIdOf(sample_dir),
@@ -354,7 +373,8 @@ Result<VertexColors> ColourVertices(const Mesh& mesh, const std::vector<ViewInpu
   const size_t nv = mesh.vertices.size();
   std::vector<Eigen::Vector3d> normals(nv, Eigen::Vector3d::Zero());
   for (const auto& f : mesh.faces) {
-    const Eigen::Vector3d a(mesh.vertices[f[0]].data()), b(mesh.vertices[f[1]].data()), c(mesh.vertices[f[2]].data());
+    const Eigen::Vector3d a(mesh.vertices[f[0]].data()), b(mesh.vertices[f[1]].data()),
+        c(mesh.vertices[f[2]].data());
     const Eigen::Vector3d n = (b - a).cross(c - a);
     for (int i : f) normals[i] += n;
   }
@@ -386,7 +406,9 @@ Result<VertexColors> ColourVertices(const Mesh& mesh, const std::vector<ViewInpu
     for (size_t i = 0; i < nv && !any; ++i) any = best[i] == static_cast<int>(vi);
     if (!any) continue;
     auto loaded = LoadImage(views[vi].image, ImageMode::kColor, limits);
-    if (!loaded) return MakeError(loaded.error().cls, "surface stage: " + loaded.error().message, loaded.error().detail);
+    if (!loaded)
+      return MakeError(loaded.error().cls, "surface stage: " + loaded.error().message,
+                       loaded.error().detail);
     const cv::Mat& img = *loaded;
     for (size_t i = 0; i < nv; ++i) {
       if (best[i] != static_cast<int>(vi)) continue;
@@ -399,10 +421,11 @@ Result<VertexColors> ColourVertices(const Mesh& mesh, const std::vector<ViewInpu
   return colors;
 }
 
-// IoU between each view's mask and the hull's silhouette in it: how well the masks and poses agree. A visual hull's
-// silhouette lies inside every mask; a mask that disagrees with the others
-// (a leak, a wrong pose) loses area.
-std::vector<double> SilhouetteAgreement(const Mesh& mesh, const std::vector<Eigen::Isometry3d>& cam_from_object,
+// IoU between each view's mask and the hull's silhouette in it: how well the masks and poses agree.
+// A visual hull's silhouette lies inside every mask; a mask that disagrees with the others (a leak,
+// a wrong pose) loses area.
+std::vector<double> SilhouetteAgreement(const Mesh& mesh,
+                                        const std::vector<Eigen::Isometry3d>& cam_from_object,
                                         const std::vector<cv::Mat>& masks, const CameraModel& cam) {
   std::vector<double> iou(masks.size(), 0.0);
   auto work = [&](size_t begin, size_t step) {
@@ -444,8 +467,10 @@ struct SoleCarving {
   double agreed_mm3 = 0;           // inside every view and floor
 };
 
-SoleCarving SoleCarvingVolumes(const std::vector<SilhouetteView>& sv, const std::vector<HalfSpace>& floors,
-                               const Eigen::AlignedBox3d& hull_box, const Eigen::AlignedBox3d& search) {
+SoleCarving SoleCarvingVolumes(const std::vector<SilhouetteView>& sv,
+                               const std::vector<HalfSpace>& floors,
+                               const Eigen::AlignedBox3d& hull_box,
+                               const Eigen::AlignedBox3d& search) {
   SoleCarving out;
   out.volume_mm3.assign(sv.size(), 0.0);
   const Eigen::Vector3d ext = hull_box.sizes();
@@ -454,7 +479,8 @@ SoleCarving SoleCarvingVolumes(const std::vector<SilhouetteView>& sv, const std:
   if (box.isEmpty()) return out;
   // About 2 million samples: a few per cent of a rock's volume is thousands.
   const double step = std::max(0.25, std::cbrt(box.volume() / 2e6));
-  const int nx = static_cast<int>(box.sizes().x() / step) + 1, ny = static_cast<int>(box.sizes().y() / step) + 1,
+  const int nx = static_cast<int>(box.sizes().x() / step) + 1,
+            ny = static_cast<int>(box.sizes().y() / step) + 1,
             nz = static_cast<int>(box.sizes().z() / step) + 1;
   std::vector<std::vector<int64_t>> veto(2, std::vector<int64_t>(sv.size(), 0));
   int64_t agreed[2] = {0, 0};
@@ -470,7 +496,8 @@ SoleCarving SoleCarvingVolumes(const std::vector<SilhouetteView>& sv, const std:
     for (int iz = t; iz < nz; iz += 2) {
       for (int iy = 0; iy < ny; ++iy) {
         for (int ix = 0; ix < nx; ++ix) {
-          const Eigen::Vector3d p = box.min() + step * Eigen::Vector3d(ix + 0.5, iy + 0.5, iz + 0.5);
+          const Eigen::Vector3d p =
+              box.min() + step * Eigen::Vector3d(ix + 0.5, iy + 0.5, iz + 0.5);
           bool below = false;
           for (const HalfSpace& h : floors) below = below || h.normal.dot(p) + h.offset < 0;
           if (below) continue;
@@ -493,7 +520,8 @@ SoleCarving SoleCarvingVolumes(const std::vector<SilhouetteView>& sv, const std:
   th.join();
   const double cell = step * step * step;
   out.agreed_mm3 = static_cast<double>(agreed[0] + agreed[1]) * cell;
-  for (size_t k = 0; k < sv.size(); ++k) out.volume_mm3[k] = static_cast<double>(veto[0][k] + veto[1][k]) * cell;
+  for (size_t k = 0; k < sv.size(); ++k)
+    out.volume_mm3[k] = static_cast<double>(veto[0][k] + veto[1][k]) * cell;
   return out;
 }
 
@@ -527,7 +555,8 @@ constexpr double kIouFloor = 0.90;
 // became a colour label. Empty when no view stands out.
 std::string SuspectMasks(const std::vector<ViewInput>& views, const std::vector<cv::Mat>& masks) {
   std::map<int, std::vector<double>> areas;
-  for (size_t i = 0; i < views.size(); ++i) areas[views[i].side].push_back(cv::countNonZero(masks[i]));
+  for (size_t i = 0; i < views.size(); ++i)
+    areas[views[i].side].push_back(cv::countNonZero(masks[i]));
   std::string out;
   for (auto& [side, a] : areas) {
     const double largest = *std::max_element(a.begin(), a.end());
@@ -535,20 +564,24 @@ std::string SuspectMasks(const std::vector<ViewInput>& views, const std::vector<
     size_t k = 0;
     for (size_t i = 0; i < views.size(); ++i) {
       if (views[i].side != side) continue;
-      if (a[k++] < 0.15 * largest) list += (list.empty() ? "" : ", ") + std::to_string(views[i].view);
+      if (a[k++] < 0.15 * largest)
+        list += (list.empty() ? "" : ", ") + std::to_string(views[i].view);
     }
     if (!list.empty()) out += "; side " + std::to_string(side) + " view(s) " + list;
   }
   if (out.empty()) return out;
   return ". The mask of" + out.substr(1) +
-         " covers under 15 % of the area of its side's largest mask: the segmentation lost the rock there (see "
-         "results/masks/). A rock that reaches the edge of the photo cannot be segmented: the whole rock must "
+         " covers under 15 % of the area of its side's largest mask: the segmentation lost the "
+         "rock there (see "
+         "results/masks/). A rock that reaches the edge of the photo cannot be segmented: the "
+         "whole rock must "
          "stay inside the frame at every angle (move the camera back or use a wider lens)";
 }
 
 Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewInput>& views,
                           const std::map<int, Eigen::Isometry3d>& table_from_object,
-                          const RigCalibration& cal, const ReconstructOptions& opts, const std::string& sample_id) {
+                          const RigCalibration& cal, const ReconstructOptions& opts,
+                          const std::string& sample_id) {
   const std::string out = ResultsPath(sample_dir, results::kSurface);
   if (PathExists(out)) return ReadJson(out, "surface record");
   const auto t0 = std::chrono::steady_clock::now();
@@ -559,13 +592,15 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
     auto loaded = LoadImage(v.mask, ImageMode::kGray, opts.worker.image_limits);
     const cv::Mat m = loaded ? *loaded : cv::Mat();
     if (m.empty()) {
-      return MakeError(ErrorClass::kCorrupt, "surface stage: mask " + v.mask + " is missing or unreadable (" +
+      return MakeError(ErrorClass::kCorrupt, "surface stage: mask " + v.mask +
+                                                 " is missing or unreadable (" +
                                                  loaded.error().message + "); delete " +
                                                  "results/" + layout::SideDirName(v.side) +
                                                  "_morph2d.json to recompute the side's masks");
     }
     if (m.cols != cal.camera.width || m.rows != cal.camera.height) {
-      return MakeError(ErrorClass::kCorrupt, "surface stage: mask " + v.mask + " is " + std::to_string(m.cols) + "x" +
+      return MakeError(ErrorClass::kCorrupt, "surface stage: mask " + v.mask + " is " +
+                                                 std::to_string(m.cols) + "x" +
                                                  std::to_string(m.rows) + ", the calibration is " +
                                                  std::to_string(cal.camera.width) + "x" +
                                                  std::to_string(cal.camera.height));
@@ -590,7 +625,8 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
   const Eigen::Vector3d lo(-260, -260, -5), hi(260, 260, 320);
   auto hull = CarveVisualHull(sv, floors, Eigen::AlignedBox3d(lo, hi), opts.hull);
   if (!hull) {
-    return MakeError(hull.error().cls, "surface stage: " + hull.error().message + SuspectMasks(views, masks),
+    return MakeError(hull.error().cls,
+                     "surface stage: " + hull.error().message + SuspectMasks(views, masks),
                      hull.error().detail);
   }
   // Views that disagree with the others: left out and the hull carved again
@@ -604,16 +640,21 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
     const SoleCarving sc = SoleCarvingVolumes(sv, floors, hull->box, Eigen::AlignedBox3d(lo, hi));
     json per_view = json::array();
     for (size_t k = 0; k < views.size(); ++k) {
-      per_view.push_back({{"side", views[k].side}, {"view", views[k].view}, {"sole_carving_mm3", sc.volume_mm3[k]}});
+      per_view.push_back({{"side", views[k].side},
+                          {"view", views[k].view},
+                          {"sole_carving_mm3", sc.volume_mm3[k]}});
     }
     consistency = {{"method",
-                    "per view, the volume its mask alone carves from what every other view and the floors hold to "
-                    "be rock; a view far above the others (median + 5 MAD) and above 5 % of that agreed volume is "
+                    "per view, the volume its mask alone carves from what every other view and the "
+                    "floors hold to "
+                    "be rock; a view far above the others (median + 5 MAD) and above 5 % of that "
+                    "agreed volume is "
                     "left out and the hull carved again"},
                    {"agreed_mm3", sc.agreed_mm3},
                    {"views", per_view},
                    {"seconds", Seconds(tsc)}};
-    const std::vector<size_t> bad = HighOutliers(sc.volume_mm3, kSoleCarvingMaxFraction * sc.agreed_mm3);
+    const std::vector<size_t> bad =
+        HighOutliers(sc.volume_mm3, kSoleCarvingMaxFraction * sc.agreed_mm3);
     if (!bad.empty()) {
       std::map<int, int> per_side_total, per_side_bad;
       for (const ViewInput& v : views) ++per_side_total[v.side];
@@ -623,25 +664,30 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
         const double frac = sc.volume_mm3[k] / std::max(1e-9, sc.agreed_mm3 + sc.volume_mm3[k]);
         char why[256];
         std::snprintf(why, sizeof why,
-                      "its mask alone carves away %.0f mm3 (%.1f %%) of what every other view holds to be rock "
+                      "its mask alone carves away %.0f mm3 (%.1f %%) of what every other view "
+                      "holds to be rock "
                       "(median of all views %.0f mm3): the photo or its mask lost part of the rock",
                       sc.volume_mm3[k], 100 * frac, Median(sc.volume_mm3));
-        left_out.push_back({{"side", views[k].side}, {"view", views[k].view}, {"reason", why},
+        left_out.push_back({{"side", views[k].side},
+                            {"view", views[k].view},
+                            {"reason", why},
                             {"sole_carving_mm3", sc.volume_mm3[k]}});
         names += (names.empty() ? "" : ", ") + layout::SideDirName(views[k].side) + " view " +
                  std::to_string(views[k].view);
       }
       for (const auto& [side, n] : per_side_bad) {
         if (3 * n > per_side_total[side]) {
-          return MakeError(ErrorClass::kCorrupt,
-                           "surface stage: " + std::to_string(n) + " of the " + std::to_string(per_side_total[side]) +
-                               " views of " + layout::SideDirName(side) +
-                               " disagree with the others (" + names +
-                               "): too many to leave out; check the photos and masks and re-shoot the side");
+          return MakeError(
+              ErrorClass::kCorrupt,
+              "surface stage: " + std::to_string(n) + " of the " +
+                  std::to_string(per_side_total[side]) + " views of " + layout::SideDirName(side) +
+                  " disagree with the others (" + names +
+                  "): too many to leave out; check the photos and masks and re-shoot the side");
         }
       }
       LogLine(LogLevel::kWarning, kCat, sample_id,
-              "surface: left out " + names + ": each carves away rock every other view sees; carving again");
+              "surface: left out " + names +
+                  ": each carves away rock every other view sees; carving again");
       std::vector<SilhouetteView> sv2;
       std::vector<cv::Mat> masks2;
       std::vector<Eigen::Isometry3d> cfo2;
@@ -659,7 +705,8 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
       const double first_s = hull->seconds;
       hull = CarveVisualHull(sv, floors, Eigen::AlignedBox3d(lo, hi), opts.hull);
       if (!hull) {
-        return MakeError(hull.error().cls, "surface stage (without " + names + "): " + hull.error().message,
+        return MakeError(hull.error().cls,
+                         "surface stage (without " + names + "): " + hull.error().message,
                          hull.error().detail);
       }
       hull->seconds += first_s;
@@ -676,9 +723,10 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
     // The photos are used at most photo_max_width wide: the NCC patch then
     // covers the same part of the rock as at the resolution it was tuned on.
     // Decoding at half size is much faster than decoding and shrinking.
-    const double scale =
-        std::min(opts.photo.image_scale,
-                 opts.photo_max_width > 0 ? static_cast<double>(opts.photo_max_width) / cal.camera.width : 1.0);
+    const double scale = std::min(opts.photo.image_scale,
+                                  opts.photo_max_width > 0
+                                      ? static_cast<double>(opts.photo_max_width) / cal.camera.width
+                                      : 1.0);
     const bool half = scale <= 0.5;
     PhotoRefineOptions po = opts.photo;
     po.image_scale = scale;
@@ -686,7 +734,8 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
     std::vector<std::string> unreadable(used_views.size());
     auto load = [&](size_t begin, size_t step) {
       for (size_t i = begin; i < used_views.size(); i += step) {
-        auto img = LoadImage(used_views[i].image, half ? ImageMode::kGrayHalf : ImageMode::kGray, opts.worker.image_limits);
+        auto img = LoadImage(used_views[i].image, half ? ImageMode::kGrayHalf : ImageMode::kGray,
+                             opts.worker.image_limits);
         if (img) {
           pv[i].image = std::move(*img);
         } else {
@@ -703,13 +752,15 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
     if (half) po.image_scale = std::min(1.0, scale * 2);
     for (size_t i = 0; i < used_views.size(); ++i) {
       if (pv[i].image.empty()) {
-        return MakeError(ErrorClass::kCorrupt, "surface stage: " + unreadable[i] +
-                                                   " (the photo refinement needs it); restore it, or turn "
-                                                   "the refinement off");
+        return MakeError(ErrorClass::kCorrupt,
+                         "surface stage: " + unreadable[i] +
+                             " (the photo refinement needs it); restore it, or turn "
+                             "the refinement off");
       }
     }
     auto refined = RefineByPhotoConsistency(hull->mesh, pv, po);
-    if (!refined) return MakeError(refined.error().cls, "surface stage: " + refined.error().message);
+    if (!refined)
+      return MakeError(refined.error().cls, "surface stage: " + refined.error().message);
     if (Status st = CheckClosedManifold(refined->mesh, "the photo-refined hull"); !st) {
       return MakeError(ErrorClass::kInternal, "surface stage: " + st.error().message);
     }
@@ -733,16 +784,22 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
   // search's noise) inflate the area: a few Taubin passes remove them.
   if (opts.surface_smooth_iterations > 0) TaubinSmooth(&hull->mesh, opts.surface_smooth_iterations);
   const auto tc = std::chrono::steady_clock::now();
-  auto colors = ColourVertices(hull->mesh, used_views, cam_from_object, masks, cal.camera, opts.worker.image_limits);
+  auto colors = ColourVertices(hull->mesh, used_views, cam_from_object, masks, cal.camera,
+                               opts.worker.image_limits);
   if (!colors) return colors.error();
   const double colour_s = Seconds(tc);
   const auto ti = std::chrono::steady_clock::now();
-  const std::vector<double> iou = SilhouetteAgreement(hull->mesh, cam_from_object, masks, cal.camera);
+  const std::vector<double> iou =
+      SilhouetteAgreement(hull->mesh, cam_from_object, masks, cal.camera);
   const double iou_s = Seconds(ti);
   const auto te = std::chrono::steady_clock::now();
-  for (auto [name, st] : {std::pair{results::kMeshPly, SaveMeshPly(hull->mesh, ResultsPath(sample_dir, results::kMeshPly), &*colors)},
-                          std::pair{results::kMeshObj, SaveMeshObj(hull->mesh, ResultsPath(sample_dir, results::kMeshObj), &*colors)},
-                          std::pair{results::kMeshStl, SaveMeshStl(hull->mesh, ResultsPath(sample_dir, results::kMeshStl))}}) {
+  for (auto [name, st] :
+       {std::pair{results::kMeshPly,
+                  SaveMeshPly(hull->mesh, ResultsPath(sample_dir, results::kMeshPly), &*colors)},
+        std::pair{results::kMeshObj,
+                  SaveMeshObj(hull->mesh, ResultsPath(sample_dir, results::kMeshObj), &*colors)},
+        std::pair{results::kMeshStl,
+                  SaveMeshStl(hull->mesh, ResultsPath(sample_dir, results::kMeshStl))}}) {
     if (!st) return st.error();
   }
   json jiou = json::array();
@@ -758,36 +815,48 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
     for (size_t k : HighOutliers(neg, -kIouFloor)) {
       char why[200];
       std::snprintf(why, sizeof why,
-                    "its mask's IoU with the model's silhouette is %.3f, the views' median %.3f: the mask or the "
+                    "its mask's IoU with the model's silhouette is %.3f, the views' median %.3f: "
+                    "the mask or the "
                     "view's pose disagrees with the others; check its photo and mask",
                     iou[k], Median(iou));
-      disagreeing.push_back({{"side", used_views[k].side}, {"view", used_views[k].view}, {"iou", iou[k]},
+      disagreeing.push_back({{"side", used_views[k].side},
+                             {"view", used_views[k].view},
+                             {"iou", iou[k]},
                              {"reason", why}});
     }
   }
-  json j = {{"method", opts.photo_refine ? "visual-hull+photo" : "visual-hull"},
-            {"method_detail",
-             std::string("silhouette signed-distance field over all views of all sides in the object frame (side 1's "
-                         "turntable frame), each side's turntable top as a floor; marching tetrahedra") +
-                 (opts.photo_refine ? "; vertices moved inward to the depth of best multi-view NCC of tangent-plane "
-                                      "patches, confident moves only, smoothed, folds undone"
-                                    : "")},
-            {"photo_refine", photo},
-            {"voxel_mm", hull->voxel_mm},
-            {"vertices", hull->mesh.vertices.size()},
-            {"faces", hull->mesh.faces.size()},
-            {"views", used_views.size()},
-            {"silhouette_iou", jiou},
-            {"views_left_out", left_out},
-            {"consistency", consistency},
-            {"views_disagreeing", disagreeing},
-            {"files", {{"ply", results::kMeshPly}, {"obj", results::kMeshObj}, {"stl", results::kMeshStl}}},
-            {"timings_s", {{"carve", carve_s}, {"photo_refine", photo_s}, {"colour", colour_s}, {"silhouette_check", iou_s}, {"export", Seconds(te)}}},
-            {"stage_seconds", Seconds(t0)}};
+  json j = {
+      {"method", opts.photo_refine ? "visual-hull+photo" : "visual-hull"},
+      {"method_detail",
+       std::string("silhouette signed-distance field over all views of all sides in the object "
+                   "frame (side 1's "
+                   "turntable frame), each side's turntable top as a floor; marching tetrahedra") +
+           (opts.photo_refine
+                ? "; vertices moved inward to the depth of best multi-view NCC of tangent-plane "
+                  "patches, confident moves only, smoothed, folds undone"
+                : "")},
+      {"photo_refine", photo},
+      {"voxel_mm", hull->voxel_mm},
+      {"vertices", hull->mesh.vertices.size()},
+      {"faces", hull->mesh.faces.size()},
+      {"views", used_views.size()},
+      {"silhouette_iou", jiou},
+      {"views_left_out", left_out},
+      {"consistency", consistency},
+      {"views_disagreeing", disagreeing},
+      {"files",
+       {{"ply", results::kMeshPly}, {"obj", results::kMeshObj}, {"stl", results::kMeshStl}}},
+      {"timings_s",
+       {{"carve", carve_s},
+        {"photo_refine", photo_s},
+        {"colour", colour_s},
+        {"silhouette_check", iou_s},
+        {"export", Seconds(te)}}},
+      {"stage_seconds", Seconds(t0)}};
   if (Status s = WriteJson(out, j); !s) return s.error();
   LogLine(LogLevel::kInfo, kCat, sample_id,
-          "surface: " + std::to_string(hull->mesh.faces.size()) + " faces at " + std::to_string(hull->voxel_mm) +
-              " mm in " + std::to_string(Seconds(t0)) + " s");
+          "surface: " + std::to_string(hull->mesh.faces.size()) + " faces at " +
+              std::to_string(hull->voxel_mm) + " mm in " + std::to_string(Seconds(t0)) + " s");
   return j;
 }
 
@@ -795,7 +864,8 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
 
 json StatsJson(const std::vector<double>& v) {
   const Stats s = ComputeStats(v);
-  return {{"mean", s.mean}, {"min", s.min}, {"max", s.max}, {"std", s.std}, {"cov", s.cov}, {"n", s.n}};
+  return {{"mean", s.mean}, {"min", s.min}, {"max", s.max},
+          {"std", s.std},   {"cov", s.cov}, {"n", s.n}};
 }
 
 Status AppendLibraryRow(const std::string& state_dir, const json& morphology) {
@@ -814,7 +884,8 @@ Status AppendLibraryRow(const std::string& state_dir, const json& morphology) {
       // new name, and a new library begins, so no row is mixed or lost.
       const std::string kept = state_dir + "/library-" + NowUtcString() + ".csv";
       if (Status s = RenameDurable(path, kept); !s) return s;
-      LogLine(LogLevel::kNotice, kCat, id, "library.csv had other columns; kept as " + kept + ", a new one begun");
+      LogLine(LogLevel::kNotice, kCat, id,
+              "library.csv had other columns; kept as " + kept + ", a new one begun");
       text = LibraryCsvHeader();
     }
   } else {
@@ -828,8 +899,10 @@ Status AppendLibraryRow(const std::string& state_dir, const json& morphology) {
 }  // namespace
 
 std::string LibraryCsvHeader() {
-  return "sample_id,created_utc,volume_mm3,surface_area_mm2,a_mm,b_mm,c_mm,fer_3d,ratio_c_b,ratio_b_a,sphericity,"
-         "fer_2d_mean,circularity_mean,views,poses_method,stitch_method,surface_method,stitch_rms_mm,"
+  return "sample_id,created_utc,volume_mm3,surface_area_mm2,a_mm,b_mm,c_mm,fer_3d,ratio_c_b,ratio_"
+         "b_a,sphericity,"
+         "fer_2d_mean,circularity_mean,views,poses_method,stitch_method,surface_method,stitch_rms_"
+         "mm,"
          "silhouette_iou_mean,total_s,confident,quality_flags\n";
 }
 
@@ -843,19 +916,22 @@ std::string LibraryCsvRow(const json& m) {
     return std::string(b);
   };
   std::string row = m.value("sample_id", "") + "," + m.value("created_utc", "");
-  for (const char* k : {"volume_mm3", "surface_area_mm2", "a_mm", "b_mm", "c_mm", "fer_3d", "ratio_c_b", "ratio_b_a",
-                        "sphericity"}) {
+  for (const char* k : {"volume_mm3", "surface_area_mm2", "a_mm", "b_mm", "c_mm", "fer_3d",
+                        "ratio_c_b", "ratio_b_a", "sphericity"}) {
     row += "," + num(d.value(k, json()));
   }
-  row += "," + num(o.at("fer_2d").value("mean", json())) + "," + num(o.at("circularity").value("mean", json()));
+  row += "," + num(o.at("fer_2d").value("mean", json())) + "," +
+         num(o.at("circularity").value("mean", json()));
   row += "," + std::to_string(m.value("views_2d", json::array()).size());
-  row += "," + m.at("methods").value("poses", "") + "," + m.at("methods").value("stitch", "") + "," +
-         m.at("methods").value("surface", "");
-  row += "," + num(q.value("stitch_rms_mm", json())) + "," + num(q.value("silhouette_iou_mean", json()));
+  row += "," + m.at("methods").value("poses", "") + "," + m.at("methods").value("stitch", "") +
+         "," + m.at("methods").value("surface", "");
+  row += "," + num(q.value("stitch_rms_mm", json())) + "," +
+         num(q.value("silhouette_iou_mean", json()));
   row += "," + num(m.at("timings_s").value("total", json()));
   // Flag codes joined by ';' (no commas or quotes: one CSV field).
   std::string codes;
-  for (const json& f : q.value("flags", json::array())) codes += (codes.empty() ? "" : ";") + f.value("code", "");
+  for (const json& f : q.value("flags", json::array()))
+    codes += (codes.empty() ? "" : ";") + f.value("code", "");
   row += std::string(",") + (q.value("confident", true) ? "yes" : "no") + "," + codes + "\n";
   return row;
 }
@@ -885,8 +961,9 @@ const char* PosesPathName(PosesPath p) {
 Result<json> ReadMorphology(const std::string& sample_dir) {
   const std::string path = ResultsPath(sample_dir, results::kMorphology);
   if (!PathExists(path)) {
-    return MakeError(ErrorClass::kNotFound, "no results yet for " + SampleIdOf(sample_dir) +
-                                                " (the worker has not finished it; see its state and the worker log)");
+    return MakeError(ErrorClass::kNotFound,
+                     "no results yet for " + SampleIdOf(sample_dir) +
+                         " (the worker has not finished it; see its state and the worker log)");
   }
   return ReadJson(path, "results");
 }
@@ -912,7 +989,8 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
   if (!morph2d) return morph2d.error();
   std::vector<int> sides;
   for (const auto& s : morph2d->value("sides", json::array())) sides.push_back(s.value("side", 0));
-  if (sides.empty()) return MakeError(ErrorClass::kNotFound, "sample " + sample_id + " has no captured side");
+  if (sides.empty())
+    return MakeError(ErrorClass::kNotFound, "sample " + sample_id + " has no captured side");
 
   json timings = json::object();
   std::string mask_method = "classical";  // what the side jobs ran (side results' mask_method)
@@ -924,8 +1002,8 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
     if (!side1) return side1.error();
     for (const auto& v : side1->value("views", json::array())) {
       if (!v.value("ok", false)) continue;
-      auto m = LoadImage(sample_dir + "/" + layout::kResultsDir + "/" + v.value("mask", ""), ImageMode::kGray,
-                         opts.worker.image_limits);
+      auto m = LoadImage(sample_dir + "/" + layout::kResultsDir + "/" + v.value("mask", ""),
+                         ImageMode::kGray, opts.worker.image_limits);
       if (m) {
         image_size = m->size();
         break;
@@ -943,9 +1021,10 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
     std::vector<ConfigProblem> problems;
     auto c = LoadConfigFile(cfg_path, &problems);
     if (!c) {
-      return MakeError(ErrorClass::kInvalidConfig, "sample " + sample_id + ": its " + cfg_path + " does not load (" +
-                                                       c.error().message +
-                                                       "); it is written at arm time and must not be edited");
+      return MakeError(ErrorClass::kInvalidConfig,
+                       "sample " + sample_id + ": its " + cfg_path + " does not load (" +
+                           c.error().message +
+                           "); it is written at arm time and must not be edited");
     }
     sample_cfg = std::move(*c);
   }
@@ -960,7 +1039,8 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
   ReportStageProgress(steps_done, steps);
   std::optional<RigCalibration> cal;
   if (!*use_sfm || HasCalibration(sample_dir, opts)) {
-    auto c = RunStage("calibration", [&] { return CalibrationStage(sample_dir, opts, image_size, &timings); });
+    auto c = RunStage("calibration",
+                      [&] { return CalibrationStage(sample_dir, opts, image_size, &timings); });
     if (!c) return c.error();
     cal = std::move(*c);
   }
@@ -991,7 +1071,8 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
   std::vector<ViewInput> all_views;
   for (int side : sides) {
     if (opts.cancel && opts.cancel->load()) {
-      return MakeError(ErrorClass::kInvalidState, "interrupted before the poses of " + layout::SideDirName(side));
+      return MakeError(ErrorClass::kInvalidState,
+                       "interrupted before the poses of " + layout::SideDirName(side));
     }
     if (*use_sfm && !cal && side != sides[0]) {
       // Every side in one camera model (the surface stage has one): the
@@ -1004,8 +1085,8 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
     std::string method;
     ReportStageProgress(++steps_done, steps);
     auto v = RunStage("poses side " + std::to_string(side), [&] {
-      return PosesStage(sample_dir, side, cal ? &*cal : nullptr, *use_sfm ? &sfm_setup : nullptr, opts, &timings,
-                        &method);
+      return PosesStage(sample_dir, side, cal ? &*cal : nullptr, *use_sfm ? &sfm_setup : nullptr,
+                        opts, &timings, &method);
     });
     poses_methods[side] = method;
     if (!v) return v.error();
@@ -1023,7 +1104,8 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
     timings["calibration_s"] = 0.0;
     cal = std::move(*c);
   }
-  if (opts.cancel && opts.cancel->load()) return MakeError(ErrorClass::kInvalidState, "interrupted before stitching");
+  if (opts.cancel && opts.cancel->load())
+    return MakeError(ErrorClass::kInvalidState, "interrupted before stitching");
   StitchStageInput sin;
   sin.sample_dir = sample_dir;
   sin.calibration = &*cal;
@@ -1051,13 +1133,15 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
   }
   for (int side : sides) {
     if (!table_from_object.count(side)) {
-      return MakeError(ErrorClass::kCorrupt, stitch_path + " has no transform for " + layout::SideDirName(side) +
+      return MakeError(ErrorClass::kCorrupt, stitch_path + " has no transform for " +
+                                                 layout::SideDirName(side) +
                                                  "; delete it to stitch again");
     }
   }
   timings["stitch_s"] = stitch->value("stage_seconds", 0.0);
 
-  if (opts.cancel && opts.cancel->load()) return MakeError(ErrorClass::kInvalidState, "interrupted before the surface");
+  if (opts.cancel && opts.cancel->load())
+    return MakeError(ErrorClass::kInvalidState, "interrupted before the surface");
   ReportStageProgress(++steps_done, steps);
   auto surface = RunStage("surface", [&] {
     return SurfaceStage(sample_dir, all_views, table_from_object, *cal, opts, sample_id);
@@ -1076,8 +1160,9 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
   const MeshProps p = ComputeMeshProps(*mesh);
   for (double v : {p.volume_mm3, p.surface_area_mm2, p.a_mm, p.b_mm, p.c_mm, p.sphericity}) {
     if (!std::isfinite(v)) {
-      return MakeError(ErrorClass::kInternal, "morphology stage: the reconstructed mesh's figures are not finite "
-                                              "numbers; delete results/ to reconstruct again and report it");
+      return MakeError(ErrorClass::kInternal,
+                       "morphology stage: the reconstructed mesh's figures are not finite "
+                       "numbers; delete results/ to reconstruct again and report it");
     }
   }
   Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
@@ -1123,7 +1208,8 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
   json stats = json::object();
   auto block = [&](std::map<std::string, std::vector<double>>& vals) {
     json b = json::object();
-    for (const char* k : {"fer_2d", "circularity", "l_max_mm", "l_min_mm"}) b[k] = StatsJson(vals[k]);
+    for (const char* k : {"fer_2d", "circularity", "l_max_mm", "l_min_mm"})
+      b[k] = StatsJson(vals[k]);
     return b;
   };
   for (int side : sides) stats[layout::SideDirName(side)] = block(per_side[side]);
@@ -1134,23 +1220,26 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
   const double lo = std::min(p.c_over_b, p.b_over_a), hi = std::max(p.c_over_b, p.b_over_a);
 
   std::vector<double> ious;
-  for (const auto& e : surface->value("silhouette_iou", json::array())) ious.push_back(e.value("iou", 0.0));
+  for (const auto& e : surface->value("silhouette_iou", json::array()))
+    ious.push_back(e.value("iou", 0.0));
   const Stats iou = ComputeStats(ious);
-  json quality = {{"silhouette_iou_mean", iou.mean},
-                  {"silhouette_iou_min", iou.min},
-                  {"silhouette_iou_note",
-                   "IoU of each mask with the reconstructed surface's silhouette: an estimate of mask and pose "
-                   "consistency (1 = every mask agrees with all the others)"},
-                  {"calibration_reprojection_rms_px", cal->reprojection_rms_px},
-                  {"stitch_rms_mm", stitch->value("rms_mm", json())},
-                  {"stitch_max_mm", stitch->value("max_mm", json())},
-                  {"stitch_silhouette_deficit", stitch->value("silhouette_deficit", json())},
-                  {"scale_residual_mm", stitch->value("scale_residual_mm", json())},
-                  {"scale_reference", stitch->value("scale_reference", json())},
-                  {"watertight", watertight.ok()}};
+  json quality = {
+      {"silhouette_iou_mean", iou.mean},
+      {"silhouette_iou_min", iou.min},
+      {"silhouette_iou_note",
+       "IoU of each mask with the reconstructed surface's silhouette: an estimate of mask and pose "
+       "consistency (1 = every mask agrees with all the others)"},
+      {"calibration_reprojection_rms_px", cal->reprojection_rms_px},
+      {"stitch_rms_mm", stitch->value("rms_mm", json())},
+      {"stitch_max_mm", stitch->value("max_mm", json())},
+      {"stitch_silhouette_deficit", stitch->value("silhouette_deficit", json())},
+      {"scale_residual_mm", stitch->value("scale_residual_mm", json())},
+      {"scale_reference", stitch->value("scale_reference", json())},
+      {"watertight", watertight.ok()}};
   // What the figures cannot be trusted for, with the reason: never a
   // confident number from poor masks or an unconfirmed stitch.
-  quality["flags"] = QualityFlags(quality, *stitch, surface->value("silhouette_iou", json::array()));
+  quality["flags"] =
+      QualityFlags(quality, *stitch, surface->value("silhouette_iou", json::array()));
   quality["confident"] = quality["flags"].empty();
   for (const json& f : quality["flags"]) {
     LogLine(LogLevel::kWarning, kCat, sample_id, "not confident: " + f.value("reason", ""));
@@ -1158,7 +1247,8 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
   timings["masks_and_2d_s"] = masks_s;
   timings["morphology_s"] = Seconds(t_m);
   double total = masks_s;
-  for (const char* k : {"calibration_s", "stitch_s", "surface_s", "morphology_s"}) total += timings.value(k, 0.0);
+  for (const char* k : {"calibration_s", "stitch_s", "surface_s", "morphology_s"})
+    total += timings.value(k, 0.0);
   for (int side : sides) total += timings.value("poses_" + layout::SideDirName(side) + "_s", 0.0);
   timings["total"] = total;
   timings["this_run_wall"] = Seconds(t_all);
@@ -1196,7 +1286,8 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
                 {"model_dir", s.value("model_dir", "")}});
     } else if (pj->contains("bundle_adjustment")) {
       const json& ba = (*pj)["bundle_adjustment"];
-      e.update({{"ba_refined", ba.value("refined", false)}, {"ba_final_rms_px", ba.value("final_rms_px", 0.0)}});
+      e.update({{"ba_refined", ba.value("refined", false)},
+                {"ba_final_rms_px", ba.value("final_rms_px", 0.0)}});
     }
     poses_detail.push_back(std::move(e));
   }
@@ -1212,54 +1303,58 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
     }
   }
   for (const auto& v : surface->value("views_left_out", json::array())) {
-    warnings.push_back(layout::SideDirName(v.value("side", 0)) + " view " + std::to_string(v.value("view", 0)) +
+    warnings.push_back(layout::SideDirName(v.value("side", 0)) + " view " +
+                       std::to_string(v.value("view", 0)) +
                        " left out of the model: " + v.value("reason", ""));
   }
   for (const auto& v : surface->value("views_disagreeing", json::array())) {
-    warnings.push_back(layout::SideDirName(v.value("side", 0)) + " view " + std::to_string(v.value("view", 0)) +
+    warnings.push_back(layout::SideDirName(v.value("side", 0)) + " view " +
+                       std::to_string(v.value("view", 0)) +
                        " disagrees with the model: " + v.value("reason", ""));
   }
   json morphology_3d = MeshPropsJson(p);
   morphology_3d["watertight"] = watertight.ok();
-  json out = {
-      {"format", "aggscan-morphology-1"},
-      {"sample_id", sample_id},
-      {"created_utc", NowUtcString()},
-      {"units", "mm, mm2, mm3, degrees; ratios dimensionless; 2D lengths in px and in mm at the rock's depth"},
-      {"methods",
-       {{"calibration", cal->method},
-        {"poses", poses_method},
-        {"stitch", stitch->value("method", "")},
-        {"surface", surface->value("method", "")},
-        {"masks", mask_method}}},
-      {"morphology_3d", morphology_3d},
-      {"poses", poses_detail},
-      {"views_2d", views2d},
-      {"stats_2d", stats},
-      {"comparison_2d_3d",
-       {{"fer_3d", p.fer_3d},
-        {"fer_2d_mean", fer2d_mean},
-        {"fer_2d_mean_over_fer_3d", p.fer_3d > 0 ? fer2d_mean / p.fer_3d : 0.0},
-        {"ratio_c_b", p.c_over_b},
-        {"ratio_b_a", p.b_over_a},
-        {"fer_2d_mean_between_c_b_and_b_a", fer2d_mean >= lo && fer2d_mean <= hi},
-        {"sphericity", p.sphericity},
-        {"circularity_mean", circ_mean},
-        {"circularity_mean_minus_sphericity", circ_mean - p.sphericity}}},
-      {"quality", quality},
-      {"warnings", warnings},
-      {"timings_s", timings},
-      {"files",
-       {{"mesh_ply", results::kMeshPly},
-        {"mesh_obj", results::kMeshObj},
-        {"mesh_stl", results::kMeshStl},
-        {"stitch", results::kStitch},
-        {"surface", results::kSurface}}}};
+  json out = {{"format", "aggscan-morphology-1"},
+              {"sample_id", sample_id},
+              {"created_utc", NowUtcString()},
+              {"units",
+               "mm, mm2, mm3, degrees; ratios dimensionless; 2D lengths in px and in mm at the "
+               "rock's depth"},
+              {"methods",
+               {{"calibration", cal->method},
+                {"poses", poses_method},
+                {"stitch", stitch->value("method", "")},
+                {"surface", surface->value("method", "")},
+                {"masks", mask_method}}},
+              {"morphology_3d", morphology_3d},
+              {"poses", poses_detail},
+              {"views_2d", views2d},
+              {"stats_2d", stats},
+              {"comparison_2d_3d",
+               {{"fer_3d", p.fer_3d},
+                {"fer_2d_mean", fer2d_mean},
+                {"fer_2d_mean_over_fer_3d", p.fer_3d > 0 ? fer2d_mean / p.fer_3d : 0.0},
+                {"ratio_c_b", p.c_over_b},
+                {"ratio_b_a", p.b_over_a},
+                {"fer_2d_mean_between_c_b_and_b_a", fer2d_mean >= lo && fer2d_mean <= hi},
+                {"sphericity", p.sphericity},
+                {"circularity_mean", circ_mean},
+                {"circularity_mean_minus_sphericity", circ_mean - p.sphericity}}},
+              {"quality", quality},
+              {"warnings", warnings},
+              {"timings_s", timings},
+              {"files",
+               {{"mesh_ply", results::kMeshPly},
+                {"mesh_obj", results::kMeshObj},
+                {"mesh_stl", results::kMeshStl},
+                {"stitch", results::kStitch},
+                {"surface", results::kSurface}}}};
   if (!watertight) out["morphology_3d"]["watertight_problem"] = watertight.error().message;
   if (Status s = WriteJson(morph_path, out); !s) return s;
   LogLine(LogLevel::kNotice, kCat, sample_id,
           "reconstructed: V " + std::to_string(static_cast<long>(p.volume_mm3)) + " mm3, a/b/c " +
-              std::to_string(p.a_mm) + "/" + std::to_string(p.b_mm) + "/" + std::to_string(p.c_mm) + " mm");
+              std::to_string(p.a_mm) + "/" + std::to_string(p.b_mm) + "/" + std::to_string(p.c_mm) +
+              " mm");
   return AppendLibraryRow(opts.state_dir, out);
 }
 
