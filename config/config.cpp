@@ -146,6 +146,11 @@ const std::vector<Field<Config>>& Fields() {
       F(daemon.allowed_origins, Any(),
         "web origins allowed to change state (POST) besides those of the allowed hosts: "
         "comma-separated, e.g. \"http://console.local:8080\""),
+      D(daemon.preview_interval, Range(0, 60 * kSec),
+        "live camera view (GET /api/v1/preview): one still this often while a screen watches "
+        "and no side runs (0 = no live view)"),
+      F(daemon.preview_max_side, Range(64, 4096),
+        "live view frames are scaled down to at most this many pixels on their longer side"),
 
       F(capture.profile, OneOf(Profiles()),
         "paper (fixes sides 2, views_per_side 30, step_deg 30, interval 2s) | "

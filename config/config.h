@@ -34,6 +34,10 @@ struct DaemonConfig {
   std::string allowed_hosts;
   // Origins ("http://host:port", comma-separated) allowed to POST besides the allowed hosts
   std::string allowed_origins;
+  // The live camera view for screens (GET /api/v1/preview): a still this often
+  // while someone watches and no side runs (0 = no live view)
+  TimeNs preview_interval = 250 * kNsPerMs;
+  int preview_max_side = 640;  // preview frames' longer side at most this, pixels
 
   bool operator==(const DaemonConfig&) const = default;
 };

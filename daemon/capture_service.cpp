@@ -137,6 +137,7 @@ CaptureService::CaptureService(EventLoop& loop, Config config, std::string effec
 }
 
 CaptureService::~CaptureService() {
+  if (preview_ != nullptr) preview_->SetOnDemand({});
   if (dev_.light) dev_.light->Close();
   if (dev_.button) dev_.button->Stop();
   if (dev_.camera) dev_.camera->Close();
@@ -229,6 +230,88 @@ auto CaptureService::OnLoop(F fn, const CallContext& ctx) -> decltype(fn()) {
         ErrorClass::kTimeout,
         "the request started but gave no answer in time; check the status before repeating it");
   }
+}
+
+// ------------------------------------------------------------- live view --
+
+void CaptureService::SetPreviewHub(PreviewHub* hub) {
+  if (preview_ != nullptr) preview_->SetOnDemand({});
+  preview_ = hub;
+  if (hub != nullptr) hub->SetOnDemand([this] { loop_.Post([this] { StartPreview(); }); });
+}
+
+void CaptureService::StartPreview() {
+  if (preview_ == nullptr || preview_ticking_ || config_.daemon.preview_interval <= 0) return;
+  preview_ticking_ = true;
+  PreviewTick();
+}
+
+void CaptureService::PreviewTick() {
+  if (preview_->viewers() == 0 || loop_.stopped()) {
+    preview_ticking_ = false;  // the next viewer starts it again
+    return;
+  }
+  // Real time: the live view is for people, whatever the sim clock does.
+  loop_.AddRealTimer(MonotonicNs() + config_.daemon.preview_interval, [this] { PreviewTick(); });
+  if (preview_in_flight_ || SideRunning() || !dev_.camera) return;
+  auto h = health_.find("camera");
+  if (h == health_.end() || !h->second.healthy || dev_.camera->state() != Camera::State::kReady)
+    return;
+  preview_in_flight_ = true;
+  const uint64_t gen = preview_generation_;
+  const StillRequest req{next_request_id_++, state_.sample_id, std::max(1, state_.side), 0};
+  Status s = dev_.camera->RequestStill(req, [this, gen](Result<FramePtr> r) {
+    loop_.Post([this, gen, r = std::move(r)]() mutable { OnPreviewFrame(gen, std::move(r)); });
+  });
+  if (!s) OnPreviewFrame(gen, s.error());
+}
+
+void CaptureService::OnPreviewFrame(uint64_t generation, Result<FramePtr> frame) {
+  if (generation != preview_generation_) return;  // the camera was reopened since
+  preview_in_flight_ = false;
+  if (frame.ok()) {
+    ++previews_shot_;
+    preview_log_.Clear("camera", "live view: camera stills arrive again");
+    if (preview_ != nullptr) preview_->Submit(*frame, "preview");
+  } else {
+    ++preview_failures_;
+    preview_log_.Error("camera",
+                       "live view: the camera gave no still: " + frame.error().ToString() +
+                           " (captures are not affected "
+                           "unless their stills fail too)");
+  }
+  if (shot_waits_for_preview_) {
+    shot_waits_for_preview_ = false;
+    if (state_.phase == cs::Phase::kCapturing && holding_) {
+      if (Status s = ShootView(); !s) Fault(s.error().cls, "camera: " + s.error().ToString());
+    }
+  }
+}
+
+Status CaptureService::ShootView() {
+  const StillRequest req{pending_.request_id, state_.sample_id, pending_.side, pending_.view};
+  const uint64_t ep = epoch_;
+  const uint64_t rid = pending_.request_id;
+  Status s = dev_.camera->RequestStill(req, [this, ep, rid](Result<FramePtr> r) {
+    loop_.Post([this, ep, rid, r = std::move(r)]() mutable {
+      if (ep == epoch_ && rid == pending_.request_id && holding_) {
+        holding_ = false;
+        loop_.Release();
+      }
+      if (ep != epoch_ || rid != pending_.request_id) return;  // late answer of an aborted shot
+      if (!r.ok()) {
+        Fault(r.error().cls, "camera: " + r.error().ToString());
+        return;
+      }
+      pending_.frame = *r;
+      Dispatch(cs::FrameReady{});
+    });
+  });
+  if (!s && holding_) {
+    holding_ = false;
+    loop_.Release();
+  }
+  return s;
 }
 
 // ---------------------------------------------------------------- devices --
@@ -338,6 +421,9 @@ Status CaptureService::OpenDevice(const std::string& name) {
     if (!dev_.camera)
       return MakeError(ErrorClass::kInvalidConfig, "camera: none configured; check [camera]");
     if (dev_.camera->state() != Camera::State::kClosed) dev_.camera->Close();
+    // A live-view still of the closed device never counts.
+    ++preview_generation_;
+    preview_in_flight_ = false;
     Status s = dev_.camera->Open();
     if (s) s = dev_.camera->Configure(CameraSettingsFor(config_));
     if (!s) dev_.camera->Close();
@@ -726,30 +812,15 @@ void CaptureService::Execute(const cs::Effect& eff) {
           pending_.trigger = clock.Now();
           pending_.frame.reset();
           pending_.request_id = next_request_id_++;
-          StillRequest req{pending_.request_id, id, e.side, e.view};
-          const uint64_t ep = epoch_;
           const uint64_t rid = pending_.request_id;
           loop_.Hold();
           holding_ = true;
-          Status s = dev_.camera->RequestStill(req, [this, ep, rid](Result<FramePtr> r) {
-            loop_.Post([this, ep, rid, r = std::move(r)]() mutable {
-              if (ep == epoch_ && rid == pending_.request_id && holding_) {
-                holding_ = false;
-                loop_.Release();
-              }
-              if (ep != epoch_ || rid != pending_.request_id)
-                return;  // late answer of an aborted shot
-              if (!r.ok()) {
-                Fault(r.error().cls, "camera: " + r.error().ToString());
-                return;
-              }
-              pending_.frame = *r;
-              Dispatch(cs::FrameReady{});
-            });
-          });
-          if (!s) {
-            holding_ = false;
-            loop_.Release();
+          if (preview_in_flight_) {
+            // The camera is finishing a live-view still: this view's is
+            // requested the moment that one arrives (OnPreviewFrame).
+            shot_waits_for_preview_ = true;
+            ++preview_delayed_views_;
+          } else if (Status s = ShootView(); !s) {
             pending_events_.push_back(
                 cs::DeviceFault{s.error().cls, "camera: " + s.error().ToString()});
             return;
@@ -801,13 +872,17 @@ void CaptureService::Execute(const cs::Effect& eff) {
             return;
           }
           ++views_captured_;
+          // Screens watching the live view see each view as it is stored.
+          if (preview_ != nullptr && preview_->viewers() > 0) preview_->Submit(f, "view");
           Publish("view",
                   {{"sample_id", id},
                    {"side", e.side},
                    {"view", e.view},
                    {"number", e.view + 1},
                    {"views_per_side", config_.capture.views_per_side},
-                   {"image", layout::SideDirName(e.side) + "/" + layout::ViewImageName(e.view)}});
+                   {"image", layout::SideDirName(e.side) + "/" + layout::ViewImageName(e.view)},
+                   {"url", ViewUrl(id, e.side, e.view)},
+                   {"thumbnail", ViewUrl(id, e.side, e.view) + "/thumbnail"}});
           {
             // A stored view proves both devices work: the health API's last_ok.
             const int64_t now_utc = std::chrono::duration_cast<std::chrono::nanoseconds>(
@@ -867,6 +942,7 @@ void CaptureService::Execute(const cs::Effect& eff) {
           pending_events_.push_back(cs::SideFinished{});
         } else if constexpr (std::is_same_v<T, cs::StopMotion>) {
           ++epoch_;  // cancels every pending timer and late callback of this capture
+          shot_waits_for_preview_ = false;
           motion_.active = false;
           if (holding_) {
             holding_ = false;
@@ -1432,6 +1508,34 @@ Result<std::string> CaptureService::ResultFile(const std::string& sample_id,
   return path;
 }
 
+Result<std::string> CaptureService::ViewFile(const std::string& sample_id, int side, int view,
+                                             ViewFileKind kind) {
+  const std::string dir = store_.SampleDir(sample_id);
+  if (!PathExists(dir + "/" + layout::kSampleRecord))
+    return MakeError(ErrorClass::kNotFound, "no sample \"" + sample_id + "\"");
+  const std::string what = "view " + std::to_string(view) + " of side " + std::to_string(side) +
+                           " of \"" + sample_id + "\"";
+  const std::string image =
+      dir + "/" + layout::SideDirName(side) + "/" + layout::ViewImageName(view);
+  if (side < 1 || view < 0 || !PathExists(image)) {
+    return MakeError(ErrorClass::kNotFound,
+                     "no " + what +
+                         ": it is not captured (sides count from 1, views from 0; see "
+                         "GET /api/v1/samples/" +
+                         sample_id + ")");
+  }
+  if (kind == ViewFileKind::kImage) return image;
+  const std::string mask = dir + "/" + layout::kResultsDir + "/masks/" + layout::SideDirName(side) +
+                           "/" + layout::ViewStem(view) + ".png";
+  if (!PathExists(mask)) {
+    return MakeError(ErrorClass::kNotFound,
+                     "no mask of " + what + " yet: the worker has not masked side " +
+                         std::to_string(side) + " (see its job in GET /api/v1/samples/" +
+                         sample_id + ")");
+  }
+  return mask;
+}
+
 std::string CaptureService::Metrics() {
   return OnLoop([this] {
     std::ostringstream m;
@@ -1450,6 +1554,19 @@ std::string CaptureService::Metrics() {
       << "# HELP aggscan_schedule_error_max_ms Largest absolute schedule error since start.\n"
       << "# TYPE aggscan_schedule_error_max_ms gauge\n"
       << "aggscan_schedule_error_max_ms " << max_schedule_error_ms_ << "\n"
+      << "# HELP aggscan_preview_viewers Screens watching the live view.\n"
+      << "# TYPE aggscan_preview_viewers gauge\n"
+      << "aggscan_preview_viewers " << (preview_ != nullptr ? preview_->viewers() : 0) << "\n"
+      << "# HELP aggscan_preview_stills_total Stills shot for the live view.\n"
+      << "# TYPE aggscan_preview_stills_total counter\n"
+      << "aggscan_preview_stills_total " << previews_shot_ << "\n"
+      << "# HELP aggscan_preview_failures_total Live-view stills the camera did not give.\n"
+      << "# TYPE aggscan_preview_failures_total counter\n"
+      << "aggscan_preview_failures_total " << preview_failures_ << "\n"
+      << "# HELP aggscan_preview_delayed_views_total Views whose still waited for a live-view "
+         "still to finish.\n"
+      << "# TYPE aggscan_preview_delayed_views_total counter\n"
+      << "aggscan_preview_delayed_views_total " << preview_delayed_views_ << "\n"
       << "# HELP aggscan_faults_total Capture faults by class.\n"
       << "# TYPE aggscan_faults_total counter\n";
     for (const char* cls : {"timeout", "stalled", "disconnected", "device_missing", "device_fault",

@@ -18,6 +18,7 @@
 #include "daemon/control.h"
 #include "daemon/event_hub.h"
 #include "daemon/event_loop.h"
+#include "daemon/preview_hub.h"
 #include "daemon/state_machine.h"
 #include "drivers/factory.h"
 #include "store/queue.h"
@@ -72,6 +73,10 @@ class CaptureService final : public DaemonControl {
   /// Publishes the live events (state, view, worker, health, fault) there;
   /// set before Start(). Borrowed: must outlive the service.
   void SetEventHub(EventHub* hub) { events_ = hub; }
+  /// Shoots the live view into `hub` while a screen watches it and no side
+  /// runs, and hands it each view stored during a side; set before Start().
+  /// Borrowed: must outlive the service.
+  void SetPreviewHub(PreviewHub* hub);
 
   // DaemonControl (any thread).
   nlohmann::json GetStatus() override;
@@ -84,6 +89,8 @@ class CaptureService final : public DaemonControl {
   Result<nlohmann::json> ListSamples() override;
   Result<nlohmann::json> GetSample(const std::string& sample_id) override;
   Result<std::string> ResultFile(const std::string& sample_id, const std::string& name) override;
+  Result<std::string> ViewFile(const std::string& sample_id, int side, int view,
+                               ViewFileKind kind) override;
   std::string Metrics() override;
 
   // Loop-thread versions (used by the offline sim capture and by the above).
@@ -154,6 +161,15 @@ class CaptureService final : public DaemonControl {
   /// published, else every few seconds.
   void WatchWorker();
   void Publish(const std::string& type, nlohmann::json data);
+  /// Starts the live view's tick unless it runs (a screen began watching).
+  void StartPreview();
+  /// Every daemon.preview_interval while a screen watches: one preview still
+  /// when the camera is free and no side runs.
+  void PreviewTick();
+  void OnPreviewFrame(uint64_t generation, Result<FramePtr> frame);
+  /// Requests the still of pending_ (TriggerCapture, or once a preview still
+  /// the camera was busy with has arrived).
+  Status ShootView();
   /// Turns a runtime fault recorded by the button or light thread into health.
   void ProbeButtonAndLight();
   /// The status light's pattern for the current state and device health.
@@ -202,6 +218,16 @@ class CaptureService final : public DaemonControl {
   TimeNs started_real_ = 0;
   bool worker_healthy_ = true;  // WatchWorker()'s last finding
   EventHub* events_ = nullptr;
+  PreviewHub* preview_ = nullptr;
+  bool preview_ticking_ = false;
+  bool preview_in_flight_ = false;   // the camera is busy with a preview still
+  uint64_t preview_generation_ = 1;  // bumped when the camera is reopened: late stills are dropped
+  bool shot_waits_for_preview_ =
+      false;  // a view's trigger came while a preview still was in flight
+  RateLimitedLog preview_log_{"preview"};
+  uint64_t previews_shot_ = 0;
+  uint64_t preview_failures_ = 0;
+  uint64_t preview_delayed_views_ = 0;
   std::string published_state_;   // phase/sample/side of the last "state" event
   std::string published_worker_;  // what the last "worker" event said
   std::string last_status_;

@@ -21,6 +21,16 @@ inline const std::vector<std::string>& ResultFileNames() {
   return names;
 }
 
+/// Which file of a stored view DaemonControl::ViewFile names.
+enum class ViewFileKind { kImage, kMask };
+
+/// Where the API serves a stored view: GET .../views/{view} (the image),
+/// .../thumbnail and .../mask.
+inline std::string ViewUrl(const std::string& sample_id, int side, int view) {
+  return "/api/v1/samples/" + sample_id + "/sides/" + std::to_string(side) + "/views/" +
+         std::to_string(view);
+}
+
 /// What a state-changing call carries from its transport. A command that the
 /// capture loop has not started by `deadline`, or whose client is gone, is
 /// dropped (kTimeout / kConflict) and never runs afterwards: a press the
@@ -69,6 +79,12 @@ class DaemonControl {
   /// "morphology.json", "mesh.ply", "mesh.obj" or "mesh.stl" (ResultFileNames()).
   /// kNotFound when the sample does not exist or has no such result yet.
   virtual Result<std::string> ResultFile(const std::string& sample_id, const std::string& name) = 0;
+  /// Path of one stored view's file: its image (side<N>/view_NNN.jpg) or the
+  /// worker's mask of it (results/masks/side<N>/view_NNN.png). `side` counts
+  /// from 1, `view` from 0, as in the store. kNotFound when the sample, the
+  /// view or (for a mask) the worker's result does not exist (yet).
+  virtual Result<std::string> ViewFile(const std::string& sample_id, int side, int view,
+                                       ViewFileKind kind) = 0;
   /// Prometheus text exposition format.
   virtual std::string Metrics() = 0;
 };

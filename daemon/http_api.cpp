@@ -39,10 +39,17 @@ constexpr const char* kSamplesPrefix = "/api/v1/samples/";
 // capture loop); the polling thread hands them complete requests only, so a
 // slow client never occupies one.
 constexpr size_t kHandlerThreads = 4;
+// View thumbnails: 252x189 from the 2016x1512 default still (JPEG DCT scaling
+// gives 1/8); the budget holds several samples' worth.
+constexpr int kThumbnailSide = 320;
+constexpr int kThumbnailQuality = 80;
+constexpr size_t kThumbnailCacheBytes = 4 * 1024 * 1024;
 // Per-connection memory of libmicrohttpd (read buffer and parsed head): above
 // ApiLimits' header and URI limits, so those are answered with our JSON
 // errors; a head larger than the pool gets libmicrohttpd's own 431 or 414.
 constexpr size_t kConnectionMemory = 64 * 1024;
+// Separates the frames of the live view's multipart answer.
+constexpr const char* kFrameBoundary = "aggscanframe";
 // A body over the limit is still read (and dropped) up to this size, so that
 // the client is in a state to read the 413; a larger one is cut off.
 constexpr size_t kDrainLimitBytes = 1 << 20;
@@ -177,7 +184,9 @@ enum class Endpoint {
   kReset,
   kMetrics,
   kEvents,
-  kOpenApi
+  kOpenApi,
+  kView,
+  kPreview
 };
 
 // Methods each endpoint accepts (HEAD is answered wherever GET is).
@@ -189,8 +198,10 @@ const char* AllowedMethods(Endpoint ep) {
     case Endpoint::kSampleFile:
     case Endpoint::kMetrics:
     case Endpoint::kOpenApi:
+    case Endpoint::kView:
       return "GET, HEAD";
     case Endpoint::kEvents:
+    case Endpoint::kPreview:
       return "GET";
     case Endpoint::kSamples:
       return "GET, HEAD, POST";
@@ -230,6 +241,7 @@ Endpoint Match(const std::string& path, std::string* id, std::string* file) {
   if (path == "/metrics") return Endpoint::kMetrics;
   if (path == "/api/v1/events") return Endpoint::kEvents;
   if (path == "/api/v1/openapi.json") return Endpoint::kOpenApi;
+  if (path == "/api/v1/preview") return Endpoint::kPreview;
   if (path.rfind(kSamplesPrefix, 0) == 0) {
     *id = path.substr(std::strlen(kSamplesPrefix));
     const size_t slash = id->find('/');
@@ -243,6 +255,7 @@ Endpoint Match(const std::string& path, std::string* id, std::string* file) {
     if (*file == "mesh.ply" || *file == "mesh.obj" || *file == "mesh.stl")
       return Endpoint::kSampleFile;
     if (*file == "retry") return Endpoint::kSampleRetry;
+    if (file->rfind("sides/", 0) == 0) return Endpoint::kView;  // checked by ServeView
     // Anything else is not a sub-resource: the whole rest is the (invalid) id.
     *id = path.substr(std::strlen(kSamplesPrefix));
     file->clear();
@@ -372,7 +385,9 @@ bool HostPolicy::OriginAllowed(std::string_view origin) const {
 // ------------------------------------------------------------- ApiRouter --
 
 ApiRouter::ApiRouter(DaemonControl& control, HostPolicy policy)
-    : control_(control), policy_(std::move(policy)) {}
+    : control_(control),
+      policy_(std::move(policy)),
+      thumbnails_(kThumbnailSide, kThumbnailQuality, kThumbnailCacheBytes) {}
 
 std::optional<ApiResponse> ApiRouter::CheckHead(const ApiRequest& head) {
   if (!IsKnownMethod(head.method)) {
@@ -515,6 +530,10 @@ ApiResponse ApiRouter::HandleUnsafe(const ApiRequest& req) {
       if (!layout::IsValidSampleId(id))
         return ErrorResponse(400, ErrorClass::kInvalidArgument, InvalidIdMessage(id));
       return ServeResultFile(id, file);
+    case Endpoint::kView:
+      if (!layout::IsValidSampleId(id))
+        return ErrorResponse(400, ErrorClass::kInvalidArgument, InvalidIdMessage(id));
+      return ServeView(id, file);
     case Endpoint::kSampleRetry:
       if (!layout::IsValidSampleId(id))
         return ErrorResponse(400, ErrorClass::kInvalidArgument, InvalidIdMessage(id));
@@ -543,7 +562,13 @@ ApiResponse ApiRouter::HandleUnsafe(const ApiRequest& req) {
       // Admitted here (Host, method); the transport streams it.
       ApiResponse r;
       r.status = 200;
-      r.event_stream = true;
+      r.stream = ApiResponse::Stream::kEvents;
+      return r;
+    }
+    case Endpoint::kPreview: {
+      ApiResponse r;
+      r.status = 200;
+      r.stream = ApiResponse::Stream::kPreview;
       return r;
     }
     case Endpoint::kNone:
@@ -567,6 +592,65 @@ ApiResponse ApiRouter::ServeResultFile(const std::string& id, const std::string&
                    : name.ends_with(".obj") ? "text/plain; charset=utf-8"
                    : name.ends_with(".stl") ? "model/stl"
                                             : "application/octet-stream";
+  r.body = std::move(*bytes);
+  return r;
+}
+
+namespace {
+
+// A side or view number of a view's path: 1-3 digits, nothing else.
+std::optional<int> SmallNumber(std::string_view s) {
+  if (s.empty() || s.size() > 3) return std::nullopt;
+  int n = 0;
+  for (char c : s) {
+    if (c < '0' || c > '9') return std::nullopt;
+    n = n * 10 + (c - '0');
+  }
+  return n;
+}
+
+}  // namespace
+
+ApiResponse ApiRouter::ServeView(const std::string& id, const std::string& sub) {
+  // sub: "sides/{side}/views/{view}" with an optional "/thumbnail" or "/mask".
+  static const std::string kShape =
+      "a view is /api/v1/samples/{id}/sides/{side}/views/{view} (side from 1, view from 0), "
+      "optionally followed by /thumbnail or /mask";
+  std::vector<std::string_view> parts;
+  for (size_t pos = 0;;) {
+    const size_t slash = sub.find('/', pos);
+    parts.emplace_back(std::string_view(sub).substr(pos, slash - pos));
+    if (slash == std::string::npos) break;
+    pos = slash + 1;
+  }
+  const std::optional<int> side = parts.size() >= 4 ? SmallNumber(parts[1]) : std::nullopt;
+  const std::optional<int> view = parts.size() >= 4 ? SmallNumber(parts[3]) : std::nullopt;
+  const std::string_view what = parts.size() == 5 ? parts[4] : std::string_view();
+  if (parts.size() < 4 || parts.size() > 5 || parts[0] != "sides" || parts[2] != "views" || !side ||
+      !view || (parts.size() == 5 && what != "thumbnail" && what != "mask")) {
+    return ErrorResponse(
+        404, ErrorClass::kNotFound,
+        "no such resource \"" + Printable(sub, 80) + "\" of sample " + id + ": " + kShape);
+  }
+  const ViewFileKind kind = what == "mask" ? ViewFileKind::kMask : ViewFileKind::kImage;
+  Result<std::string> path = control_.ViewFile(id, *side, *view, kind);
+  if (!path) return ErrorFrom(path.error());
+  ApiResponse r;
+  r.status = 200;
+  // A resumed side may shoot a view again under the same name: browsers must
+  // not keep an old copy (thumbnails stay cached here, keyed by the file's
+  // size and modification time).
+  r.headers.emplace_back("Cache-Control", "no-cache");
+  if (what == "thumbnail") {
+    Result<ScaledJpeg> thumb = thumbnails_.Get(*path);
+    if (!thumb) return ErrorFrom(thumb.error());
+    r.content_type = "image/jpeg";
+    r.body = std::move(thumb->jpeg);
+    return r;
+  }
+  Result<std::string> bytes = ReadFile(*path);
+  if (!bytes) return ErrorFrom(bytes.error());
+  r.content_type = kind == ViewFileKind::kMask ? "image/png" : "image/jpeg";
   r.body = std::move(*bytes);
   return r;
 }
@@ -694,16 +778,18 @@ struct HttpApi::Server {
     std::optional<ApiResponse> answer;   // set by a handler thread, sent after resume
   };
 
-  // One open GET /api/v1/events. Its content reader runs on libmicrohttpd's
-  // thread; with nothing to send it suspends the connection, and a publish
-  // (or the watchdog, for the keep-alive, or Stop) resumes it. `mu` is held
+  // One open GET /api/v1/events or /api/v1/preview. Its content reader runs
+  // on libmicrohttpd's thread; with nothing to send it suspends the
+  // connection, and a publish or a new frame (or the watchdog, for the
+  // keep-alive, or Stop) resumes it. `mu` is held
   // from the reader's look at the hub to its suspend, and by whoever
   // resumes, so no event is missed between the two.
   struct Stream {
     Server* server = nullptr;
     MHD_Connection* connection = nullptr;
+    ApiResponse::Stream kind = ApiResponse::Stream::kEvents;
     std::mutex mu;
-    uint64_t after = 0;        // last event seq written to buf
+    uint64_t after = 0;        // last event (or preview frame) seq written to buf
     std::string reset_reason;  // a "reset" event to send first
     std::string buf;           // formatted, not yet all taken by libmicrohttpd
     size_t off = 0;
@@ -713,11 +799,12 @@ struct HttpApi::Server {
     SteadyClock::time_point last_write;
   };
 
-  Server(DaemonControl& control, HostPolicy policy, EventHub* hub)
-      : router(control, std::move(policy)), events(hub) {}
+  Server(DaemonControl& control, HostPolicy policy, EventHub* hub, PreviewHub* live)
+      : router(control, std::move(policy)), events(hub), preview(live) {}
 
   ApiRouter router;
   EventHub* events;
+  PreviewHub* preview;
   MHD_Daemon* daemon = nullptr;
   std::unordered_set<std::shared_ptr<Stream>> streams;  // under mu
 
@@ -743,70 +830,104 @@ struct HttpApi::Server {
     return ret;
   }
 
+  // Answers an admitted GET /api/v1/events or /api/v1/preview with its
+  // stream, or with 404 (nothing to stream) or 503 (too many open).
   MHD_Result OpenStream(MHD_Connection* connection, Exchange* ex) {
-    if (events == nullptr) {
+    const bool live = ex->answer->stream == ApiResponse::Stream::kPreview;
+    if ((live ? static_cast<void*>(preview) : static_cast<void*>(events)) == nullptr) {
       SetPhase(ex->conn, Conn::kSending);
-      return Queue(connection, ErrorResponse(404, ErrorClass::kNotFound,
-                                             "this daemon publishes no live events"));
+      return Queue(connection,
+                   ErrorResponse(404, ErrorClass::kNotFound,
+                                 live ? "this daemon has no live view (daemon.preview_interval "
+                                        "is 0): set it, e.g. \"250ms\", and restart aggscand"
+                                      : "this daemon publishes no live events"));
     }
     auto stream = std::make_shared<Stream>();
     stream->server = this;
     stream->connection = connection;
+    stream->kind = ex->answer->stream;
     stream->last_write = SteadyClock::now();
-    // The reconnect delay for EventSource, then a comment so the client sees
-    // the stream open at once.
-    stream->buf = "retry: 2000\n: aggscand events\n\n";
-    if (const std::string* last = ex->req.Header("Last-Event-ID"); last != nullptr) {
-      if (std::optional<uint64_t> seq = events->SeqAfter(*last)) {
-        stream->after = *seq;
-      } else {
-        stream->after = events->last_seq();
-        stream->reset_reason =
-            "Last-Event-ID \"" + Printable(*last, 80) +
-            "\" is not one of this run's events (aggscand restarted, or the id is not ours): "
-            "reload the state (GET /api/v1/status), then follow the events";
-      }
-    } else {
+    if (!live) {
+      // The reconnect delay for EventSource, then a comment so the client
+      // sees the stream open at once.
+      stream->buf = "retry: 2000\n: aggscand events\n\n";
       stream->after = events->last_seq();
+      if (const std::string* last = ex->req.Header("Last-Event-ID"); last != nullptr) {
+        if (std::optional<uint64_t> seq = events->SeqAfter(*last)) {
+          stream->after = *seq;
+        } else {
+          stream->reset_reason =
+              "Last-Event-ID \"" + Printable(*last, 80) +
+              "\" is not one of this run's events (aggscand restarted, or the id is not ours): "
+              "reload the state (GET /api/v1/status), then follow the events";
+        }
+      }
     }
+    const size_t limit = live ? HttpApi::kMaxPreviewStreams : HttpApi::kMaxEventStreams;
     {
       std::lock_guard<std::mutex> lock(mu);
-      if (streams.size() >= HttpApi::kMaxEventStreams) {
-        if (ex->conn != nullptr) {
-          ex->conn->phase = Conn::kSending;
-          ex->conn->since = SteadyClock::now();
-        }
-        ApiResponse busy = ErrorResponse(503, ErrorClass::kConflict,
-                                         "too many event streams open (" +
-                                             std::to_string(HttpApi::kMaxEventStreams) +
-                                             "): close a console or dashboard, then retry");
-        return Queue(connection, busy);
-      }
-      streams.insert(stream);
+      size_t open = 0;
+      for (const auto& other : streams) open += other->kind == stream->kind;
       if (ex->conn != nullptr) {
-        ex->conn->phase = Conn::kStreaming;
+        ex->conn->phase = open >= limit ? Conn::kSending : Conn::kStreaming;
         ex->conn->since = SteadyClock::now();
       }
+      if (open >= limit) {
+        const std::string what = live ? "live views" : "event streams";
+        return Queue(connection,
+                     ErrorResponse(503, ErrorClass::kConflict,
+                                   "too many " + what + " open (" + std::to_string(limit) +
+                                       "): close a console or dashboard, then retry"));
+      }
+      streams.insert(stream);
     }
+    if (live) preview->AddViewer();
     auto* holder = new std::shared_ptr<Stream>(stream);
-    MHD_Response* resp =
-        MHD_create_response_from_callback(MHD_SIZE_UNKNOWN, 4096, &StreamRead, holder, &StreamFree);
+    // A live-view frame is some tens of KB: larger blocks, fewer calls.
+    MHD_Response* resp = MHD_create_response_from_callback(
+        MHD_SIZE_UNKNOWN, live ? 64 * 1024 : 4096, &StreamRead, holder, &StreamFree);
     if (resp == nullptr) {
       StreamFree(holder);
       return MHD_NO;
     }
-    MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, "text/event-stream");
+    const std::string type =
+        live ? std::string("multipart/x-mixed-replace; boundary=") + kFrameBoundary
+             : "text/event-stream";
+    MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, type.c_str());
     MHD_add_response_header(resp, MHD_HTTP_HEADER_CACHE_CONTROL, "no-store");
     const MHD_Result ret = MHD_queue_response(connection, MHD_HTTP_OK, resp);
     MHD_destroy_response(resp);
     return ret;
   }
 
+  // Preview: the newest frame when it is newer than the last one sent (a
+  // slow client skips frames); nothing to send: suspend, no keep-alive (MJPEG
+  // has no comment), the connection's TCP keep-alive is enough.
+  static void FillPreview(Stream& s) {
+    const PreviewFrame f = s.server->preview->Latest();
+    if (f.seq <= s.after || !f.jpeg) return;
+    s.after = f.seq;
+    s.buf = std::string("--") + kFrameBoundary +
+            "\r\nContent-Type: image/jpeg\r\nContent-Length: " + std::to_string(f.jpeg->size()) +
+            "\r\n\r\n";
+    s.buf += *f.jpeg;
+    s.buf += "\r\n";
+  }
+
   static ssize_t StreamRead(void* cls, uint64_t, char* out, size_t max) {
     Stream& s = **static_cast<std::shared_ptr<Stream>*>(cls);
     std::lock_guard<std::mutex> lock(s.mu);
     if (s.closing) return MHD_CONTENT_READER_END_OF_STREAM;
-    if (s.off >= s.buf.size()) {
+    if (s.off >= s.buf.size() && s.kind == ApiResponse::Stream::kPreview) {
+      s.buf.clear();
+      s.off = 0;
+      FillPreview(s);
+      if (s.buf.empty()) {
+        s.suspended = true;
+        MHD_suspend_connection(s.connection);
+        return 0;
+      }
+    } else if (s.off >= s.buf.size()) {
       s.buf.clear();
       s.off = 0;
       bool gap = false;
@@ -846,6 +967,7 @@ struct HttpApi::Server {
       std::lock_guard<std::mutex> lock(s->mu);
       s->closed = true;
     }
+    if (s->kind == ApiResponse::Stream::kPreview) s->server->preview->RemoveViewer();
     std::lock_guard<std::mutex> lock(s->server->mu);
     s->server->streams.erase(s);
   }
@@ -924,7 +1046,7 @@ struct HttpApi::Server {
       return MHD_YES;
     }
     if (ex->answer) {
-      if (ex->answer->event_stream) return self->OpenStream(connection, ex);
+      if (ex->answer->stream != ApiResponse::Stream::kNone) return self->OpenStream(connection, ex);
       self->SetPhase(ex->conn, Conn::kSending);
       return Queue(connection, *ex->answer);
     }
@@ -1114,7 +1236,7 @@ Status HttpApi::Start() {
   auto server = std::make_unique<Server>(
       control_,
       HostPolicy::ForListen(address_, options_.allowed_hosts, options_.allowed_origins, port),
-      options_.events);
+      options_.events, options_.preview);
   Server* s = server.get();
   s->daemon = MHD_start_daemon(
       MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_EPOLL | MHD_ALLOW_SUSPEND_RESUME |
@@ -1140,6 +1262,7 @@ Status HttpApi::Start() {
     s->handlers.emplace_back([s] { s->HandlerThread(); });
   s->watchdog = std::thread([s] { s->WatchdogThread(); });
   if (s->events != nullptr) s->events->SetListener([s] { s->WakeStreams(false); });
+  if (s->preview != nullptr) s->preview->SetListener([s] { s->WakeStreams(false); });
   server_ = std::move(server);
   bound_port_ = port;
   AGG_LOGI(kCat, "HTTP API listening on http://%s", HostPort(address_, bound_port_).c_str());
@@ -1157,6 +1280,7 @@ void HttpApi::Stop() {
   s.watchdog_cv.notify_all();
   // Event streams end (their readers see `closing` once resumed).
   if (s.events != nullptr) s.events->SetListener({});
+  if (s.preview != nullptr) s.preview->SetListener({});
   s.WakeStreams(true);
   // Handler threads answer what is queued with 503 and finish the calls in
   // flight (each bounded by kRequestBudget, and at once when the loop has

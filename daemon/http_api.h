@@ -10,6 +10,11 @@
 //   POST /api/v1/button          → Press("api")
 //   POST /api/v1/abort           → Abort()
 //   POST /api/v1/reset           → Reset()
+//   GET  /api/v1/samples/{id}/sides/{side}/views/{view}[/thumbnail|/mask]
+//                                → ViewFile(): the view's JPEG, a small JPEG of it, its mask PNG
+//   GET  /api/v1/events          → live events (Server-Sent Events, EventHub)
+//   GET  /api/v1/preview         → live camera view (MJPEG, PreviewHub)
+//   GET  /api/v1/openapi.json    → this API described (OpenAPI 3)
 //   GET  /metrics                → Metrics() (Prometheus text format 0.0.4)
 //
 // Every answer except /metrics is JSON. Errors are
@@ -38,6 +43,8 @@
 #include "common/error.h"
 #include "daemon/control.h"
 #include "daemon/event_hub.h"
+#include "daemon/jpeg_scale.h"
+#include "daemon/preview_hub.h"
 
 namespace aggscan {
 
@@ -82,9 +89,10 @@ struct ApiResponse {
   std::string body;
   std::vector<std::pair<std::string, std::string>> headers;  // Allow, Content-Disposition, ...
   bool close = false;  // close the connection after it (the request was not read to its end)
-  /// GET /api/v1/events, admitted: the transport answers with the event
-  /// stream (text/event-stream) instead of `body`.
-  bool event_stream = false;
+  /// A stream the transport answers with instead of `body`, once admitted:
+  /// GET /api/v1/events (text/event-stream) or GET /api/v1/preview (MJPEG).
+  enum class Stream { kNone, kEvents, kPreview };
+  Stream stream = Stream::kNone;
 };
 
 /// The JSON error answer every refusal uses.
@@ -135,10 +143,12 @@ class ApiRouter {
  private:
   ApiResponse HandleUnsafe(const ApiRequest& req);
   ApiResponse ServeResultFile(const std::string& id, const std::string& name);
+  ApiResponse ServeView(const std::string& id, const std::string& sub);
   ApiResponse ArmFromBody(const std::string& body, const CallContext& ctx);
 
   DaemonControl& control_;
   HostPolicy policy_;
+  ThumbnailCache thumbnails_;
 };
 
 /// Options of the HTTP API from [daemon].
@@ -148,6 +158,9 @@ struct HttpApiOptions {
   /// The live events GET /api/v1/events streams; null: that endpoint is 404.
   /// Borrowed: must outlive the HttpApi.
   EventHub* events = nullptr;
+  /// The live view GET /api/v1/preview streams; null: that endpoint is 404.
+  /// Borrowed: must outlive the HttpApi.
+  PreviewHub* preview = nullptr;
 };
 
 class HttpApi {
@@ -170,6 +183,9 @@ class HttpApi {
   /// Event streams open at once at most: each holds a connection for as long
   /// as its client wants, so they must leave room for the operator's calls.
   static constexpr size_t kMaxEventStreams = 32;
+  /// Live views (GET /api/v1/preview) open at once at most; each takes a
+  /// frame of some tens of KB a few times a second.
+  static constexpr size_t kMaxPreviewStreams = 8;
   /// An event stream with nothing to send for this long gets a comment line,
   /// so proxies and the client see that it is alive.
   static constexpr std::chrono::seconds kEventKeepAlive{15};

@@ -219,8 +219,14 @@ int main(int argc, char** argv) {
   }
   // Declared before the service and the API, which publish and stream it.
   EventHub events;
+  // The live view's JPEG quality: enough for framing the rock on a screen.
+  constexpr int kPreviewQuality = 70;
+  std::unique_ptr<PreviewHub> preview;
+  if (config.daemon.preview_interval > 0)
+    preview = std::make_unique<PreviewHub>(config.daemon.preview_max_side, kPreviewQuality);
   CaptureService service(loop, config, effective, std::move(*rig), store, queue->get());
   service.SetEventHub(&events);
+  service.SetPreviewHub(preview.get());
   // The rig calibration: checked now and at every arm; missing or invalid is a
   // warning and a status field, never a reason not to capture.
   service.RefreshCalibration();
@@ -228,9 +234,10 @@ int main(int argc, char** argv) {
   service.SetStatusListener([&notifier](const std::string& line) { notifier.Status(line); });
   service.Start();
 
-  HttpApi api(service, config.daemon.listen_address, config.daemon.listen_port,
-              HttpApiOptions{SplitCommaList(config.daemon.allowed_hosts),
-                             SplitCommaList(config.daemon.allowed_origins), &events});
+  HttpApi api(
+      service, config.daemon.listen_address, config.daemon.listen_port,
+      HttpApiOptions{SplitCommaList(config.daemon.allowed_hosts),
+                     SplitCommaList(config.daemon.allowed_origins), &events, preview.get()});
   if (Status s = api.Start(); !s) {
     AGG_LOGE("main", "%s", s.error().ToString().c_str());
     service.Shutdown();

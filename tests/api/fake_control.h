@@ -128,6 +128,17 @@ class FakeControl : public DaemonControl {
     if (it == result_files.end()) return MakeError(ErrorClass::kNotFound, "no results yet for " + id);
     return it->second;
   }
+  std::map<std::string, std::string> view_files;  // "id/side/view/image|mask" -> path
+  Result<std::string> ViewFile(const std::string& id, int side, int view,
+                               ViewFileKind kind) override {
+    const std::string key = id + "/" + std::to_string(side) + "/" + std::to_string(view) + "/" +
+                            (kind == ViewFileKind::kMask ? "mask" : "image");
+    Record("view:" + key);
+    if (fail) return *fail;
+    auto it = view_files.find(key);
+    if (it == view_files.end()) return MakeError(ErrorClass::kNotFound, "no such view: " + key);
+    return it->second;
+  }
   std::string Metrics() override {
     Record("metrics");
     return "# HELP aggscan_up 1 when the daemon runs\n# TYPE aggscan_up gauge\naggscan_up 1\n";

@@ -10,13 +10,16 @@
 #include <atomic>
 #include <cctype>
 #include <chrono>
+#include <cstring>
 #include <fstream>
 #include <memory>
 #include <set>
+#include <span>
 #include <string>
 #include <thread>
 #include <vector>
 
+#include "drivers/sim/jpeg.h"
 #include "tests/api/fake_control.h"
 #include "tests/util/loopback.h"
 
@@ -465,18 +468,23 @@ TEST_F(HttpApiTest, OpenApiDocumentListsWhatIsRouted) {
   ASSERT_TRUE(doc.is_object()) << r->body.substr(0, 200);
   EXPECT_EQ(doc["openapi"].get<std::string>().rfind("3.", 0), 0u);
   ASSERT_TRUE(doc["paths"].is_object());
-  EXPECT_GE(doc["paths"].size(), 14u);
+  EXPECT_GE(doc["paths"].size(), 19u);
   for (const auto& [path, item] : doc["paths"].items()) {
     std::string concrete = path;
-    if (const size_t at = concrete.find("{id}"); at != std::string::npos)
-      concrete.replace(at, 4, "rock-1");
+    for (const auto& [param, value] : {std::pair<std::string, std::string>{"{id}", "rock-1"},
+                                       {"{side}", "1"},
+                                       {"{view}", "0"}}) {
+      if (const size_t at = concrete.find(param); at != std::string::npos)
+        concrete.replace(at, param.size(), value);
+    }
     std::set<std::string> documented;
     for (const auto& [method, op] : item.items()) {
       if (method == "parameters") continue;
       std::string upper = method;
       for (char& c : upper) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
       documented.insert(upper);
-      if (upper == "GET" && path != "/api/v1/events") documented.insert("HEAD");
+      if (upper == "GET" && path != "/api/v1/events" && path != "/api/v1/preview")
+        documented.insert("HEAD");
     }
     // OPTIONS answers with the router's Allow list for a routed path.
     auto o = client_->Options(concrete);
@@ -726,6 +734,211 @@ TEST_F(HttpApiTest, HealthIs200WhenOkAnd503WithTheReportWhenNot) {
   r = client_->Post("/api/v1/health", "{}", "application/json");
   ASSERT_TRUE(r);
   EXPECT_EQ(r->status, 405);
+}
+
+// A JPEG of `w` x `h` (a left-to-right grey ramp), as the camera writes them.
+std::string RampJpeg(int w, int h) {
+  std::vector<uint8_t> rgb(static_cast<size_t>(w) * h * 3);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x)
+      for (int c = 0; c < 3; ++c) rgb[(static_cast<size_t>(y) * w + x) * 3 + c] = x * 255 / w;
+  auto jpeg = sim::EncodeJpeg(rgb.data(), w, h, 90);
+  EXPECT_TRUE(jpeg.ok());
+  return std::string(jpeg->begin(), jpeg->end());
+}
+
+std::pair<int, int> JpegSize(const std::string& bytes) {
+  auto img = sim::DecodeJpeg(
+      std::span(reinterpret_cast<const unsigned char*>(bytes.data()), bytes.size()));
+  if (!img) return {0, 0};
+  return {img->width, img->height};
+}
+
+// A stored view, its thumbnail (DCT-scaled to 1/8: 252x189 from 2016x1512)
+// and its mask; paths that are not a view's are 404 with the shape to use,
+// and a stored file that is not a JPEG is an error naming it, not a crash.
+TEST_F(HttpApiTest, ViewsThumbnailsAndMasks) {
+  const std::string dir = ::testing::TempDir();
+  const std::string image = dir + "/api_view_007.jpg", mask = dir + "/api_view_007.png",
+                    broken = dir + "/api_view_008.jpg";
+  const std::string jpeg = RampJpeg(2016, 1512);
+  { std::ofstream(image, std::ios::binary) << jpeg; }
+  { std::ofstream(mask, std::ios::binary) << std::string("\x89PNG\r\n\x1a\n-mask-", 14); }
+  { std::ofstream(broken, std::ios::binary) << "not a jpeg"; }
+  fake_.view_files["rock-11/2/7/image"] = image;
+  fake_.view_files["rock-11/2/7/mask"] = mask;
+  fake_.view_files["rock-11/2/8/image"] = broken;
+  EXPECT_EQ(ViewUrl("rock-11", 2, 7), "/api/v1/samples/rock-11/sides/2/views/7");
+
+  auto full = client_->Get("/api/v1/samples/rock-11/sides/2/views/7");
+  ASSERT_TRUE(full);
+  EXPECT_EQ(full->status, 200);
+  EXPECT_EQ(full->get_header_value("Content-Type"), "image/jpeg");
+  EXPECT_EQ(full->body, jpeg);
+  auto thumb = client_->Get("/api/v1/samples/rock-11/sides/2/views/7/thumbnail");
+  ASSERT_TRUE(thumb);
+  EXPECT_EQ(thumb->status, 200);
+  EXPECT_EQ(thumb->get_header_value("Content-Type"), "image/jpeg");
+  EXPECT_EQ(JpegSize(thumb->body), std::make_pair(252, 189));
+  EXPECT_LT(thumb->body.size(), jpeg.size() / 10);
+  auto again = client_->Get("/api/v1/samples/rock-11/sides/2/views/7/thumbnail");
+  ASSERT_TRUE(again);
+  EXPECT_EQ(again->body, thumb->body);  // from the cache
+  auto m = client_->Get("/api/v1/samples/rock-11/sides/2/views/7/mask");
+  ASSERT_TRUE(m);
+  EXPECT_EQ(m->status, 200);
+  EXPECT_EQ(m->get_header_value("Content-Type"), "image/png");
+  EXPECT_EQ(m->body.size(), 14u);
+
+  auto missing = client_->Get("/api/v1/samples/rock-11/sides/1/views/7/mask");
+  ASSERT_TRUE(missing);
+  EXPECT_EQ(missing->status, 404);
+  EXPECT_EQ(ErrorClassOf(missing), "not_found");
+  auto bad = client_->Get("/api/v1/samples/rock-11/sides/2/views/8/thumbnail");
+  ASSERT_TRUE(bad);
+  EXPECT_EQ(bad->status, 500);
+  EXPECT_NE(Body(bad)["error"]["message"].get<std::string>().find("api_view_008.jpg"),
+            std::string::npos)
+      << bad->body;
+  for (const char* path :
+       {"/api/v1/samples/rock-11/sides/two/views/7",
+        "/api/v1/samples/rock-11/sides/2/views/7/outline",
+        "/api/v1/samples/rock-11/sides/2/views/1000", "/api/v1/samples/rock-11/sides/2/views/-1",
+        "/api/v1/samples/rock-11/sides/2/views/7/thumbnail/x",
+        "/api/v1/samples/rock-11/sides/2/views", "/api/v1/samples/rock-11/sides/2/views/7/"}) {
+    auto r = client_->Get(path);
+    ASSERT_TRUE(r) << path;
+    EXPECT_EQ(r->status, 404) << path;
+    EXPECT_NE(r->body.find("sides/{side}/views/{view}"), std::string::npos) << path << r->body;
+  }
+  auto bad_id = client_->Get("/api/v1/samples/..%2Fetc/sides/2/views/7");
+  ASSERT_TRUE(bad_id);
+  EXPECT_EQ(bad_id->status, 400);
+  auto post = client_->Post("/api/v1/samples/rock-11/sides/2/views/7", "", "text/plain");
+  ASSERT_TRUE(post);
+  EXPECT_EQ(post->status, 405);
+}
+
+// Reads `n` bytes from `fd` (fewer if the peer closes or `ms` pass).
+std::string ReadBytes(int fd, size_t n, int ms) {
+  std::string got;
+  char buf[4096];
+  const auto end = std::chrono::steady_clock::now() + std::chrono::milliseconds(ms);
+  while (got.size() < n && std::chrono::steady_clock::now() < end) {
+    pollfd p{fd, POLLIN, 0};
+    if (::poll(&p, 1, 50) <= 0) continue;
+    const ssize_t r = ::recv(fd, buf, std::min(sizeof buf, n - got.size()), 0);
+    if (r <= 0) break;
+    got.append(buf, static_cast<size_t>(r));
+  }
+  return got;
+}
+
+int OpenPreviewStream(int port) {
+  const int fd = test::ConnectLoopback(port);
+  if (fd < 0) return -1;
+  const std::string req = "GET /api/v1/preview HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n";
+  if (::send(fd, req.data(), req.size(), MSG_NOSIGNAL) != static_cast<ssize_t>(req.size())) {
+    ::close(fd);
+    return -1;
+  }
+  return fd;
+}
+
+// Waits until `hub` counts `n` viewers.
+bool ViewersReach(const PreviewHub& hub, int n) {
+  for (int i = 0; i < 500 && hub.viewers() != n; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  return hub.viewers() == n;
+}
+
+// The live view: the first viewer asks for stills (on_demand), each frame
+// submitted reaches every viewer as one multipart part scaled to the
+// configured size, a slow viewer gets the newest frame rather than a queue,
+// kMaxPreviewStreams are open at most, and a viewer that leaves is counted out.
+TEST(HttpApiPreview, FramesReachEveryViewerAsMjpegParts) {
+  FakeControl fake;
+  PreviewHub hub(640, 70);
+  std::atomic<int> demanded{0};
+  hub.SetOnDemand([&] { ++demanded; });
+  HttpApiOptions o;
+  o.preview = &hub;
+  HttpApi api(fake, "127.0.0.1", 0, o);
+  ASSERT_TRUE(api.Start().ok());
+
+  std::vector<int> fds;
+  for (size_t i = 0; i < HttpApi::kMaxPreviewStreams; ++i) {
+    const int fd = OpenPreviewStream(api.port());
+    ASSERT_GE(fd, 0);
+    fds.push_back(fd);
+  }
+  ASSERT_TRUE(ViewersReach(hub, static_cast<int>(HttpApi::kMaxPreviewStreams)));
+  EXPECT_EQ(demanded.load(), 1);
+  const int extra = OpenPreviewStream(api.port());
+  const std::string refused = ReadUntil(extra, "too many live views", 5000);
+  EXPECT_NE(refused.find("HTTP/1.1 503"), std::string::npos) << refused;
+  ::close(extra);
+
+  auto frame = std::make_shared<Frame>();
+  const std::string jpeg = RampJpeg(2016, 1512);
+  frame->data.assign(jpeg.begin(), jpeg.end());
+  frame->width = 2016;
+  frame->height = 1512;
+  hub.Submit(frame, "preview");
+  for (int fd : fds) {
+    std::string got = ReadUntil(fd, "\r\n\r\n", 5000);
+    ASSERT_NE(got.find("HTTP/1.1 200"), std::string::npos) << got;
+    EXPECT_NE(got.find("multipart/x-mixed-replace; boundary=aggscanframe"), std::string::npos)
+        << got;
+    // The part's head: "--aggscanframe" ... "Content-Length: N" and a blank line.
+    for (int i = 0; i < 100; ++i) {
+      const size_t at = got.find("Content-Length: ");
+      if (at != std::string::npos && got.find("\r\n\r\n", at) != std::string::npos) break;
+      got += ReadBytes(fd, 1, 50);
+    }
+    const size_t part = got.find("--aggscanframe\r\nContent-Type: image/jpeg\r\nContent-Length: ");
+    ASSERT_NE(part, std::string::npos) << got;
+    const size_t len_at =
+        part + std::strlen("--aggscanframe\r\nContent-Type: image/jpeg\r\nContent-Length: ");
+    const size_t len = std::stoul(got.substr(len_at));
+    const size_t body_at = got.find("\r\n\r\n", len_at) + 4;
+    got += ReadBytes(fd, body_at + len - std::min(got.size(), body_at + len), 5000);
+    ASSERT_GE(got.size(), body_at + len);
+    EXPECT_EQ(JpegSize(got.substr(body_at, len)), std::make_pair(504, 378));
+  }
+  EXPECT_EQ(hub.frames_published(), 1u);
+  const PreviewFrame latest = hub.Latest();
+  EXPECT_EQ(latest.source, "preview");
+  EXPECT_EQ(latest.width, 504);
+
+  // A frame that is not a JPEG is counted, not published.
+  auto junk = std::make_shared<Frame>();
+  junk->data = {1, 2, 3};
+  hub.Submit(junk, "preview");
+  for (int i = 0; i < 200 && hub.frames_failed() == 0; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  EXPECT_EQ(hub.frames_failed(), 1u);
+  EXPECT_EQ(hub.frames_published(), 1u);
+
+  for (size_t i = 0; i < 3; ++i) ::close(fds[i]);
+  // libmicrohttpd notices a closed viewer when a write to it fails.
+  const int left = static_cast<int>(HttpApi::kMaxPreviewStreams) - 3;
+  for (int i = 0; i < 50 && hub.viewers() != left; ++i) {
+    hub.Submit(frame, "view");
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  EXPECT_EQ(hub.viewers(), left);
+  EXPECT_EQ(hub.Latest().source, "view");
+  api.Stop();
+  EXPECT_EQ(hub.viewers(), 0);
+  for (size_t i = 3; i < fds.size(); ++i) ::close(fds[i]);
+}
+
+TEST_F(HttpApiTest, PreviewWithoutAHubIs404) {
+  auto r = client_->Get("/api/v1/preview");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 404);
+  EXPECT_NE(r->body.find("preview_interval"), std::string::npos) << r->body;
 }
 
 }  // namespace

@@ -110,6 +110,31 @@ TEST(EventsScenario, CaptureAndReconstructionFollowedByEventsAndReplayedAfterARe
   ASSERT_TRUE(live.opened()) << ReadAll(d.log());
   EXPECT_EQ(live.content_type(), "text/event-stream");
 
+  // The live view while idle: an MJPEG stream whose frames are JPEGs.
+  {
+    httplib::Client c("127.0.0.1", d.port());
+    c.set_read_timeout(20, 0);
+    std::string type, body;
+    auto r = c.Get(
+        "/api/v1/preview", httplib::Headers{},
+        [&](const httplib::Response& resp) {
+          type = resp.get_header_value("Content-Type");
+          return resp.status == 200;
+        },
+        [&](const char* data, size_t len) {
+          body.append(data, len);
+          size_t parts = 0;
+          for (size_t at = body.find("--aggscanframe\r\n"); at != std::string::npos;
+               at = body.find("--aggscanframe\r\n", at + 1))
+            ++parts;
+          return parts < 3;  // two whole frames, and the start of a third
+        });
+    EXPECT_EQ(type, "multipart/x-mixed-replace; boundary=aggscanframe");
+    const size_t first = body.find("\r\n\r\n");
+    ASSERT_NE(first, std::string::npos) << body.substr(0, 200);
+    EXPECT_EQ(body.substr(first + 4, 2), "\xff\xd8");  // a JPEG's SOI marker
+  }
+
   int code = 0;
   d.Post("/api/v1/samples", R"({"id": "rock-e"})", &code);
   ASSERT_EQ(code, 200);
@@ -169,6 +194,29 @@ TEST(EventsScenario, CaptureAndReconstructionFollowedByEventsAndReplayedAfterARe
   bool masks = false;
   for (const std::string& st : worker_stages) masks = masks || st.rfind("masks side ", 0) == 0;
   EXPECT_TRUE(masks) << ::testing::PrintToString(worker_stages);
+
+  // Each view event names where the view and its thumbnail are served; the
+  // worker's mask of it is served beside them.
+  {
+    const Sse* view = nullptr;
+    for (const Sse& e : got)
+      if (e.type == "view" && view == nullptr) view = &e;
+    ASSERT_NE(view, nullptr);
+    EXPECT_EQ(view->data["url"], "/api/v1/samples/rock-e/sides/1/views/0");
+    EXPECT_EQ(view->data["thumbnail"], "/api/v1/samples/rock-e/sides/1/views/0/thumbnail");
+    httplib::Client c("127.0.0.1", d.port());
+    for (const std::string suffix : {"", "/thumbnail", "/mask"}) {
+      auto r = c.Get(view->data["url"].get<std::string>() + suffix);
+      ASSERT_TRUE(r) << suffix;
+      EXPECT_EQ(r->status, 200) << suffix << ": " << r->body.substr(0, 300);
+      EXPECT_EQ(r->get_header_value("Content-Type"),
+                suffix == "/mask" ? "image/png" : "image/jpeg");
+      EXPECT_GT(r->body.size(), 100u) << suffix;
+    }
+    auto none = c.Get("/api/v1/samples/rock-e/sides/1/views/30");
+    ASSERT_TRUE(none);
+    EXPECT_EQ(none->status, 404);
+  }
 
   // A reconnect with the id of the 10th event gets the 11th onwards, the same.
   const size_t k = 10;
