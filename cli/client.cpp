@@ -503,6 +503,8 @@ void PrintClientUsage(std::ostream& out) {
       << kDefaultDaemonUrl
       << ")\n"
          "  --json      print the daemon's JSON answer unchanged\n"
+         "environment: AGGSCAN_USER and AGGSCAN_PASSWORD send an account's credentials (a rig\n"
+         "  with daemon.credentials_file); AGGSCAN_CA_CERT trusts that certificate for https://\n"
          "exit codes: 0 ok, 1 the daemon reported an error, 2 usage error, 3 daemon unreachable,\n"
          "            4 selftest: a device is unhealthy\n";
 }
@@ -570,6 +572,17 @@ int RunClientCommand(const std::vector<std::string>& args, std::ostream& out, st
   if (name == "retry") cmd = {name, "POST", "/samples/" + id + "/retry", "{}"};
 
   httplib::Client client(target->origin);
+  if (const char* ca = std::getenv("AGGSCAN_CA_CERT"); ca != nullptr && *ca != '\0')
+    client.set_ca_cert_path(ca);  // the rig's own (self-signed) certificate, say
+  if (const char* user = std::getenv("AGGSCAN_USER"); user != nullptr && *user != '\0') {
+    const char* password = std::getenv("AGGSCAN_PASSWORD");
+    if (password == nullptr) {
+      return Usage(err,
+                   "AGGSCAN_USER is set but AGGSCAN_PASSWORD is not: set both to send "
+                   "credentials to a rig that requires them");
+    }
+    client.set_basic_auth(user, password);
+  }
   client.set_connection_timeout(kConnectTimeoutSec, 0);
   client.set_read_timeout(kReadTimeoutSec, 0);
   client.set_write_timeout(kConnectTimeoutSec, 0);

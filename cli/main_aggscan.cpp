@@ -14,6 +14,7 @@
 #include "cli/reconstruct_command.h"
 #include "cli/selftest_command.h"
 #include "cli/sim_capture.h"
+#include "cli/user_command.h"
 #include "cli/validate_command.h"
 #include "pipeline/morph2d_cli.h"
 
@@ -56,6 +57,7 @@ void Usage(std::ostream& o) {
        "      input for `aggscan calibrate`; --calibration: recorded in the sample as\n"
        "      aggscand records state_dir/calibration.json\n";
   aggscan::PrintEmptyTurntableUsage(o);
+  aggscan::PrintUserUsage(o);
   aggscan::PrintMasksUsage(o);
   aggscan::PrintValidateUsage(o);
 }
@@ -204,6 +206,8 @@ int main(int argc, char** argv) {
   if (cmd == "reconstruct")
     return aggscan::RunReconstructCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
   if (cmd == "sim") return SimCommand(args);
+  if (cmd == "user")
+    return aggscan::RunUserCommand({args.begin() + 1, args.end()}, std::cin, std::cout, std::cerr);
   if (cmd == "empty-turntable")
     return aggscan::RunEmptyTurntableCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
   if (cmd == "masks")

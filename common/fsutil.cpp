@@ -55,10 +55,11 @@ Status FsyncDir(const std::string& dir) {
   return OkStatus();
 }
 
-Status WriteFileAtomic(const std::string& path, std::span<const unsigned char> data, bool no_replace) {
+Status WriteFileAtomic(const std::string& path, std::span<const unsigned char> data,
+                       bool no_replace, unsigned mode) {
   const std::string tmp = TempName(path);
   {
-    UniqueFd fd(::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644));
+    UniqueFd fd(::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, mode));
     if (fd.get() < 0) return ErrnoError("cannot create " + tmp, errno);
     size_t off = 0;
     while (off < data.size()) {
@@ -96,10 +97,12 @@ Status WriteFileAtomic(const std::string& path, std::span<const unsigned char> d
   return FsyncDir(DirName(path));
 }
 
-Status WriteFileAtomic(const std::string& path, std::string_view data, bool no_replace) {
-  return WriteFileAtomic(
-      path, std::span<const unsigned char>(reinterpret_cast<const unsigned char*>(data.data()), data.size()),
-      no_replace);
+Status WriteFileAtomic(const std::string& path, std::string_view data, bool no_replace,
+                       unsigned mode) {
+  return WriteFileAtomic(path,
+                         std::span<const unsigned char>(
+                             reinterpret_cast<const unsigned char*>(data.data()), data.size()),
+                         no_replace, mode);
 }
 
 Status MakeDirsDurable(const std::string& dir) {

@@ -16,9 +16,12 @@ namespace aggscan {
 inline constexpr std::string_view kTempPrefix = ".tmp-";
 
 /// Atomically creates or replaces `path` with `data`. With `no_replace`, fails
-/// with kConflict if `path` exists (nothing captured is overwritten).
-Status WriteFileAtomic(const std::string& path, std::span<const unsigned char> data, bool no_replace = false);
-Status WriteFileAtomic(const std::string& path, std::string_view data, bool no_replace = false);
+/// with kConflict if `path` exists (nothing captured is overwritten). `mode`:
+/// the new file's permissions (before the umask), from its creation on.
+Status WriteFileAtomic(const std::string& path, std::span<const unsigned char> data,
+                       bool no_replace = false, unsigned mode = 0644);
+Status WriteFileAtomic(const std::string& path, std::string_view data, bool no_replace = false,
+                       unsigned mode = 0644);
 /// fsync()s a directory so that renames and creations in it are durable.
 Status FsyncDir(const std::string& dir);
 /// mkdir -p, fsyncing each parent whose entry was created.

@@ -7,6 +7,7 @@
 // a field to config.h and one line here is all it takes.
 #include "config/config.h"
 
+#include <arpa/inet.h>
 #include <toml++/toml.h>
 
 #include <algorithm>
@@ -151,6 +152,13 @@ const std::vector<Field<Config>>& Fields() {
         "and no side runs (0 = no live view)"),
       F(daemon.preview_max_side, Range(64, 4096),
         "live view frames are scaled down to at most this many pixels on their longer side"),
+      F(daemon.credentials_file, Any(),
+        "accounts every API request is checked against (name:role:hash lines, mode 600; "
+        "`aggscan user add NAME --role operator|viewer --file FILE`); empty = no credentials, "
+        "allowed only when listen_address is a loopback address"),
+      F(daemon.tls_certificate, Any(),
+        "PEM certificate (chain) of the API's HTTPS; with tls_key; empty = plain HTTP"),
+      F(daemon.tls_key, Any(), "PEM private key of tls_certificate (readable by the service only)"),
 
       F(capture.profile, OneOf(Profiles()),
         "paper (fixes sides 2, views_per_side 30, step_deg 30, interval 2s) | "
@@ -922,6 +930,25 @@ class Validator {
 
  private:
   void CrossField(const Config& c) {
+    const bool loopback = IsLoopbackAddress(c.daemon.listen_address);
+    if (!loopback && c.daemon.credentials_file.empty()) {
+      Add("daemon.listen_address",
+          "\"" + c.daemon.listen_address +
+              "\" opens the API to the network, where anyone could drive the rig: set "
+              "daemon.credentials_file (accounts made with `aggscan user add NAME --role operator "
+              "--file /etc/aggscan/accounts`) and daemon.tls_certificate and daemon.tls_key, or "
+              "keep 127.0.0.1 behind a reverse proxy that terminates TLS");
+    } else if (!loopback && c.daemon.tls_certificate.empty()) {
+      Add("daemon.tls_certificate",
+          "missing: with listen_address \"" + c.daemon.listen_address +
+              "\" passwords and session tokens would cross the network in clear; set "
+              "tls_certificate and tls_key (PEM), or keep 127.0.0.1 behind a reverse proxy that "
+              "terminates TLS");
+    }
+    if (c.daemon.tls_certificate.empty() != c.daemon.tls_key.empty()) {
+      Add(c.daemon.tls_key.empty() ? "daemon.tls_key" : "daemon.tls_certificate",
+          "missing: HTTPS needs both daemon.tls_certificate and daemon.tls_key");
+    }
     if (c.worker.silent_after > 0 && c.worker.silent_after < 2 * c.worker.heartbeat_interval) {
       Add("worker.silent_after", FormatDuration(c.worker.silent_after) +
                                      " is shorter than twice worker.heartbeat_interval (" +
@@ -1500,6 +1527,15 @@ Error ProblemsError(const std::string& file, const std::vector<ConfigProblem>& p
 }
 
 }  // namespace
+
+bool IsLoopbackAddress(const std::string& address) {
+  if (address == "localhost") return true;
+  in_addr v4{};
+  if (::inet_pton(AF_INET, address.c_str(), &v4) == 1) return (ntohl(v4.s_addr) >> 24) == 127;
+  in6_addr v6{};
+  if (::inet_pton(AF_INET6, address.c_str(), &v6) == 1) return IN6_IS_ADDR_LOOPBACK(&v6);
+  return false;
+}
 
 // ---------------------------------------------------------------------------
 // Public API

@@ -16,6 +16,9 @@
 
 namespace aggscan {
 
+/// True for addresses only this machine can reach: 127.0.0.0/8, ::1, localhost.
+bool IsLoopbackAddress(const std::string& address);
+
 struct DaemonConfig {
   std::string state_dir = "/var/lib/aggscan";  // samples/, queue.db, calibration live here
   std::string listen_address = "127.0.0.1";    // HTTP API bind address
@@ -38,6 +41,12 @@ struct DaemonConfig {
   // while someone watches and no side runs (0 = no live view)
   TimeNs preview_interval = 250 * kNsPerMs;
   int preview_max_side = 640;  // preview frames' longer side at most this, pixels
+  // Accounts the API checks every request against (name:role:crypt hash per
+  // line, mode 600); empty = no credentials, allowed on a loopback address only
+  std::string credentials_file;
+  // PEM certificate (chain) and private key: serve the API over HTTPS
+  std::string tls_certificate;
+  std::string tls_key;
 
   bool operator==(const DaemonConfig&) const = default;
 };

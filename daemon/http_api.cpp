@@ -1,8 +1,10 @@
 #include "daemon/http_api.h"
 
+#include <arpa/inet.h>
 #include <fcntl.h>
 #include <microhttpd.h>
 #include <netdb.h>
+#include <netinet/in.h>
 #include <poll.h>
 #include <sys/socket.h>
 #include <unistd.h>
@@ -19,6 +21,7 @@
 #include <nlohmann/json.hpp>
 #include <thread>
 #include <unordered_set>
+#include <variant>
 
 #include "common/fsutil.h"
 #include "common/log.h"
@@ -186,7 +189,8 @@ enum class Endpoint {
   kEvents,
   kOpenApi,
   kView,
-  kPreview
+  kPreview,
+  kSession
 };
 
 // Methods each endpoint accepts (HEAD is answered wherever GET is).
@@ -203,6 +207,8 @@ const char* AllowedMethods(Endpoint ep) {
     case Endpoint::kEvents:
     case Endpoint::kPreview:
       return "GET";
+    case Endpoint::kSession:
+      return "GET, HEAD, POST, DELETE";
     case Endpoint::kSamples:
       return "GET, HEAD, POST";
     case Endpoint::kSampleRetry:
@@ -242,6 +248,7 @@ Endpoint Match(const std::string& path, std::string* id, std::string* file) {
   if (path == "/api/v1/events") return Endpoint::kEvents;
   if (path == "/api/v1/openapi.json") return Endpoint::kOpenApi;
   if (path == "/api/v1/preview") return Endpoint::kPreview;
+  if (path == "/api/v1/session") return Endpoint::kSession;
   if (path.rfind(kSamplesPrefix, 0) == 0) {
     *id = path.substr(std::strlen(kSamplesPrefix));
     const size_t slash = id->find('/');
@@ -488,6 +495,37 @@ ApiResponse ApiRouter::HandleUnsafe(const ApiRequest& req) {
   const std::string path = PercentDecode(raw_path);
   std::string id, file;
   const Endpoint ep = Match(path, &id, &file);
+  // Credentials, when the rig requires them: for everything but logging in
+  // (an unknown path too: a stranger learns nothing of what is routed).
+  std::optional<Principal> who;
+  if (access_ != nullptr && !(ep == Endpoint::kSession && req.method == "POST")) {
+    auto checked = access_->Check(req.Header("Authorization"), req.Header("Cookie"), req.peer);
+    if (const auto* refusal = std::get_if<AccessControl::Refusal>(&checked)) {
+      ApiResponse r =
+          ErrorResponse(refusal->status, ErrorClass::kInvalidArgument, refusal->message);
+      if (refusal->status == 401)
+        r.headers.emplace_back("WWW-Authenticate", "Bearer realm=\"aggscand\"");
+      if (refusal->retry_after_s > 0)
+        r.headers.emplace_back("Retry-After", std::to_string(refusal->retry_after_s));
+      return r;
+    }
+    who = std::get<Principal>(checked);
+    if (!IsSafeMethod(req.method)) {
+      // A cookie is sent by the browser whatever page asks; the Authorization
+      // header only by our own console's script.
+      if (who->via == "cookie") {
+        return ErrorResponse(403, ErrorClass::kInvalidArgument,
+                             "a request that changes the rig's state must carry its credentials "
+                             "in the Authorization header, not only the session cookie");
+      }
+      if (who->role != Role::kOperator && ep != Endpoint::kSession) {
+        return ErrorResponse(403, ErrorClass::kInvalidArgument,
+                             "account " + who->user +
+                                 " is a viewer and may only look: capturing needs an operator "
+                                 "account");
+      }
+    }
+  }
   if (ep == Endpoint::kNone) {
     return ErrorResponse(
         404, ErrorClass::kNotFound,
@@ -539,7 +577,9 @@ ApiResponse ApiRouter::HandleUnsafe(const ApiRequest& req) {
         return ErrorResponse(400, ErrorClass::kInvalidArgument, InvalidIdMessage(id));
       return Reply(control_.Retry(id));
     case Endpoint::kButton:
-      return Reply(control_.Press("api", req.ctx));
+      return Reply(control_.Press(who ? "api:" + who->user : "api", req.ctx));
+    case Endpoint::kSession:
+      return HandleSession(req, who);
     case Endpoint::kAbort:
       return Reply(control_.Abort(req.ctx));
     case Endpoint::kReset:
@@ -655,6 +695,55 @@ ApiResponse ApiRouter::ServeView(const std::string& id, const std::string& sub) 
   return r;
 }
 
+ApiResponse ApiRouter::HandleSession(const ApiRequest& req, const std::optional<Principal>& who) {
+  if (access_ == nullptr) {
+    if (req.method == "GET" || req.method == "HEAD")
+      return JsonResponse(200, json{{"user", nullptr}, {"role", "operator"}, {"auth", "none"}});
+    return ErrorResponse(404, ErrorClass::kNotFound,
+                         "this rig's API needs no login: it listens on a loopback address without "
+                         "daemon.credentials_file");
+  }
+  const std::string cookie_attrs =
+      std::string("; Path=/; HttpOnly; SameSite=Strict") + (tls_ ? "; Secure" : "");
+  if (req.method == "GET" || req.method == "HEAD") {
+    return JsonResponse(
+        200, json{{"user", who->user}, {"role", RoleName(who->role)}, {"auth", who->via}});
+  }
+  if (req.method == "DELETE") {
+    access_->Logout(AccessControl::SessionToken(req.Header("Authorization"), req.Header("Cookie")));
+    ApiResponse r = JsonResponse(200, json{{"user", who->user}, {"logged_out", true}});
+    r.headers.emplace_back(
+        "Set-Cookie", std::string(AccessControl::kCookie) + "=" + cookie_attrs + "; Max-Age=0");
+    return r;
+  }
+  static const std::string kExpected =
+      R"(expected a JSON object {"user": "...", "password": "..."})";
+  const json doc = json::parse(req.body, nullptr, /*allow_exceptions=*/false);
+  if (!doc.is_object() || !doc.contains("user") || !doc["user"].is_string() ||
+      !doc.contains("password") || !doc["password"].is_string()) {
+    return ErrorResponse(400, ErrorClass::kInvalidArgument, "cannot log in: " + kExpected);
+  }
+  auto login =
+      access_->Login(doc["user"].get<std::string>(), doc["password"].get<std::string>(), req.peer);
+  if (const auto* refusal = std::get_if<AccessControl::Refusal>(&login)) {
+    ApiResponse r = ErrorResponse(refusal->status, ErrorClass::kInvalidArgument, refusal->message);
+    if (refusal->retry_after_s > 0)
+      r.headers.emplace_back("Retry-After", std::to_string(refusal->retry_after_s));
+    return r;
+  }
+  const auto& session = std::get<AccessControl::Session>(login);
+  const auto lifetime =
+      std::chrono::duration_cast<std::chrono::seconds>(AccessControl::kSessionLifetime).count();
+  ApiResponse r = JsonResponse(200, json{{"user", session.who.user},
+                                         {"role", RoleName(session.who.role)},
+                                         {"token", session.token},
+                                         {"expires_in_s", lifetime}});
+  r.headers.emplace_back("Set-Cookie", std::string(AccessControl::kCookie) + "=" + session.token +
+                                           cookie_attrs + "; Max-Age=" + std::to_string(lifetime));
+  r.headers.emplace_back("Cache-Control", "no-store");
+  return r;
+}
+
 ApiResponse ApiRouter::ArmFromBody(const std::string& body, const CallContext& ctx) {
   static const std::string kExpected = R"(expected a JSON object {"id": "<sample id>"})";
   const json doc = json::parse(body, nullptr, /*allow_exceptions=*/false);
@@ -740,6 +829,22 @@ Result<int> OpenListenSocket(const std::string& address, int port) {
       ErrorClass::kInvalidConfig,
       where + ": " + LowerFirst(why) + " — check daemon.listen_address and daemon.listen_port",
       why);
+}
+
+// The client's address as text, for the access log and the lockout.
+std::string PeerAddress(MHD_Connection* connection) {
+  const MHD_ConnectionInfo* info =
+      MHD_get_connection_info(connection, MHD_CONNECTION_INFO_CLIENT_ADDRESS);
+  if (info == nullptr || info->client_addr == nullptr) return "";
+  char buf[INET6_ADDRSTRLEN] = {0};
+  const sockaddr* sa = info->client_addr;
+  if (sa->sa_family == AF_INET) {
+    ::inet_ntop(AF_INET, &reinterpret_cast<const sockaddr_in*>(sa)->sin_addr, buf, sizeof buf);
+  } else if (sa->sa_family == AF_INET6) {
+    const auto* in6 = reinterpret_cast<const sockaddr_in6*>(sa);
+    ::inet_ntop(AF_INET6, &in6->sin6_addr, buf, sizeof buf);
+  }
+  return buf;
 }
 
 // libmicrohttpd would percent-decode the path itself, and a decoded "%00"
@@ -1027,6 +1132,7 @@ struct HttpApi::Server {
       ex->conn = info != nullptr ? static_cast<Conn*>(info->socket_context) : nullptr;
       ex->req.method = method;
       ex->req.target = url;
+      ex->req.peer = PeerAddress(connection);
       MHD_get_connection_values(connection, MHD_GET_ARGUMENT_KIND, &CollectArgument,
                                 &ex->req.target);
       MHD_get_connection_values(connection, MHD_HEADER_KIND, &CollectHeader, ex);
@@ -1238,9 +1344,23 @@ Status HttpApi::Start() {
       HostPolicy::ForListen(address_, options_.allowed_hosts, options_.allowed_origins, port),
       options_.events, options_.preview);
   Server* s = server.get();
+  const bool tls = !options_.tls_certificate_pem.empty() || !options_.tls_key_pem.empty();
+  if (tls && MHD_is_feature_supported(MHD_FEATURE_TLS) != MHD_YES) {
+    ::close(*fd);
+    return MakeError(ErrorClass::kInvalidConfig,
+                     "this libmicrohttpd has no TLS: serve plain HTTP on a loopback address "
+                     "behind a reverse proxy that terminates TLS (see the README)");
+  }
+  s->router.RequireCredentials(options_.access, tls);
+  // The key and certificate are read by libmicrohttpd at start (GnuTLS).
+  MHD_OptionItem tls_options[] = {
+      {MHD_OPTION_HTTPS_MEM_KEY, 0, const_cast<char*>(options_.tls_key_pem.c_str())},
+      {MHD_OPTION_HTTPS_MEM_CERT, 0, const_cast<char*>(options_.tls_certificate_pem.c_str())},
+      {MHD_OPTION_END, 0, nullptr}};
+  MHD_OptionItem no_options[] = {{MHD_OPTION_END, 0, nullptr}};
   s->daemon = MHD_start_daemon(
       MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_EPOLL | MHD_ALLOW_SUSPEND_RESUME |
-          MHD_USE_ERROR_LOG,
+          MHD_USE_ERROR_LOG | (tls ? MHD_USE_TLS : 0),
       0, nullptr, nullptr, &Server::OnRequest, s,
       // First, or libmicrohttpd prints what it says about the earlier options itself.
       MHD_OPTION_EXTERNAL_LOGGER, &LogMhd, nullptr,            //
@@ -1251,9 +1371,16 @@ Status HttpApi::Start() {
       MHD_OPTION_NOTIFY_COMPLETED, &Server::OnCompleted, s,    //
       MHD_OPTION_NOTIFY_CONNECTION, &Server::OnConnection, s,  //
       MHD_OPTION_UNESCAPE_CALLBACK, &KeepEscaped, nullptr,     //
+      MHD_OPTION_ARRAY, tls ? tls_options : no_options,        //
       MHD_OPTION_END);
   if (s->daemon == nullptr) {
     ::close(*fd);
+    if (tls) {
+      return MakeError(ErrorClass::kInvalidConfig,
+                       "cannot start the HTTPS server on " + HostPort(address_, port) +
+                           ": the TLS certificate or key was refused (check that "
+                           "daemon.tls_certificate and daemon.tls_key are PEM files of one pair)");
+    }
     return MakeError(ErrorClass::kInternal, "cannot start the HTTP server on " +
                                                 HostPort(address_, port) +
                                                 " (libmicrohttpd refused its options); report it");
@@ -1265,7 +1392,9 @@ Status HttpApi::Start() {
   if (s->preview != nullptr) s->preview->SetListener([s] { s->WakeStreams(false); });
   server_ = std::move(server);
   bound_port_ = port;
-  AGG_LOGI(kCat, "HTTP API listening on http://%s", HostPort(address_, bound_port_).c_str());
+  AGG_LOGI(kCat, "HTTP API listening on %s://%s%s", tls ? "https" : "http",
+           HostPort(address_, bound_port_).c_str(),
+           options_.access != nullptr ? " (credentials required)" : "");
   return OkStatus();
 }
 

@@ -10,6 +10,8 @@
 //   POST /api/v1/button          → Press("api")
 //   POST /api/v1/abort           → Abort()
 //   POST /api/v1/reset           → Reset()
+//   POST /api/v1/session         {"user", "password"} → a session token (and cookie)
+//   GET  /api/v1/session         → who the credentials are; DELETE: log out
 //   GET  /api/v1/samples/{id}/sides/{side}/views/{view}[/thumbnail|/mask]
 //                                → ViewFile(): the view's JPEG, a small JPEG of it, its mask PNG
 //   GET  /api/v1/events          → live events (Server-Sent Events, EventHub)
@@ -41,6 +43,7 @@
 #include <vector>
 
 #include "common/error.h"
+#include "daemon/access.h"
 #include "daemon/control.h"
 #include "daemon/event_hub.h"
 #include "daemon/jpeg_scale.h"
@@ -75,6 +78,8 @@ struct ApiRequest {
   std::string target;  // path as sent (still percent-encoded), without the query
   std::vector<std::pair<std::string, std::string>> headers;  // in order, names as sent
   std::string body;
+  /// The client's address ("192.168.1.30", "::1"); "" when unknown.
+  std::string peer;
   /// Deadline and client liveness of state-changing calls.
   CallContext ctx;
 
@@ -140,7 +145,16 @@ class ApiRouter {
 
   ApiResponse Handle(const ApiRequest& req);
 
+  /// From now on every request needs credentials checked by `access`
+  /// (borrowed; null: none needed, the loopback default). `tls`: the API is
+  /// served over TLS (the session cookie is then marked Secure).
+  void RequireCredentials(AccessControl* access, bool tls) {
+    access_ = access;
+    tls_ = tls;
+  }
+
  private:
+  ApiResponse HandleSession(const ApiRequest& req, const std::optional<Principal>& who);
   ApiResponse HandleUnsafe(const ApiRequest& req);
   ApiResponse ServeResultFile(const std::string& id, const std::string& name);
   ApiResponse ServeView(const std::string& id, const std::string& sub);
@@ -149,6 +163,8 @@ class ApiRouter {
   DaemonControl& control_;
   HostPolicy policy_;
   ThumbnailCache thumbnails_;
+  AccessControl* access_ = nullptr;
+  bool tls_ = false;
 };
 
 /// Options of the HTTP API from [daemon].
@@ -161,6 +177,13 @@ struct HttpApiOptions {
   /// The live view GET /api/v1/preview streams; null: that endpoint is 404.
   /// Borrowed: must outlive the HttpApi.
   PreviewHub* preview = nullptr;
+  /// Accounts every request is checked against; null: no credentials needed
+  /// (only allowed on a loopback address, see config). Borrowed.
+  AccessControl* access = nullptr;
+  /// PEM certificate chain and private key: the API is served over TLS.
+  /// Both empty: plain HTTP.
+  std::string tls_certificate_pem;
+  std::string tls_key_pem;
 };
 
 class HttpApi {

@@ -234,17 +234,49 @@ int main(int argc, char** argv) {
   service.SetStatusListener([&notifier](const std::string& line) { notifier.Status(line); });
   service.Start();
 
-  HttpApi api(
-      service, config.daemon.listen_address, config.daemon.listen_port,
-      HttpApiOptions{SplitCommaList(config.daemon.allowed_hosts),
-                     SplitCommaList(config.daemon.allowed_origins), &events, preview.get()});
+  HttpApiOptions api_options;
+  api_options.allowed_hosts = SplitCommaList(config.daemon.allowed_hosts);
+  api_options.allowed_origins = SplitCommaList(config.daemon.allowed_origins);
+  api_options.events = &events;
+  api_options.preview = preview.get();
+  std::unique_ptr<AccessControl> access;
+  if (!config.daemon.credentials_file.empty()) {
+    Result<std::unique_ptr<AccessControl>> opened =
+        AccessControl::Open(config.daemon.credentials_file);
+    if (!opened) {
+      AGG_LOGE("main", "%s", opened.error().ToString().c_str());
+      service.Shutdown();
+      return kExitConfig;
+    }
+    access = std::move(*opened);
+    api_options.access = access.get();
+    AGG_LOGI("main", "API credentials: %zu account(s) from %s", access->accounts(),
+             config.daemon.credentials_file.c_str());
+  }
+  if (!config.daemon.tls_certificate.empty()) {
+    Result<std::string> cert = ReadFile(config.daemon.tls_certificate);
+    Result<std::string> key = ReadFile(config.daemon.tls_key);
+    if (!cert || !key) {
+      AGG_LOGE("main",
+               "cannot read daemon.%s: %s (it must be readable by the user aggscand runs as)",
+               !cert ? "tls_certificate" : "tls_key",
+               (!cert ? cert.error() : key.error()).ToString().c_str());
+      service.Shutdown();
+      return kExitConfig;
+    }
+    api_options.tls_certificate_pem = std::move(*cert);
+    api_options.tls_key_pem = std::move(*key);
+  }
+  const bool tls = !api_options.tls_certificate_pem.empty();
+  HttpApi api(service, config.daemon.listen_address, config.daemon.listen_port,
+              std::move(api_options));
   if (Status s = api.Start(); !s) {
     AGG_LOGE("main", "%s", s.error().ToString().c_str());
     service.Shutdown();
-    return 1;
+    return s.error().cls == ErrorClass::kInvalidConfig ? kExitConfig : 1;
   }
-  AGG_LOGI("main", "API listening on http://%s:%d", config.daemon.listen_address.c_str(),
-           api.port());
+  AGG_LOGI("main", "API listening on %s://%s:%d", tls ? "https" : "http",
+           config.daemon.listen_address.c_str(), api.port());
   if (!port_file.empty()) {
     if (Status s = WriteFileAtomic(port_file, std::to_string(api.port()) + "\n"); !s) {
       AGG_LOGE("main", "%s", s.error().ToString().c_str());

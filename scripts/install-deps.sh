@@ -19,6 +19,11 @@ PACKAGES=(
   # the daemon's HTTP server (cpp-httplib stays for the CLI and the test clients)
   libmicrohttpd-dev
   libsystemd-dev libsqlite3-dev libturbojpeg0-dev
+  # the API's accounts (crypt(3) yescrypt hashes) and the CLI's https:// client
+  libcrypt-dev libssl-dev
+  # tests only: the TLS test makes a certificate (openssl) and talks to the
+  # daemon with an independent TLS client (curl, listed below)
+  openssl
   # convex hulls (minimum-volume box of a mesh)
   libqhull-dev
   # Modbus RTU/TCP turntable controllers (drivers/modbus/)

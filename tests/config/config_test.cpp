@@ -706,6 +706,11 @@ TEST(ConfigToToml, RoundTripEveryFieldChanged) {
   c.daemon.state_dir = "/srv/agg \"scan\"\\ dir\twith\ncontrol \x01 and ünïcode";
   c.daemon.listen_address = "0.0.0.0";
   c.daemon.listen_port = 0;
+  c.daemon.credentials_file = "/etc/aggscan/accounts of \"the rig\"";
+  c.daemon.tls_certificate = "/etc/aggscan/tls/cert.pem";
+  c.daemon.tls_key = "/etc/aggscan/tls/key.pem";
+  c.daemon.preview_interval = 333 * kNsPerMs + 7;
+  c.daemon.preview_max_side = 1280;
   c.daemon.log_level = "debug";
   c.daemon.time_scale = 1000.0;
   c.capture.profile = "full-turn";
