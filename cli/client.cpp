@@ -490,6 +490,7 @@ void PrintClientUsage(std::ostream& out) {
          "  aggscan [--url URL] [--json] selftest   each device's health and what to check\n"
          "                                         (exit 0 all ok, 4 a device is unhealthy)\n"
          "  aggscan [--url URL] [--json] arm ID     arm a new sample (or resume one) named ID\n"
+         "      [--operator NAME] [--lot LOT] [--notes TEXT]   kept in the sample's record\n"
          "  aggscan [--url URL] [--json] press      same as pressing the start button\n"
          "  aggscan [--url URL] [--json] abort      abort the running capture\n"
          "  aggscan [--url URL] [--json] reset      clear a fault and return to idle\n"
@@ -513,10 +514,15 @@ int RunClientCommand(const std::vector<std::string>& args, std::ostream& out, st
   std::optional<std::string> url_flag;
   bool json_out = false;
   std::vector<std::string> words;
+  // arm's description of the sample, stored in its sample.json.
+  json arm_meta = json::object();
   for (size_t i = 0; i < args.size(); ++i) {
     const std::string& a = args[i];
     if (a == "--json") {
       json_out = true;
+    } else if (a == "--operator" || a == "--lot" || a == "--notes") {
+      if (i + 1 >= args.size()) return Usage(err, a + " needs a value");
+      arm_meta[a.substr(2)] = args[++i];
     } else if (a == "--url") {
       if (i + 1 >= args.size())
         return Usage(err, "--url needs a value, e.g. --url http://127.0.0.1:8470");
@@ -535,6 +541,8 @@ int RunClientCommand(const std::vector<std::string>& args, std::ostream& out, st
   if (words.empty()) return Usage(err, "missing command");
   const std::string& name = words[0];
   if (!IsClientCommand(name)) return Usage(err, "unknown command \"" + name + "\"");
+  if (name != "arm" && !arm_meta.empty())
+    return Usage(err, "--operator, --lot and --notes belong to arm");
   const bool needs_id = name == "arm" || name == "show" || name == "retry";
   const size_t want = needs_id ? 2 : 1;
   if (words.size() < want) return Usage(err, name + " needs a sample id");
@@ -562,7 +570,11 @@ int RunClientCommand(const std::vector<std::string>& args, std::ostream& out, st
   if (!target) return Usage(err, "invalid daemon URL \"" + Clean(url) + "\": " + why);
 
   Command cmd{name, "GET", "/status", {}};
-  if (name == "arm") cmd = {name, "POST", "/samples", json{{"id", id}}.dump()};
+  if (name == "arm") {
+    json body = arm_meta;
+    body["id"] = id;
+    cmd = {name, "POST", "/samples", body.dump()};
+  }
   if (name == "press") cmd = {name, "POST", "/button", "{}"};
   if (name == "abort") cmd = {name, "POST", "/abort", "{}"};
   if (name == "reset") cmd = {name, "POST", "/reset", "{}"};

@@ -159,6 +159,9 @@ const std::vector<Field<Config>>& Fields() {
       F(daemon.tls_certificate, Any(),
         "PEM certificate (chain) of the API's HTTPS; with tls_key; empty = plain HTTP"),
       F(daemon.tls_key, Any(), "PEM private key of tls_certificate (readable by the service only)"),
+      F(daemon.web_root, Any(),
+        "folder of the operator's console served at / (index.html and ui/); empty = the one "
+        "installed beside the binaries"),
 
       F(capture.profile, OneOf(Profiles()),
         "paper (fixes sides 2, views_per_side 30, step_deg 30, interval 2s) | "

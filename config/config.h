@@ -47,6 +47,9 @@ struct DaemonConfig {
   // PEM certificate (chain) and private key: serve the API over HTTPS
   std::string tls_certificate;
   std::string tls_key;
+  // The console's static files; empty = the ones installed beside the
+  // binaries (../share/aggscan/web, or ../web in a build tree)
+  std::string web_root;
 
   bool operator==(const DaemonConfig&) const = default;
 };

@@ -741,7 +741,8 @@ void CaptureService::Execute(const cs::Effect& eff) {
       [&](const auto& e) {
         using T = std::decay_t<decltype(e)>;
         if constexpr (std::is_same_v<T, cs::CreateSample>) {
-          Status s = store_.CreateOrResume(e.sample_id, PlanFromConfig(config_), config_toml_);
+          Status s =
+              store_.CreateOrResume(e.sample_id, PlanFromConfig(config_), config_toml_, arm_meta_);
           if (!s) {
             pending_events_.push_back(
                 cs::StoreFailed{s.error().cls, "cannot create sample: " + s.error().ToString()});
@@ -882,7 +883,11 @@ void CaptureService::Execute(const cs::Effect& eff) {
                    {"views_per_side", config_.capture.views_per_side},
                    {"image", layout::SideDirName(e.side) + "/" + layout::ViewImageName(e.view)},
                    {"url", ViewUrl(id, e.side, e.view)},
-                   {"thumbnail", ViewUrl(id, e.side, e.view) + "/thumbnail"}});
+                   {"thumbnail", ViewUrl(id, e.side, e.view) + "/thumbnail"},
+                   // Wall clock of the store: screens measure how late they show it.
+                   {"stored_utc_ms", std::chrono::duration_cast<std::chrono::milliseconds>(
+                                         std::chrono::system_clock::now().time_since_epoch())
+                                         .count()}});
           {
             // A stored view proves both devices work: the health API's last_ok.
             const int64_t now_utc = std::chrono::duration_cast<std::chrono::nanoseconds>(
@@ -1326,7 +1331,8 @@ json CaptureService::StatusOnLoop() const {
           {"worker", WorkerOnLoop()}};
 }
 
-Result<json> CaptureService::ArmOnLoop(const std::string& sample_id) {
+Result<json> CaptureService::ArmOnLoop(const ArmRequest& request) {
+  const std::string& sample_id = request.id;
   if (state_.phase != cs::Phase::kIdle) {
     return MakeError(
         ErrorClass::kInvalidState,
@@ -1342,6 +1348,11 @@ Result<json> CaptureService::ArmOnLoop(const std::string& sample_id) {
   const SamplePlan plan = PlanFromConfig(config_);
   Result<int> first = store_.PrepareArm(sample_id, plan);
   if (!first) return first.error();
+  // Kept until the record is written when the first side starts.
+  arm_meta_ = json::object();
+  if (!request.operator_name.empty()) arm_meta_["operator"] = request.operator_name;
+  if (!request.lot.empty()) arm_meta_["lot"] = request.lot;
+  if (!request.notes.empty()) arm_meta_["notes"] = request.notes;
   Dispatch(cs::Arm{sample_id, cs::Plan{plan.sides, plan.views_per_side, plan.step_deg}, *first});
   if (state_.phase == cs::Phase::kFaulted) {
     return MakeError(state_.fault_class, state_.fault_message);
@@ -1392,8 +1403,8 @@ json CaptureService::GetHealth() {
   return OnLoop([this] { return HealthOnLoop(); });
 }
 
-Result<json> CaptureService::Arm(const std::string& sample_id, const CallContext& ctx) {
-  return OnLoop([this, sample_id] { return ArmOnLoop(sample_id); }, ctx);
+Result<json> CaptureService::Arm(const ArmRequest& request, const CallContext& ctx) {
+  return OnLoop([this, request] { return ArmOnLoop(request); }, ctx);
 }
 
 Result<json> CaptureService::PressOnLoop(const std::string& source) {
@@ -1428,30 +1439,96 @@ Result<json> CaptureService::Reset(const CallContext& ctx) {
   return OnLoop([this] { return ResetOnLoop(); }, ctx);
 }
 
-Result<json> CaptureService::ListSamples() { return store_.List(); }
+namespace {
+
+// Where a sample's reconstruction stands, from its jobs: "failed" (with the
+// first error), "reconstructing", "queued", "done" (figures written; "result"
+// holds the 3D ones when there are), or null when nothing was queued yet.
+json ReconstructionOf(const std::vector<Job>& jobs, bool has_result) {
+  std::string state;
+  std::string error;
+  for (const Job& j : jobs) {
+    if (j.state == "failed" && state != "failed") {
+      state = "failed";
+      error = j.error;
+    } else if (j.state == "running" && state != "failed") {
+      state = "reconstructing";
+    } else if (j.state == "queued" && state.empty()) {
+      state = "queued";
+    }
+  }
+  // Every job done: the figures are written (3D ones only with a rig
+  // calibration, else the 2D ones alone).
+  if (state.empty() &&
+      (has_result || (!jobs.empty() && std::all_of(jobs.begin(), jobs.end(), [](const Job& j) {
+         return j.state == "done";
+       }) && std::any_of(jobs.begin(), jobs.end(), [](const Job& j) { return j.side == 0; }))))
+    state = "done";
+  if (state.empty()) return nullptr;
+  json out = {{"state", state}};
+  if (!error.empty()) out["error"] = error;
+  return out;
+}
+
+}  // namespace
+
+json CaptureService::ResultSummary(const std::string& sample_id) const {
+  // The worker's figures once it has written them, with their quality: a
+  // doubtful result is shown as such wherever the sample is.
+  Result<std::string> m =
+      ReadFile(store_.SampleDir(sample_id) + "/" + layout::kResultsDir + "/morphology.json");
+  if (!m) return nullptr;
+  const json mj = json::parse(*m, nullptr, false);
+  if (!mj.is_object() || !mj.contains("morphology_3d") || !mj["morphology_3d"].is_object())
+    return nullptr;
+  const json& d3 = mj["morphology_3d"];
+  const json q = mj.value("quality", json::object());
+  json r = json::object();
+  for (const char* k :
+       {"volume_mm3", "surface_area_mm2", "a_mm", "b_mm", "c_mm", "sphericity", "fer_3d"}) {
+    if (d3.contains(k)) r[k] = d3[k];
+  }
+  r["confident"] = q.is_object() ? q.value("confident", true) : true;
+  r["quality_flags"] = q.is_object() ? q.value("flags", json::array()) : json::array();
+  return r;
+}
+
+Result<json> CaptureService::ListSamples() {
+  Result<json> list = store_.List();
+  if (!list) return list;
+  // Each sample's figures and reconstruction, so that a screen lists every
+  // sample's state in one request.
+  std::vector<std::string> ids;
+  for (auto& s : *list) {
+    const std::string id = s.value("id", "");
+    const json r = ResultSummary(id);
+    if (!r.is_null()) s["result"] = r;
+    ids.push_back(id);
+  }
+  if (queue_) {
+    auto jobs = OnLoop([this, ids]() -> Result<std::vector<std::vector<Job>>> {
+      std::vector<std::vector<Job>> all;
+      for (const std::string& id : ids) {
+        Result<std::vector<Job>> j = queue_->JobsForSample(id);
+        all.push_back(j ? std::move(*j) : std::vector<Job>{});
+      }
+      return all;
+    });
+    if (jobs && jobs->size() == list->size()) {
+      for (size_t i = 0; i < jobs->size(); ++i) {
+        json& s = (*list)[i];
+        s["reconstruction"] = ReconstructionOf((*jobs)[i], s.contains("result"));
+      }
+    }
+  }
+  return list;
+}
 
 Result<json> CaptureService::GetSample(const std::string& sample_id) {
   Result<json> d = store_.Describe(sample_id);
   if (!d) return d;
   json out = *d;
-  // The worker's figures once it has written them, with their quality: a
-  // doubtful result is shown as such wherever the sample is.
-  if (auto m =
-          ReadFile(store_.SampleDir(sample_id) + "/" + layout::kResultsDir + "/morphology.json")) {
-    const json mj = json::parse(*m, nullptr, false);
-    if (mj.is_object() && mj.contains("morphology_3d") && mj["morphology_3d"].is_object()) {
-      const json& d3 = mj["morphology_3d"];
-      const json q = mj.value("quality", json::object());
-      json r = json::object();
-      for (const char* k :
-           {"volume_mm3", "surface_area_mm2", "a_mm", "b_mm", "c_mm", "sphericity"}) {
-        if (d3.contains(k)) r[k] = d3[k];
-      }
-      r["confident"] = q.is_object() ? q.value("confident", true) : true;
-      r["quality_flags"] = q.is_object() ? q.value("flags", json::array()) : json::array();
-      out["result"] = r;
-    }
-  }
+  if (json r = ResultSummary(sample_id); !r.is_null()) out["result"] = std::move(r);
   if (queue_) {
     // Our own queue handle is used from the loop thread only.
     auto jobs = OnLoop([this, sample_id]() -> Result<std::vector<Job>> {
@@ -1461,6 +1538,7 @@ Result<json> CaptureService::GetSample(const std::string& sample_id) {
       json js = json::array();
       for (const Job& j : *jobs) js.push_back(JobJson(j));
       out["jobs"] = js;
+      out["reconstruction"] = ReconstructionOf(*jobs, out.contains("result"));
     }
   }
   return out;

@@ -81,7 +81,8 @@ class CaptureService final : public DaemonControl {
   // DaemonControl (any thread).
   nlohmann::json GetStatus() override;
   nlohmann::json GetHealth() override;
-  Result<nlohmann::json> Arm(const std::string& sample_id, const CallContext& ctx) override;
+  using DaemonControl::Arm;
+  Result<nlohmann::json> Arm(const ArmRequest& request, const CallContext& ctx) override;
   Result<nlohmann::json> Press(const std::string& source, const CallContext& ctx) override;
   Result<nlohmann::json> Abort(const CallContext& ctx) override;
   Result<nlohmann::json> Reset(const CallContext& ctx) override;
@@ -94,7 +95,12 @@ class CaptureService final : public DaemonControl {
   std::string Metrics() override;
 
   // Loop-thread versions (used by the offline sim capture and by the above).
-  Result<nlohmann::json> ArmOnLoop(const std::string& sample_id);
+  Result<nlohmann::json> ArmOnLoop(const ArmRequest& request);
+  /// The sample's key figures from its morphology.json; null when none yet.
+  nlohmann::json ResultSummary(const std::string& sample_id) const;
+  Result<nlohmann::json> ArmOnLoop(const std::string& sample_id) {
+    return ArmOnLoop(ArmRequest{sample_id, {}, {}, {}});
+  }
   Result<nlohmann::json> PressOnLoop(const std::string& source);
   Result<nlohmann::json> AbortOnLoop();
   Result<nlohmann::json> ResetOnLoop();
@@ -232,6 +238,7 @@ class CaptureService final : public DaemonControl {
   std::string published_worker_;  // what the last "worker" event said
   std::string last_status_;
   nlohmann::json calibration_;  // CheckRigCalibration() result; null = never checked
+  nlohmann::json arm_meta_ = nlohmann::json::object();  // the armed sample's operator, lot, notes
   std::function<void(const std::string&)> on_status_;
   std::function<void(const capture::State&)> on_transition_;
 

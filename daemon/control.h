@@ -49,6 +49,14 @@ struct CallContext {
   }
 };
 
+/// What the operator fills in to arm a sample.
+struct ArmRequest {
+  std::string id;
+  std::string operator_name;  // who captures it
+  std::string lot;            // source or lot of the stone
+  std::string notes;
+};
+
 class DaemonControl {
  public:
   virtual ~DaemonControl() = default;
@@ -61,13 +69,19 @@ class DaemonControl {
   ///  {"backend", "id", "state": "ok|opening|<ErrorClassName>", "healthy", "message", "since_utc",
   ///   "last_ok_utc", "retries", "next_retry_utc", "next_retry_in_s"}}, "checked_utc"}
   virtual nlohmann::json GetHealth() = 0;
-  /// Arms a new sample (or resumes an unfinished one with that id).
-  virtual Result<nlohmann::json> Arm(const std::string& sample_id, const CallContext& ctx) = 0;
+  /// Arms a new sample (or resumes an unfinished one with that id). The
+  /// optional fields are the operator's description, kept in sample.json as
+  /// "meta" (a resume keeps what was stored unless new text is given).
+  virtual Result<nlohmann::json> Arm(const ArmRequest& request, const CallContext& ctx) = 0;
+  Result<nlohmann::json> Arm(const std::string& sample_id, const CallContext& ctx) {
+    return Arm(ArmRequest{sample_id, {}, {}, {}}, ctx);
+  }
   /// Same as pressing the physical start button. `source` e.g. "api".
   virtual Result<nlohmann::json> Press(const std::string& source, const CallContext& ctx) = 0;
   virtual Result<nlohmann::json> Abort(const CallContext& ctx) = 0;
   virtual Result<nlohmann::json> Reset(const CallContext& ctx) = 0;
-  /// [{"id","state","created_utc","sides_done","views"}...]
+  /// [{"id","state","created_utc","meta","sides","sides_done","views","result" (key figures, once
+  ///  computed),"reconstruction": {"state": "queued|reconstructing|done|failed","error"}|null}...]
   virtual Result<nlohmann::json> ListSamples() = 0;
   /// The sample record plus per-side view lists and job states.
   virtual Result<nlohmann::json> GetSample(const std::string& sample_id) = 0;

@@ -7,6 +7,7 @@
 #include <netinet/in.h>
 #include <poll.h>
 #include <sys/socket.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -190,7 +191,8 @@ enum class Endpoint {
   kOpenApi,
   kView,
   kPreview,
-  kSession
+  kSession,
+  kConsole
 };
 
 // Methods each endpoint accepts (HEAD is answered wherever GET is).
@@ -203,6 +205,7 @@ const char* AllowedMethods(Endpoint ep) {
     case Endpoint::kMetrics:
     case Endpoint::kOpenApi:
     case Endpoint::kView:
+    case Endpoint::kConsole:
       return "GET, HEAD";
     case Endpoint::kEvents:
     case Endpoint::kPreview:
@@ -249,6 +252,14 @@ Endpoint Match(const std::string& path, std::string* id, std::string* file) {
   if (path == "/api/v1/openapi.json") return Endpoint::kOpenApi;
   if (path == "/api/v1/preview") return Endpoint::kPreview;
   if (path == "/api/v1/session") return Endpoint::kSession;
+  if (path == "/" || path == "/index.html") {
+    *file = "index.html";
+    return Endpoint::kConsole;
+  }
+  if (path.rfind("/ui/", 0) == 0) {
+    *file = path.substr(1);
+    return Endpoint::kConsole;
+  }
   if (path.rfind(kSamplesPrefix, 0) == 0) {
     *id = path.substr(std::strlen(kSamplesPrefix));
     const size_t slash = id->find('/');
@@ -498,7 +509,9 @@ ApiResponse ApiRouter::HandleUnsafe(const ApiRequest& req) {
   // Credentials, when the rig requires them: for everything but logging in
   // (an unknown path too: a stranger learns nothing of what is routed).
   std::optional<Principal> who;
-  if (access_ != nullptr && !(ep == Endpoint::kSession && req.method == "POST")) {
+  const bool open_to_all =
+      (ep == Endpoint::kSession && req.method == "POST") || ep == Endpoint::kConsole;
+  if (access_ != nullptr && !open_to_all) {
     auto checked = access_->Check(req.Header("Authorization"), req.Header("Cookie"), req.peer);
     if (const auto* refusal = std::get_if<AccessControl::Refusal>(&checked)) {
       ApiResponse r =
@@ -580,6 +593,8 @@ ApiResponse ApiRouter::HandleUnsafe(const ApiRequest& req) {
       return Reply(control_.Press(who ? "api:" + who->user : "api", req.ctx));
     case Endpoint::kSession:
       return HandleSession(req, who);
+    case Endpoint::kConsole:
+      return ServeConsoleFile(req, file);
     case Endpoint::kAbort:
       return Reply(control_.Abort(req.ctx));
     case Endpoint::kReset:
@@ -632,6 +647,86 @@ ApiResponse ApiRouter::ServeResultFile(const std::string& id, const std::string&
                    : name.ends_with(".obj") ? "text/plain; charset=utf-8"
                    : name.ends_with(".stl") ? "model/stl"
                                             : "application/octet-stream";
+  r.body = std::move(*bytes);
+  return r;
+}
+
+namespace {
+
+// The console's files: names of letters, digits, '-', '_', '.' at most two
+// folders deep, never starting with '.', so nothing outside the web root
+// (and no hidden file) can be named.
+bool IsConsoleFileName(const std::string& name) {
+  if (name.empty() || name.size() > 128) return false;
+  int slashes = 0;
+  char prev = '/';
+  for (char c : name) {
+    if (c == '/') {
+      if (++slashes > 2 || prev == '/') return false;
+    } else if (c == '.') {
+      if (prev == '/') return false;
+    } else if (!std::isalnum(static_cast<unsigned char>(c)) && c != '-' && c != '_') {
+      return false;
+    }
+    prev = c;
+  }
+  return prev != '/';
+}
+
+const char* ConsoleContentType(const std::string& name) {
+  if (name.ends_with(".html")) return "text/html; charset=utf-8";
+  if (name.ends_with(".js")) return "text/javascript; charset=utf-8";
+  if (name.ends_with(".css")) return "text/css; charset=utf-8";
+  if (name.ends_with(".svg")) return "image/svg+xml";
+  if (name.ends_with(".png")) return "image/png";
+  if (name.ends_with(".wav")) return "audio/wav";
+  if (name.ends_with(".json")) return "application/json";
+  return nullptr;
+}
+
+}  // namespace
+
+ApiResponse ApiRouter::ServeConsoleFile(const ApiRequest& req, const std::string& file) {
+  if (web_root_.empty()) {
+    return ErrorResponse(404, ErrorClass::kNotFound,
+                         "this aggscand serves no console: its files were not found (install "
+                         "share/aggscan/web beside the binaries, or set daemon.web_root)");
+  }
+  const char* type = IsConsoleFileName(file) ? ConsoleContentType(file) : nullptr;
+  const std::string path = web_root_ + "/" + file;
+  struct stat st {};
+  if (type == nullptr || ::stat(path.c_str(), &st) != 0 || !S_ISREG(st.st_mode)) {
+    return ErrorResponse(404, ErrorClass::kNotFound,
+                         "no such console file: " + Printable(file, 80) + " (the console is at /)");
+  }
+  // Revalidated on every load (an update of the rig takes effect at once),
+  // answered 304 while unchanged: a tablet on a weak link loads the
+  // libraries once.
+  const std::string etag = "\"" + std::to_string(st.st_mtim.tv_sec) + "-" +
+                           std::to_string(st.st_mtim.tv_nsec) + "-" + std::to_string(st.st_size) +
+                           "\"";
+  ApiResponse r;
+  r.headers.emplace_back("ETag", etag);
+  r.headers.emplace_back("Cache-Control", "no-cache");
+  if (const std::string* inm = req.Header("If-None-Match"); inm != nullptr && *inm == etag) {
+    r.status = 304;
+    return r;
+  }
+  Result<std::string> bytes = ReadFile(path);
+  if (!bytes) return ErrorFrom(bytes.error());
+  r.status = 200;
+  r.content_type = type;
+  if (file == "index.html") {
+    // The page runs only our own scripts and talks only to this rig; no other
+    // site may frame it (clickjacking of the START button).
+    r.headers.emplace_back("Content-Security-Policy",
+                           "default-src 'self'; script-src 'self'; style-src 'self' "
+                           "'unsafe-inline'; img-src 'self' blob: data:; connect-src 'self'; "
+                           "media-src 'self' data:; object-src 'none'; base-uri 'none'; "
+                           "frame-ancestors 'none'");
+    r.headers.emplace_back("X-Frame-Options", "DENY");
+  }
+  r.headers.emplace_back("X-Content-Type-Options", "nosniff");
   r.body = std::move(*bytes);
   return r;
 }
@@ -745,7 +840,8 @@ ApiResponse ApiRouter::HandleSession(const ApiRequest& req, const std::optional<
 }
 
 ApiResponse ApiRouter::ArmFromBody(const std::string& body, const CallContext& ctx) {
-  static const std::string kExpected = R"(expected a JSON object {"id": "<sample id>"})";
+  static const std::string kExpected =
+      R"(expected a JSON object {"id": "<sample id>"} (optional "operator", "lot", "notes"))";
   const json doc = json::parse(body, nullptr, /*allow_exceptions=*/false);
   if (doc.is_discarded()) {
     return ErrorResponse(400, ErrorClass::kInvalidArgument,
@@ -760,10 +856,46 @@ ApiResponse ApiRouter::ArmFromBody(const std::string& body, const CallContext& c
     return ErrorResponse(400, ErrorClass::kInvalidArgument,
                          "missing or non-string \"id\": " + kExpected);
   }
-  const std::string id = it->get<std::string>();
-  if (!layout::IsValidSampleId(id))
-    return ErrorResponse(400, ErrorClass::kInvalidArgument, InvalidIdMessage(id));
-  return Reply(control_.Arm(id, ctx));
+  ArmRequest req;
+  req.id = it->get<std::string>();
+  if (!layout::IsValidSampleId(req.id))
+    return ErrorResponse(400, ErrorClass::kInvalidArgument, InvalidIdMessage(req.id));
+  // The operator's description: short single-line text, notes may have lines.
+  struct Field {
+    const char* key;
+    std::string* out;
+    size_t max_bytes;
+    bool multiline;
+  };
+  for (const Field& f :
+       {Field{"operator", &req.operator_name, 80, false}, Field{"lot", &req.lot, 80, false},
+        Field{"notes", &req.notes, 2000, true}}) {
+    const auto v = doc.find(f.key);
+    if (v == doc.end() || v->is_null()) continue;
+    if (!v->is_string()) {
+      return ErrorResponse(400, ErrorClass::kInvalidArgument,
+                           std::string("\"") + f.key + "\" must be a string (or left out)");
+    }
+    std::string text = v->get<std::string>();
+    if (text.size() > f.max_bytes) {
+      return ErrorResponse(400, ErrorClass::kInvalidArgument,
+                           std::string("\"") + f.key + "\" is " + std::to_string(text.size()) +
+                               " bytes long: at most " + std::to_string(f.max_bytes));
+    }
+    for (const unsigned char ch : text) {
+      if ((ch < 0x20 && !(f.multiline && (ch == '\n' || ch == '\t'))) || ch == 0x7f) {
+        return ErrorResponse(400, ErrorClass::kInvalidArgument,
+                             std::string("\"") + f.key + "\" contains a control character" +
+                                 (f.multiline ? " (only line breaks and tabs are kept)" : "") +
+                                 ": remove it");
+      }
+    }
+    // Leading and trailing blanks are typing noise.
+    const size_t b = text.find_first_not_of(" \t\n");
+    const size_t e = text.find_last_not_of(" \t\n");
+    *f.out = b == std::string::npos ? std::string() : text.substr(b, e - b + 1);
+  }
+  return Reply(control_.Arm(req, ctx));
 }
 
 // -------------------------------------------------------------- transport --
@@ -1352,6 +1484,7 @@ Status HttpApi::Start() {
                      "behind a reverse proxy that terminates TLS (see the README)");
   }
   s->router.RequireCredentials(options_.access, tls);
+  s->router.ServeConsole(options_.web_root);
   // The key and certificate are read by libmicrohttpd at start (GnuTLS).
   MHD_OptionItem tls_options[] = {
       {MHD_OPTION_HTTPS_MEM_KEY, 0, const_cast<char*>(options_.tls_key_pem.c_str())},

@@ -153,18 +153,26 @@ class ApiRouter {
     tls_ = tls;
   }
 
+  /// Serves the operator's console from `web_root` (index.html at "/", the
+  /// rest under "/ui/"); empty: those paths are 404. The files hold no data
+  /// of the rig and are served without credentials; everything they show
+  /// comes through the API, which asks for them.
+  void ServeConsole(std::string web_root) { web_root_ = std::move(web_root); }
+
  private:
   ApiResponse HandleSession(const ApiRequest& req, const std::optional<Principal>& who);
   ApiResponse HandleUnsafe(const ApiRequest& req);
   ApiResponse ServeResultFile(const std::string& id, const std::string& name);
   ApiResponse ServeView(const std::string& id, const std::string& sub);
   ApiResponse ArmFromBody(const std::string& body, const CallContext& ctx);
+  ApiResponse ServeConsoleFile(const ApiRequest& req, const std::string& file);
 
   DaemonControl& control_;
   HostPolicy policy_;
   ThumbnailCache thumbnails_;
   AccessControl* access_ = nullptr;
   bool tls_ = false;
+  std::string web_root_;
 };
 
 /// Options of the HTTP API from [daemon].
@@ -184,6 +192,9 @@ struct HttpApiOptions {
   /// Both empty: plain HTTP.
   std::string tls_certificate_pem;
   std::string tls_key_pem;
+  /// Folder of the console's static files (see ApiRouter::ServeConsole);
+  /// empty: no console.
+  std::string web_root;
 };
 
 class HttpApi {

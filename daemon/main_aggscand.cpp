@@ -267,6 +267,30 @@ int main(int argc, char** argv) {
     api_options.tls_certificate_pem = std::move(*cert);
     api_options.tls_key_pem = std::move(*key);
   }
+  // The console: a configured folder must hold it; the default is looked
+  // for beside the binaries and, missing, only the console is off.
+  if (!config.daemon.web_root.empty()) {
+    if (!PathExists(config.daemon.web_root + "/index.html")) {
+      AGG_LOGE("main",
+               "daemon.web_root %s has no index.html: point it at the console's files "
+               "(share/aggscan/web of the installation) or leave it empty",
+               config.daemon.web_root.c_str());
+      service.Shutdown();
+      return kExitConfig;
+    }
+    api_options.web_root = config.daemon.web_root;
+  } else {
+    const std::string exe = ExecutableDir();
+    for (const std::string& dir : {exe + "/../share/aggscan/web", exe + "/../web"}) {
+      if (!exe.empty() && PathExists(dir + "/index.html")) {
+        api_options.web_root = dir;
+        break;
+      }
+    }
+    if (api_options.web_root.empty())
+      AGG_LOGW("main", "no console files beside %s: the API works, the console at / does not",
+               exe.c_str());
+  }
   const bool tls = !api_options.tls_certificate_pem.empty();
   HttpApi api(service, config.daemon.listen_address, config.daemon.listen_port,
               std::move(api_options));

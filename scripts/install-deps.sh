@@ -24,6 +24,12 @@ PACKAGES=(
   # tests only: the TLS test makes a certificate (openssl) and talks to the
   # daemon with an independent TLS client (curl, listed below)
   openssl
+  # the operator's console (web/): three.js and Chart.js, copied into the
+  # install tree at build time (the rig is offline)
+  libjs-three libjs-chart.js
+  # tests only: the console's browser tests drive Debian's chromium, headless,
+  # over the DevTools protocol (python3-websocket); skipped (77) without it
+  chromium python3-websocket
   # convex hulls (minimum-volume box of a mesh)
   libqhull-dev
   # Modbus RTU/TCP turntable controllers (drivers/modbus/)

@@ -326,7 +326,7 @@ Result<int> SampleStore::PrepareArm(const std::string& id, const SamplePlan& pla
 }
 
 Status SampleStore::CreateOrResume(const std::string& id, const SamplePlan& plan,
-                                   const std::string& config_toml) {
+                                   const std::string& config_toml, const json& meta) {
   if (!layout::IsValidSampleId(id)) return BadId(id);
   const std::string dir = SampleDir(id);
   json rec;
@@ -345,6 +345,9 @@ Status SampleStore::CreateOrResume(const std::string& id, const SamplePlan& plan
     for (int side = 1; side <= plan.sides; ++side) {
       rec["sides"].push_back({{"side", side}, {"state", "pending"}, {"attempts", 0}});
     }
+  }
+  if (meta.is_object()) {
+    for (const auto& [k, v] : meta.items()) rec["meta"][k] = v;
   }
   // The config in effect for this capture; a resume keeps the first copy too.
   const std::string cfg = dir + "/" + layout::kConfigCopy;
@@ -481,6 +484,7 @@ Result<json> SampleStore::List() const {
     out.push_back({{"id", id},
                    {"state", rec->value("state", "")},
                    {"created_utc", rec->value("created_utc", "")},
+                   {"meta", rec->value("meta", json::object())},
                    {"sides", (*rec)["plan"].value("sides", 0)},
                    {"sides_done", sides_done},
                    {"views", views}});

@@ -65,7 +65,11 @@ class SampleStore {
   Result<Completion> CompleteStored(const std::string& id);
   /// Creates the sample directory, record and config copy (or reopens an
   /// unfinished one) and marks it armed.
-  Status CreateOrResume(const std::string& id, const SamplePlan& plan, const std::string& config_toml);
+  /// `meta` ({"operator", "lot", "notes"}, each optional) is merged into the
+  /// record's "meta": a resume keeps what it does not give again.
+  Status CreateOrResume(const std::string& id, const SamplePlan& plan,
+                        const std::string& config_toml,
+                        const nlohmann::json& meta = nlohmann::json::object());
   /// Starts (or restarts) a side: an existing incomplete side directory is
   /// moved aside to side<N>.interrupted-<k>, then an empty one is created.
   Status BeginSide(const std::string& id, int side);

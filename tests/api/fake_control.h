@@ -44,11 +44,16 @@ class FakeControl : public DaemonControl {
                                                    {"views", 7}}});
 
   std::optional<Error> fail;           // returned by every Result-returning method when set
+  ArmRequest last_arm;                 // the last Arm's request (under mu_)
   std::atomic<bool> throw_all{false};  // every method throws std::runtime_error
 
   std::vector<std::string> Calls() {
     std::lock_guard<std::mutex> lock(mu_);
     return calls_;
+  }
+  ArmRequest LastArm() {
+    std::lock_guard<std::mutex> lock(mu_);
+    return last_arm;
   }
   size_t CallCount() {
     std::lock_guard<std::mutex> lock(mu_);
@@ -74,7 +79,13 @@ class FakeControl : public DaemonControl {
     return contexts_;
   }
 
-  Result<nlohmann::json> Arm(const std::string& id, const CallContext& ctx) override {
+  using DaemonControl::Arm;
+  Result<nlohmann::json> Arm(const ArmRequest& req, const CallContext& ctx) override {
+    const std::string& id = req.id;
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      last_arm = req;
+    }
     Record("arm:" + id, &ctx);
     if (fail) return *fail;
     return nlohmann::json{{"state", "armed"}, {"sample_id", id}};

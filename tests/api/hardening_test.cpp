@@ -349,7 +349,9 @@ TEST_F(Hardening, HostHeaderMustNameThisRig) {
   }
   EXPECT_EQ(fake_.CallCount(), 5u);  // the five allowed ones
   // A configured name, with and without the port.
-  StartApi(HttpApiOptions{{"rig.local", "10.0.0.7:9999"}, {}});
+  HttpApiOptions options;
+  options.allowed_hosts = {"rig.local", "10.0.0.7:9999"};
+  StartApi(options);
   for (const std::string& host :
        {std::string("rig.local"), "rig.local:" + std::to_string(api_->port()),
         std::string("10.0.0.7:9999")}) {
@@ -366,7 +368,9 @@ TEST_F(Hardening, HostHeaderMustNameThisRig) {
 
 TEST_F(Hardening, OriginIsCheckedOnStateChangingRequests) {
   const std::string port = std::to_string(api_->port());
-  StartApi(HttpApiOptions{{}, {"http://console.local:8080"}});
+  HttpApiOptions options;
+  options.allowed_origins = {"http://console.local:8080"};
+  StartApi(options);
   const std::string self = "http://127.0.0.1:" + std::to_string(api_->port());
   struct Case {
     std::string origin;  // empty: no Origin header

@@ -711,6 +711,7 @@ TEST(ConfigToToml, RoundTripEveryFieldChanged) {
   c.daemon.tls_key = "/etc/aggscan/tls/key.pem";
   c.daemon.preview_interval = 333 * kNsPerMs + 7;
   c.daemon.preview_max_side = 1280;
+  c.daemon.web_root = "/opt/aggscan console/web";
   c.daemon.log_level = "debug";
   c.daemon.time_scale = 1000.0;
   c.capture.profile = "full-turn";

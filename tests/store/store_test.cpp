@@ -53,6 +53,35 @@ TEST(FsUtil, AtomicWriteNoReplaceKeepsOriginal) {
   EXPECT_EQ(n, 0);
 }
 
+// The operator's description given at arming is kept in the record and
+// listed; a resume keeps what it does not give again.
+TEST(SampleStore, ArmDescriptionIsKeptAndMergedOnResume) {
+  TempDir t;
+  SampleStore store(t.path());
+  ASSERT_TRUE(store.Init());
+  ASSERT_TRUE(store.CreateOrResume("rock-m", SmallPlan(), "# cfg\n",
+                                   {{"operator", "M. Rossi"}, {"lot", "lot-7"}, {"notes", "wet"}}));
+  ASSERT_TRUE(store.CreateOrResume("rock-m", SmallPlan(), "# cfg\n", {{"notes", "dried"}}));
+  auto rec = store.Describe("rock-m");
+  ASSERT_TRUE(rec.ok());
+  EXPECT_EQ((*rec)["meta"],
+            (nlohmann::json{{"operator", "M. Rossi"}, {"lot", "lot-7"}, {"notes", "dried"}}));
+  auto list = store.List();
+  ASSERT_TRUE(list.ok());
+  ASSERT_EQ(list->size(), 1u);
+  EXPECT_EQ((*list)[0]["meta"]["lot"], "lot-7");
+  // Without a description the record has none and the list says so plainly.
+  ASSERT_TRUE(store.CreateOrResume("rock-n", SmallPlan(), "# cfg\n"));
+  list = store.List();
+  ASSERT_TRUE(list.ok());
+  ASSERT_EQ(list->size(), 2u);
+  for (const auto& s : *list) {
+    if (s["id"] == "rock-n") {
+      EXPECT_EQ(s["meta"], nlohmann::json::object());
+    }
+  }
+}
+
 TEST(SampleStore, FullSampleLifecycle) {
   TempDir t;
   SampleStore store(t.path());
