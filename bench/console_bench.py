@@ -98,8 +98,12 @@ def main():
         cb.wait_for(lambda: main_page.js("document.readyState") == "complete", 30, "load")
         load = main_page.js("performance.getEntriesByType('navigation')[0].loadEventEnd")
         print("console load: load event %.0f ms, first prompt %.0f ms" % (load, first_prompt))
+        # The others on browsers of their own, as on separate tablets (a tab
+        # in the background would stop its live view, as the console does).
         for _ in range(args.consoles - 1):
-            main_page.call("Target.createTarget", url=rig.url())
+            other = cb.Browser(binary, work)
+            pages.append(other)
+            other.goto(rig.url())
         cb.wait_for(lambda: metric(rig, "aggscan_preview_viewers") >= args.consoles, 60,
                     "%d live views" % args.consoles)
         time.sleep(3)

@@ -397,6 +397,19 @@ def part_open(build, art, work, binary):
         head = _read_bytes(path)[:400].decode("latin-1")
         check("element vertex" in head and "element face" in head,
               "the download is the mesh (%d bytes)" % os.path.getsize(path))
+        # A phone: one column, nothing wider than the screen, START still large.
+        b.call("Emulation.setDeviceMetricsOverride", width=390, height=844, deviceScaleFactor=2,
+               mobile=True)
+        for tab in ("rig", "sample"):
+            b.click("button.tab[data-tab=%s]" % tab)
+            time.sleep(0.5)
+            width = b.js("document.documentElement.scrollWidth")
+            check(width <= 390, "the %s view fits a 390 px phone (%s px wide)" % (tab, width))
+            b.screenshot(os.path.join(art, "phone-%s.png" % tab))
+        start = b.js("(() => { const r = document.getElementById('start').getBoundingClientRect(); "
+                     "return [r.width, r.height]; })()")
+        check(start[0] >= 48 and start[1] >= 48, "START is a large touch target on a phone (%s)" % start)
+        b.call("Emulation.clearDeviceMetricsOverride")
         check(b.errors == [], "no script error on the page: %s" % b.errors)
         print("figure: console first prompt %.0f ms, load event %.0f ms" % (first_prompt_ms, load_ms))
         print("figure: view stored -> thumbnail on the page: p50 %.0f ms, p99 %.0f ms (n=%d)"
