@@ -413,6 +413,8 @@
       ui.worker = d;
       // A job just ended: fetch its sample's outcome for the "Done" prompt.
       if (had && (!d.job || d.job.sample_id !== had) && had === ui.lastSample) fetchLastResult();
+      // A job ended: the queue's depth changed (read once, on this event).
+      if (had && !d.job) refreshStatus().catch(() => {});
       renderRig();
       if (!$('samples').hidden) loadSamples();
       if (ui.sampleId && had === ui.sampleId && !d.job) openSample(ui.sampleId);
