@@ -35,7 +35,7 @@ export AGGSCAN_URL="http://127.0.0.1:$(cat "$WORK/port")"
 start=$(date +%s.%N)
 "$CLI" press >/dev/null
 for _ in $(seq 1200); do
-  s=$("$CLI" --json status | sed -n 's/.*"state": *"\([a-z_]*\)".*/\1/p' | head -1)
+  s=$("$CLI" --json status | python3 -c 'import json, sys; print(json.load(sys.stdin)["state"])')
   [ "$s" = idle ] && break
   [ "$s" = faulted ] && { "$CLI" status; exit 1; }
   sleep 0.2

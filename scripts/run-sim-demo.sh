@@ -45,7 +45,7 @@ trap 'kill $DAEMON $WORKER_PID 2>/dev/null || true; wait 2>/dev/null || true' EX
 for _ in $(seq 100); do "$CLI" status >/dev/null 2>&1 && break; sleep 0.1; done
 wait_state() {  # wait_state STATE...: poll until the daemon reports one of them
   for _ in $(seq 1200); do
-    s=$("$CLI" --json status | sed -n 's/.*"state": *"\([a-z_]*\)".*/\1/p' | head -1)
+    s=$("$CLI" --json status | python3 -c 'import json, sys; print(json.load(sys.stdin)["state"])')
     for want in "$@"; do [ "$s" = "$want" ] && return 0; done
     [ "$s" = faulted ] && { "$CLI" status; exit 1; }
     sleep 0.1
@@ -53,6 +53,7 @@ wait_state() {  # wait_state STATE...: poll until the daemon reports one of them
   echo "timed out waiting for $*" >&2; exit 1
 }
 
+echo "== the operator's console: open $AGGSCAN_URL/ in a browser on this machine to watch"
 echo "== arming sample $SAMPLE on the simulated rig"
 "$CLI" arm "$SAMPLE"
 echo "== pressing start: side 1"
