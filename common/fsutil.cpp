@@ -43,7 +43,8 @@ std::string TempName(const std::string& path) {
   auto fs = std::filesystem::path(path);
   char suffix[17];
   std::snprintf(suffix, sizeof suffix, "%016llx", static_cast<unsigned long long>(rng()));
-  return (fs.parent_path() / (std::string(kTempPrefix) + fs.filename().string() + "." + suffix)).string();
+  return (fs.parent_path() / (std::string(kTempPrefix) + fs.filename().string() + "." + suffix))
+      .string();
 }
 
 }  // namespace
@@ -126,7 +127,8 @@ Status MakeDirsDurable(const std::string& dir) {
 }
 
 Status RenameDurable(const std::string& from, const std::string& to) {
-  if (::rename(from.c_str(), to.c_str()) != 0) return ErrnoError("cannot rename " + from + " to " + to, errno);
+  if (::rename(from.c_str(), to.c_str()) != 0)
+    return ErrnoError("cannot rename " + from + " to " + to, errno);
   Status s = FsyncDir(DirName(to));
   if (!s) return s;
   if (DirName(from) != DirName(to)) return FsyncDir(DirName(from));

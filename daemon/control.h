@@ -17,7 +17,8 @@ namespace aggscan {
 
 /// The result files the API serves, as named in results/ (pipeline/reconstruct.h).
 inline const std::vector<std::string>& ResultFileNames() {
-  static const std::vector<std::string> names = {"morphology.json", "mesh.ply", "mesh.obj", "mesh.stl"};
+  static const std::vector<std::string> names = {"morphology.json", "mesh.ply", "mesh.obj",
+                                                 "mesh.stl"};
   return names;
 }
 
@@ -60,10 +61,11 @@ struct ArmRequest {
 class DaemonControl {
  public:
   virtual ~DaemonControl() = default;
-  /// {"state": "idle|armed|homing|...", "sample_id", "side", "view" (1-based, 0 = none), "views_per_side",
+  /// {"state": "idle|armed|homing|...", "sample_id", "side", "view" (1-based, 0 = none),
+  /// "views_per_side",
   ///  "sides", "fault": {"class","message"} | null, "status_line", "devices": {...},
-  ///  "queue_depth", "failed_jobs": [{"sample_id", "side", "attempts", "error", "updated_utc"}...] (newest
-  ///  first, at most 20), "failed_jobs_total", "uptime_s"}
+  ///  "queue_depth", "failed_jobs": [{"sample_id", "side", "attempts", "error", "updated_utc"}...]
+  ///  (newest first, at most 20), "failed_jobs_total", "uptime_s"}
   virtual nlohmann::json GetStatus() = 0;
   /// {"status": "ok|unhealthy", "state", "fault", "devices": {"camera"|"turntable"|"button":
   ///  {"backend", "id", "state": "ok|opening|<ErrorClassName>", "healthy", "message", "since_utc",

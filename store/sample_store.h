@@ -32,8 +32,8 @@ struct SamplePlan {
 struct RecoveryReport {
   int samples = 0;
   int temp_files_removed = 0;
-  int sides_interrupted = 0;   // sides that were being captured and are now marked interrupted
-  int sides_completed = 0;     // sides with every view stored whose manifest was written now
+  int sides_interrupted = 0;  // sides that were being captured and are now marked interrupted
+  int sides_completed = 0;    // sides with every view stored whose manifest was written now
   std::vector<std::string> interrupted_samples;
   std::vector<std::string> completed_samples;  // every side had its manifest: now "captured"
 };

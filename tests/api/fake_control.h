@@ -8,11 +8,11 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <map>
 #include <mutex>
 #include <optional>
 #include <stdexcept>
 #include <string>
-#include <map>
 #include <vector>
 
 #include "daemon/control.h"
@@ -60,9 +60,10 @@ class FakeControl : public DaemonControl {
     return calls_.size();
   }
 
-  nlohmann::json health = {{"status", "ok"},
-                           {"state", "idle"},
-                           {"devices", {{"camera", {{"state", "ok"}, {"healthy", true}, {"message", "ok"}}}}}};
+  nlohmann::json health = {
+      {"status", "ok"},
+      {"state", "idle"},
+      {"devices", {{"camera", {{"state", "ok"}, {"healthy", true}, {"message", "ok"}}}}}};
   nlohmann::json GetHealth() override {
     Record("health");
     if (throw_all) throw std::runtime_error("fake failure");
@@ -136,7 +137,8 @@ class FakeControl : public DaemonControl {
     Record("result:" + id + "/" + name);
     if (fail) return *fail;
     auto it = result_files.find(id + "/" + name);
-    if (it == result_files.end()) return MakeError(ErrorClass::kNotFound, "no results yet for " + id);
+    if (it == result_files.end())
+      return MakeError(ErrorClass::kNotFound, "no results yet for " + id);
     return it->second;
   }
   std::map<std::string, std::string> view_files;  // "id/side/view/image|mask" -> path

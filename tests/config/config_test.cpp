@@ -203,7 +203,8 @@ TEST(Config, V4l2CameraSection) {
   // Defaults: MJPEG when offered, strict locking.
   EXPECT_EQ(Config{}.camera.v4l2.pixel_format, "auto");
   EXPECT_TRUE(Config{}.camera.v4l2.strict_controls);
-  ExpectOneProblem("[camera.v4l2]\nbufers = 4\n", 2, "camera.v4l2.bufers", "did you mean camera.v4l2.buffers?");
+  ExpectOneProblem("[camera.v4l2]\nbufers = 4\n", 2, "camera.v4l2.bufers",
+                   "did you mean camera.v4l2.buffers?");
 }
 
 // The scaled clock is the sim rig's: it drives a real device's deadlines
@@ -363,7 +364,8 @@ TEST(Config, UsbTurntableBacklashValuesAreChecked) {
 TEST(Config, LensFocalAndSensorWidthGoTogether) {
   ExpectOneProblem("[camera]\nlens_focal_mm = 6.0\n", 0, "camera.sensor_width_mm",
                    "camera.lens_focal_mm and camera.sensor_width_mm go together");
-  ExpectOneProblem("[camera]\nsensor_width_mm = 6.287\n", 0, "camera.lens_focal_mm", "set both from the datasheets");
+  ExpectOneProblem("[camera]\nsensor_width_mm = 6.287\n", 0, "camera.lens_focal_mm",
+                   "set both from the datasheets");
   ExpectOneProblem("[camera]\nlens_focal_mm = -6.0\n", 2, "camera.lens_focal_mm", "");
   Loaded l = Load("[camera]\nlens_focal_mm = 6.0\nsensor_width_mm = 6.287\n");
   ASSERT_TRUE(l.result.ok()) << Dump(l.problems);
@@ -372,8 +374,9 @@ TEST(Config, LensFocalAndSensorWidthGoTogether) {
 }
 
 TEST(Config, OnnxMaskNeedsAModel) {
-  ExpectOneProblem("[mask]\nmodel = \"\"\nmethod = \"onnx\"\n", 2, "mask.model",
-                   "needs the network: name its .onnx file here, or set mask.method = \"classical\"");
+  ExpectOneProblem(
+      "[mask]\nmodel = \"\"\nmethod = \"onnx\"\n", 2, "mask.model",
+      "needs the network: name its .onnx file here, or set mask.method = \"classical\"");
   Loaded l = Load("[mask]\nmethod = \"onnx\"\nmodel = \"/opt/u2net.onnx\"\noutput = \"logits\"\n");
   ASSERT_TRUE(l.result.ok()) << Dump(l.problems);
   EXPECT_EQ(l.result->mask.model, "/opt/u2net.onnx");
@@ -395,9 +398,9 @@ TEST(Config, MarkerRules) {
 
 // ArUco scale markers: a valid file, then each bad value alone.
 constexpr const char* kArucoHead =
-    "[sim]\n"                             // 1
-    "aruco_image = \"aruco.pgm\"\n"       // 2
-    "[rig]\n";                            // 3
+    "[sim]\n"                        // 1
+    "aruco_image = \"aruco.pgm\"\n"  // 2
+    "[rig]\n";                       // 3
 
 TEST(Config, ArucoMarkersLoad) {
   EXPECT_TRUE(Config{}.rig.aruco_markers.empty());  // the colour labels stay the default
@@ -444,7 +447,8 @@ TEST(Config, ArucoMarkerRules) {
   ExpectOneProblem(h + "[[rig.aruco_markers]]\nid = 3\nx_mm = 135.0\ny_mm = 10.0\n", 6,
                    "rig.aruco_markers[0].x_mm", "beyond the disc edge (152.5 mm)");
   // A marker that fits square to the rim does not once turned 45 degrees.
-  const std::string rim = h + "markers = []\n[[rig.aruco_markers]]\nid = 3\nx_mm = 0.0\ny_mm = 125.0\n";
+  const std::string rim =
+      h + "markers = []\n[[rig.aruco_markers]]\nid = 3\nx_mm = 0.0\ny_mm = 125.0\n";
   EXPECT_TRUE(Load(rim).result.ok()) << Dump(Load(rim).problems);
   ExpectOneProblem(rim + "yaw_deg = 45\n", 7, "rig.aruco_markers[0].x_mm",
                    "reaches 156.8 mm from the axis");
@@ -458,7 +462,8 @@ TEST(Config, ArucoMarkerRules) {
   // Unknown key in a marker.
   ExpectOneProblem(h + "[[rig.aruco_markers]]\nidd = 4\nid = 4\nx_mm = 80.0\ny_mm = 80.0\n", 5,
                    "rig.aruco_markers[0].idd", "did you mean id?");
-  ExpectOneProblem(h + "aruco_markers = 7\n", 4, "rig.aruco_markers", "expected an array of tables");
+  ExpectOneProblem(h + "aruco_markers = 7\n", 4, "rig.aruco_markers",
+                   "expected an array of tables");
   // Without sim.aruco_image the config is still valid (`aggscan calibrate
   // aruco` writes the image from it); the sim world refuses to start then.
   EXPECT_TRUE(Load(one).result.ok()) << Dump(Load(one).problems);
@@ -787,8 +792,9 @@ TEST(ConfigToToml, RoundTripEveryFieldChanged) {
   c.worker.nice = 0;
   c.worker.heartbeat_interval = 250 * kNsPerMs;
   c.worker.silent_after = 0;
-  c.mask = {"onnx", "models/u2net \"rig\".onnx", 288, 4096, -0.5, 0.0, 1e-9, 0.1, 1.0 / 3, 10.0,
-            "logits", 0.999};
+  c.mask = {
+      "onnx", "models/u2net \"rig\".onnx", 288, 4096, -0.5, 0.0, 1e-9, 0.1, 1.0 / 3, 10.0, "logits",
+      0.999};
   std::vector<ConfigProblem> problems;
   ValidateConfig(c, "struct", &problems);
   ASSERT_TRUE(problems.empty()) << Dump(problems);
@@ -825,7 +831,8 @@ TEST(ConfigToToml, CommentsEveryFieldAndShowsUnsetOptionals) {
 }
 
 TEST(Config, ButtonAndLightDevicesMustBeNamedAndLinksShareable) {
-  ExpectOneProblem("[button]\nbackend = \"evdev\"\n", 0, "button.evdev.device", "needs the input device");
+  ExpectOneProblem("[button]\nbackend = \"evdev\"\n", 0, "button.evdev.device",
+                   "needs the input device");
   // The turntable's link is shared only over TCP (a second connection).
   ExpectOneProblem("[button]\nbackend = \"modbus\"\n", 0, "button.modbus.link",
                    "only when turntable.backend = \"modbus-tcp\"");
