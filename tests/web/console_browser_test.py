@@ -317,6 +317,10 @@ def capture_a_rock(b, rig, sample, art, shots=True):
           "the view counter advanced through %d values, in order, up to %r" % (len(seen), seen[-1:]))
     check(b.js("window.aggscanConsole.views") - views_before == 30,
           "30 view events reached the page during side 1")
+    shown = wait_for(lambda: b.js("(() => { const i = [...document.querySelectorAll('#strip img')]; "
+                                  "return i.length === 30 && i.every(x => x.complete && x.naturalWidth > 0)"
+                                  " ? i[0].naturalWidth : 0; })()"), 10, "side 1's 30 thumbnails")
+    check(shown > 0, "side 1's 30 thumbnails shown under the camera (%d px wide)" % shown)
     if shots:
         b.screenshot(os.path.join(art, "rig-flip.png"))
     b.click("#start")

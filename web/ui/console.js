@@ -19,7 +19,7 @@
     sampleId: null,
     viewer: null,
     charts: [],
-    strip: [],          // thumbnails of the side being captured
+    stripSide: null,    // sample/side whose thumbnails the strip shows
   };
 
   // Figures a browser test and the console benchmark read (never used by the page itself).
@@ -348,8 +348,9 @@
     if ($('sound').checked) (audio = audio || new AudioContext()).resume();
   });
 
-  function clearStrip() {
-    ui.strip = [];
+  function clearStrip(side) {
+    ui.stripSide = side || null;
+    $('strip').textContent = '';
   }
 
   // ------------------------------------------------------------ events --
@@ -384,7 +385,7 @@
       const before = ui.status ? ui.status.state : null;
       ui.status = Object.assign(ui.status || {}, d);
       if (d.sample_id) ui.lastSample = d.sample_id;
-      if (kRunning.includes(d.state) && before !== d.state && d.state === 'homing') ui.status.view = 0;
+      if (d.state === 'homing') ui.status.view = 0;
       if (d.state === 'awaiting_pose' && before !== 'awaiting_pose') chime();
       if (d.state !== 'faulted') ui.status.fault = null;
       renderRig();
@@ -399,14 +400,18 @@
       ui.status = Object.assign(ui.status || {}, {side: d.side, view: d.number, views_per_side: d.views_per_side});
       ui.lastSample = d.sample_id;
       renderPrompt();
-      // The thumbnail: how long from the store to the screen is measured.
-      const img = new Image();
+      // The side's views as a strip of thumbnails under the camera; how long
+      // from the store to the thumbnail shown is measured.
+      const side = d.sample_id + '/' + d.side;
+      if (ui.stripSide !== side) clearStrip(side);
+      const img = document.createElement('img');
+      img.alt = 'side ' + d.side + ' view ' + d.number;
       img.onload = () => {
         if (d.stored_utc_ms) probe.thumbnailLatencyMs.push(Date.now() - d.stored_utc_ms);
         $('live-caption').textContent = 'side ' + d.side + ', view ' + d.number + ' stored';
       };
       img.src = d.thumbnail;
-      ui.strip.push(img);
+      $('strip').appendChild(img);
     });
     on('worker', (d) => {
       const had = ui.worker && ui.worker.job ? ui.worker.job.sample_id : null;
