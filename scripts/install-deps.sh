@@ -29,7 +29,8 @@ PACKAGES=(
   libjs-three libjs-chart.js
   # tests only: the console's browser tests drive Debian's chromium, headless,
   # over the DevTools protocol (python3-websocket); skipped (77) without it
-  chromium python3-websocket
+  # (fonts-dejavu-core: the console's font, named in its stylesheet)
+  chromium python3-websocket fonts-dejavu-core
   # convex hulls (minimum-volume box of a mesh)
   libqhull-dev
   # Modbus RTU/TCP turntable controllers (drivers/modbus/)
