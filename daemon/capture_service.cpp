@@ -1614,6 +1614,25 @@ Result<std::string> CaptureService::ViewFile(const std::string& sample_id, int s
   return mask;
 }
 
+Result<std::vector<ArchiveMember>> CaptureService::ImageArchive(const std::string& sample_id) {
+  if (!PathExists(store_.SampleDir(sample_id) + "/" + layout::kSampleRecord))
+    return MakeError(ErrorClass::kNotFound, "no sample \"" + sample_id + "\"");
+  auto files = store_.ImageFiles(sample_id);
+  if (!files) return files.error();
+  std::vector<ArchiveMember> out;
+  int views = 0;
+  for (auto& [path, name] : *files) {
+    views += name.size() > 4 && name.compare(name.size() - 4, 4, ".jpg") == 0;
+    out.push_back(ArchiveMember{std::move(path), std::move(name)});
+  }
+  if (views == 0) {
+    return MakeError(ErrorClass::kNotFound, "sample \"" + sample_id +
+                                                "\" has no stored view yet: arm it and press "
+                                                "START to capture");
+  }
+  return out;
+}
+
 std::string CaptureService::Metrics() {
   return OnLoop([this] {
     std::ostringstream m;

@@ -92,6 +92,7 @@ class CaptureService final : public DaemonControl {
   Result<std::string> ResultFile(const std::string& sample_id, const std::string& name) override;
   Result<std::string> ViewFile(const std::string& sample_id, int side, int view,
                                ViewFileKind kind) override;
+  Result<std::vector<ArchiveMember>> ImageArchive(const std::string& sample_id) override;
   std::string Metrics() override;
 
   // Loop-thread versions (used by the offline sim capture and by the above).

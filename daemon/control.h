@@ -22,6 +22,13 @@ inline const std::vector<std::string>& ResultFileNames() {
   return names;
 }
 
+/// One file of a download made of several (DaemonControl::ImageArchive):
+/// where it is and the name it has in the archive ("side1/view_000.jpg").
+struct ArchiveMember {
+  std::string path;
+  std::string name;
+};
+
 /// Which file of a stored view DaemonControl::ViewFile names.
 enum class ViewFileKind { kImage, kMask };
 
@@ -101,6 +108,12 @@ class DaemonControl {
   /// view or (for a mask) the worker's result does not exist (yet).
   virtual Result<std::string> ViewFile(const std::string& sample_id, int side, int view,
                                        ViewFileKind kind) = 0;
+  /// The files of a sample's images archive: sample.json and config.toml,
+  /// every complete view of every side (image and sidecar) with the side's
+  /// manifest, the calibration it was shot with and the worker's masks where
+  /// they exist, each under its name in the sample directory. kNotFound when
+  /// the sample does not exist or has no complete view yet.
+  virtual Result<std::vector<ArchiveMember>> ImageArchive(const std::string& sample_id) = 0;
   /// Prometheus text exposition format.
   virtual std::string Metrics() = 0;
 };

@@ -192,7 +192,8 @@ enum class Endpoint {
   kView,
   kPreview,
   kSession,
-  kConsole
+  kConsole,
+  kImageArchive
 };
 
 // Methods each endpoint accepts (HEAD is answered wherever GET is).
@@ -206,6 +207,7 @@ const char* AllowedMethods(Endpoint ep) {
     case Endpoint::kOpenApi:
     case Endpoint::kView:
     case Endpoint::kConsole:
+    case Endpoint::kImageArchive:
       return "GET, HEAD";
     case Endpoint::kEvents:
     case Endpoint::kPreview:
@@ -273,6 +275,7 @@ Endpoint Match(const std::string& path, std::string* id, std::string* file) {
     if (*file == "mesh.ply" || *file == "mesh.obj" || *file == "mesh.stl")
       return Endpoint::kSampleFile;
     if (*file == "retry") return Endpoint::kSampleRetry;
+    if (*file == "images.zip") return Endpoint::kImageArchive;
     if (file->rfind("sides/", 0) == 0) return Endpoint::kView;  // checked by ServeView
     // Anything else is not a sub-resource: the whole rest is the (invalid) id.
     *id = path.substr(std::strlen(kSamplesPrefix));
@@ -585,6 +588,10 @@ ApiResponse ApiRouter::HandleUnsafe(const ApiRequest& req) {
       if (!layout::IsValidSampleId(id))
         return ErrorResponse(400, ErrorClass::kInvalidArgument, InvalidIdMessage(id));
       return ServeView(id, file);
+    case Endpoint::kImageArchive:
+      if (!layout::IsValidSampleId(id))
+        return ErrorResponse(400, ErrorClass::kInvalidArgument, InvalidIdMessage(id));
+      return ServeImageArchive(id);
     case Endpoint::kSampleRetry:
       if (!layout::IsValidSampleId(id))
         return ErrorResponse(400, ErrorClass::kInvalidArgument, InvalidIdMessage(id));
@@ -630,6 +637,20 @@ ApiResponse ApiRouter::HandleUnsafe(const ApiRequest& req) {
       break;
   }
   return ErrorResponse(500, ErrorClass::kInternal, "unrouted endpoint; report it");
+}
+
+ApiResponse ApiRouter::ServeImageArchive(const std::string& id) {
+  Result<std::vector<ArchiveMember>> members = control_.ImageArchive(id);
+  if (!members) return ErrorFrom(members.error());
+  Result<std::unique_ptr<ZipStream>> zip = ZipStream::Open(std::move(*members));
+  if (!zip) return ErrorFrom(zip.error());
+  ApiResponse r;
+  r.status = 200;
+  r.content_type = "application/zip";
+  r.headers.emplace_back("Content-Disposition", "attachment; filename=\"" + id + "_images.zip\"");
+  r.headers.emplace_back("Cache-Control", "no-store");
+  r.source = std::shared_ptr<BodySource>(std::move(*zip));
+  return r;
 }
 
 ApiResponse ApiRouter::ServeResultFile(const std::string& id, const std::string& name) {
@@ -1044,6 +1065,7 @@ struct HttpApi::Server {
   PreviewHub* preview;
   MHD_Daemon* daemon = nullptr;
   std::unordered_set<std::shared_ptr<Stream>> streams;  // under mu
+  size_t downloads = 0;                                 // open archive downloads, under mu
 
   std::mutex mu;
   std::condition_variable work_cv;
@@ -1135,6 +1157,71 @@ struct HttpApi::Server {
     const MHD_Result ret = MHD_queue_response(connection, MHD_HTTP_OK, resp);
     MHD_destroy_response(resp);
     return ret;
+  }
+
+  // Answers with a body made while the client reads it (a sample's images
+  // archive). Tens of MB to a tablet on a weak network can take longer than
+  // kSendLimit, so it is exempt like an event stream; a client that stops
+  // reading is closed by libmicrohttpd's idle timeout, and at most
+  // kMaxDownloads run at once (each reads the disk while a capture may run).
+  MHD_Result OpenSource(MHD_Connection* connection, Exchange* ex) {
+    {
+      std::lock_guard<std::mutex> lock(mu);
+      if (downloads >= HttpApi::kMaxDownloads) {
+        if (ex->conn != nullptr) {
+          ex->conn->phase = Conn::kSending;
+          ex->conn->since = SteadyClock::now();
+        }
+        return Queue(connection, ErrorResponse(503, ErrorClass::kConflict,
+                                               "too many archive downloads at once (" +
+                                                   std::to_string(HttpApi::kMaxDownloads) +
+                                                   "): wait for one to finish, then retry"));
+      }
+      ++downloads;
+      if (ex->conn != nullptr) {
+        ex->conn->phase = Conn::kStreaming;
+        ex->conn->since = SteadyClock::now();
+      }
+    }
+    auto* holder = new SourceHolder{this, ex->answer->source};
+    MHD_Response* resp = MHD_create_response_from_callback(MHD_SIZE_UNKNOWN, 64 * 1024, &SourceRead,
+                                                           holder, &SourceFree);
+    if (resp == nullptr) {
+      SourceFree(holder);
+      return MHD_NO;
+    }
+    const ApiResponse& r = *ex->answer;
+    if (!r.content_type.empty())
+      MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, r.content_type.c_str());
+    for (const auto& [k, v] : r.headers) MHD_add_response_header(resp, k.c_str(), v.c_str());
+    const MHD_Result ret = MHD_queue_response(connection, static_cast<unsigned>(r.status), resp);
+    MHD_destroy_response(resp);
+    return ret;
+  }
+
+  struct SourceHolder {
+    Server* server;
+    std::shared_ptr<BodySource> source;
+  };
+
+  static ssize_t SourceRead(void* cls, uint64_t, char* out, size_t max) {
+    auto* h = static_cast<SourceHolder*>(cls);
+    const ssize_t n = h->source->Read(out, max);
+    if (n > 0) return n;
+    if (n == 0) return MHD_CONTENT_READER_END_OF_STREAM;
+    // The status line is out: the only way to tell the client is to cut the
+    // answer short (chunked encoding without its last chunk).
+    AGG_LOGW(kCat, "an archive download was cut short: %s", h->source->error().c_str());
+    return MHD_CONTENT_READER_END_WITH_ERROR;
+  }
+
+  static void SourceFree(void* cls) {
+    auto* h = static_cast<SourceHolder*>(cls);
+    {
+      std::lock_guard<std::mutex> lock(h->server->mu);
+      --h->server->downloads;
+    }
+    delete h;
   }
 
   // Preview: the newest frame when it is newer than the last one sent (a
@@ -1285,6 +1372,7 @@ struct HttpApi::Server {
     }
     if (ex->answer) {
       if (ex->answer->stream != ApiResponse::Stream::kNone) return self->OpenStream(connection, ex);
+      if (ex->answer->source) return self->OpenSource(connection, ex);
       self->SetPhase(ex->conn, Conn::kSending);
       return Queue(connection, *ex->answer);
     }

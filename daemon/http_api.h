@@ -12,6 +12,7 @@
 //   POST /api/v1/reset           → Reset()
 //   POST /api/v1/session         {"user", "password"} → a session token (and cookie)
 //   GET  /api/v1/session         → who the credentials are; DELETE: log out
+//   GET  /api/v1/samples/{id}/images.zip → ImageArchive(): the sample's images, one ZIP (streamed)
 //   GET  /api/v1/samples/{id}/sides/{side}/views/{view}[/thumbnail|/mask]
 //                                → ViewFile(): the view's JPEG, a small JPEG of it, its mask PNG
 //   GET  /api/v1/events          → live events (Server-Sent Events, EventHub)
@@ -44,6 +45,7 @@
 
 #include "common/error.h"
 #include "daemon/access.h"
+#include "daemon/archive_stream.h"
 #include "daemon/control.h"
 #include "daemon/event_hub.h"
 #include "daemon/jpeg_scale.h"
@@ -98,6 +100,9 @@ struct ApiResponse {
   /// GET /api/v1/events (text/event-stream) or GET /api/v1/preview (MJPEG).
   enum class Stream { kNone, kEvents, kPreview };
   Stream stream = Stream::kNone;
+  /// A body made while the client reads it (a sample's images archive),
+  /// sent instead of `body` with chunked transfer encoding.
+  std::shared_ptr<BodySource> source;
 };
 
 /// The JSON error answer every refusal uses.
@@ -164,6 +169,7 @@ class ApiRouter {
   ApiResponse HandleUnsafe(const ApiRequest& req);
   ApiResponse ServeResultFile(const std::string& id, const std::string& name);
   ApiResponse ServeView(const std::string& id, const std::string& sub);
+  ApiResponse ServeImageArchive(const std::string& id);
   ApiResponse ArmFromBody(const std::string& body, const CallContext& ctx);
   ApiResponse ServeConsoleFile(const ApiRequest& req, const std::string& file);
 
@@ -220,6 +226,8 @@ class HttpApi {
   /// Live views (GET /api/v1/preview) open at once at most; each takes a
   /// frame of some tens of KB a few times a second.
   static constexpr size_t kMaxPreviewStreams = 8;
+  /// Archive downloads (GET .../images.zip) at once at most.
+  static constexpr size_t kMaxDownloads = 2;
   /// An event stream with nothing to send for this long gets a comment line,
   /// so proxies and the client see that it is alive.
   static constexpr std::chrono::seconds kEventKeepAlive{15};

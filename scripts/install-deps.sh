@@ -19,6 +19,8 @@ PACKAGES=(
   # the daemon's HTTP server (cpp-httplib stays for the CLI and the test clients)
   libmicrohttpd-dev
   libsystemd-dev libsqlite3-dev libturbojpeg0-dev
+  # a sample's images as one ZIP, streamed to the client (the API)
+  libarchive-dev
   # the API's accounts (crypt(3) yescrypt hashes) and the CLI's https:// client
   libcrypt-dev libssl-dev
   # tests only: the TLS test makes a certificate (openssl) and talks to the

@@ -530,6 +530,33 @@ std::pair<int, int64_t> SampleStore::StoredViewBytes(const std::string& id) cons
   return out;
 }
 
+Result<std::vector<std::pair<std::string, std::string>>> SampleStore::ImageFiles(
+    const std::string& id) const {
+  Result<json> rec = LoadRecord(id);
+  if (!rec) return rec.error();
+  const std::string dir = SampleDir(id);
+  std::vector<std::pair<std::string, std::string>> files;
+  auto add = [&](const std::string& name) {
+    if (PathExists(dir + "/" + name)) files.emplace_back(dir + "/" + name, name);
+  };
+  add(layout::kSampleRecord);
+  add(layout::kConfigCopy);
+  add(layout::kCalibrationCopy);
+  const json sides = rec->value("sides", json::array());
+  for (const auto& sd : sides) {
+    if (!sd.is_object()) continue;
+    const std::string side = layout::SideDirName(sd.value("side", 0));
+    for (int v : CompleteViews(dir + "/" + side)) {
+      add(side + "/" + layout::ViewImageName(v));
+      add(side + "/" + layout::ViewSidecarName(v));
+    }
+    add(side + "/" + layout::kManifest);
+    for (int v : CompleteViews(dir + "/" + side))
+      add(std::string(layout::kResultsDir) + "/masks/" + side + "/" + layout::ViewStem(v) + ".png");
+  }
+  return files;
+}
+
 Result<json> SampleStore::Describe(const std::string& id) const {
   Result<json> rec = LoadRecord(id);
   if (!rec) return rec.error();

@@ -95,6 +95,13 @@ class SampleStore {
   /// `only`: just that sample's work.
   std::vector<std::pair<std::string, int>> CapturedWork(const std::string& only = "") const;
 
+  /// The files that make a sample's images, as (path, name in the sample
+  /// directory): sample.json, config.toml, calibration.json, each side's
+  /// complete views (image, then sidecar) and manifest, and the worker's
+  /// masks of them where they exist. Interrupted attempts are left out.
+  /// kNotFound when there is no such sample.
+  Result<std::vector<std::pair<std::string, std::string>>> ImageFiles(const std::string& id) const;
+
   /// Stored view images of `id` (every side and interrupted attempt): how
   /// many and their total bytes, for estimating what the next side needs.
   std::pair<int, int64_t> StoredViewBytes(const std::string& id) const;

@@ -152,6 +152,14 @@ class FakeControl : public DaemonControl {
     if (it == view_files.end()) return MakeError(ErrorClass::kNotFound, "no such view: " + key);
     return it->second;
   }
+  std::map<std::string, std::vector<ArchiveMember>> archives;  // id -> members
+  Result<std::vector<ArchiveMember>> ImageArchive(const std::string& id) override {
+    Record("archive:" + id);
+    if (fail) return *fail;
+    auto it = archives.find(id);
+    if (it == archives.end()) return MakeError(ErrorClass::kNotFound, "no sample " + id);
+    return it->second;
+  }
   std::string Metrics() override {
     Record("metrics");
     return "# HELP aggscan_up 1 when the daemon runs\n# TYPE aggscan_up gauge\naggscan_up 1\n";

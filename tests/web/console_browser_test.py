@@ -30,6 +30,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import zipfile
 import urllib.request
 
 try:
@@ -401,6 +402,20 @@ def part_open(build, art, work, binary):
         head = _read_bytes(path)[:400].decode("latin-1")
         check("element vertex" in head and "element face" in head,
               "the download is the mesh (%d bytes)" % os.path.getsize(path))
+        b.click("#downloads a[href$='images.zip']")
+        path = os.path.join(b.downloads, "rock-b1_images.zip")
+        wait_for(lambda: os.path.exists(path) and zipfile.is_zipfile(path), 60,
+                 "the images archive download")
+        with zipfile.ZipFile(path) as z:
+            names = z.namelist()
+            bad = z.testzip()
+            first = z.read("side1/view_000.jpg")
+        jpgs = [n for n in names if n.endswith(".jpg")]
+        masks = [n for n in names if n.startswith("results/masks/") and n.endswith(".png")]
+        check(bad is None and len(jpgs) == 60 and len(masks) == 60 and "sample.json" in names
+              and first[:3] == b"\xff\xd8\xff",
+              "the images archive holds 60 views and their masks (%d members, %d bytes)"
+              % (len(names), os.path.getsize(path)))
         # A phone: one column, nothing wider than the screen, START still large.
         b.call("Emulation.setDeviceMetricsOverride", width=390, height=844, deviceScaleFactor=2,
                mobile=True)

@@ -592,17 +592,20 @@
     }
   }
 
+  // The images are there from the first stored view on; the mesh and the
+  // figures once the worker is done.
   function renderDownloads(id, morph) {
     const box = $('downloads');
     box.textContent = '';
-    if (!morph) return;
     const base = '/api/v1/samples/' + encodeURIComponent(id);
-    for (const [label, path, name] of [
+    const files = morph ? [
       ['Mesh (PLY)', '/mesh.ply', id + '_mesh.ply'],
       ['Mesh (OBJ)', '/mesh.obj', id + '_mesh.obj'],
       ['Mesh (STL)', '/mesh.stl', id + '_mesh.stl'],
       ['morphology.json', '/results', id + '_morphology.json'],
-    ]) {
+    ] : [];
+    files.push(['Images (ZIP)', '/images.zip', id + '_images.zip']);
+    for (const [label, path, name] of files) {
       const a = document.createElement('a');
       a.href = base + path;
       a.download = name;
