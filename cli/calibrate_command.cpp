@@ -162,35 +162,6 @@ int ArucoCommand(const std::vector<std::string>& a, std::ostream& out, std::ostr
   return 0;
 }
 
-// "20240513T101500Z" from the wall clock.
-std::string CompactUtc() {
-  const std::time_t t = std::time(nullptr);
-  std::tm tm{};
-  gmtime_r(&t, &tm);
-  char buf[32];
-  std::strftime(buf, sizeof buf, "%Y%m%dT%H%M%SZ", &tm);
-  return buf;
-}
-
-// Keeps an existing file as <path>.prev-<utc> (a hard link, so <path> stays
-// in place until the new file replaces it atomically). Returns the name used,
-// empty when there was nothing to keep.
-Result<std::string> KeepPrevious(const std::string& path) {
-  if (!PathExists(path)) return std::string();
-  std::string prev = path + ".prev-" + CompactUtc();
-  for (int k = 2; PathExists(prev); ++k) prev = path + ".prev-" + CompactUtc() + "-" + std::to_string(k);
-  if (::link(path.c_str(), prev.c_str()) != 0) {
-    // A filesystem without hard links: a durable copy instead.
-    Result<std::string> old = ReadFile(path);
-    if (!old) return old.error();
-    if (Status s = WriteFileAtomic(prev, *old, true); !s) return s.error();
-    return prev;
-  }
-  const std::string dir = fs::path(path).parent_path().string();
-  if (Status s = FsyncDir(dir.empty() ? "." : dir); !s) return s.error();
-  return prev;
-}
-
 int SolveCommand(const std::vector<std::string>& a, std::ostream& out, std::ostream& err) {
   std::string sample, state_dir, out_path, config_path;
   int side = 1;
@@ -273,14 +244,10 @@ int SolveCommand(const std::vector<std::string>& a, std::ostream& out, std::ostr
     err << "aggscan calibrate: " << r.error().ToString() << "\n";
     return 1;
   }
-  Result<std::string> prev = KeepPrevious(out_path);
+  Result<std::string> prev = InstallRigCalibration(out_path, r->cal);
   if (!prev) {
-    err << "aggscan calibrate: cannot keep the previous " << out_path << ": " << prev.error().ToString()
-        << "; nothing written\n";
-    return 1;
-  }
-  if (Status s = SaveCalibration(out_path, r->cal); !s) {
-    err << "aggscan calibrate: cannot write " << out_path << ": " << s.error().ToString() << "\n";
+    err << "aggscan calibrate: cannot install " << out_path << ": " << prev.error().ToString()
+        << "\n";
     return 1;
   }
   const RigCalibration& cal = r->cal;

@@ -207,7 +207,7 @@ Result<json> MakeCalibration(const ValidateOptions& o, const std::string& work,
   SimCaptureOptions cap;
   cap.scene = "charuco";
   cap.seed = 1;
-  cap.out = work + "/calibration-capture";
+  cap.out = work + "/board-capture";
   if (!RigToml(o).empty()) {
     // The board is seen from where the rocks will be.
     cap.config_path = work + "/rig.toml";

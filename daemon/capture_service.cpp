@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <ctime>
 #include <future>
 #include <sstream>
 
@@ -43,6 +44,16 @@ json JobJson(const Job& j) {
           {"interruptions", j.interruptions},
           {"error", j.error},
           {"updated_utc", j.updated_utc}};
+}
+
+// "20261205T101500Z" from the wall clock: calibration capture ids.
+std::string CompactUtcNow() {
+  const std::time_t t = std::time(nullptr);
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buf[32];
+  std::strftime(buf, sizeof buf, "%Y%m%dT%H%M%SZ", &tm);
+  return buf;
 }
 
 SamplePlan PlanFromConfig(const Config& c) {
@@ -128,8 +139,16 @@ CaptureService::CaptureService(EventLoop& loop, Config config, std::string effec
       config_toml_(std::move(effective_config_toml)),
       dev_(std::move(devices)),
       store_(store),
+      cal_store_(store.state_dir(), layout::kCalibrationCollection),
       queue_(queue) {
   started_real_ = MonotonicNs();
+  // The status shows the latest calibration capture, also after a restart.
+  if (Result<json> cals = cal_store_.List(); cals && cals->is_array()) {
+    for (const json& c : *cals) {
+      const std::string id = c.value("id", "");
+      if (id.rfind(layout::kCalibrationIdPrefix, 0) == 0) cal_last_id_ = id;
+    }
+  }
   for (const char* name : {"camera", "turntable", "button"}) {
     health_[name].message = std::string(name) + ": not opened yet";
   }
@@ -259,7 +278,8 @@ void CaptureService::PreviewTick() {
     return;
   preview_in_flight_ = true;
   const uint64_t gen = preview_generation_;
-  const StillRequest req{next_request_id_++, state_.sample_id, std::max(1, state_.side), 0};
+  StillRequest req{next_request_id_++, state_.sample_id, std::max(1, state_.side), 0};
+  req.board = calibration_capture_ && state_.Active();
   Status s = dev_.camera->RequestStill(req, [this, gen](Result<FramePtr> r) {
     loop_.Post([this, gen, r = std::move(r)]() mutable { OnPreviewFrame(gen, std::move(r)); });
   });
@@ -289,7 +309,8 @@ void CaptureService::OnPreviewFrame(uint64_t generation, Result<FramePtr> frame)
 }
 
 Status CaptureService::ShootView() {
-  const StillRequest req{pending_.request_id, state_.sample_id, pending_.side, pending_.view};
+  StillRequest req{pending_.request_id, state_.sample_id, pending_.side, pending_.view};
+  req.board = calibration_capture_;
   const uint64_t ep = epoch_;
   const uint64_t rid = pending_.request_id;
   Status s = dev_.camera->RequestStill(req, [this, ep, rid](Result<FramePtr> r) {
@@ -359,6 +380,7 @@ void CaptureService::WatchWorker() {
   const TimeNs period =
       events_ ? 500 * kNsPerMs
               : std::clamp<TimeNs>(config_.worker.silent_after / 4, kNsPerSec, 5 * kNsPerSec);
+  WatchCalibration();
   loop_.AddRealTimer(MonotonicNs() + period, [this] { WatchWorker(); });
 }
 
@@ -558,7 +580,7 @@ StorageHealth CaptureService::CheckStorage() const {
     // The directory scan runs only between sides: status is polled while a
     // side is shot, and its loop must keep the schedule.
     if (!SideRunning() || view_bytes_.first != state_.sample_id) {
-      view_bytes_ = {state_.sample_id, store_.StoredViewBytes(state_.sample_id)};
+      view_bytes_ = {state_.sample_id, Cur().StoredViewBytes(state_.sample_id)};
     }
     const auto [n, bytes] = view_bytes_.second;
     if (n > 0) {
@@ -616,8 +638,8 @@ Status CaptureService::CheckStorageForSide() const {
 }
 
 Status CaptureService::CompleteAndQueue(const std::string& sample_id) {
-  if (!PathExists(store_.SampleDir(sample_id) + "/" + layout::kSampleRecord)) return OkStatus();
-  Result<Completion> done = store_.CompleteStored(sample_id);
+  if (!PathExists(Cur().SampleDir(sample_id) + "/" + layout::kSampleRecord)) return OkStatus();
+  Result<Completion> done = Cur().CompleteStored(sample_id);
   if (!done) {
     // A damaged record is PrepareArm's to explain; anything else is a store failure.
     if (done.error().cls == ErrorClass::kCorrupt) return OkStatus();
@@ -630,7 +652,7 @@ Status CaptureService::CompleteAndQueue(const std::string& sample_id) {
         "side " + std::to_string(side) + " had every view stored: manifest written, not re-shot");
   }
   if (queue_) {
-    for (const auto& [id, side] : store_.CapturedWork(sample_id)) {
+    for (const auto& [id, side] : Cur().CapturedWork(sample_id)) {
       auto jobs = queue_->JobsForSample(id);
       if (!jobs)
         return MakeError(jobs.error().cls, "cannot read the job queue: " + jobs.error().ToString());
@@ -708,7 +730,8 @@ void CaptureService::Dispatch(cs::Event e) {
                  {"sample_id", state_.sample_id.empty() ? json(nullptr) : json(state_.sample_id)},
                  {"side", state_.side},
                  {"views_per_side", config_.capture.views_per_side},
-                 {"sides", config_.capture.sides},
+                 {"sides", state_.Active() ? state_.plan.sides : config_.capture.sides},
+                 {"capture_kind", calibration_capture_ ? "calibration" : "rock"},
                  {"status_line", StatusLine()}});
         if (state_.phase == cs::Phase::kFaulted && before != cs::Phase::kFaulted) {
           Publish("fault", {{"class", ErrorClassName(state_.fault_class)},
@@ -741,14 +764,16 @@ void CaptureService::Execute(const cs::Effect& eff) {
       [&](const auto& e) {
         using T = std::decay_t<decltype(e)>;
         if constexpr (std::is_same_v<T, cs::CreateSample>) {
-          Status s =
-              store_.CreateOrResume(e.sample_id, PlanFromConfig(config_), config_toml_, arm_meta_);
+          Status s = Cur().CreateOrResume(e.sample_id, CurrentPlan(), config_toml_, arm_meta_);
           if (!s) {
             pending_events_.push_back(
                 cs::StoreFailed{s.error().cls, "cannot create sample: " + s.error().ToString()});
           } else {
             LogLine(LogLevel::kInfo, "capture", e.sample_id,
-                    "armed: place the rock and press the start button");
+                    calibration_capture_
+                        ? "armed for calibration: lay the board flat on the disc (no rock) and "
+                          "press the start button"
+                        : "armed: place the rock and press the start button");
           }
         } else if constexpr (std::is_same_v<T, cs::Home>) {
           Status s = dev_.turntable->StartHome();
@@ -780,7 +805,7 @@ void CaptureService::Execute(const cs::Effect& eff) {
           AddEpochTimer(clock.Now() + config_.capture.poll_interval,
                         [this, ep = epoch_] { PollMotion(ep); });
         } else if constexpr (std::is_same_v<T, cs::BeginSide>) {
-          Status s = store_.BeginSide(id, e.side);
+          Status s = Cur().BeginSide(id, e.side);
           if (!s) {
             pending_events_.push_back(
                 cs::StoreFailed{s.error().cls, "cannot start side: " + s.error().ToString()});
@@ -866,7 +891,7 @@ void CaptureService::Execute(const cs::Effect& eff) {
           // A real camera without a control for a locked setting (V4L2
           // strict_controls = false): say so rather than let its value pass as measured.
           if (!f->missing_controls.empty()) car["missing_controls"] = f->missing_controls;
-          Status s = store_.WriteView(id, e.side, e.view, f->data, car);
+          Status s = Cur().WriteView(id, e.side, e.view, f->data, car);
           if (!s) {
             pending_events_.push_back(
                 cs::StoreFailed{s.error().cls, "cannot store view: " + s.error().ToString()});
@@ -919,30 +944,35 @@ void CaptureService::Execute(const cs::Effect& eff) {
             pending_events_.push_back(
                 cs::StoreFailed{err.cls, what + ": " + err.ToString() + again});
           };
-          if (Status s = store_.FinishSide(id, e.side); !s)
+          if (Status s = Cur().FinishSide(id, e.side); !s)
             return fail("cannot store " + side + "'s manifest and record", s.error());
           if (queue_) {
-            auto q = queue_->Enqueue(id, e.side);
+            auto q = queue_->Enqueue(id, e.side, calibration_capture_ ? kJobCalibration : kJobRock);
             if (!q) return fail("cannot queue " + side + " for the worker", q.error());
           }
           ++sides_completed_;
           if (!e.last_side) {
-            if (Status s = store_.SetSampleState(id, "awaiting_pose"); !s) {
+            if (Status s = Cur().SetSampleState(id, "awaiting_pose"); !s) {
               return fail("cannot record " + side + " as done", s.error());
             }
             LogLine(LogLevel::kInfo, "capture", id,
                     side + " done and queued: flip the rock and press the start button");
           } else {
             LogLine(LogLevel::kInfo, "capture", id, side + " done and queued");
-            if (Status s = store_.SetSampleState(id, "captured"); !s) {
+            if (Status s = Cur().SetSampleState(id, "captured"); !s) {
               return fail("cannot mark the sample captured", s.error());
             }
-            if (queue_) {
+            if (queue_ && !calibration_capture_) {
               auto q = queue_->Enqueue(id, 0);
               if (!q) return fail("cannot queue the sample job", q.error());
             }
-            ++samples_completed_;
-            LogLine(LogLevel::kInfo, "capture", id, "sample captured");
+            if (calibration_capture_) {
+              LogLine(LogLevel::kInfo, "capture", id,
+                      "calibration board captured: the worker solves the rig calibration");
+            } else {
+              ++samples_completed_;
+              LogLine(LogLevel::kInfo, "capture", id, "sample captured");
+            }
           }
           pending_events_.push_back(cs::SideFinished{});
         } else if constexpr (std::is_same_v<T, cs::StopMotion>) {
@@ -956,14 +986,14 @@ void CaptureService::Execute(const cs::Effect& eff) {
           if (dev_.turntable && dev_.turntable->is_open()) (void)dev_.turntable->Stop();
         } else if constexpr (std::is_same_v<T, cs::MarkInterrupted>) {
           if (!id.empty()) {
-            Status s = store_.SetSampleState(id, "interrupted", e.side, "interrupted");
+            Status s = Cur().SetSampleState(id, "interrupted", e.side, "interrupted");
             if (!s)
               LogLine(LogLevel::kError, "capture", id,
                       "cannot record interruption: " + s.error().ToString());
           }
         } else if constexpr (std::is_same_v<T, cs::MarkAborted>) {
           if (!id.empty()) {
-            Status s = store_.SetSampleState(id, "aborted", e.side, "interrupted");
+            Status s = Cur().SetSampleState(id, "aborted", e.side, "interrupted");
             if (!s)
               LogLine(LogLevel::kError, "capture", id,
                       "cannot record abort: " + s.error().ToString());
@@ -1316,7 +1346,7 @@ json CaptureService::StatusOnLoop() const {
                        ? state_.view + 1
                        : 0},
           {"views_per_side", config_.capture.views_per_side},
-          {"sides", config_.capture.sides},
+          {"sides", state_.Active() ? state_.plan.sides : config_.capture.sides},
           {"profile", config_.capture.profile},
           {"fault", fault},
           {"status_line", StatusLine()},
@@ -1328,6 +1358,8 @@ json CaptureService::StatusOnLoop() const {
           {"time_scale", loop_.clock().Scale()},
           {"uptime_s", static_cast<double>(MonotonicNs() - started_real_) / 1e9},
           {"calibration", calibration_},
+          {"calibration_capture", CalibrationCaptureOnLoop()},
+          {"capture_kind", calibration_capture_ ? "calibration" : "rock"},
           {"worker", WorkerOnLoop()}};
 }
 
@@ -1342,6 +1374,13 @@ Result<json> CaptureService::ArmOnLoop(const ArmRequest& request) {
   }
   Status healthy = CheckDevicesHealthy({"camera", "turntable", "button"});
   if (!healthy) return healthy.error();
+  if (sample_id.rfind(layout::kCalibrationIdPrefix, 0) == 0) {
+    return MakeError(ErrorClass::kInvalidArgument,
+                     "sample ids starting with \"" + std::string(layout::kCalibrationIdPrefix) +
+                         "\" name calibration captures: choose another id for a rock (to "
+                         "calibrate, use the console's Calibrate or POST /api/v1/calibration)");
+  }
+  calibration_capture_ = false;
   // The store copies the calibration into the sample: show what it copies.
   if (!calibration_.is_null()) RefreshCalibration();
   if (Status c = CompleteAndQueue(sample_id); !c) return c.error();
@@ -1360,6 +1399,88 @@ Result<json> CaptureService::ArmOnLoop(const ArmRequest& request) {
   json out = StatusOnLoop();
   out["first_side"] = *first;
   return out;
+}
+
+SamplePlan CaptureService::CurrentPlan() const {
+  SamplePlan plan = PlanFromConfig(config_);
+  // The board lies flat: one turn of one side is the whole capture.
+  if (calibration_capture_) plan.sides = 1;
+  return plan;
+}
+
+Result<json> CaptureService::ArmCalibrationOnLoop() {
+  if (state_.phase != cs::Phase::kIdle) {
+    return MakeError(
+        ErrorClass::kInvalidState,
+        std::string("cannot start a calibration while ") + cs::PhaseName(state_.phase) +
+            (state_.phase == cs::Phase::kFaulted ? ": reset the fault first"
+                                                 : ": abort the current sample first"));
+  }
+  Status healthy = CheckDevicesHealthy({"camera", "turntable", "button"});
+  if (!healthy) return healthy.error();
+  if (config_.camera.backend == "sim" && config_.sim.board_image.empty()) {
+    return MakeError(ErrorClass::kInvalidConfig,
+                     "the sim camera has no calibration board to draw: write one with `aggscan "
+                     "calibrate board --out FILE.pgm --margin-mm 0`, set sim.board_image = "
+                     "\"FILE.pgm\" and restart aggscand");
+  }
+  if (Status s = cal_store_.Init(); !s) return s.error();
+  // calibration-<UTC>, made unique if two start within a second.
+  std::string id = layout::kCalibrationIdPrefix + CompactUtcNow();
+  for (int k = 2; PathExists(cal_store_.SampleDir(id)); ++k)
+    id = layout::kCalibrationIdPrefix + CompactUtcNow() + "-" + std::to_string(k);
+  calibration_capture_ = true;
+  const SamplePlan plan = CurrentPlan();
+  Result<int> first = cal_store_.PrepareArm(id, plan);
+  if (!first) {
+    calibration_capture_ = false;
+    return first.error();
+  }
+  arm_meta_ = json::object();
+  cal_last_id_ = id;
+  cal_reported_.clear();
+  Dispatch(cs::Arm{id, cs::Plan{plan.sides, plan.views_per_side, plan.step_deg}, *first});
+  if (state_.phase == cs::Phase::kFaulted)
+    return MakeError(state_.fault_class, state_.fault_message);
+  return StatusOnLoop();
+}
+
+json CaptureService::CalibrationCaptureOnLoop() const {
+  if (cal_last_id_.empty()) return nullptr;
+  const std::string dir = cal_store_.SampleDir(cal_last_id_);
+  json out = {{"id", cal_last_id_}, {"state", "unknown"}, {"error", nullptr}, {"result", nullptr}};
+  Result<json> rec = cal_store_.LoadRecord(cal_last_id_);
+  if (rec) out["state"] = rec->value("state", "unknown");
+  if (queue_) {
+    if (auto jobs = queue_->JobsForSample(cal_last_id_); jobs && !jobs->empty()) {
+      const Job& j = jobs->back();
+      // The job's state says more than the capture's once it is captured.
+      out["state"] = j.state == "running" ? "solving" : j.state;
+      if (!j.error.empty()) out["error"] = j.error;
+    }
+  }
+  Result<std::string> r = ReadFile(dir + "/" + layout::kResultsDir + "/calibration_result.json");
+  if (r) {
+    json res = json::parse(*r, nullptr, false);
+    if (res.is_object()) out["result"] = res;
+  }
+  return out;
+}
+
+void CaptureService::WatchCalibration() {
+  const json c = CalibrationCaptureOnLoop();
+  if (!c.is_object()) return;
+  const std::string key =
+      c.value("state", "") + "|" + (c["error"].is_string() ? c["error"].get<std::string>() : "");
+  if (key == cal_reported_) return;
+  cal_reported_ = key;
+  const std::string state = c.value("state", "");
+  // The worker wrote a new state_dir/calibration.json: check it as the next
+  // arm would, so the status and the console show it at once.
+  if (state == "done" || state == "failed") RefreshCalibration();
+  json data = c;
+  data["rig"] = calibration_;
+  Publish("calibration", std::move(data));
 }
 
 void CaptureService::RefreshCalibration() {
@@ -1405,6 +1526,10 @@ json CaptureService::GetHealth() {
 
 Result<json> CaptureService::Arm(const ArmRequest& request, const CallContext& ctx) {
   return OnLoop([this, request] { return ArmOnLoop(request); }, ctx);
+}
+
+Result<json> CaptureService::ArmCalibration(const CallContext& ctx) {
+  return OnLoop([this] { return ArmCalibrationOnLoop(); }, ctx);
 }
 
 Result<json> CaptureService::PressOnLoop(const std::string& source) {
@@ -1588,7 +1713,9 @@ Result<std::string> CaptureService::ResultFile(const std::string& sample_id,
 
 Result<std::string> CaptureService::ViewFile(const std::string& sample_id, int side, int view,
                                              ViewFileKind kind) {
-  const std::string dir = store_.SampleDir(sample_id);
+  // A board capture's views are shown like a rock's while they are shot.
+  const bool board = sample_id.rfind(layout::kCalibrationIdPrefix, 0) == 0;
+  const std::string dir = (board ? cal_store_ : store_).SampleDir(sample_id);
   if (!PathExists(dir + "/" + layout::kSampleRecord))
     return MakeError(ErrorClass::kNotFound, "no sample \"" + sample_id + "\"");
   const std::string what = "view " + std::to_string(view) + " of side " + std::to_string(side) +

@@ -83,6 +83,7 @@ class CaptureService final : public DaemonControl {
   nlohmann::json GetHealth() override;
   using DaemonControl::Arm;
   Result<nlohmann::json> Arm(const ArmRequest& request, const CallContext& ctx) override;
+  Result<nlohmann::json> ArmCalibration(const CallContext& ctx) override;
   Result<nlohmann::json> Press(const std::string& source, const CallContext& ctx) override;
   Result<nlohmann::json> Abort(const CallContext& ctx) override;
   Result<nlohmann::json> Reset(const CallContext& ctx) override;
@@ -102,6 +103,14 @@ class CaptureService final : public DaemonControl {
   Result<nlohmann::json> ArmOnLoop(const std::string& sample_id) {
     return ArmOnLoop(ArmRequest{sample_id, {}, {}, {}});
   }
+  /// Arms a capture of the calibration board (one side, into
+  /// state_dir/calibration-captures/calibration-<UTC>); the worker solves it.
+  Result<nlohmann::json> ArmCalibrationOnLoop();
+  /// The latest calibration capture: {"id", "state" (armed | capturing |
+  /// queued | solving | done | failed | interrupted | aborted), "error",
+  /// "result" (the worker's summary once solved)}; null when none was made
+  /// since start-up.
+  nlohmann::json CalibrationCaptureOnLoop() const;
   Result<nlohmann::json> PressOnLoop(const std::string& source);
   Result<nlohmann::json> AbortOnLoop();
   Result<nlohmann::json> ResetOnLoop();
@@ -167,6 +176,14 @@ class CaptureService final : public DaemonControl {
   /// publishes its report when it changed: every 500 ms while events are
   /// published, else every few seconds.
   void WatchWorker();
+  /// Publishes a "calibration" event when the latest calibration capture
+  /// changes state; re-checks the rig calibration when it was solved.
+  void WatchCalibration();
+  /// The plan of the capture being armed: the config's, one side for the board.
+  SamplePlan CurrentPlan() const;
+  /// The store of the capture in progress: rocks or calibration captures.
+  SampleStore& Cur() { return calibration_capture_ ? cal_store_ : store_; }
+  const SampleStore& Cur() const { return calibration_capture_ ? cal_store_ : store_; }
   void Publish(const std::string& type, nlohmann::json data);
   /// Starts the live view's tick unless it runs (a screen began watching).
   void StartPreview();
@@ -204,7 +221,11 @@ class CaptureService final : public DaemonControl {
   std::string config_toml_;
   RigDevices dev_;
   SampleStore& store_;
+  SampleStore cal_store_;  // state_dir/calibration-captures
   JobQueue* queue_;
+  bool calibration_capture_ = false;  // the armed (or last) capture is of the board
+  std::string cal_last_id_;           // the latest calibration capture
+  std::string cal_reported_;          // its state as last published
 
   capture::State state_;
   std::deque<capture::Event> pending_events_;

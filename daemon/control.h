@@ -85,6 +85,12 @@ class DaemonControl {
   Result<nlohmann::json> Arm(const std::string& sample_id, const CallContext& ctx) {
     return Arm(ArmRequest{sample_id, {}, {}, {}}, ctx);
   }
+  /// Arms a capture of the calibration board lying on the disc (no rock):
+  /// one side into state_dir/calibration-captures/calibration-<UTC>, which
+  /// the worker solves into state_dir/calibration.json after START. The
+  /// status's "calibration_capture" follows it. kInvalidConfig on a sim rig
+  /// without sim.board_image.
+  virtual Result<nlohmann::json> ArmCalibration(const CallContext& ctx) = 0;
   /// Same as pressing the physical start button. `source` e.g. "api".
   virtual Result<nlohmann::json> Press(const std::string& source, const CallContext& ctx) = 0;
   virtual Result<nlohmann::json> Abort(const CallContext& ctx) = 0;

@@ -184,6 +184,7 @@ enum class Endpoint {
   kSampleFile,
   kSampleRetry,
   kButton,
+  kCalibration,
   kAbort,
   kReset,
   kMetrics,
@@ -218,6 +219,7 @@ const char* AllowedMethods(Endpoint ep) {
       return "GET, HEAD, POST";
     case Endpoint::kSampleRetry:
     case Endpoint::kButton:
+    case Endpoint::kCalibration:
     case Endpoint::kAbort:
     case Endpoint::kReset:
       return "POST";
@@ -247,6 +249,7 @@ Endpoint Match(const std::string& path, std::string* id, std::string* file) {
   if (path == "/api/v1/health") return Endpoint::kHealth;
   if (path == "/api/v1/samples") return Endpoint::kSamples;
   if (path == "/api/v1/button") return Endpoint::kButton;
+  if (path == "/api/v1/calibration") return Endpoint::kCalibration;
   if (path == "/api/v1/abort") return Endpoint::kAbort;
   if (path == "/api/v1/reset") return Endpoint::kReset;
   if (path == "/metrics") return Endpoint::kMetrics;
@@ -596,6 +599,8 @@ ApiResponse ApiRouter::HandleUnsafe(const ApiRequest& req) {
       if (!layout::IsValidSampleId(id))
         return ErrorResponse(400, ErrorClass::kInvalidArgument, InvalidIdMessage(id));
       return Reply(control_.Retry(id));
+    case Endpoint::kCalibration:
+      return Reply(control_.ArmCalibration(req.ctx));
     case Endpoint::kButton:
       return Reply(control_.Press(who ? "api:" + who->user : "api", req.ctx));
     case Endpoint::kSession:

@@ -8,6 +8,7 @@
 //   GET  /api/v1/samples         → ListSamples()
 //   GET  /api/v1/samples/{id}    → GetSample(id)
 //   POST /api/v1/button          → Press("api")
+//   POST /api/v1/calibration     → ArmCalibration(): a capture of the board, solved by the worker
 //   POST /api/v1/abort           → Abort()
 //   POST /api/v1/reset           → Reset()
 //   POST /api/v1/session         {"user", "password"} → a session token (and cookie)

@@ -195,6 +195,32 @@ int main(int argc, char** argv) {
     }
   }
 
+  // Calibration captures: recovered like samples; a captured board the
+  // worker has no job for gets its calibration job.
+  SampleStore cal_store(config.daemon.state_dir, layout::kCalibrationCollection);
+  if (Status s = cal_store.Init(); !s) {
+    AGG_LOGE("main", "cannot use state directory %s: %s", config.daemon.state_dir.c_str(),
+             s.error().ToString().c_str());
+    return 1;
+  }
+  if (Result<RecoveryReport> crec = cal_store.Recover(); !crec) {
+    AGG_LOGE("main", "start-up recovery of the calibration captures failed: %s",
+             crec.error().ToString().c_str());
+    return 1;
+  }
+  for (const auto& [id, side] : cal_store.CapturedWork()) {
+    // The board is one side (no sample job); captures made offline (`aggscan
+    // sim capture --scene charuco`) are solved with `aggscan calibrate`.
+    if (side != 1 || id.rfind(layout::kCalibrationIdPrefix, 0) != 0) continue;
+    auto jobs = (*queue)->JobsForSample(id);
+    if (jobs && !jobs->empty()) continue;
+    auto q = (*queue)->Enqueue(id, side, kJobCalibration);
+    if (q)
+      LogLine(LogLevel::kNotice, "main", id, "re-queued the calibration capture for the worker");
+    else
+      LogLine(LogLevel::kError, "main", id, "cannot queue: " + q.error().ToString());
+  }
+
   // Signals go to the loop: block them before any other thread starts.
   EventLoop loop(*clock);
   loop.HandleSignals({SIGTERM, SIGINT, SIGHUP}, [&loop](int sig) {

@@ -46,6 +46,9 @@ struct StillRequest {
   std::string sample_id;
   int side = 1;   // 1-based
   int view = 0;   // 0-based
+  /// A calibration capture: the printed board lies on the disc, not a rock
+  /// (the sim camera then draws its board world).
+  bool board = false;
 };
 
 /// An encoded still. Travels as shared_ptr<const Frame>.

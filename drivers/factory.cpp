@@ -51,6 +51,21 @@ Status EnsureWorld(Context& ctx) {
   return OkStatus();
 }
 
+// The board of calibration captures: the charuco scene of the same rig.
+Status EnsureBoardWorld(Context& ctx) {
+  if (ctx.rig->board_world || ctx.config.sim.board_image.empty()) return OkStatus();
+  if (ctx.config.sim.scene == "charuco") {
+    ctx.rig->board_world = ctx.rig->world;
+    return OkStatus();
+  }
+  Config board = ctx.config;
+  board.sim.scene = "charuco";
+  Result<std::shared_ptr<sim::SimWorld>> w = sim::SimWorld::Create(board);
+  if (!w) return w.error();
+  ctx.rig->board_world = *w;
+  return OkStatus();
+}
+
 template <typename Device>
 using Maker = Result<std::unique_ptr<Device>> (*)(Context&);
 
@@ -93,8 +108,9 @@ Result<std::unique_ptr<Turntable>> MakeUsbTicTurntable(Context& ctx) {
 Result<std::unique_ptr<Camera>> MakeSimCamera(Context& ctx) {
   Status s = EnsureWorld(ctx);
   if (!s) return s.error();
+  if (Status b = EnsureBoardWorld(ctx); !b) return b.error();
   return std::unique_ptr<Camera>(std::make_unique<sim::SimCamera>(
-      ctx.rig->world, ctx.clock, ctx.config.camera, ctx.platter_angle_at));
+      ctx.rig->world, ctx.clock, ctx.config.camera, ctx.platter_angle_at, ctx.rig->board_world));
 }
 
 // Nothing is opened here: a missing camera is reported by Open(), so the

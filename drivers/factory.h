@@ -19,6 +19,9 @@ class SimWorld;
 
 struct RigDevices {
   std::shared_ptr<sim::SimWorld> world;  // set when any backend is "sim"
+  /// The sim camera with sim.board_image set: the board lying on the disc
+  /// instead of the rock, drawn for calibration captures.
+  std::shared_ptr<sim::SimWorld> board_world;
   std::unique_ptr<Camera> camera;
   std::unique_ptr<Turntable> turntable;
   std::unique_ptr<Button> button;

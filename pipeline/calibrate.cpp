@@ -2,12 +2,14 @@
 
 #include <ceres/ceres.h>
 #include <ceres/rotation.h>
+#include <unistd.h>
 
 #include <Eigen/Dense>
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <ctime>
 #include <filesystem>
 #include <nlohmann/json.hpp>
 #include <opencv2/aruco/charuco.hpp>
@@ -17,6 +19,7 @@
 
 #include "common/clock.h"
 #include "common/fsutil.h"
+#include "config/config.h"
 #include "pipeline/aruco_scale.h"
 #include "pipeline/image_io.h"
 #include "store/layout.h"
@@ -553,6 +556,87 @@ Result<CalibrationResult> CalibrateSampleSide(const std::string& sample_dir, int
   res->cal.source = sample_dir + " " + side_name;
   res->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return res;
+}
+
+}  // namespace aggscan
+
+namespace aggscan {
+
+namespace {
+
+// "20240513T101500Z" from the wall clock.
+std::string CompactUtc() {
+  const std::time_t t = std::time(nullptr);
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buf[32];
+  std::strftime(buf, sizeof buf, "%Y%m%dT%H%M%SZ", &tm);
+  return buf;
+}
+
+}  // namespace
+
+Result<std::string> InstallRigCalibration(const std::string& path, const RigCalibration& cal) {
+  std::string prev;
+  if (PathExists(path)) {
+    prev = path + ".prev-" + CompactUtc();
+    for (int k = 2; PathExists(prev); ++k)
+      prev = path + ".prev-" + CompactUtc() + "-" + std::to_string(k);
+    if (::link(path.c_str(), prev.c_str()) != 0) {
+      // A filesystem without hard links: a durable copy instead.
+      Result<std::string> old = ReadFile(path);
+      if (!old) return old.error();
+      if (Status s = WriteFileAtomic(prev, *old, true); !s) return s.error();
+    } else {
+      const std::string dir = std::filesystem::path(path).parent_path().string();
+      if (Status s = FsyncDir(dir.empty() ? "." : dir); !s) return s.error();
+    }
+  }
+  if (Status s = SaveCalibration(path, cal); !s) {
+    return MakeError(s.error().cls,
+                     "cannot write " + path + ": " + s.error().ToString() +
+                         (prev.empty() ? "" : " (the previous one is kept as " + prev + ")"));
+  }
+  return prev;
+}
+
+Status RunCalibrationCapture(const std::string& capture_dir, int side,
+                             const std::string& state_dir) {
+  // The board the capture was shot with: its own config copy.
+  std::vector<ConfigProblem> problems;
+  Result<Config> config = LoadConfigFile(capture_dir + "/" + layout::kConfigCopy, &problems);
+  if (!config) {
+    std::string why = config.error().ToString();
+    for (const auto& p : problems) why += "; " + p.ToString();
+    return MakeError(ErrorClass::kCorrupt, "the calibration capture's " +
+                                               std::string(layout::kConfigCopy) + " is unusable (" +
+                                               why + "): capture the board again");
+  }
+  Result<CalibrationResult> r = CalibrateSampleSide(capture_dir, side, config->calibration);
+  if (!r) return r.error();
+  const std::string target = CalibrationPath(state_dir);
+  Result<std::string> prev = InstallRigCalibration(target, r->cal);
+  if (!prev) return prev.error();
+  const RigCalibration& cal = r->cal;
+  const auto C = cal.CameraCentreTable0();
+  nlohmann::json summary = {
+      {"calibration", target},
+      {"previous", prev->empty() ? nlohmann::json(nullptr) : nlohmann::json(*prev)},
+      {"reprojection_rms_px", cal.reprojection_rms_px},
+      {"max_view_rms_px", r->max_view_rms_px},
+      {"views_used", cal.views_used},
+      {"views_total", r->views_total},
+      {"corners_used", cal.corners_used},
+      {"skipped", r->skipped},
+      {"outlier_corners", r->outlier_corners},
+      {"fx_px", cal.camera.fx},
+      {"k1", cal.camera.k1},
+      {"camera_distance_mm", std::sqrt(C[0] * C[0] + C[1] * C[1] + C[2] * C[2])},
+      {"seconds", r->seconds},
+      {"created_utc", cal.created_utc}};
+  const std::string results = capture_dir + "/" + layout::kResultsDir;
+  if (Status s = MakeDirsDurable(results); !s) return s;
+  return WriteFileAtomic(results + "/calibration_result.json", summary.dump(2) + "\n", false);
 }
 
 }  // namespace aggscan

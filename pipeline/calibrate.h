@@ -107,4 +107,19 @@ Result<CalibrationResult> CalibrateSampleSide(const std::string& sample_dir, int
                                               const CalibrationConfig& board,
                                               const CalibrateOptions& options = {});
 
+/// Writes `cal` to `path` atomically; an existing file is first kept as
+/// <path>.prev-<UTC> (a hard link, else a durable copy), so nothing is
+/// overwritten. Returns the name of the kept file, "" when there was none.
+Result<std::string> InstallRigCalibration(const std::string& path, const RigCalibration& cal);
+
+/// The worker's job on a calibration capture (layout::kCalibrationCollection):
+/// solves side `side` of `capture_dir` with the board of its config.toml,
+/// installs the result as state_dir/calibration.json (InstallRigCalibration)
+/// and writes the summary to capture_dir/results/calibration_result.json:
+/// {"calibration", "previous", "reprojection_rms_px", "max_view_rms_px",
+/// "views_used", "views_total", "corners_used", "skipped", "outlier_corners",
+/// "fx_px", "k1", "camera_distance_mm", "seconds", "created_utc"}.
+Status RunCalibrationCapture(const std::string& capture_dir, int side,
+                             const std::string& state_dir);
+
 }  // namespace aggscan

@@ -46,6 +46,7 @@
 #include "common/fsutil.h"
 #include "common/log.h"
 #include "config/config.h"
+#include "pipeline/calibrate.h"
 #include "pipeline/reconstruct.h"
 #include "pipeline/side_job.h"
 #include "pipeline/stage.h"
@@ -311,6 +312,12 @@ Status RunJob(const std::string& state_dir, const Job& job, const WorkerOptions&
   if (!layout::IsValidSampleId(job.sample_id))
     return MakeError(ErrorClass::kCorrupt,
                      "job " + std::to_string(job.id) + " names an invalid sample id");
+  if (job.kind == kJobCalibration) {
+    // The board: solved into the rig calibration, never masked as a rock.
+    const std::string dir = layout::CalibrationCaptureDir(state_dir, job.sample_id);
+    return RunStage("calibrate",
+                    [&] { return RunCalibrationCapture(dir, std::max(1, job.side), state_dir); });
+  }
   const std::string dir = layout::SampleDir(state_dir, job.sample_id);
   return job.side > 0 ? ProcessSide(dir, job.side, opts)
                       : RunSampleStage(dir, state_dir, opts, poses);
@@ -565,8 +572,9 @@ int main(int argc, char** argv) {
       continue;
     }
     const Job job = **next;
-    const std::string what =
-        job.side > 0 ? "side " + std::to_string(job.side) : std::string("sample stage");
+    const std::string what = job.kind == kJobCalibration ? std::string("rig calibration")
+                             : job.side > 0              ? "side " + std::to_string(job.side)
+                                                         : std::string("sample stage");
     const std::string name = "job " + std::to_string(job.id);
     LogLine(LogLevel::kInfo, kCat, job.sample_id,
             name + ": " + what + ", attempt " + std::to_string(job.attempts + 1) + " of " +

@@ -25,7 +25,9 @@ bool IsValidSampleId(const std::string& id) {
 std::string StateDirOfSample(const std::string& sample_dir) {
   const std::filesystem::path parent =
       std::filesystem::absolute(sample_dir).lexically_normal().parent_path();
-  return parent.filename() == "samples" ? parent.parent_path().string() : std::string();
+  return parent.filename() == kSamplesCollection || parent.filename() == kCalibrationCollection
+             ? parent.parent_path().string()
+             : std::string();
 }
 
 }  // namespace aggscan::layout

@@ -14,6 +14,9 @@
 //     truth/                   sim ground truth (only when sim.write_truth)
 //     empty/                   photos of the empty turntable, linked in at arm time from the
 //                              rig's current set (store/empty_turntable.h): the masks' background
+//   <state_dir>/calibration-captures/<id>/   a capture of the calibration board lying on the
+//                              disc: one side, laid out like a sample; the worker solves the
+//                              rig calibration from it (never masks or measures it as a rock)
 //   <state_dir>/queue.db       SQLite queue of side and sample jobs
 //
 // Files appear only under their final names when complete (see fsutil.h).
@@ -27,6 +30,15 @@ inline std::string SamplesDir(const std::string& state_dir) { return state_dir +
 inline std::string SampleDir(const std::string& state_dir, const std::string& id) {
   return SamplesDir(state_dir) + "/" + id;
 }
+/// The collections a capture can belong to (a folder of the state directory).
+inline constexpr const char* kSamplesCollection = "samples";
+inline constexpr const char* kCalibrationCollection = "calibration-captures";
+/// Calibration captures are named "calibration-<UTC>"; rocks may not be, so
+/// an id names one capture whatever its collection.
+inline constexpr const char* kCalibrationIdPrefix = "calibration-";
+inline std::string CalibrationCaptureDir(const std::string& state_dir, const std::string& id) {
+  return state_dir + "/" + kCalibrationCollection + "/" + id;
+}
 inline std::string SideDirName(int side) { return "side" + std::to_string(side); }
 std::string ViewStem(int view);  // "view_007"
 inline std::string ViewImageName(int view) { return ViewStem(view) + ".jpg"; }
@@ -39,8 +51,8 @@ inline constexpr const char* kResultsDir = "results";
 inline constexpr const char* kTruthDir = "truth";
 inline constexpr const char* kEmptyDir = "empty";
 inline std::string QueuePath(const std::string& state_dir) { return state_dir + "/queue.db"; }
-/// The state directory a sample directory lies in (STATE_DIR/samples/ID), or
-/// "" when it is not laid out so.
+/// The state directory a sample directory lies in (STATE_DIR/samples/ID or
+/// STATE_DIR/calibration-captures/ID), or "" when it is not laid out so.
 std::string StateDirOfSample(const std::string& sample_dir);
 
 /// Sample ids: 1..64 chars of [A-Za-z0-9._-], not starting with '.' or '-'.

@@ -43,7 +43,9 @@ Error DbError(sqlite3* db, const std::string& what) {
 }
 
 constexpr const char* kJobColumns =
-    "id, sample_id, side, state, attempts, COALESCE(error,''), created_utc, updated_utc, interruptions";
+    "id, sample_id, side, state, attempts, COALESCE(error,''), created_utc, updated_utc, "
+    "interruptions, "
+    "kind";
 
 Job ReadJob(Stmt& st) {
   Job j;
@@ -56,6 +58,7 @@ Job ReadJob(Stmt& st) {
   j.created_utc = st.Text(6);
   j.updated_utc = st.Text(7);
   j.interruptions = static_cast<int>(st.Int(8));
+  j.kind = st.Text(9);
   return j;
 }
 
@@ -116,15 +119,23 @@ Result<std::unique_ptr<JobQueue>> JobQueue::Open(const std::string& path) {
 // and the change are one write transaction).
 Status JobQueue::Migrate() {
   if (Status s = Exec("BEGIN IMMEDIATE"); !s) return s;
-  bool has_interruptions = false;
+  bool has_interruptions = false, has_kind = false;
   {
     Stmt info(db_, "PRAGMA table_info(jobs)");
     while (info.Step() == SQLITE_ROW) {
       if (info.Text(1) == "interruptions") has_interruptions = true;
+      if (info.Text(1) == "kind") has_kind = true;
     }
   }
   if (!has_interruptions) {
     if (Status s = Exec("ALTER TABLE jobs ADD COLUMN interruptions INTEGER NOT NULL DEFAULT 0"); !s) {
+      (void)Exec("ROLLBACK");
+      return s;
+    }
+  }
+  // Jobs queued before calibration captures existed are all rocks.
+  if (!has_kind) {
+    if (Status s = Exec("ALTER TABLE jobs ADD COLUMN kind TEXT NOT NULL DEFAULT 'rock'"); !s) {
       (void)Exec("ROLLBACK");
       return s;
     }
@@ -148,7 +159,7 @@ Status JobQueue::Exec(const char* sql) {
   return OkStatus();
 }
 
-Result<int64_t> JobQueue::Enqueue(const std::string& sample_id, int side) {
+Result<int64_t> JobQueue::Enqueue(const std::string& sample_id, int side, const std::string& kind) {
   Status s = Exec("BEGIN IMMEDIATE");
   if (!s) return s.error();
   {
@@ -165,11 +176,14 @@ Result<int64_t> JobQueue::Enqueue(const std::string& sample_id, int side) {
     }
   }
   const std::string now = NowUtcString();
-  Stmt ins(db_, "INSERT INTO jobs(sample_id, side, state, created_utc, updated_utc) VALUES(?,?,'queued',?,?)");
+  Stmt ins(db_,
+           "INSERT INTO jobs(sample_id, side, state, created_utc, updated_utc, kind) "
+           "VALUES(?,?,'queued',?,?,?)");
   ins.Bind(1, sample_id);
   ins.Bind(2, side);
   ins.Bind(3, now);
   ins.Bind(4, now);
+  ins.Bind(5, kind);
   if (ins.Step() != SQLITE_DONE) {
     Error e = DbError(db_, "cannot queue job for sample " + sample_id);
     (void)Exec("ROLLBACK");

@@ -16,8 +16,14 @@ struct sqlite3;
 
 namespace aggscan {
 
+/// What a job is about: a rock (a sample's side or the sample) or a capture
+/// of the calibration board (layout::kCalibrationCollection) to solve.
+inline constexpr const char* kJobRock = "rock";
+inline constexpr const char* kJobCalibration = "calibration";
+
 struct Job {
   int64_t id = 0;
+  std::string kind = kJobRock;
   std::string sample_id;
   int side = 0;             // 1..N for a side job, 0 for the sample job
   std::string state;        // queued | running | done | failed
@@ -70,7 +76,10 @@ class JobQueue {
   JobQueue& operator=(const JobQueue&) = delete;
 
   /// Queues a job unless an identical one (sample, side) is queued or running.
-  Result<int64_t> Enqueue(const std::string& sample_id, int side);
+  /// Capture ids are unique across kinds (calibration captures have their own
+  /// prefix, see layout::kCalibrationIdPrefix).
+  Result<int64_t> Enqueue(const std::string& sample_id, int side,
+                          const std::string& kind = kJobRock);
   /// Takes the oldest queued job and marks it running; nullopt when empty.
   /// Claiming counts nothing: a run that is killed or stopped is no attempt.
   Result<std::optional<Job>> ClaimNext();

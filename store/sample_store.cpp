@@ -143,10 +143,10 @@ T SidecarField(const json& car, const char* key, T fallback) {
 }  // namespace
 
 std::string SampleStore::SampleDir(const std::string& id) const {
-  return layout::SampleDir(state_dir_, id);
+  return CollectionDir() + "/" + id;
 }
 
-Status SampleStore::Init() { return MakeDirsDurable(layout::SamplesDir(state_dir_)); }
+Status SampleStore::Init() { return MakeDirsDurable(CollectionDir()); }
 
 Status SampleStore::SaveRecord(const std::string& id, const json& rec) {
   json r = rec;
@@ -186,7 +186,7 @@ Result<json> SampleStore::LoadRecord(const std::string& id) const {
 
 Result<RecoveryReport> SampleStore::Recover() {
   RecoveryReport rep;
-  const std::string samples = layout::SamplesDir(state_dir_);
+  const std::string samples = CollectionDir();
   rep.temp_files_removed += RemoveTempFiles(samples);
   for (const auto& id : ListDir(samples)) {
     const std::string dir = samples + "/" + id;
@@ -466,7 +466,7 @@ Status SampleStore::SetSampleState(const std::string& id, const std::string& sta
 
 Result<json> SampleStore::List() const {
   json out = json::array();
-  const std::string samples = layout::SamplesDir(state_dir_);
+  const std::string samples = CollectionDir();
   for (const auto& id : ListDir(samples)) {
     if (!layout::IsValidSampleId(id) || !IsDir(samples + "/" + id)) continue;
     Result<json> rec = LoadRecord(id);
@@ -497,7 +497,7 @@ Result<json> SampleStore::List() const {
 
 std::vector<std::pair<std::string, int>> SampleStore::CapturedWork(const std::string& only) const {
   std::vector<std::pair<std::string, int>> work;
-  const std::string samples = layout::SamplesDir(state_dir_);
+  const std::string samples = CollectionDir();
   for (const auto& id : only.empty() ? ListDir(samples) : std::vector<std::string>{only}) {
     if (!layout::IsValidSampleId(id) || !IsDir(samples + "/" + id)) continue;
     Result<json> rec = LoadRecord(id);

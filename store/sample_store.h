@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "common/error.h"
+#include "store/layout.h"
 
 namespace aggscan {
 
@@ -47,9 +48,12 @@ struct Completion {
 
 class SampleStore {
  public:
-  explicit SampleStore(std::string state_dir) : state_dir_(std::move(state_dir)) {}
+  /// `collection`: the folder of the state directory the captures go to,
+  /// layout::kSamplesCollection (rocks) or layout::kCalibrationCollection.
+  explicit SampleStore(std::string state_dir, std::string collection = layout::kSamplesCollection)
+      : state_dir_(std::move(state_dir)), collection_(std::move(collection)) {}
 
-  /// Creates <state_dir>/samples if needed.
+  /// Creates <state_dir>/<collection> if needed.
   Status Init();
   /// Start-up recovery (see above). Safe to run on a clean store.
   Result<RecoveryReport> Recover();
@@ -115,7 +119,9 @@ class SampleStore {
   Status UpdateRecord(const std::string& id, const std::function<void(nlohmann::json&)>& edit);
   /// Writes side<N>/manifest.json listing its complete views; returns the manifest.
   Result<nlohmann::json> WriteManifest(const std::string& id, int side);
+  std::string CollectionDir() const { return state_dir_ + "/" + collection_; }
   std::string state_dir_;
+  std::string collection_;
 };
 
 }  // namespace aggscan

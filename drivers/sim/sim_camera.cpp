@@ -22,8 +22,10 @@ uint64_t Mix(uint64_t h, uint64_t v) {
 }  // namespace
 
 SimCamera::SimCamera(std::shared_ptr<const SimWorld> world, Clock& clock,
-                     const CameraConfig& config, AngleFn platter_angle_at)
+                     const CameraConfig& config, AngleFn platter_angle_at,
+                     std::shared_ptr<const SimWorld> board_world)
     : world_(std::move(world)),
+      board_world_(std::move(board_world)),
       clock_(clock),
       config_(config),
       angle_at_(std::move(platter_angle_at)) {
@@ -129,15 +131,35 @@ void SimCamera::Serve(Job& job) {
   if (job.warmup) {
     opt.exposure = {exposure_us, gain, s.wb_red, s.wb_blue};
     (void)renderer_->Render(1, 0.0, opt);
+    // The board's tables too: its first view must not wait for them.
+    if (board_world_) {
+      board_renderer_ = std::make_unique<Renderer>(*board_world_, s.width, s.height);
+      (void)board_renderer_->Render(1, 0.0, opt);
+    }
     job.done(MakeError(ErrorClass::kInternal, "warm-up"));
     return;
   }
+  if (job.req.board) {
+    if (!board_world_) {
+      job.done(MakeError(ErrorClass::kInvalidConfig,
+                         "the sim camera has no calibration board to draw: set sim.board_image "
+                         "(write it with `aggscan calibrate board --out FILE.pgm --margin-mm 0`)"));
+      return;
+    }
+    if (!board_renderer_ || board_renderer_->width() != s.width ||
+        board_renderer_->height() != s.height) {
+      board_renderer_ = std::make_unique<Renderer>(*board_world_, s.width, s.height);
+    }
+  }
+  Renderer& renderer = job.req.board ? *board_renderer_ : *renderer_;
   opt.exposure = {exposure_us, gain, s.wb_red, s.wb_blue};
   opt.noise_seed = Mix(
       Mix(Mix(world_->config().sim.seed, 0x53494D43414DULL), static_cast<uint64_t>(job.req.side)),
       static_cast<uint64_t>(job.req.view));
+  // No rock, no rock truth on a board.
+  if (job.req.board) sink = nullptr;
   opt.want_mask = static_cast<bool>(sink);
-  RenderedImage img = renderer_->Render(job.req.side, angle, opt);
+  RenderedImage img = renderer.Render(job.req.side, angle, opt);
 
   Result<std::vector<unsigned char>> jpeg =
       EncodeJpeg(img.rgb.data(), img.width, img.height, s.jpeg_quality);

@@ -47,8 +47,10 @@ class SimCamera final : public Camera {
  public:
   using AngleFn = std::function<double(TimeNs)>;
   /// `platter_angle_at(t)`: platter angle (deg) at clock time t; default: always 0.
+  /// `board_world`: what a request with `board` set shows (the charuco
+  /// scene); null: such a request fails, naming sim.board_image.
   SimCamera(std::shared_ptr<const SimWorld> world, Clock& clock, const CameraConfig& config,
-            AngleFn platter_angle_at = {});
+            AngleFn platter_angle_at = {}, std::shared_ptr<const SimWorld> board_world = {});
   ~SimCamera() override;
 
   CameraInfo Info() const override;
@@ -74,6 +76,7 @@ class SimCamera final : public Camera {
   void Serve(Job& job);
 
   std::shared_ptr<const SimWorld> world_;
+  std::shared_ptr<const SimWorld> board_world_;
   Clock& clock_;
   CameraConfig config_;
   AngleFn angle_at_;
@@ -87,7 +90,8 @@ class SimCamera final : public Camera {
   uint64_t sequence_ = 0;
   std::thread worker_;
 
-  std::unique_ptr<Renderer> renderer_;  // worker thread only
+  std::unique_ptr<Renderer> renderer_;        // worker thread only
+  std::unique_ptr<Renderer> board_renderer_;  // of board_world_, worker thread only
 };
 
 }  // namespace aggscan::sim

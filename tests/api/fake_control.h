@@ -91,6 +91,11 @@ class FakeControl : public DaemonControl {
     if (fail) return *fail;
     return nlohmann::json{{"state", "armed"}, {"sample_id", id}};
   }
+  Result<nlohmann::json> ArmCalibration(const CallContext& ctx) override {
+    Record("calibrate", &ctx);
+    if (fail) return *fail;
+    return nlohmann::json{{"state", "armed"}, {"sample_id", "calibration-20260101T100000Z"}};
+  }
   Result<nlohmann::json> Press(const std::string& source, const CallContext& ctx) override {
     Record("press:" + source, &ctx);
     if (fail) return *fail;

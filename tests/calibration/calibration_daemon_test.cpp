@@ -3,13 +3,17 @@
 // effect (samples/<id>/calibration.json, write-once).
 #include <gtest/gtest.h>
 
+#include <filesystem>
 #include <fstream>
+#include <sstream>
 
+#include "cli/calibrate_command.h"
 #include "common/fsutil.h"
 #include "common/rig_calibration.h"
 #include "config/config.h"
 #include "daemon/calibration_check.h"
 #include "drivers/sim/world.h"
+#include "store/queue.h"
 #include "store/sample_store.h"
 #include "tests/scenario/process.h"
 
@@ -109,6 +113,103 @@ TEST(CalibrationDaemon, PresentAtStartAndInvalidOnes) {
     EXPECT_EQ(c["state"], "invalid") << c.dump();
     EXPECT_NE(c["message"].get<std::string>().find("not valid JSON"), std::string::npos) << c.dump();
   }
+}
+
+// The console's calibrate flow on the sim rig: the daemon captures the board
+// lying on the disc as a calibration capture (its own folder, a calibration
+// job, never a sample), the worker solves it and installs calibration.json,
+// and the status shows the new calibration.
+TEST(CalibrationDaemon, BoardCapturedByTheDaemonAndSolvedByTheWorker) {
+  TempDir t;
+  const std::string state = t.path() + "/state";
+  const std::string board = t.path() + "/board.pgm";
+  std::ostringstream out, err;
+  ASSERT_EQ(RunCalibrateCommand({"board", "--out", board, "--margin-mm", "0"}, out, err), 0)
+      << err.str();
+  auto config = [&](const std::string& board_image) {
+    const std::string path = t.path() + "/rig.toml";
+    std::ofstream(path) << "[daemon]\nstate_dir = \"" << state
+                        << "\"\nlisten_port = 0\ntime_scale = 5\nlog_level = \"info\"\n\n"
+                        << "[camera]\nwidth = 1008\nheight = 756\n\n"
+                        << "[sim]\nseed = 11\nboard_image = \"" << board_image << "\"\n";
+    return path;
+  };
+
+  {
+    // A sim rig without a board to draw says how to get one.
+    Daemon d(config(""), t.path());
+    ASSERT_TRUE(d.ok()) << ReadAll(d.log());
+    int code = 0;
+    const json r = d.Post("/api/v1/calibration", "{}", &code);
+    EXPECT_EQ(code, 500) << r.dump();
+    EXPECT_NE(r.dump().find("sim.board_image"), std::string::npos) << r.dump();
+    EXPECT_NE(r.dump().find("aggscan calibrate board"), std::string::npos) << r.dump();
+  }
+
+  Daemon d(config(board), t.path());
+  ASSERT_TRUE(d.ok()) << ReadAll(d.log());
+  EXPECT_EQ(Calibration(d)["state"], "missing");
+  int code = 0;
+  // The prefix is the calibration captures': a rock may not take it.
+  json r = d.Post("/api/v1/samples", R"({"id": "calibration-1"})", &code);
+  EXPECT_EQ(code, 400) << r.dump();
+  r = d.Post("/api/v1/calibration", "{}", &code);
+  ASSERT_EQ(code, 200) << r.dump();
+  EXPECT_EQ(r["capture_kind"], "calibration");
+  EXPECT_EQ(r["sides"], 1);
+  const std::string id = r.value("sample_id", "");
+  ASSERT_EQ(id.rfind("calibration-", 0), 0u) << r.dump();
+  EXPECT_EQ(r["calibration_capture"]["id"], id);
+  d.Post("/api/v1/button", "{}", &code);
+  ASSERT_EQ(code, 200);
+  json last;
+  ASSERT_TRUE(d.WaitFor(
+      [](const json& s) {
+        return s["state"] == "idle" && s["calibration_capture"]["state"] == "queued";
+      },
+      120, &last))
+      << last.dump(2) << ReadAll(d.log());
+
+  // Stored as a calibration capture, never as a sample; queued as calibration.
+  const std::string dir = state + "/calibration-captures/" + id;
+  EXPECT_TRUE(PathExists(dir + "/side1/manifest.json"));
+  EXPECT_FALSE(PathExists(dir + "/side2"));
+  EXPECT_FALSE(PathExists(state + "/samples/" + id));
+  const json list = d.Get("/api/v1/samples");
+  EXPECT_TRUE(list.is_array() && list.empty()) << list.dump();
+  {
+    auto q = JobQueue::Open(state + "/queue.db");
+    ASSERT_TRUE(q);
+    auto jobs = (*q)->JobsForSample(id);
+    ASSERT_TRUE(jobs);
+    ASSERT_EQ(jobs->size(), 1u);
+    EXPECT_EQ((*jobs)[0].kind, kJobCalibration);
+    EXPECT_EQ((*jobs)[0].side, 1);
+  }
+
+  // The worker solves it into the rig calibration.
+  const int wrc = WaitExit(Spawn({Bin("pipeline/aggscan-worker"), "--state-dir", state, "--once"},
+                                 t.path() + "/worker.log"));
+  EXPECT_EQ(wrc, 0) << ReadAll(t.path() + "/worker.log");
+  EXPECT_TRUE(PathExists(state + "/calibration.json")) << ReadAll(t.path() + "/worker.log");
+  const json result =
+      json::parse(ReadAll(dir + "/results/calibration_result.json"), nullptr, false);
+  ASSERT_TRUE(result.is_object()) << ReadAll(t.path() + "/worker.log");
+  EXPECT_EQ(result["views_total"], 30);
+  EXPECT_GE(result["views_used"].get<int>(), 20) << result.dump(2);
+  EXPECT_LT(result["reprojection_rms_px"].get<double>(), 0.5) << result.dump(2);
+  EXPECT_TRUE(result["previous"].is_null());
+  // The daemon sees it without a restart or an arm.
+  ASSERT_TRUE(d.WaitFor(
+      [](const json& s) {
+        return s["calibration"]["state"] == "ok" && s["calibration_capture"]["state"] == "done";
+      },
+      20, &last))
+      << last.dump(2);
+  EXPECT_NEAR(last["calibration"]["reprojection_rms_px"].get<double>(),
+              result["reprojection_rms_px"].get<double>(), 1e-9);
+  EXPECT_NEAR(last["calibration_capture"]["result"]["reprojection_rms_px"].get<double>(),
+              result["reprojection_rms_px"].get<double>(), 1e-9);
 }
 
 TEST(CalibrationStore, SampleCopyIsWriteOnce) {

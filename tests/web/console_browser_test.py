@@ -79,19 +79,16 @@ class Rig:
                     % (work, extra_daemon))
         self.procs = []
 
-    def calibrate(self):
-        """As an operator does once per set-up: the ChArUco board on the
-        turntable, captured by the sim rig, solved by `aggscan calibrate`."""
-        aggscan = os.path.join(self.build, "cli", "aggscan")
-        board = os.path.join(self.work, "board")
-        state = os.path.join(self.work, "state")
-        os.makedirs(state, exist_ok=True)
-        for argv in ([aggscan, "sim", "capture", "--scene", "charuco", "--config", self.config,
-                      "--out", board],
-                     [aggscan, "calibrate", board, "--state-dir", state]):
-            r = subprocess.run(argv, capture_output=True)
-            if r.returncode != 0:
-                raise Failure("%s failed: %s" % (" ".join(argv[:3]), r.stderr.decode()[-2000:]))
+    def with_board(self):
+        """The printed board the operator lays on the disc to calibrate: the
+        sim camera draws it (sim.board_image) while the daemon captures it."""
+        board = os.path.join(self.work, "board.pgm")
+        r = subprocess.run([os.path.join(self.build, "cli", "aggscan"), "calibrate", "board",
+                            "--out", board, "--margin-mm", "0"], capture_output=True)
+        if r.returncode != 0:
+            raise Failure("aggscan calibrate board failed: %s" % r.stderr.decode()[-2000:])
+        with open(self.config, "a") as f:
+            f.write('\n[sim]\nboard_image = "%s"\n' % board)
         return self
 
     def start(self):
@@ -290,7 +287,8 @@ def percentile(values, p):
 
 def capture_a_rock(b, rig, sample, art, shots=True):
     """From the rig view: arm from the form, START, flip, START, wait for Done."""
-    wait_for(lambda: b.text("prompt") == "Arm a sample to start", 20, "the idle prompt")
+    wait_for(lambda: b.text("prompt") in ("Arm a sample to start", "Calibrated"), 20,
+             "the idle prompt")
     b.type_into("#arm-form input[name=id]", sample)
     b.type_into("#arm-form input[name=operator]", "M. Rossi")
     b.type_into("#arm-form input[name=lot]", "lot-7 north face")
@@ -334,8 +332,34 @@ def capture_a_rock(b, rig, sample, art, shots=True):
         b.screenshot(os.path.join(art, "rig-done.png"))
 
 
+def calibrate_the_rig(b, art):
+    """The operator's calibrate flow: the board captured by the rig, solved by
+    the worker, the new calibration shown."""
+    wait_for(lambda: b.text("prompt") == "Arm a sample to start", 20, "the idle prompt")
+    check("no rig calibration" in b.text("calibration"),
+          "a rig without a calibration says so: %r" % b.text("calibration"))
+    b.click("#calibrate")
+    wait_for(lambda: b.text("prompt").startswith("Lay the calibration board"), 20,
+             "the lay-the-board prompt")
+    b.screenshot(os.path.join(art, "rig-calibrate.png"))
+    b.click("#start")
+    seen = wait_for(lambda: b.text("prompt") if b.text("prompt").startswith("Calibration — view")
+                    else None, 60, "the calibration's view counter", interval_s=0.05)
+    check(seen.endswith("of 30"), "the board is shot like a side: %r" % seen)
+    wait_for(lambda: b.text("prompt") in ("Calibrated", "Calibration failed"), 300,
+             "the calibration to be solved", interval_s=0.5)
+    check(b.text("prompt") == "Calibrated", "calibrated: %r" % b.text("subprompt"))
+    rig_cal = b.text("calibration")
+    check(rig_cal.startswith("RMS ") and "made today" in rig_cal,
+          "the rig's calibration is the new one: %r" % rig_cal)
+    check("done, RMS" in b.text("calibration-capture"),
+          "the board capture is listed as solved: %r" % b.text("calibration-capture"))
+    b.screenshot(os.path.join(art, "rig-calibrated.png"))
+    print("figure: calibration on the console: %s; %s" % (b.text("subprompt"), rig_cal))
+
+
 def part_open(build, art, work, binary):
-    rig = Rig(build, os.path.join(work, "open")).calibrate().start()
+    rig = Rig(build, os.path.join(work, "open")).with_board().start()
     with browsing(rig, binary, work) as b:
         t0 = time.monotonic()
         b.goto(rig.url())
@@ -352,6 +376,10 @@ def part_open(build, art, work, binary):
                        ".filter(n => !n.startsWith(location.origin))")
         check(outside == [], "every resource comes from the rig itself")
 
+        calibrate_the_rig(b, art)
+        # The board is no sample: the list stays empty.
+        samples = b.js("fetch('/api/v1/samples').then(r => r.json())", await_promise=True)
+        check(samples == [], "the board capture is not listed as a sample: %s" % samples)
         capture_a_rock(b, rig, "rock-b1", art)
         lat = b.js("window.aggscanConsole.thumbnailLatencyMs")
         check(len(lat) >= 60, "%d view thumbnails shown as they were stored" % len(lat))

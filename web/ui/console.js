@@ -170,9 +170,30 @@
     let sub = '';
     prompt.classList.toggle('fault', s.state === 'faulted');
     const sides = s.sides || 2;
+    const board = s.capture_kind === 'calibration';
+    const cc = s.calibration_capture;
     switch (s.state) {
       case 'idle': {
         const w = ui.worker;
+        if (board && cc) {
+          // The last capture was of the board: its solve is what comes next.
+          if (cc.state === 'done' && cc.result) {
+            main = 'Calibrated';
+            sub = 'RMS ' + Number(cc.result.reprojection_rms_px).toFixed(2) + ' px from ' +
+                cc.result.views_used + ' of ' + cc.result.views_total +
+                ' views. Take the board off the disc and arm a sample.';
+          } else if (cc.state === 'failed') {
+            main = 'Calibration failed';
+            sub = (cc.error || '') + ' — check the board and the light, then press CALIBRATE again.';
+          } else if (cc.state === 'queued' || cc.state === 'solving') {
+            main = 'Solving the calibration';
+            sub = w && w.job && w.job.sample_id === cc.id && w.stage ? w.stage : cc.id;
+          } else {
+            main = 'Calibration ' + cc.state;
+            sub = 'Press CALIBRATE to capture the board again.';
+          }
+          break;
+        }
         const job = w && w.job && ui.lastSample && w.job.sample_id === ui.lastSample ? w.job : null;
         if (job) {
           main = 'Reconstructing — ' + (w.stage || 'starting');
@@ -201,6 +222,11 @@
         break;
       }
       case 'armed':
+        if (board) {
+          main = 'Lay the calibration board flat on the disc (no rock), then press START';
+          sub = 'Calibration — one turn of ' + s.views_per_side + ' views';
+          break;
+        }
         main = s.side > 1 ? 'Flip the rock, then press START'
                           : 'Place the rock with its markers facing the camera, then press START';
         sub = 'Sample ' + s.sample_id + ' — side ' + Math.max(1, s.side) + ' of ' + sides;
@@ -219,9 +245,10 @@
         break;
       default:
         if (kRunning.includes(s.state)) {
-          main = s.state === 'homing' ? 'Side ' + s.side + ' — homing'
-                                      : 'Side ' + s.side + ' — view ' + Math.max(1, s.view || 0) + ' of ' + s.views_per_side;
-          sub = 'Sample ' + s.sample_id + '. Keep clear of the turntable; ABORT stops it.';
+          const what = board ? 'Calibration' : 'Side ' + s.side;
+          main = s.state === 'homing' ? what + ' — homing'
+                                      : what + ' — view ' + Math.max(1, s.view || 0) + ' of ' + s.views_per_side;
+          sub = (board ? 'The board' : 'Sample ' + s.sample_id) + '. Keep clear of the turntable; ABORT stops it.';
         }
     }
     prompt.textContent = main;
@@ -231,6 +258,7 @@
     $('abort').disabled = !canOperate() || !(running || s.state === 'armed' || s.state === 'awaiting_pose');
     $('reset').disabled = !canOperate() || s.state !== 'faulted';
     $('arm').disabled = !canOperate() || s.state !== 'idle';
+    $('calibrate').disabled = !canOperate() || s.state !== 'idle';
     $('live-caption').textContent = running ? 'the views as they are stored' : 'live view';
   }
 
@@ -274,6 +302,16 @@
           (days < 1 ? 'made today' : Math.floor(days) + ' day(s) old') + ' (' + c.method + ')';
     }
     $('calibration').textContent = text;
+    const cc = (ui.status || {}).calibration_capture;
+    let last = '';
+    if (cc) {
+      last = 'Last board capture ' + cc.id + ': ' + cc.state;
+      if (cc.state === 'done' && cc.result)
+        last += ', RMS ' + Number(cc.result.reprojection_rms_px).toFixed(2) + ' px, ' +
+            cc.result.views_used + ' of ' + cc.result.views_total + ' views';
+      if (cc.state === 'failed' && cc.error) last += ': ' + cc.error;
+    }
+    $('calibration-capture').textContent = last;
   }
 
   function renderRig() {
@@ -310,6 +348,10 @@
   $('start').addEventListener('click', () => act('/api/v1/button'));
   $('abort').addEventListener('click', () => act('/api/v1/abort'));
   $('reset').addEventListener('click', () => act('/api/v1/reset'));
+  $('calibrate').addEventListener('click', async () => {
+    const r = await act('/api/v1/calibration');
+    if (r) clearStrip();
+  });
   $('arm-form').addEventListener('submit', async (ev) => {
     ev.preventDefault();
     const f = ev.target;
@@ -390,6 +432,14 @@
       if (d.state !== 'faulted') ui.status.fault = null;
       renderRig();
       if (!$('samples').hidden) loadSamples();
+    });
+    on('calibration', (d) => {
+      // The board capture's state; with it the rig calibration as re-checked.
+      const rig = d.rig;
+      delete d.rig;
+      ui.status = Object.assign(ui.status || {}, {calibration_capture: d});
+      if (rig) ui.status.calibration = rig;
+      renderRig();
     });
     on('fault', (d) => {
       ui.status = Object.assign(ui.status || {}, {fault: d});
