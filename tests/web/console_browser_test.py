@@ -498,11 +498,16 @@ def part_accounts(build, art, work, binary):
         login("vic", "viewer-pass-1")
         wait_for(lambda: b.visible("prompt") and b.text("conn") == "live", 20, "the viewer's console")
         check("vic (viewer)" in b.text("who"), "logged in as the viewer")
-        check(not b.enabled("arm") and not b.enabled("start"), "a viewer's ARM and START are disabled")
+        check(not b.enabled("arm") and not b.enabled("start") and not b.enabled("calibrate"),
+              "a viewer's ARM, START and CALIBRATE are disabled")
         code = b.js("""fetch('/api/v1/samples', {method: 'POST', headers: {'Content-Type': 'application/json',
               Authorization: 'Bearer ' + sessionStorage.getItem('aggscan.token')},
               body: JSON.stringify({id: 'by-viewer'})}).then(r => r.status)""", await_promise=True)
         check(code == 403, "the API refuses a viewer's arm (%s)" % code)
+        code = b.js("""fetch('/api/v1/calibration', {method: 'POST', headers: {'Content-Type': 'application/json',
+              Authorization: 'Bearer ' + sessionStorage.getItem('aggscan.token')},
+              body: '{}'}).then(r => r.status)""", await_promise=True)
+        check(code == 403, "the API refuses a viewer's calibration (%s)" % code)
         b.screenshot(os.path.join(art, "rig-viewer.png"))
         b.click("#logout")
         wait_for(lambda: b.visible("login"), 20, "the log-in form after logging out")
