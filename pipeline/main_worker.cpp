@@ -605,14 +605,19 @@ int main(int argc, char** argv) {
                 "cannot put the job back: " + r.error().ToString());
       if (g_stop.load()) break;
     } else {
-      const bool requeue = job.attempts + 1 < cfg.worker.max_attempts;
+      // A board the solver could not use (too few views or corners) gives
+      // the same answer every time: the operator is told at once to shoot
+      // it again. Crashes are retried like any job's.
+      const bool board_unusable = job.kind == kJobCalibration && end->kind == ChildEnd::kFailed;
+      const bool requeue = !board_unusable && job.attempts + 1 < cfg.worker.max_attempts;
       const std::string kind = end->kind == ChildEnd::kCrashed ? " crashed: " : " failed: ";
       LogLine(LogLevel::kError, kCat, job.sample_id,
               name + kind + end->reason +
-                  (requeue ? "; will retry"
-                           : "; giving up after " + std::to_string(job.attempts + 1) +
-                                 " attempts: fix the cause, then run `aggscan retry " +
-                                 job.sample_id + "`"));
+                  (requeue          ? "; will retry"
+                   : board_unusable ? "; lay the board flat in good light and calibrate again"
+                                    : "; giving up after " + std::to_string(job.attempts + 1) +
+                                          " attempts: fix the cause, then run `aggscan retry " +
+                                          job.sample_id + "`"));
       if (!requeue) failed_for_good = true;
       if (Status f = queue.Fail(job.id, end->reason, requeue); !f.ok())
         LogLine(LogLevel::kError, kCat, job.sample_id,

@@ -210,6 +210,33 @@ TEST(CalibrationDaemon, BoardCapturedByTheDaemonAndSolvedByTheWorker) {
               result["reprojection_rms_px"].get<double>(), 1e-9);
   EXPECT_NEAR(last["calibration_capture"]["result"]["reprojection_rms_px"].get<double>(),
               result["reprojection_rms_px"].get<double>(), 1e-9);
+
+  // A board capture the solver cannot use (here: three views) fails once,
+  // with the reason, and leaves the installed calibration alone.
+  const std::string bad = state + "/calibration-captures/calibration-bad";
+  std::filesystem::copy(dir, bad, std::filesystem::copy_options::recursive);
+  std::filesystem::remove_all(bad + "/results");
+  json manifest = json::parse(ReadAll(bad + "/side1/manifest.json"));
+  manifest["views"].erase(manifest["views"].begin() + 3, manifest["views"].end());
+  std::ofstream(bad + "/side1/manifest.json") << manifest.dump();
+  const std::string installed = ReadAll(state + "/calibration.json");
+  {
+    auto q = JobQueue::Open(state + "/queue.db");
+    ASSERT_TRUE(q);
+    ASSERT_TRUE((*q)->Enqueue("calibration-bad", 1, kJobCalibration));
+  }
+  WaitExit(Spawn({Bin("pipeline/aggscan-worker"), "--state-dir", state, "--once"},
+                 t.path() + "/worker-bad.log"));
+  auto q = JobQueue::Open(state + "/queue.db");
+  ASSERT_TRUE(q);
+  auto jobs = (*q)->JobsForSample("calibration-bad");
+  ASSERT_TRUE(jobs && jobs->size() == 1u);
+  EXPECT_EQ((*jobs)[0].state, "failed") << ReadAll(t.path() + "/worker-bad.log");
+  EXPECT_EQ((*jobs)[0].attempts, 1) << "an unusable board is not retried";
+  EXPECT_NE((*jobs)[0].error.find("views"), std::string::npos) << (*jobs)[0].error;
+  EXPECT_NE(ReadAll(t.path() + "/worker-bad.log").find("calibrate again"), std::string::npos);
+  EXPECT_EQ(ReadAll(state + "/calibration.json"), installed);
+  EXPECT_FALSE(PathExists(bad + "/results/calibration_result.json"));
 }
 
 TEST(CalibrationStore, SampleCopyIsWriteOnce) {
