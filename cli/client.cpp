@@ -478,8 +478,9 @@ struct Command {
 }  // namespace
 
 bool IsClientCommand(const std::string& word) {
-  static const char* const kCommands[] = {"status", "selftest", "arm",  "press", "abort",
-                                          "reset",  "samples",  "show", "retry"};
+  static const char* const kCommands[] = {"status", "selftest", "arm",   "arm-calibration",
+                                          "press",  "abort",    "reset", "samples",
+                                          "show",   "retry"};
   return std::any_of(std::begin(kCommands), std::end(kCommands),
                      [&](const char* c) { return word == c; });
 }
@@ -491,6 +492,10 @@ void PrintClientUsage(std::ostream& out) {
          "                                         (exit 0 all ok, 4 a device is unhealthy)\n"
          "  aggscan [--url URL] [--json] arm ID     arm a new sample (or resume one) named ID\n"
          "      [--operator NAME] [--lot LOT] [--notes TEXT]   kept in the sample's record\n"
+         "  aggscan [--url URL] [--json] arm-calibration   arm a capture of the calibration\n"
+         "                                         board lying on the disc (no rock); press\n"
+         "                                         START and the worker solves the rig "
+         "calibration\n"
          "  aggscan [--url URL] [--json] press      same as pressing the start button\n"
          "  aggscan [--url URL] [--json] abort      abort the running capture\n"
          "  aggscan [--url URL] [--json] reset      clear a fault and return to idle\n"
@@ -575,6 +580,7 @@ int RunClientCommand(const std::vector<std::string>& args, std::ostream& out, st
     body["id"] = id;
     cmd = {name, "POST", "/samples", body.dump()};
   }
+  if (name == "arm-calibration") cmd = {name, "POST", "/calibration", "{}"};
   if (name == "press") cmd = {name, "POST", "/button", "{}"};
   if (name == "abort") cmd = {name, "POST", "/abort", "{}"};
   if (name == "reset") cmd = {name, "POST", "/reset", "{}"};
@@ -655,6 +661,9 @@ int RunClientCommand(const std::vector<std::string>& args, std::ostream& out, st
         << "`\n";
   } else {
     if (name == "arm") out << "armed sample " << id << "\n";
+    if (name == "arm-calibration")
+      out << "armed calibration capture " << FieldText(answer, "sample_id")
+          << ": lay the board flat on the disc (no rock), then press START\n";
     if (name == "press") out << "button pressed\n";
     if (name == "abort") out << "capture aborted\n";
     if (name == "reset") out << "reset done\n";

@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # The main job on a fresh Debian 12 machine: installs the dependencies, builds
-# aggscan, calibrates the simulated rig (a ChArUco board on the turntable,
-# rendered offline, then `aggscan calibrate`), starts aggscand on the
-# simulated rig (config/sim.toml) and
-# aggscan-worker, captures a two-side sample of a simulated rock through the
+# aggscan, starts aggscand on the simulated rig (config/sim.toml, with the
+# printed calibration board for the sim camera to draw) and aggscan-worker,
+# calibrates the rig as an operator does (the board on the disc, arm a
+# calibration capture, START; the worker solves it), captures a two-side sample of a simulated rock through the
 # CLI exactly as an operator would (arm, press, flip, press), lets the worker
 # reconstruct the rock (a closed metric mesh) and prints its 3D morphology.
 #   scripts/run-sim-demo.sh [SAMPLE_ID]
@@ -26,15 +26,11 @@ PORT=$("$AGGSCAND" --config "$CONFIG" --print-config | sed -n 's/^listen_port *=
 export AGGSCAN_URL="http://127.0.0.1:${PORT}"
 mkdir -p "$STATE_DIR"
 
-# Rig calibration, as an operator does it once per set-up: the board lying on
-# the turntable, one side captured, solved into STATE_DIR/calibration.json
-# (aggscand checks it at start and copies it into every sample). The board
-# capture is kept outside samples/ so the worker never takes it for a rock.
-CALIB="$STATE_DIR/calibration-captures/board-$(date +%Y%m%d-%H%M%S)"
-mkdir -p "$(dirname "$CALIB")"
-echo "== calibrating the rig: ChArUco board on the turntable (offline sim capture)"
-"$CLI" sim capture --scene charuco --config "$CONFIG" --out "$CALIB" 2> "$STATE_DIR/calibration-capture.log"
-"$CLI" calibrate "$CALIB" --state-dir "$STATE_DIR"
+# The printed ChArUco board of [calibration], for the sim camera to draw
+# when a calibration capture is armed (sim.board_image).
+"$CLI" calibrate board --config "$CONFIG" --out "$STATE_DIR/board.pgm" --margin-mm 0 >/dev/null
+sed "s|^board_image = \"\"|board_image = \"$STATE_DIR/board.pgm\"|" "$CONFIG" > "$STATE_DIR/sim-demo.toml"
+CONFIG="$STATE_DIR/sim-demo.toml"
 
 "$AGGSCAND" --config "$CONFIG" 2> "$STATE_DIR/aggscand.log" &
 DAEMON=$!
@@ -54,6 +50,22 @@ wait_state() {  # wait_state STATE...: poll until the daemon reports one of them
 }
 
 echo "== the operator's console: open $AGGSCAN_URL/ in a browser on this machine to watch"
+# Rig calibration, as an operator does it once per set-up: the board lying on
+# the disc, a calibration capture (one side), solved by the worker into
+# STATE_DIR/calibration.json, which every later sample copies.
+echo "== calibrating the rig: the ChArUco board on the turntable"
+"$CLI" arm-calibration
+"$CLI" press
+wait_state idle
+for _ in $(seq 600); do  # up to 2 min
+  c=$("$CLI" --json status | python3 -c 'import json, sys; c = json.load(sys.stdin)["calibration_capture"] or {}; print(c.get("state", ""))')
+  [ "$c" = done ] && break
+  [ "$c" = failed ] && { "$CLI" --json status; echo "the calibration failed; see $STATE_DIR/worker.log" >&2; exit 1; }
+  sleep 0.2
+done
+[ "$c" = done ] || { echo "no calibration after 2 min; see $STATE_DIR/worker.log" >&2; exit 1; }
+"$CLI" --json status | python3 -c 'import json, sys; r = json.load(sys.stdin)["calibration_capture"]["result"]; print("calibrated: RMS %.3f px from %d of %d views, fx %.1f px, camera %.1f mm from the axis" % (r["reprojection_rms_px"], r["views_used"], r["views_total"], r["fx_px"], r["camera_distance_mm"]))'
+
 echo "== arming sample $SAMPLE on the simulated rig"
 "$CLI" arm "$SAMPLE"
 echo "== pressing start: side 1"

@@ -87,8 +87,12 @@ TEST_F(ClientTest, ActionsCallTheDaemon) {
   EXPECT_NE(out_.str().find("state: homing"), std::string::npos) << out_.str();
   EXPECT_EQ(Run({"abort"}), kClientExitOk);
   EXPECT_EQ(Run({"reset"}), kClientExitOk);
+  EXPECT_EQ(Run({"arm-calibration"}), kClientExitOk) << err_.str();
+  EXPECT_NE(out_.str().find("armed calibration capture calibration-20260101T100000Z"),
+            std::string::npos)
+      << out_.str();
   EXPECT_EQ(fake_.Calls(),
-            (std::vector<std::string>{"arm:rock-12", "press:api", "abort", "reset"}));
+            (std::vector<std::string>{"arm:rock-12", "press:api", "abort", "reset", "calibrate"}));
 }
 
 TEST_F(ClientTest, SamplesTable) {
