@@ -39,6 +39,15 @@ void Clock::SleepUntil(TimeNs t) {
 
 std::string NowUtcString() { return FormatUtc(RealUtcNs()); }
 
+std::string CompactUtcNow() {
+  const time_t t = time(nullptr);
+  tm parts{};
+  gmtime_r(&t, &parts);
+  char buf[32];
+  strftime(buf, sizeof buf, "%Y%m%dT%H%M%SZ", &parts);
+  return buf;
+}
+
 TimeNs RealClock::Now() const { return MonotonicNs(); }
 int64_t RealClock::UtcNs() const { return RealUtcNs(); }
 

@@ -80,6 +80,9 @@ class VirtualClock final : public Clock {
 std::string FormatUtc(int64_t utc_ns);
 /// FormatUtc of the real wall clock now (record timestamps).
 std::string NowUtcString();
+/// The wall clock now as "20261205T101500Z": sorts by time and holds no ':',
+/// for names of files and folders.
+std::string CompactUtcNow();
 /// Raw CLOCK_MONOTONIC in ns (for measuring real durations).
 TimeNs MonotonicNs();
 

@@ -10,6 +10,8 @@
 #include <filesystem>
 #include <random>
 
+#include "common/clock.h"
+
 namespace aggscan {
 namespace {
 
@@ -155,6 +157,13 @@ Result<std::string> ReadFile(const std::string& path) {
 bool PathExists(const std::string& path) {
   struct stat st {};
   return ::stat(path.c_str(), &st) == 0;
+}
+
+std::string FreeTimedName(const std::string& dir, const std::string& prefix) {
+  const std::string stamp = prefix + CompactUtcNow();
+  std::string name = stamp;
+  for (int k = 2; PathExists(dir + name); ++k) name = stamp + "-" + std::to_string(k);
+  return name;
 }
 
 int RemoveTempFiles(const std::string& dir) {

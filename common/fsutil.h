@@ -31,6 +31,10 @@ Status RenameDurable(const std::string& from, const std::string& to);
 /// Reads a whole file.
 Result<std::string> ReadFile(const std::string& path);
 bool PathExists(const std::string& path);
+/// `prefix` + the time now (CompactUtcNow) + "-2", "-3", ... where needed so
+/// that `dir` + the result does not exist yet: names of things kept side by
+/// side (previous calibrations, captures, installed sets) that sort by time.
+std::string FreeTimedName(const std::string& dir, const std::string& prefix);
 /// The folder of the running executable (/proc/self/exe); empty if unknown.
 /// Installed data files are found relative to it (../share/aggscan/).
 std::string ExecutableDir();

@@ -66,6 +66,14 @@ bool ZipStream::Fail(std::string what) {
   return false;
 }
 
+bool ZipStream::EndMember() {
+  ::close(fd_);
+  fd_ = -1;
+  if (archive_write_finish_entry(a_) != ARCHIVE_OK)
+    return Fail(std::string("libarchive: ") + archive_error_string(a_));
+  return true;
+}
+
 bool ZipStream::Step() {
   if (fd_ >= 0) {
     // The next block of the current member.
@@ -83,13 +91,7 @@ bool ZipStream::Step() {
       return Fail(std::string("libarchive: ") + archive_error_string(a_));
     data_bytes_ += block.size();
     left_ -= static_cast<int64_t>(block.size());
-    if (left_ == 0) {
-      ::close(fd_);
-      fd_ = -1;
-      if (archive_write_finish_entry(a_) != ARCHIVE_OK)
-        return Fail(std::string("libarchive: ") + archive_error_string(a_));
-    }
-    return true;
+    return left_ > 0 || EndMember();
   }
   if (next_ < members_.size()) {
     const Member& m = members_[next_++];
@@ -108,13 +110,7 @@ bool ZipStream::Step() {
     archive_entry_free(e);
     if (rc != ARCHIVE_OK) return Fail(std::string("libarchive: ") + archive_error_string(a_));
     left_ = m.size;
-    if (left_ == 0) {
-      ::close(fd_);
-      fd_ = -1;
-      if (archive_write_finish_entry(a_) != ARCHIVE_OK)
-        return Fail(std::string("libarchive: ") + archive_error_string(a_));
-    }
-    return true;
+    return left_ > 0 || EndMember();
   }
   // Every member written: the central directory.
   if (archive_write_close(a_) != ARCHIVE_OK)

@@ -68,6 +68,8 @@ class ZipStream final : public BodySource {
   /// data, or the central directory at the end. False on an error.
   bool Step();
   bool Fail(std::string what);
+  /// The current member's data is all written: closes its file and entry.
+  bool EndMember();
   friend ssize_t ZipCollect(struct archive*, void* self, const void* buf, size_t n);
 
   std::vector<Member> members_;

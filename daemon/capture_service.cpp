@@ -9,7 +9,6 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
-#include <ctime>
 #include <future>
 #include <sstream>
 
@@ -44,16 +43,6 @@ json JobJson(const Job& j) {
           {"interruptions", j.interruptions},
           {"error", j.error},
           {"updated_utc", j.updated_utc}};
-}
-
-// "20261205T101500Z" from the wall clock: calibration capture ids.
-std::string CompactUtcNow() {
-  const std::time_t t = std::time(nullptr);
-  std::tm tm{};
-  gmtime_r(&t, &tm);
-  char buf[32];
-  std::strftime(buf, sizeof buf, "%Y%m%dT%H%M%SZ", &tm);
-  return buf;
 }
 
 SamplePlan PlanFromConfig(const Config& c) {
@@ -580,7 +569,7 @@ StorageHealth CaptureService::CheckStorage() const {
     // The directory scan runs only between sides: status is polled while a
     // side is shot, and its loop must keep the schedule.
     if (!SideRunning() || view_bytes_.first != state_.sample_id) {
-      view_bytes_ = {state_.sample_id, Cur().StoredViewBytes(state_.sample_id)};
+      view_bytes_ = {state_.sample_id, StoreOf(state_.sample_id).StoredViewBytes(state_.sample_id)};
     }
     const auto [n, bytes] = view_bytes_.second;
     if (n > 0) {
@@ -638,8 +627,9 @@ Status CaptureService::CheckStorageForSide() const {
 }
 
 Status CaptureService::CompleteAndQueue(const std::string& sample_id) {
-  if (!PathExists(Cur().SampleDir(sample_id) + "/" + layout::kSampleRecord)) return OkStatus();
-  Result<Completion> done = Cur().CompleteStored(sample_id);
+  if (!PathExists(StoreOf(sample_id).SampleDir(sample_id) + "/" + layout::kSampleRecord))
+    return OkStatus();
+  Result<Completion> done = StoreOf(sample_id).CompleteStored(sample_id);
   if (!done) {
     // A damaged record is PrepareArm's to explain; anything else is a store failure.
     if (done.error().cls == ErrorClass::kCorrupt) return OkStatus();
@@ -652,7 +642,7 @@ Status CaptureService::CompleteAndQueue(const std::string& sample_id) {
         "side " + std::to_string(side) + " had every view stored: manifest written, not re-shot");
   }
   if (queue_) {
-    for (const auto& [id, side] : Cur().CapturedWork(sample_id)) {
+    for (const auto& [id, side] : StoreOf(sample_id).CapturedWork(sample_id)) {
       auto jobs = queue_->JobsForSample(id);
       if (!jobs)
         return MakeError(jobs.error().cls, "cannot read the job queue: " + jobs.error().ToString());
@@ -764,7 +754,8 @@ void CaptureService::Execute(const cs::Effect& eff) {
       [&](const auto& e) {
         using T = std::decay_t<decltype(e)>;
         if constexpr (std::is_same_v<T, cs::CreateSample>) {
-          Status s = Cur().CreateOrResume(e.sample_id, CurrentPlan(), config_toml_, arm_meta_);
+          Status s = StoreOf(e.sample_id)
+                         .CreateOrResume(e.sample_id, CurrentPlan(), config_toml_, arm_meta_);
           if (!s) {
             pending_events_.push_back(
                 cs::StoreFailed{s.error().cls, "cannot create sample: " + s.error().ToString()});
@@ -805,7 +796,7 @@ void CaptureService::Execute(const cs::Effect& eff) {
           AddEpochTimer(clock.Now() + config_.capture.poll_interval,
                         [this, ep = epoch_] { PollMotion(ep); });
         } else if constexpr (std::is_same_v<T, cs::BeginSide>) {
-          Status s = Cur().BeginSide(id, e.side);
+          Status s = StoreOf(id).BeginSide(id, e.side);
           if (!s) {
             pending_events_.push_back(
                 cs::StoreFailed{s.error().cls, "cannot start side: " + s.error().ToString()});
@@ -891,7 +882,7 @@ void CaptureService::Execute(const cs::Effect& eff) {
           // A real camera without a control for a locked setting (V4L2
           // strict_controls = false): say so rather than let its value pass as measured.
           if (!f->missing_controls.empty()) car["missing_controls"] = f->missing_controls;
-          Status s = Cur().WriteView(id, e.side, e.view, f->data, car);
+          Status s = StoreOf(id).WriteView(id, e.side, e.view, f->data, car);
           if (!s) {
             pending_events_.push_back(
                 cs::StoreFailed{s.error().cls, "cannot store view: " + s.error().ToString()});
@@ -944,7 +935,7 @@ void CaptureService::Execute(const cs::Effect& eff) {
             pending_events_.push_back(
                 cs::StoreFailed{err.cls, what + ": " + err.ToString() + again});
           };
-          if (Status s = Cur().FinishSide(id, e.side); !s)
+          if (Status s = StoreOf(id).FinishSide(id, e.side); !s)
             return fail("cannot store " + side + "'s manifest and record", s.error());
           if (queue_) {
             auto q = queue_->Enqueue(id, e.side, calibration_capture_ ? kJobCalibration : kJobRock);
@@ -952,14 +943,14 @@ void CaptureService::Execute(const cs::Effect& eff) {
           }
           ++sides_completed_;
           if (!e.last_side) {
-            if (Status s = Cur().SetSampleState(id, "awaiting_pose"); !s) {
+            if (Status s = StoreOf(id).SetSampleState(id, "awaiting_pose"); !s) {
               return fail("cannot record " + side + " as done", s.error());
             }
             LogLine(LogLevel::kInfo, "capture", id,
                     side + " done and queued: flip the rock and press the start button");
           } else {
             LogLine(LogLevel::kInfo, "capture", id, side + " done and queued");
-            if (Status s = Cur().SetSampleState(id, "captured"); !s) {
+            if (Status s = StoreOf(id).SetSampleState(id, "captured"); !s) {
               return fail("cannot mark the sample captured", s.error());
             }
             if (queue_ && !calibration_capture_) {
@@ -986,14 +977,14 @@ void CaptureService::Execute(const cs::Effect& eff) {
           if (dev_.turntable && dev_.turntable->is_open()) (void)dev_.turntable->Stop();
         } else if constexpr (std::is_same_v<T, cs::MarkInterrupted>) {
           if (!id.empty()) {
-            Status s = Cur().SetSampleState(id, "interrupted", e.side, "interrupted");
+            Status s = StoreOf(id).SetSampleState(id, "interrupted", e.side, "interrupted");
             if (!s)
               LogLine(LogLevel::kError, "capture", id,
                       "cannot record interruption: " + s.error().ToString());
           }
         } else if constexpr (std::is_same_v<T, cs::MarkAborted>) {
           if (!id.empty()) {
-            Status s = Cur().SetSampleState(id, "aborted", e.side, "interrupted");
+            Status s = StoreOf(id).SetSampleState(id, "aborted", e.side, "interrupted");
             if (!s)
               LogLine(LogLevel::kError, "capture", id,
                       "cannot record abort: " + s.error().ToString());
@@ -1363,17 +1354,20 @@ json CaptureService::StatusOnLoop() const {
           {"worker", WorkerOnLoop()}};
 }
 
-Result<json> CaptureService::ArmOnLoop(const ArmRequest& request) {
-  const std::string& sample_id = request.id;
+Status CaptureService::CheckCanArm(const std::string& what) const {
   if (state_.phase != cs::Phase::kIdle) {
     return MakeError(
         ErrorClass::kInvalidState,
-        std::string("cannot arm while ") + cs::PhaseName(state_.phase) +
+        "cannot " + what + " while " + cs::PhaseName(state_.phase) +
             (state_.phase == cs::Phase::kFaulted ? ": reset the fault first"
                                                  : ": abort the current sample first"));
   }
-  Status healthy = CheckDevicesHealthy({"camera", "turntable", "button"});
-  if (!healthy) return healthy.error();
+  return CheckDevicesHealthy({"camera", "turntable", "button"});
+}
+
+Result<json> CaptureService::ArmOnLoop(const ArmRequest& request) {
+  const std::string& sample_id = request.id;
+  if (Status s = CheckCanArm("arm"); !s) return s.error();
   if (sample_id.rfind(layout::kCalibrationIdPrefix, 0) == 0) {
     return MakeError(ErrorClass::kInvalidArgument,
                      "sample ids starting with \"" + std::string(layout::kCalibrationIdPrefix) +
@@ -1409,15 +1403,7 @@ SamplePlan CaptureService::CurrentPlan() const {
 }
 
 Result<json> CaptureService::ArmCalibrationOnLoop() {
-  if (state_.phase != cs::Phase::kIdle) {
-    return MakeError(
-        ErrorClass::kInvalidState,
-        std::string("cannot start a calibration while ") + cs::PhaseName(state_.phase) +
-            (state_.phase == cs::Phase::kFaulted ? ": reset the fault first"
-                                                 : ": abort the current sample first"));
-  }
-  Status healthy = CheckDevicesHealthy({"camera", "turntable", "button"});
-  if (!healthy) return healthy.error();
+  if (Status s = CheckCanArm("start a calibration"); !s) return s.error();
   if (config_.camera.backend == "sim" && config_.sim.board_image.empty()) {
     return MakeError(ErrorClass::kInvalidConfig,
                      "the sim camera has no calibration board to draw: write one with `aggscan "
@@ -1426,9 +1412,7 @@ Result<json> CaptureService::ArmCalibrationOnLoop() {
   }
   if (Status s = cal_store_.Init(); !s) return s.error();
   // calibration-<UTC>, made unique if two start within a second.
-  std::string id = layout::kCalibrationIdPrefix + CompactUtcNow();
-  for (int k = 2; PathExists(cal_store_.SampleDir(id)); ++k)
-    id = layout::kCalibrationIdPrefix + CompactUtcNow() + "-" + std::to_string(k);
+  const std::string id = FreeTimedName(cal_store_.SampleDir(""), layout::kCalibrationIdPrefix);
   calibration_capture_ = true;
   const SamplePlan plan = CurrentPlan();
   Result<int> first = cal_store_.PrepareArm(id, plan);
@@ -1714,8 +1698,7 @@ Result<std::string> CaptureService::ResultFile(const std::string& sample_id,
 Result<std::string> CaptureService::ViewFile(const std::string& sample_id, int side, int view,
                                              ViewFileKind kind) {
   // A board capture's views are shown like a rock's while they are shot.
-  const bool board = sample_id.rfind(layout::kCalibrationIdPrefix, 0) == 0;
-  const std::string dir = (board ? cal_store_ : store_).SampleDir(sample_id);
+  const std::string dir = StoreOf(sample_id).SampleDir(sample_id);
   if (!PathExists(dir + "/" + layout::kSampleRecord))
     return MakeError(ErrorClass::kNotFound, "no sample \"" + sample_id + "\"");
   const std::string what = "view " + std::to_string(view) + " of side " + std::to_string(side) +

@@ -181,9 +181,14 @@ class CaptureService final : public DaemonControl {
   void WatchCalibration();
   /// The plan of the capture being armed: the config's, one side for the board.
   SamplePlan CurrentPlan() const;
-  /// The store of the capture in progress: rocks or calibration captures.
-  SampleStore& Cur() { return calibration_capture_ ? cal_store_ : store_; }
-  const SampleStore& Cur() const { return calibration_capture_ ? cal_store_ : store_; }
+  /// The store a capture id belongs to: calibration captures by their
+  /// reserved prefix (layout::kCalibrationIdPrefix), rocks otherwise.
+  const SampleStore& StoreOf(const std::string& id) const {
+    return id.rfind(layout::kCalibrationIdPrefix, 0) == 0 ? cal_store_ : store_;
+  }
+  SampleStore& StoreOf(const std::string& id) {
+    return id.rfind(layout::kCalibrationIdPrefix, 0) == 0 ? cal_store_ : store_;
+  }
   void Publish(const std::string& type, nlohmann::json data);
   /// Starts the live view's tick unless it runs (a screen began watching).
   void StartPreview();
@@ -211,6 +216,10 @@ class CaptureService final : public DaemonControl {
   /// whose views are all there, "captured") and queues the work the queue
   /// lacks. kConflict when that completed the whole sample.
   Status CompleteAndQueue(const std::string& sample_id);
+  /// Whether a capture may be armed now: idle (kInvalidState naming the
+  /// phase and what to do, `what` being "arm" or the like) and every device
+  /// healthy.
+  Status CheckCanArm(const std::string& what) const;
   /// kDeviceMissing/... naming the first unhealthy device of `names`, for refusing a capture.
   Status CheckDevicesHealthy(std::initializer_list<const char*> names) const;
   void NotifyStatus();

@@ -9,7 +9,6 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <ctime>
 #include <filesystem>
 #include <nlohmann/json.hpp>
 #include <opencv2/aruco/charuco.hpp>
@@ -558,30 +557,10 @@ Result<CalibrationResult> CalibrateSampleSide(const std::string& sample_dir, int
   return res;
 }
 
-}  // namespace aggscan
-
-namespace aggscan {
-
-namespace {
-
-// "20240513T101500Z" from the wall clock.
-std::string CompactUtc() {
-  const std::time_t t = std::time(nullptr);
-  std::tm tm{};
-  gmtime_r(&t, &tm);
-  char buf[32];
-  std::strftime(buf, sizeof buf, "%Y%m%dT%H%M%SZ", &tm);
-  return buf;
-}
-
-}  // namespace
-
 Result<std::string> InstallRigCalibration(const std::string& path, const RigCalibration& cal) {
   std::string prev;
   if (PathExists(path)) {
-    prev = path + ".prev-" + CompactUtc();
-    for (int k = 2; PathExists(prev); ++k)
-      prev = path + ".prev-" + CompactUtc() + "-" + std::to_string(k);
+    prev = FreeTimedName("", path + ".prev-");
     if (::link(path.c_str(), prev.c_str()) != 0) {
       // A filesystem without hard links: a durable copy instead.
       Result<std::string> old = ReadFile(path);

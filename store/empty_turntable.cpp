@@ -28,16 +28,7 @@ Result<json> ReadJsonFile(const std::string& path) {
 }
 
 // A set id from the time it is installed: sorts by time, no ':' (a path).
-std::string NewSetId(const std::string& root) {
-  const std::time_t t = std::time(nullptr);
-  std::tm tm{};
-  gmtime_r(&t, &tm);
-  char buf[32];
-  std::strftime(buf, sizeof buf, "%Y%m%dT%H%M%SZ", &tm);
-  std::string id = buf;
-  for (int k = 2; PathExists(root + "/" + id); ++k) id = std::string(buf) + "-" + std::to_string(k);
-  return id;
-}
+std::string NewSetId(const std::string& root) { return FreeTimedName(root + "/", ""); }
 
 // A hard link of `from` at `to`, or a durable copy where the filesystem has
 // no hard links (or they cross filesystems). The files are write-once: a link
