@@ -60,8 +60,8 @@ struct SheetArgs {
 };
 
 // 0 when parsed, else the exit code (2, usage) after saying what is wrong.
-int ParseSheetArgs(const std::vector<std::string>& a, const std::string& cmd, bool margin, SheetArgs* o,
-                   std::ostream& err) {
+int ParseSheetArgs(const std::vector<std::string>& a, const std::string& cmd, bool margin,
+                   SheetArgs* o, std::ostream& err) {
   for (size_t i = 1; i < a.size(); ++i) {
     auto val = [&](const char* name, std::string* v) {
       if (i + 1 >= a.size()) {
@@ -152,8 +152,8 @@ int ArucoCommand(const std::vector<std::string>& a, std::ostream& out, std::ostr
     err << "aggscan calibrate aruco: " << s.error().ToString() << "\n";
     return s.error().cls == ErrorClass::kInvalidArgument ? 2 : 1;
   }
-  out << rig.aruco_markers.size() << " ArUco marker(s) of " << rig.aruco_dictionary << " written to "
-      << path << " side by side, ids";
+  out << rig.aruco_markers.size() << " ArUco marker(s) of " << rig.aruco_dictionary
+      << " written to " << path << " side by side, ids";
   for (const ArucoMarker& m : rig.aruco_markers) out << " " << m.id;
   out << ", " << F(rig.aruco_size_mm, 1) << " mm each at " << F(dpi, 0) << " dpi\n"
       << "name it in [sim] aruco_image for the sim camera; for the rig print it at 100 %, cut\n"
@@ -203,7 +203,8 @@ int SolveCommand(const std::vector<std::string>& a, std::ostream& out, std::ostr
     }
   }
   if (sample.empty()) {
-    err << "aggscan calibrate: give the sample directory of a board capture (or 'board --out FILE')\n";
+    err << "aggscan calibrate: give the sample directory of a board capture (or 'board --out "
+           "FILE')\n";
     return 2;
   }
   if (!state_dir.empty() && !out_path.empty()) {
@@ -220,7 +221,8 @@ int SolveCommand(const std::vector<std::string>& a, std::ostream& out, std::ostr
     if (state_dir.empty()) state_dir = layout::StateDirOfSample(sample);
     if (state_dir.empty()) {
       err << "aggscan calibrate: " << sample
-          << " is not inside a state directory (STATE_DIR/samples/ID); say where the calibration goes "
+          << " is not inside a state directory (STATE_DIR/samples/ID); say where the calibration "
+             "goes "
              "with --state-dir DIR or --out FILE\n";
       return 2;
     }
@@ -262,14 +264,17 @@ int SolveCommand(const std::vector<std::string>& a, std::ostream& out, std::ostr
     // Optical axis in the table frame: the third row of R.
     const double down = std::asin(std::clamp(-cal.R_cam_table0[8], -1.0, 1.0)) * 180 / M_PI;
     out << "calibration written to " << out_path << "\n"
-        << "  views used " << cal.views_used << " of " << r->views_total << ", corners " << cal.corners_used
-        << ", reprojection RMS " << F(cal.reprojection_rms_px, 3) << " px (worst view "
-        << F(r->max_view_rms_px, 3) << " px)\n"
-        << "  lens " << m.width << "x" << m.height << ": fx = fy = " << F(m.fx, 1) << " px, centre ("
-        << F(m.cx, 1) << ", " << F(m.cy, 1) << ") px (fixed: one plane), k1 " << F(m.k1, 4) << ", k2 "
-        << F(m.k2, 4)
-        << (r->k2_estimated ? "" : " (fixed: the board covers too little of the image to measure it)") << "\n"
-        << "  standard deviations: fx " << F(r->sigma_fx_px, 2) << " px, k1 " << F(r->sigma_k1, 4) << "\n"
+        << "  views used " << cal.views_used << " of " << r->views_total << ", corners "
+        << cal.corners_used << ", reprojection RMS " << F(cal.reprojection_rms_px, 3)
+        << " px (worst view " << F(r->max_view_rms_px, 3) << " px)\n"
+        << "  lens " << m.width << "x" << m.height << ": fx = fy = " << F(m.fx, 1)
+        << " px, centre (" << F(m.cx, 1) << ", " << F(m.cy, 1) << ") px (fixed: one plane), k1 "
+        << F(m.k1, 4) << ", k2 " << F(m.k2, 4)
+        << (r->k2_estimated ? ""
+                            : " (fixed: the board covers too little of the image to measure it)")
+        << "\n"
+        << "  standard deviations: fx " << F(r->sigma_fx_px, 2) << " px, k1 " << F(r->sigma_k1, 4)
+        << "\n"
         << "  camera " << F(dist, 1) << " mm from the table origin, " << F(C[2], 1)
         << " mm above the disc, elevation " << F(elev, 2) << " deg; optical axis " << F(down, 2)
         << " deg below horizontal\n"
@@ -282,13 +287,15 @@ int SolveCommand(const std::vector<std::string>& a, std::ostream& out, std::ostr
     err << "aggscan calibrate: " << r->outlier_corners
         << " corner(s) off by more than 2 px were down-weighted (glare, a crease in the paper?)\n";
   }
-  if (!prev->empty()) err << "aggscan calibrate: the previous calibration is kept as " << *prev << "\n";
+  if (!prev->empty())
+    err << "aggscan calibrate: the previous calibration is kept as " << *prev << "\n";
   return 0;
 }
 
 }  // namespace
 
-int RunCalibrateCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {
+int RunCalibrateCommand(const std::vector<std::string>& args, std::ostream& out,
+                        std::ostream& err) {
   if (!args.empty() && args[0] == "board") return BoardCommand(args, out, err);
   if (!args.empty() && args[0] == "aruco") return ArucoCommand(args, out, err);
   return SolveCommand(args, out, err);

@@ -950,7 +950,8 @@ void PrintValidateUsage(std::ostream& o) {
        "reported;\n"
        "      --backgrounds: also side 1's views with the rock taken away, the look's\n"
        "      empty-turntable photos, as the sample's set (SAMPLE/empty/): the worker masks every\n"
-       "      view against the one of its angle (and aggscan masks train --backgrounds takes them);\n"
+       "      view against the one of its angle (and aggscan masks train --backgrounds takes "
+       "them);\n"
        "      --render-only: capture and render into --keep DIR, reconstruct nothing (mask sets);\n"
        "      exit 0 all targets met, 1 a target missed or a rock failed, 2 usage\n";
 }

@@ -44,8 +44,8 @@ struct CameraSettings {
 struct StillRequest {
   uint64_t request_id = 0;
   std::string sample_id;
-  int side = 1;   // 1-based
-  int view = 0;   // 0-based
+  int side = 1;  // 1-based
+  int view = 0;  // 0-based
   /// A calibration capture: the printed board lies on the disc, not a rock
   /// (the sim camera then draws its board world).
   bool board = false;
@@ -54,12 +54,12 @@ struct StillRequest {
 /// An encoded still. Travels as shared_ptr<const Frame>.
 struct Frame {
   uint64_t request_id = 0;
-  uint64_t sequence = 0;         // driver frame counter
+  uint64_t sequence = 0;  // driver frame counter
   int width = 0;
   int height = 0;
-  std::string encoding = "jpeg"; // the bytes' format
+  std::string encoding = "jpeg";  // the bytes' format
   std::vector<unsigned char> data;
-  TimeNs exposure_start = 0;     // on the daemon's clock
+  TimeNs exposure_start = 0;  // on the daemon's clock
   int64_t utc_ns = 0;
   // Settings actually in effect for this frame (as read back from the device).
   double exposure_us = 0.0;

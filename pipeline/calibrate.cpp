@@ -36,11 +36,12 @@ Result<cv::Ptr<cv::aruco::CharucoBoard>> MakeBoard(const CalibrationConfig& b) {
     return MakeError(ErrorClass::kInvalidConfig, "calibration.dictionary: " + dict.error().message);
   }
   try {
-    return cv::aruco::CharucoBoard::create(b.squares_x, b.squares_y, static_cast<float>(b.square_mm),
+    return cv::aruco::CharucoBoard::create(b.squares_x, b.squares_y,
+                                           static_cast<float>(b.square_mm),
                                            static_cast<float>(b.marker_mm), *dict);
   } catch (const cv::Exception& e) {
-    return MakeError(ErrorClass::kInvalidConfig, "cannot build the ChArUco board from [calibration]",
-                     e.what());
+    return MakeError(ErrorClass::kInvalidConfig,
+                     "cannot build the ChArUco board from [calibration]", e.what());
   }
 }
 
@@ -91,7 +92,8 @@ double NormalizeDeg(double d) {
 
 // Detections on one image: markers, then the interpolated ChArUco corners as
 // OpenCV returns them.
-void DetectCharuco(const cv::Mat& img, const cv::Ptr<cv::aruco::CharucoBoard>& board, BoardView* view) {
+void DetectCharuco(const cv::Mat& img, const cv::Ptr<cv::aruco::CharucoBoard>& board,
+                   BoardView* view) {
   std::vector<std::vector<cv::Point2f>> marker_corners, rejected;
   std::vector<int> marker_ids;
   cv::Ptr<cv::aruco::DetectorParameters> params = cv::aruco::DetectorParameters::create();
@@ -119,8 +121,8 @@ double CharucoCornerOffsetPx() {
     auto board = MakeBoard(b);
     if (!board) return 0.0;
     constexpr int kSquarePx = 40, kMarginPx = 40;
-    cv::Mat squares, page(b.squares_y * kSquarePx + 2 * kMarginPx, b.squares_x * kSquarePx + 2 * kMarginPx,
-                          CV_8UC1, cv::Scalar(255));
+    cv::Mat squares, page(b.squares_y * kSquarePx + 2 * kMarginPx,
+                          b.squares_x * kSquarePx + 2 * kMarginPx, CV_8UC1, cv::Scalar(255));
     try {
       (*board)->draw(cv::Size(b.squares_x * kSquarePx, b.squares_y * kSquarePx), squares, 0, 1);
       squares.copyTo(page(cv::Rect(kMarginPx, kMarginPx, squares.cols, squares.rows)));
@@ -156,7 +158,8 @@ std::array<double, 2> BoardCornerMm(const CalibrationConfig& b, int id) {
 Status WriteBoardImage(const CalibrationConfig& b, const std::string& path, double px_per_mm,
                        double margin_mm) {
   if (!(px_per_mm > 0) || !(margin_mm >= 0)) {
-    return MakeError(ErrorClass::kInvalidArgument, "board image: resolution must be > 0 and margin >= 0");
+    return MakeError(ErrorClass::kInvalidArgument,
+                     "board image: resolution must be > 0 and margin >= 0");
   }
   auto board = MakeBoard(b);
   if (!board) return board.error();
@@ -182,16 +185,18 @@ Status WriteBoardImage(const CalibrationConfig& b, const std::string& path, doub
                                 "; print at true size, measure, lay flat on the turntable";
       const double scale = std::min(0.4 * m / 22.0, 0.9 * w / (label.size() * 20.0));
       cv::putText(page, label, cv::Point(m, h + m + static_cast<int>(m * 0.65)),
-                  cv::FONT_HERSHEY_SIMPLEX, scale, cv::Scalar(0), std::max(1, static_cast<int>(scale * 1.5)),
-                  cv::LINE_AA);
+                  cv::FONT_HERSHEY_SIMPLEX, scale, cv::Scalar(0),
+                  std::max(1, static_cast<int>(scale * 1.5)), cv::LINE_AA);
     }
   } catch (const cv::Exception& e) {
     return MakeError(ErrorClass::kInternal, "cannot draw the ChArUco board", e.what());
   }
   std::string ext = std::filesystem::path(path).extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return std::tolower(c); });
   if (ext != ".png" && ext != ".pgm") {
-    return MakeError(ErrorClass::kInvalidArgument, "board image: write a .png or a .pgm file, not " + path);
+    return MakeError(ErrorClass::kInvalidArgument,
+                     "board image: write a .png or a .pgm file, not " + path);
   }
   std::vector<unsigned char> bytes;
   try {
@@ -210,7 +215,8 @@ Result<BoardView> DetectBoardInImage(const std::string& image_path, const Calibr
   if (!board) return board.error();
   auto loaded = LoadImage(image_path, ImageMode::kGray);
   if (!loaded) {
-    return MakeError(loaded.error().cls, "cannot read image " + image_path + ": " + loaded.error().message,
+    return MakeError(loaded.error().cls,
+                     "cannot read image " + image_path + ": " + loaded.error().message,
                      loaded.error().detail);
   }
   cv::Mat img = std::move(*loaded);
@@ -259,8 +265,9 @@ Result<CalibrationResult> SolveRigCalibration(const std::vector<BoardView>& all_
             " views with " + std::to_string(opt.min_corners_per_view) +
             " corners each. Check that the whole board lies flat in view on the disc, that it is "
             "evenly lit without glare, that the image is in focus, and that [calibration] matches "
-            "the printed board (" + b.dictionary + ", " + std::to_string(b.squares_x) + "x" +
-            std::to_string(b.squares_y) + " squares); then capture the side again");
+            "the printed board (" +
+            b.dictionary + ", " + std::to_string(b.squares_x) + "x" + std::to_string(b.squares_y) +
+            " squares); then capture the side again");
   }
   std::vector<double> angles;
   for (const BoardView* v : views) angles.push_back(v->angle_deg);
@@ -294,7 +301,8 @@ Result<CalibrationResult> SolveRigCalibration(const std::vector<BoardView>& all_
   const int flags = cv::CALIB_FIX_ASPECT_RATIO | cv::CALIB_ZERO_TANGENT_DIST | cv::CALIB_FIX_K3 |
                     cv::CALIB_FIX_PRINCIPAL_POINT;
   try {
-    res.init_rms_px = cv::calibrateCamera(obj, img, cv::Size(width, height), K, dist, rvecs, tvecs, flags);
+    res.init_rms_px =
+        cv::calibrateCamera(obj, img, cv::Size(width, height), K, dist, rvecs, tvecs, flags);
   } catch (const cv::Exception& e) {
     return MakeError(ErrorClass::kInvalidArgument,
                      "OpenCV could not calibrate from the detected corners; capture the side again "
@@ -363,8 +371,9 @@ Result<CalibrationResult> SolveRigCalibration(const std::vector<BoardView>& all_
   // Corners are sub-pixel accurate; a mis-interpolated one should not pull
   // the rig: Huber beyond 1 px.
   for (const CornerResidual& o : obs) {
-    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<CornerResidual, 2, 6, 2, 3>(new CornerResidual(o)),
-                             new ceres::HuberLoss(1.0), cam, board_b, intr);
+    problem.AddResidualBlock(
+        new ceres::AutoDiffCostFunction<CornerResidual, 2, 6, 2, 3>(new CornerResidual(o)),
+        new ceres::HuberLoss(1.0), cam, board_b, intr);
   }
   ceres::Solver::Options so;
   so.linear_solver_type = ceres::DENSE_QR;
@@ -416,7 +425,8 @@ Result<CalibrationResult> SolveRigCalibration(const std::vector<BoardView>& all_
     res.k2_estimated = false;
   }
   if (summary.termination_type == ceres::FAILURE || !(intr[0] > 0)) {
-    return MakeError(ErrorClass::kInvalidArgument, "the rig refinement did not converge; capture the side again",
+    return MakeError(ErrorClass::kInvalidArgument,
+                     "the rig refinement did not converge; capture the side again",
                      summary.BriefReport());
   }
   res.sigma_fx_px = sigma[0];
@@ -471,27 +481,31 @@ Result<CalibrationResult> SolveRigCalibration(const std::vector<BoardView>& all_
   cal.corners_used = static_cast<int>(obs.size());
   cal.method = "charuco";
   cal.created_utc = NowUtcString();
-  cal.board = {{"type", "charuco"},
-               {"dictionary", b.dictionary},
-               {"squares_x", b.squares_x},
-               {"squares_y", b.squares_y},
-               {"square_mm", b.square_mm},
-               {"marker_mm", b.marker_mm},
-               {"pose_on_table", {{"x_mm", res.board_x_mm}, {"y_mm", res.board_y_mm}, {"yaw_deg", res.board_yaw_deg}}},
-               {"fixed", std::string("cx, cy at the image centre, fy = fx, p1 = p2 = k3 = 0: a board lying on "
-                                     "the turntable shows one plane") +
-                             (res.k2_estimated ? ""
-                                               : "; k2 = 0: the corners do not reach far enough out in "
-                                                 "the image to measure it")},
-               {"sigma", {{"fx_px", res.sigma_fx_px}, {"k1", res.sigma_k1}, {"k2", res.sigma_k2}}},
-               {"max_view_rms_px", res.max_view_rms_px},
-               {"rotation_span_deg", span}};
+  cal.board = {
+      {"type", "charuco"},
+      {"dictionary", b.dictionary},
+      {"squares_x", b.squares_x},
+      {"squares_y", b.squares_y},
+      {"square_mm", b.square_mm},
+      {"marker_mm", b.marker_mm},
+      {"pose_on_table",
+       {{"x_mm", res.board_x_mm}, {"y_mm", res.board_y_mm}, {"yaw_deg", res.board_yaw_deg}}},
+      {"fixed",
+       std::string("cx, cy at the image centre, fy = fx, p1 = p2 = k3 = 0: a board lying on "
+                   "the turntable shows one plane") +
+           (res.k2_estimated ? ""
+                             : "; k2 = 0: the corners do not reach far enough out in "
+                               "the image to measure it")},
+      {"sigma", {{"fx_px", res.sigma_fx_px}, {"k1", res.sigma_k1}, {"k2", res.sigma_k2}}},
+      {"max_view_rms_px", res.max_view_rms_px},
+      {"rotation_span_deg", span}};
   res.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return res;
 }
 
 Result<CalibrationResult> CalibrateSampleSide(const std::string& sample_dir, int side,
-                                              const CalibrationConfig& b, const CalibrateOptions& opt) {
+                                              const CalibrationConfig& b,
+                                              const CalibrateOptions& opt) {
   const auto t0 = std::chrono::steady_clock::now();
   const std::string side_name = layout::SideDirName(side);
   const std::string side_dir = sample_dir + "/" + side_name;
@@ -499,9 +513,10 @@ Result<CalibrationResult> CalibrateSampleSide(const std::string& sample_dir, int
   Result<std::string> text = ReadFile(manifest_path);
   if (!text) {
     if (text.error().cls == ErrorClass::kNotFound) {
-      return MakeError(ErrorClass::kNotFound, side_name + " of " + sample_dir +
-                                                  " has no manifest.json: it was not captured or the "
-                                                  "capture did not finish; capture the board again");
+      return MakeError(ErrorClass::kNotFound,
+                       side_name + " of " + sample_dir +
+                           " has no manifest.json: it was not captured or the "
+                           "capture did not finish; capture the board again");
     }
     return text.error();
   }
@@ -513,23 +528,29 @@ Result<CalibrationResult> CalibrateSampleSide(const std::string& sample_dir, int
   std::string camera_id;
   int width = 0, height = 0;
   for (const json& v : manifest["views"]) {
-    if (!v.is_object() || !v.value("image", json()).is_string() || !v.value("sidecar", json()).is_string()) {
-      return MakeError(ErrorClass::kCorrupt, manifest_path + " lists a view without image or sidecar");
+    if (!v.is_object() || !v.value("image", json()).is_string() ||
+        !v.value("sidecar", json()).is_string()) {
+      return MakeError(ErrorClass::kCorrupt,
+                       manifest_path + " lists a view without image or sidecar");
     }
-    const std::string image = v["image"].get<std::string>(), sidecar = v["sidecar"].get<std::string>();
+    const std::string image = v["image"].get<std::string>(),
+                      sidecar = v["sidecar"].get<std::string>();
     if (image.find('/') != std::string::npos || sidecar.find('/') != std::string::npos) {
-      return MakeError(ErrorClass::kCorrupt, manifest_path + " names a file outside the side directory");
+      return MakeError(ErrorClass::kCorrupt,
+                       manifest_path + " names a file outside the side directory");
     }
     const std::string sc_path = side_dir + "/" + sidecar;
     Result<std::string> sc_text = ReadFile(sc_path);
     json sc = sc_text ? json::parse(*sc_text, nullptr, false) : json();
-    if (!sc.is_object() || !sc.contains("measured_angle_deg") || !sc["measured_angle_deg"].is_number() ||
+    if (!sc.is_object() || !sc.contains("measured_angle_deg") ||
+        !sc["measured_angle_deg"].is_number() ||
         !std::isfinite(sc["measured_angle_deg"].get<double>())) {
-      return MakeError(ErrorClass::kCorrupt,
-                       side_name + "/" + sidecar +
-                           " is missing, damaged or has no measured_angle_deg: the turntable angle of " +
-                           image + " is unknown, so the view cannot be placed; capture the board again",
-                       sc_text ? std::string() : sc_text.error().ToString());
+      return MakeError(
+          ErrorClass::kCorrupt,
+          side_name + "/" + sidecar +
+              " is missing, damaged or has no measured_angle_deg: the turntable angle of " + image +
+              " is unknown, so the view cannot be placed; capture the board again",
+          sc_text ? std::string() : sc_text.error().ToString());
     }
     if (camera_id.empty()) camera_id = sc.value("camera_id", "");
     int w = 0, h = 0;
@@ -537,17 +558,18 @@ Result<CalibrationResult> CalibrateSampleSide(const std::string& sample_dir, int
     if (!det) return det.error();
     if (width == 0) width = w, height = h;
     if (w != width || h != height) {
-      return MakeError(ErrorClass::kCorrupt, side_name + "/" + image + " is " + std::to_string(w) + "x" +
-                                                 std::to_string(h) + ", the other views " +
-                                                 std::to_string(width) + "x" + std::to_string(height) +
-                                                 "; one capture must keep one resolution");
+      return MakeError(ErrorClass::kCorrupt,
+                       side_name + "/" + image + " is " + std::to_string(w) + "x" +
+                           std::to_string(h) + ", the other views " + std::to_string(width) + "x" +
+                           std::to_string(height) + "; one capture must keep one resolution");
     }
     det->name = side_name + "/" + image;
     det->angle_deg = sc["measured_angle_deg"].get<double>();
     views.push_back(std::move(det).value());
   }
   if (views.empty()) {
-    return MakeError(ErrorClass::kInvalidArgument, side_name + " of " + sample_dir + " has no views");
+    return MakeError(ErrorClass::kInvalidArgument,
+                     side_name + " of " + sample_dir + " has no views");
   }
   Result<CalibrationResult> res = SolveRigCalibration(views, b, width, height, opt);
   if (!res) return res;

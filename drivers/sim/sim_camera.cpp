@@ -1,7 +1,6 @@
 #include "drivers/sim/sim_camera.h"
 
 #include <future>
-
 #include <utility>
 
 #include "common/log.h"
@@ -122,7 +121,8 @@ void SimCamera::Serve(Job& job) {
   const double exposure_us =
       s.manual_exposure ? s.exposure_us : world_->config().camera.exposure.exposure_us;
   const double gain = s.manual_exposure ? s.gain : world_->config().camera.exposure.gain;
-  const double angle = job.warmup ? 0.0 : angle_at_(start + static_cast<TimeNs>(exposure_us * 500.0));
+  const double angle =
+      job.warmup ? 0.0 : angle_at_(start + static_cast<TimeNs>(exposure_us * 500.0));
 
   if (!renderer_ || renderer_->width() != s.width || renderer_->height() != s.height) {
     renderer_ = std::make_unique<Renderer>(*world_, s.width, s.height);
