@@ -55,7 +55,8 @@ ScaledClock::ScaledClock(double scale)
     : scale_(scale > 0 ? scale : 1.0), real_start_(MonotonicNs()), utc_start_(RealUtcNs()) {}
 
 TimeNs ScaledClock::Now() const {
-  return real_start_ + static_cast<TimeNs>(static_cast<double>(MonotonicNs() - real_start_) * scale_);
+  return real_start_ +
+         static_cast<TimeNs>(static_cast<double>(MonotonicNs() - real_start_) * scale_);
 }
 
 int64_t ScaledClock::UtcNs() const { return utc_start_ + (Now() - real_start_); }

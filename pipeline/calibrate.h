@@ -55,10 +55,10 @@ Status WriteBoardImage(const CalibrationConfig& board, const std::string& path, 
 
 /// The board corners found in one view.
 struct BoardView {
-  std::string name;        // "side1/view_007.jpg"
-  double angle_deg = 0;    // measured turntable angle (sidecar measured_angle_deg)
-  int markers = 0;         // ArUco markers detected
-  std::vector<int> ids;    // ChArUco corner ids (OpenCV numbering)
+  std::string name;      // "side1/view_007.jpg"
+  double angle_deg = 0;  // measured turntable angle (sidecar measured_angle_deg)
+  int markers = 0;       // ArUco markers detected
+  std::vector<int> ids;  // ChArUco corner ids (OpenCV numbering)
   std::vector<std::array<double, 2>> corners;  // their pixels (centres at integers)
 };
 
@@ -83,15 +83,15 @@ struct CalibrateOptions {
 struct CalibrationResult {
   RigCalibration cal;  // method "charuco"; board JSON with the pose on the disc
   double board_x_mm = 0, board_y_mm = 0, board_yaw_deg = 0;  // pose on the disc, table frame
-  int views_total = 0;                 // views in the side
-  std::vector<std::string> skipped;    // unused views and why
-  double max_view_rms_px = 0;          // worst view
-  double init_rms_px = 0;              // OpenCV calibrateCamera (free pose per view)
-  int outlier_corners = 0;             // corners with a residual above 2 px (Huber-weighted)
-  bool k2_estimated = true;            // false: k2 fixed at 0 (CalibrateOptions::k2)
+  int views_total = 0;                                       // views in the side
+  std::vector<std::string> skipped;                          // unused views and why
+  double max_view_rms_px = 0;                                // worst view
+  double init_rms_px = 0;    // OpenCV calibrateCamera (free pose per view)
+  int outlier_corners = 0;   // corners with a residual above 2 px (Huber-weighted)
+  bool k2_estimated = true;  // false: k2 fixed at 0 (CalibrateOptions::k2)
   double k2_free_value = 0, k2_free_sigma = 0;  // kAuto, when it fixed k2: what a free k2 gave
   double sigma_fx_px = 0, sigma_k1 = 0, sigma_k2 = 0;  // standard deviations from the fit
-  double seconds = 0;                  // detection + solve, wall time
+  double seconds = 0;                                  // detection + solve, wall time
 };
 
 /// Solves from detections (views of one side, in any order).

@@ -13,13 +13,17 @@ namespace {
 // Finalizes a prepared statement on scope exit.
 class Stmt {
  public:
-  Stmt(sqlite3* db, const char* sql) : db_(db) { rc_ = sqlite3_prepare_v2(db, sql, -1, &st_, nullptr); }
+  Stmt(sqlite3* db, const char* sql) : db_(db) {
+    rc_ = sqlite3_prepare_v2(db, sql, -1, &st_, nullptr);
+  }
   ~Stmt() { sqlite3_finalize(st_); }
   Stmt(const Stmt&) = delete;
   Stmt& operator=(const Stmt&) = delete;
   bool ok() const { return rc_ == SQLITE_OK; }
   sqlite3_stmt* get() { return st_; }
-  void Bind(int i, const std::string& s) { sqlite3_bind_text(st_, i, s.c_str(), -1, SQLITE_TRANSIENT); }
+  void Bind(int i, const std::string& s) {
+    sqlite3_bind_text(st_, i, s.c_str(), -1, SQLITE_TRANSIENT);
+  }
   void Bind(int i, int64_t v) { sqlite3_bind_int64(st_, i, v); }
   int Step() { return sqlite3_step(st_); }
   std::string Text(int col) {
@@ -36,7 +40,7 @@ class Stmt {
 
 Error DbError(sqlite3* db, const std::string& what) {
   const int code = sqlite3_errcode(db);
-  ErrorClass cls = (code == SQLITE_FULL) ? ErrorClass::kDiskFull
+  ErrorClass cls = (code == SQLITE_FULL)                               ? ErrorClass::kDiskFull
                    : (code == SQLITE_CORRUPT || code == SQLITE_NOTADB) ? ErrorClass::kCorrupt
                                                                        : ErrorClass::kIo;
   return MakeError(cls, "job queue: " + what, sqlite3_errmsg(db));
@@ -66,10 +70,12 @@ Job ReadJob(Stmt& st) {
 
 Result<std::unique_ptr<JobQueue>> JobQueue::Open(const std::string& path) {
   sqlite3* db = nullptr;
-  const int rc = sqlite3_open_v2(path.c_str(), &db, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE | SQLITE_OPEN_FULLMUTEX,
-                                 nullptr);
+  const int rc =
+      sqlite3_open_v2(path.c_str(), &db,
+                      SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE | SQLITE_OPEN_FULLMUTEX, nullptr);
   if (rc != SQLITE_OK) {
-    Error e = MakeError(ErrorClass::kIo, "cannot open job queue " + path, db ? sqlite3_errmsg(db) : "out of memory");
+    Error e = MakeError(ErrorClass::kIo, "cannot open job queue " + path,
+                        db ? sqlite3_errmsg(db) : "out of memory");
     sqlite3_close(db);
     return e;
   }
@@ -128,7 +134,8 @@ Status JobQueue::Migrate() {
     }
   }
   if (!has_interruptions) {
-    if (Status s = Exec("ALTER TABLE jobs ADD COLUMN interruptions INTEGER NOT NULL DEFAULT 0"); !s) {
+    if (Status s = Exec("ALTER TABLE jobs ADD COLUMN interruptions INTEGER NOT NULL DEFAULT 0");
+        !s) {
       (void)Exec("ROLLBACK");
       return s;
     }
@@ -163,7 +170,8 @@ Result<int64_t> JobQueue::Enqueue(const std::string& sample_id, int side, const 
   Status s = Exec("BEGIN IMMEDIATE");
   if (!s) return s.error();
   {
-    Stmt find(db_, "SELECT id FROM jobs WHERE sample_id=? AND side=? AND state IN ('queued','running')");
+    Stmt find(db_,
+              "SELECT id FROM jobs WHERE sample_id=? AND side=? AND state IN ('queued','running')");
     find.Bind(1, sample_id);
     find.Bind(2, side);
     if (find.Step() == SQLITE_ROW) {
@@ -203,7 +211,9 @@ Result<std::optional<Job>> JobQueue::ClaimNext() {
   if (!s) return s.error();
   std::optional<Job> job;
   {
-    Stmt sel(db_, (std::string("SELECT ") + kJobColumns + " FROM jobs WHERE state='queued' ORDER BY id LIMIT 1").c_str());
+    Stmt sel(db_, (std::string("SELECT ") + kJobColumns +
+                   " FROM jobs WHERE state='queued' ORDER BY id LIMIT 1")
+                      .c_str());
     if (sel.Step() == SQLITE_ROW) job = ReadJob(sel);
   }
   if (job) {
@@ -226,22 +236,27 @@ Result<std::optional<Job>> JobQueue::ClaimNext() {
 }
 
 Status JobQueue::Complete(int64_t job_id) {
-  Stmt upd(db_, "UPDATE jobs SET state='done', error=NULL, interruptions=0, updated_utc=? WHERE id=?");
+  Stmt upd(db_,
+           "UPDATE jobs SET state='done', error=NULL, interruptions=0, updated_utc=? WHERE id=?");
   upd.Bind(1, NowUtcString());
   upd.Bind(2, job_id);
   if (upd.Step() != SQLITE_DONE) return DbError(db_, "cannot complete job");
-  if (sqlite3_changes(db_) != 1) return MakeError(ErrorClass::kNotFound, "job " + std::to_string(job_id) + " not found");
+  if (sqlite3_changes(db_) != 1)
+    return MakeError(ErrorClass::kNotFound, "job " + std::to_string(job_id) + " not found");
   return OkStatus();
 }
 
 Status JobQueue::Fail(int64_t job_id, const std::string& error, bool requeue) {
-  Stmt upd(db_, "UPDATE jobs SET state=?, error=?, attempts=attempts+1, interruptions=0, updated_utc=? WHERE id=?");
+  Stmt upd(db_,
+           "UPDATE jobs SET state=?, error=?, attempts=attempts+1, interruptions=0, updated_utc=? "
+           "WHERE id=?");
   upd.Bind(1, std::string(requeue ? "queued" : "failed"));
   upd.Bind(2, error);
   upd.Bind(3, NowUtcString());
   upd.Bind(4, job_id);
   if (upd.Step() != SQLITE_DONE) return DbError(db_, "cannot mark job failed");
-  if (sqlite3_changes(db_) != 1) return MakeError(ErrorClass::kNotFound, "job " + std::to_string(job_id) + " not found");
+  if (sqlite3_changes(db_) != 1)
+    return MakeError(ErrorClass::kNotFound, "job " + std::to_string(job_id) + " not found");
   return OkStatus();
 }
 
@@ -266,15 +281,19 @@ Result<JobQueue::Requeued> JobQueue::RequeueRunning(int max_interruptions) {
     return e;
   };
   {
-    Stmt inc(db_, "UPDATE jobs SET interruptions=interruptions+1, updated_utc=? WHERE state='running'");
+    Stmt inc(db_,
+             "UPDATE jobs SET interruptions=interruptions+1, updated_utc=? WHERE state='running'");
     inc.Bind(1, now);
     if (inc.Step() != SQLITE_DONE) return rollback("cannot requeue running jobs");
   }
   {
     Stmt fail(db_,
-              "UPDATE jobs SET state='failed', error='interrupted ' || interruptions || ' times in a row while "
-              "running (the worker was killed or the machine lost power each time): out of memory or killed? "
-              "Check the kernel log for the OOM killer (journalctl -k) and the worker log, then retry the "
+              "UPDATE jobs SET state='failed', error='interrupted ' || interruptions || ' times in "
+              "a row while "
+              "running (the worker was killed or the machine lost power each time): out of memory "
+              "or killed? "
+              "Check the kernel log for the OOM killer (journalctl -k) and the worker log, then "
+              "retry the "
               "sample', updated_utc=? WHERE state='running' AND interruptions>=?");
     fail.Bind(1, now);
     fail.Bind(2, static_cast<int64_t>(max_interruptions));
@@ -303,12 +322,14 @@ Result<int> JobQueue::Retry(const std::string& sample_id) {
            "t.sample_id=jobs.sample_id AND t.side=jobs.side AND t.state IN ('queued','running'))");
   upd.Bind(1, NowUtcString());
   upd.Bind(2, sample_id);
-  if (upd.Step() != SQLITE_DONE) return DbError(db_, "cannot requeue the failed jobs of " + sample_id);
+  if (upd.Step() != SQLITE_DONE)
+    return DbError(db_, "cannot requeue the failed jobs of " + sample_id);
   const int n = sqlite3_changes(db_);
   if (n == 0) {
-    return MakeError(ErrorClass::kNotFound, "sample " + sample_id +
-                                                " has no failed job to retry (see its jobs with `aggscan show " +
-                                                sample_id + "`)");
+    return MakeError(ErrorClass::kNotFound,
+                     "sample " + sample_id +
+                         " has no failed job to retry (see its jobs with `aggscan show " +
+                         sample_id + "`)");
   }
   return n;
 }
@@ -320,7 +341,9 @@ Result<int> JobQueue::Depth() {
 }
 
 Result<std::vector<Job>> JobQueue::JobsForSample(const std::string& sample_id) {
-  Stmt sel(db_, (std::string("SELECT ") + kJobColumns + " FROM jobs WHERE sample_id=? ORDER BY id").c_str());
+  Stmt sel(
+      db_,
+      (std::string("SELECT ") + kJobColumns + " FROM jobs WHERE sample_id=? ORDER BY id").c_str());
   sel.Bind(1, sample_id);
   std::vector<Job> out;
   int rc;
@@ -330,7 +353,9 @@ Result<std::vector<Job>> JobQueue::JobsForSample(const std::string& sample_id) {
 }
 
 Result<std::vector<Job>> JobQueue::FailedJobs(int limit) {
-  Stmt sel(db_, (std::string("SELECT ") + kJobColumns + " FROM jobs WHERE state='failed' ORDER BY id DESC LIMIT ?").c_str());
+  Stmt sel(db_, (std::string("SELECT ") + kJobColumns +
+                 " FROM jobs WHERE state='failed' ORDER BY id DESC LIMIT ?")
+                    .c_str());
   sel.Bind(1, static_cast<int64_t>(limit));
   std::vector<Job> out;
   int rc;

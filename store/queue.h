@@ -25,11 +25,11 @@ struct Job {
   int64_t id = 0;
   std::string kind = kJobRock;
   std::string sample_id;
-  int side = 0;             // 1..N for a side job, 0 for the sample job
-  std::string state;        // queued | running | done | failed
-  int attempts = 0;         // runs that ended in a failure or a crash (not kills or stops)
-  int interruptions = 0;    // consecutive runs cut off with the whole worker (kill, power loss)
-  std::string error;        // last failure message
+  int side = 0;           // 1..N for a side job, 0 for the sample job
+  std::string state;      // queued | running | done | failed
+  int attempts = 0;       // runs that ended in a failure or a crash (not kills or stops)
+  int interruptions = 0;  // consecutive runs cut off with the whole worker (kill, power loss)
+  std::string error;      // last failure message
   std::string created_utc;
   std::string updated_utc;
 };

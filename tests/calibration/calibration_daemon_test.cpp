@@ -44,8 +44,10 @@ TEST(CalibrationDaemon, MissingThenWrittenWhileRunning) {
   json c = Calibration(d);
   ASSERT_TRUE(c.is_object()) << d.Get("/api/v1/status").dump();
   EXPECT_EQ(c["state"], "missing");
-  EXPECT_NE(c["message"].get<std::string>().find("aggscan calibrate"), std::string::npos) << c.dump();
-  EXPECT_NE(ReadAll(d.log()).find("rig calibration missing"), std::string::npos) << ReadAll(d.log());
+  EXPECT_NE(c["message"].get<std::string>().find("aggscan calibrate"), std::string::npos)
+      << c.dump();
+  EXPECT_NE(ReadAll(d.log()).find("rig calibration missing"), std::string::npos)
+      << ReadAll(d.log());
 
   // Not fatal: a sample can be armed; it records that there was none.
   int code = 0;
@@ -59,7 +61,8 @@ TEST(CalibrationDaemon, MissingThenWrittenWhileRunning) {
 
   // `aggscan calibrate` writes one while aggscand runs: the next arm sees it
   // and copies it into the sample.
-  ASSERT_TRUE(SaveCalibration(CalibrationPath(state), SimCalibration(640, 480, "2026-01-02T03:04:05Z")));
+  ASSERT_TRUE(
+      SaveCalibration(CalibrationPath(state), SimCalibration(640, 480, "2026-01-02T03:04:05Z")));
   d.Post("/api/v1/samples", R"({"id": "with-cal"})", &code);
   ASSERT_EQ(code, 200);
   c = Calibration(d);
@@ -80,7 +83,8 @@ TEST(CalibrationDaemon, PresentAtStartAndInvalidOnes) {
   const std::string cfg = WriteConfig(t.path());
   const std::string state = t.path() + "/state";
   std::filesystem::create_directories(state);
-  ASSERT_TRUE(SaveCalibration(CalibrationPath(state), SimCalibration(1280, 960, "2026-02-03T04:05:06Z")));
+  ASSERT_TRUE(
+      SaveCalibration(CalibrationPath(state), SimCalibration(1280, 960, "2026-02-03T04:05:06Z")));
   {
     // 1280x960 has the camera's 640x480 aspect: the lens scales, so ok.
     Daemon d(cfg, t.path());
@@ -91,14 +95,16 @@ TEST(CalibrationDaemon, PresentAtStartAndInvalidOnes) {
     EXPECT_TRUE(c["reprojection_rms_px"].is_number());
   }
   // Another aspect ratio: invalid, and says to calibrate again.
-  ASSERT_TRUE(SaveCalibration(CalibrationPath(state), SimCalibration(1920, 1080, "2026-02-03T04:05:06Z")));
+  ASSERT_TRUE(
+      SaveCalibration(CalibrationPath(state), SimCalibration(1920, 1080, "2026-02-03T04:05:06Z")));
   {
     Daemon d(cfg, t.path());
     ASSERT_TRUE(d.ok()) << ReadAll(d.log());
     const json c = Calibration(d);
     EXPECT_EQ(c["state"], "invalid") << c.dump();
     EXPECT_NE(c["message"].get<std::string>().find("1920x1080"), std::string::npos) << c.dump();
-    EXPECT_NE(c["message"].get<std::string>().find("calibrate again"), std::string::npos) << c.dump();
+    EXPECT_NE(c["message"].get<std::string>().find("calibrate again"), std::string::npos)
+        << c.dump();
     // Capture still works.
     int code = 0;
     d.Post("/api/v1/samples", R"({"id": "s1"})", &code);
@@ -111,7 +117,8 @@ TEST(CalibrationDaemon, PresentAtStartAndInvalidOnes) {
     ASSERT_TRUE(d.ok()) << ReadAll(d.log());
     const json c = Calibration(d);
     EXPECT_EQ(c["state"], "invalid") << c.dump();
-    EXPECT_NE(c["message"].get<std::string>().find("not valid JSON"), std::string::npos) << c.dump();
+    EXPECT_NE(c["message"].get<std::string>().find("not valid JSON"), std::string::npos)
+        << c.dump();
   }
 }
 
