@@ -10,7 +10,7 @@ namespace aggscan {
 
 int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& out,
                           std::ostream& err) {
-  std::string sample_dir, state_dir, config_path, surface = "hull+photo", poses;
+  std::string sample_dir, state_dir, config_path, surface = "hull+photo", poses, from;
   // An option taking one of two words; false (usage error said) otherwise.
   auto choice = [&](size_t* i, const char* a, const char* b, const char* help, std::string* v) {
     if (*i + 1 >= args.size() || (args[*i + 1] != a && args[*i + 1] != b)) {
@@ -40,6 +40,13 @@ int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& ou
               &surface)) {
         return 2;
       }
+    } else if (args[i] == "--from") {
+      if (i + 1 >= args.size()) {
+        err << "aggscan reconstruct: --from needs a stage: masks, 2d, calibration, poses, "
+               "stitch, surface or morphology (or one side's, e.g. \"poses side 2\")\n";
+        return 2;
+      }
+      from = args[++i];
     } else if (args[i] == "--config") {
       if (i + 1 >= args.size()) {
         err << "aggscan reconstruct: --config needs a file\n";
@@ -79,6 +86,7 @@ int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& ou
   ReconstructOptions opts;
   opts.state_dir = state_dir;
   opts.photo_refine = surface == "hull+photo";
+  opts.from_stage = from;
   if (poses == "turntable") opts.bundle_adjust = false;
   if (!poses.empty() && poses != "turntable+ba") ParsePosesPath(poses, &opts.poses);
   if (!config_path.empty()) {

@@ -20,6 +20,7 @@ const char* ErrorClassName(ErrorClass c) {
     case ErrorClass::kDiskFull: return "disk_full";
     case ErrorClass::kIo: return "io";
     case ErrorClass::kCorrupt: return "corrupt";
+    case ErrorClass::kCancelled: return "cancelled";
     case ErrorClass::kInternal: return "internal";
   }
   return "internal";

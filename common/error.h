@@ -24,6 +24,7 @@ enum class ErrorClass {
   kDiskFull,         // no space left on the state directory's filesystem
   kIo,               // other filesystem or I/O error
   kCorrupt,          // stored data failed validation
+  kCancelled,        // stopped on request (shutdown, abort); resumes when run again
   kInternal,         // a bug; report it
 };
 

@@ -308,6 +308,7 @@ int HttpStatusFor(ErrorClass cls) {
       return 404;
     case ErrorClass::kConflict:
     case ErrorClass::kInvalidState:
+    case ErrorClass::kCancelled:
       return 409;
     case ErrorClass::kDeviceMissing:
     case ErrorClass::kDisconnected:

@@ -281,7 +281,7 @@ struct ColmapSfmOptions {
   int num_threads = 2;           // every COLMAP step
   double step_timeout_s = 1800;  // per COLMAP step
   const std::atomic<bool>* cancel =
-      nullptr;  // set: the running step is killed, kInvalidState "interrupted"
+      nullptr;  // set: the running step is killed, kCancelled "interrupted"
 
   /// Every problem, one per line; empty when valid.
   std::vector<std::string> Check() const;
@@ -313,7 +313,7 @@ struct SfmResult {
 /// export in opts.workspace, parses the largest sub-model and checks it.
 /// Errors: kInvalidArgument (options; every problem listed), kNotFound (colmap
 /// binary or an input missing), kIo / kTimeout (a step failed or hung; the
-/// message names the step and its log), kInvalidState "interrupted"
+/// message names the step and its log), kCancelled "interrupted"
 /// (cancelled), kCorrupt (a step wrote nothing usable, or the model failed a
 /// plausibility check: "SfM model rejected: check <name> failed ...").
 /// result.json is written in both the success and the rejected case.

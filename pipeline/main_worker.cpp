@@ -297,7 +297,7 @@ Status RunSampleStage(const std::string& dir, const std::string& state_dir,
         "(the daemon records it in every later sample), or give this sample a calibration.json and "
         "run `aggscan reconstruct %s`",
         dir.c_str(), dir.c_str());
-    return ProcessSample(dir, opts);
+    return TwoDFigures(dir, opts);
   }
   ReconstructOptions ro;
   ro.worker = opts;
@@ -319,7 +319,7 @@ Status RunJob(const std::string& state_dir, const Job& job, const WorkerOptions&
                     [&] { return RunCalibrationCapture(dir, std::max(1, job.side), state_dir); });
   }
   const std::string dir = layout::SampleDir(state_dir, job.sample_id);
-  return job.side > 0 ? ProcessSide(dir, job.side, opts)
+  return job.side > 0 ? RunSideJob(dir, job.side, opts)
                       : RunSampleStage(dir, state_dir, opts, poses);
 }
 
@@ -430,7 +430,7 @@ int ChildRunJob(const std::string& state_dir, const Job& job, const Config& cfg,
     return RunJob(state_dir, job, opts, poses);
   });
   if (st.ok()) return kChildDone;
-  if (g_stop.load() && st.error().cls == ErrorClass::kInvalidState) return kChildStopped;
+  if (g_stop.load() && st.error().cls == ErrorClass::kCancelled) return kChildStopped;
   CopyText(g_report->error_class, sizeof g_report->error_class, ErrorClassName(st.error().cls));
   // One line: the reason is shown in status listings.
   std::string reason = st.error().ToString();

@@ -21,8 +21,10 @@
 #include "pipeline/image_io.h"
 #include "pipeline/mask_dataset.h"
 #include "pipeline/morph2d.h"
+#include "pipeline/options_json.h"
 #include "pipeline/quality.h"
 #include "pipeline/stage.h"
+#include "pipeline/stage_runner.h"
 #include "pipeline/stitch_stage.h"
 #include "store/layout.h"
 
@@ -128,42 +130,23 @@ Result<RigCalibration> CalibrationStage(const std::string& sample_dir,
 
 // --- poses path -----------------------------------------------------------
 
-// Whether a rig calibration is there for the sample (what CalibrationStage reads).
+// Whether a rig calibration is there for the sample (what CalibrationStage
+// reads): its own copy, else the state directory's.
 bool HasCalibration(const std::string& sample_dir, const ReconstructOptions& opts) {
-  return PathExists(ResultsPath(sample_dir, results::kCalibrationUsed)) ||
-         PathExists(sample_dir + "/" + layout::kCalibrationCopy) ||
+  return PathExists(sample_dir + "/" + layout::kCalibrationCopy) ||
          (!opts.state_dir.empty() && PathExists(CalibrationPath(opts.state_dir)));
 }
 
-// The method of the calibration record, "" when there is none.
-Result<std::string> CalibrationUsedMethod(const std::string& sample_dir) {
-  const std::string path = ResultsPath(sample_dir, results::kCalibrationUsed);
-  if (!PathExists(path)) return std::string();
-  auto j = ReadJson(path, "calibration record");
-  if (!j) return j.error();
-  return j->value("method", "");
-}
-
-// True for the SfM path. A sample whose calibration was estimated by SfM
-// (no rig calibration) stays on that path when resumed.
+// True for the SfM path. "auto" takes the turntable whenever there is a rig
+// calibration; a sample posed by SfM before one was installed is then posed
+// again (the stages' fingerprints name the path).
 Result<bool> ChoosePosesPath(const std::string& sample_dir, const ReconstructOptions& opts) {
-  auto used = CalibrationUsedMethod(sample_dir);
-  if (!used) return used.error();
   switch (opts.poses) {
     case PosesPath::kSfm:
       return true;
     case PosesPath::kAuto:
-      return *used == "sfm" || !HasCalibration(sample_dir, opts);
+      return !HasCalibration(sample_dir, opts);
     case PosesPath::kTurntable:
-      if (*used == "sfm") {
-        return MakeError(
-            ErrorClass::kInvalidState,
-            "sample " + SampleIdOf(sample_dir) +
-                " was reconstructed through SfM without a rig calibration (results/" +
-                results::kCalibrationUsed +
-                " is SfM's): reconstruct it with poses \"sfm\" or \"auto\", or give it a "
-                "calibration.json and delete its results/ to start over on the turntable path");
-      }
       return false;
   }
   return false;
@@ -877,8 +860,16 @@ Status AppendLibraryRow(const std::string& state_dir, const json& morphology) {
     auto t = ReadFile(path);
     if (!t) return t.error();
     text = *t;
-    // Already there (a resumed run after the row was written): nothing to do.
-    if (text.find("\n" + id + ",") != std::string::npos) return OkStatus();
+    // Already there: the same row (a resumed run after it was written) is
+    // left alone; a sample reconstructed again gets its new row in place.
+    if (const size_t at = text.find("\n" + id + ","); at != std::string::npos) {
+      const size_t end = text.find('\n', at + 1);
+      const std::string row = LibraryCsvRow(morphology);
+      const size_t len = (end == std::string::npos ? text.size() : end + 1) - (at + 1);
+      if (text.compare(at + 1, len, row) == 0) return OkStatus();
+      text.replace(at + 1, len, row);
+      return WriteFileAtomic(path, std::string_view(text));
+    }
     if (text.compare(0, LibraryCsvHeader().size(), LibraryCsvHeader()) != 0) {
       // Written with other columns (an older worker): kept beside under a
       // new name, and a new library begins, so no row is mixed or lost.
@@ -970,191 +961,170 @@ Result<json> ReadMorphology(const std::string& sample_dir) {
 
 namespace {
 
-Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructOptions& opts) {
-  const auto t_all = std::chrono::steady_clock::now();
-  const std::string sample_id = SampleIdOf(sample_dir);
-  const std::string morph_path = ResultsPath(sample_dir, results::kMorphology);
-  if (PathExists(morph_path)) {
-    auto m = ReadJson(morph_path, "results");
-    if (!m) return m.error();
-    return AppendLibraryRow(opts.state_dir, *m);
-  }
-  // Masks and 2D figures of every side (resumes per view).
-  WorkerOptions wo = opts.worker;
-  if (!wo.cancel) wo.cancel = opts.cancel;
-  const auto t_masks = std::chrono::steady_clock::now();
-  if (Status s = ProcessSample(sample_dir, wo); !s) return s;
-  const double masks_s = Seconds(t_masks);
-  auto morph2d = ReadJson(SampleResultPath(sample_dir), "2D results");
-  if (!morph2d) return morph2d.error();
+// What the stages of one run of the sample job share: the setup read before
+// the first stage and what each stage hands on (loaded from its record when
+// the stage was kept).
+struct SampleRun {
+  SampleRun(const std::string& d, const ReconstructOptions& o) : dir(d), opts(o) {}
+  std::string dir, id;
+  const ReconstructOptions& opts;
+  std::chrono::steady_clock::time_point t_all = std::chrono::steady_clock::now();
+  std::string morph_path;
   std::vector<int> sides;
-  for (const auto& s : morph2d->value("sides", json::array())) sides.push_back(s.value("side", 0));
-  if (sides.empty())
-    return MakeError(ErrorClass::kNotFound, "sample " + sample_id + " has no captured side");
-
-  json timings = json::object();
-  std::string mask_method = "classical";  // what the side jobs ran (side results' mask_method)
-  // Image size from the first mask.
+  std::optional<Config> sample_cfg;  // the config the sample was armed with
+  RigConfig rig;
+  bool use_sfm = false;
   cv::Size image_size;
-  {
-    auto side1 = ReadJson(SideResultPath(sample_dir, sides[0]), "side result");
-    if (side1) mask_method = side1->value("mask_method", mask_method);
-    if (!side1) return side1.error();
-    for (const auto& v : side1->value("views", json::array())) {
-      if (!v.value("ok", false)) continue;
-      auto m = LoadImage(sample_dir + "/" + layout::kResultsDir + "/" + v.value("mask", ""),
-                         ImageMode::kGray, opts.worker.image_limits);
-      if (m) {
-        image_size = m->size();
-        break;
-      }
-    }
-    if (image_size.area() == 0) {
-      return MakeError(ErrorClass::kCorrupt, "sample " + sample_id + ": no readable mask in " +
-                                                 layout::SideDirName(sides[0]));
-    }
-  }
-  // The config the sample was armed with: its background labels (the SfM
-  // path's scale, the stitch stage's check) and its camera.
-  std::optional<Config> sample_cfg;
-  if (const std::string cfg_path = sample_dir + "/" + layout::kConfigCopy; PathExists(cfg_path)) {
-    std::vector<ConfigProblem> problems;
-    auto c = LoadConfigFile(cfg_path, &problems);
-    if (!c) {
-      return MakeError(ErrorClass::kInvalidConfig,
-                       "sample " + sample_id + ": its " + cfg_path + " does not load (" +
-                           c.error().message +
-                           "); it is written at arm time and must not be edited");
-    }
-    sample_cfg = std::move(*c);
-  }
-  const RigConfig rig = sample_cfg ? sample_cfg->rig : RigConfig{};
-
-  auto use_sfm = ChoosePosesPath(sample_dir, opts);
-  if (!use_sfm) return use_sfm.error();
-  // Progress of the reconstruction: calibration, each side's poses, stitch,
-  // surface, morphology.
-  const int steps = 4 + static_cast<int>(sides.size());
-  int steps_done = 0;
-  ReportStageProgress(steps_done, steps);
+  std::string mask_method = "classical";  // what the side jobs ran
+  double masks_s = 0;
+  json timings = json::object();
   std::optional<RigCalibration> cal;
-  if (!*use_sfm || HasCalibration(sample_dir, opts)) {
-    auto c = RunStage("calibration",
-                      [&] { return CalibrationStage(sample_dir, opts, image_size, &timings); });
-    if (!c) return c.error();
-    cal = std::move(*c);
-  }
-  SfmPosesInput sfm_setup;  // every side's views are added by the poses stage
-  if (*use_sfm) {
-    sfm_setup.rig = rig;
-    if (cal) {
-      sfm_setup.fixed_camera = cal->camera;
-      sfm_setup.camera_source = cal->method == "sfm" ? "sfm (" + cal->source + ")" : "calibration";
-      sfm_setup.calibration = &*cal;
-    } else {
-      sfm_setup.camera_source = "sfm (estimated)";
-      // The lens's nominal focal as the hint, held while COLMAP poses the
-      // ring (the config's lens, or the sim's). Without one COLMAP starts
-      // from its default, refines it, and the ring checks judge.
-      if (sample_cfg) {
-        if (auto hint = FocalHintFromConfig(*sample_cfg, image_size.width)) {
-          sfm_setup.expected_focal_px = hint->focal_px;
-          sfm_setup.focal_hint_source = hint->source;
-          sfm_setup.camera_source = "sfm (focal hint held)";
-        }
-      }
-    }
-  }
-
+  SfmPosesInput sfm_setup;
   std::map<int, std::vector<ViewInput>> side_views;
   std::map<int, std::string> poses_methods;
   std::vector<ViewInput> all_views;
-  for (int side : sides) {
-    if (opts.cancel && opts.cancel->load()) {
-      return MakeError(ErrorClass::kInvalidState,
-                       "interrupted before the poses of " + layout::SideDirName(side));
+  json stitch;
+  std::map<int, Eigen::Isometry3d> table_from_object;
+  json surface;
+};
+
+// The image size of the sample's photos, from the first readable mask.
+Status ReadImageSize(SampleRun& r) {
+  auto side1 = ReadJson(SideResultPath(r.dir, r.sides[0]), "side result");
+  if (!side1) return side1.error();
+  r.mask_method = side1->value("mask_method", r.mask_method);
+  for (const auto& v : side1->value("views", json::array())) {
+    if (!v.value("ok", false)) continue;
+    auto m = LoadImage(r.dir + "/" + layout::kResultsDir + "/" + v.value("mask", ""),
+                       ImageMode::kGray, r.opts.worker.image_limits);
+    if (m) {
+      r.image_size = m->size();
+      return OkStatus();
     }
-    if (*use_sfm && !cal && side != sides[0]) {
-      // Every side in one camera model (the surface stage has one): the
-      // first side's SfM camera, held fixed.
-      auto first = SfmCalibrationOfSide(sample_dir, sides[0]);
-      if (!first) return first.error();
-      sfm_setup.fixed_camera = first->camera;
-      sfm_setup.camera_source = "sfm " + layout::SideDirName(sides[0]);
-    }
-    std::string method;
-    ReportStageProgress(++steps_done, steps);
-    auto v = RunStage("poses side " + std::to_string(side), [&] {
-      return PosesStage(sample_dir, side, cal ? &*cal : nullptr, *use_sfm ? &sfm_setup : nullptr,
-                        opts, &timings, &method);
-    });
-    poses_methods[side] = method;
-    if (!v) return v.error();
-    side_views[side] = *v;
-    all_views.insert(all_views.end(), v->begin(), v->end());
   }
-  if (!cal) {
-    // SfM without a rig calibration: the first side's camera is the sample's.
-    auto c = SfmCalibrationOfSide(sample_dir, sides[0]);
+  return MakeError(ErrorClass::kCorrupt,
+                   "sample " + r.id + ": no readable mask in " + layout::SideDirName(r.sides[0]));
+}
+
+// The SfM setup (camera held or estimated) once the calibration is known.
+void SetUpSfm(SampleRun& r) {
+  r.sfm_setup.rig = r.rig;
+  if (r.cal) {
+    r.sfm_setup.fixed_camera = r.cal->camera;
+    r.sfm_setup.camera_source =
+        r.cal->method == "sfm" ? "sfm (" + r.cal->source + ")" : "calibration";
+    r.sfm_setup.calibration = &*r.cal;
+    return;
+  }
+  r.sfm_setup.camera_source = "sfm (estimated)";
+  // The lens's nominal focal as the hint, held while COLMAP poses the ring
+  // (the config's lens, or the sim's). Without one COLMAP starts from its
+  // default, refines it, and the ring checks judge.
+  if (r.sample_cfg) {
+    if (auto hint = FocalHintFromConfig(*r.sample_cfg, r.image_size.width)) {
+      r.sfm_setup.expected_focal_px = hint->focal_px;
+      r.sfm_setup.focal_hint_source = hint->source;
+      r.sfm_setup.camera_source = "sfm (focal hint held)";
+    }
+  }
+}
+
+Status PosesOfSide(SampleRun& r, int side) {
+  if (r.use_sfm && !r.cal && side != r.sides[0]) {
+    // Every side in one camera model (the surface stage has one): the first
+    // side's SfM camera, held fixed.
+    auto first = SfmCalibrationOfSide(r.dir, r.sides[0]);
+    if (!first) return first.error();
+    r.sfm_setup.fixed_camera = first->camera;
+    r.sfm_setup.camera_source = "sfm " + layout::SideDirName(r.sides[0]);
+  }
+  std::string method;
+  auto v = PosesStage(r.dir, side, r.cal ? &*r.cal : nullptr, r.use_sfm ? &r.sfm_setup : nullptr,
+                      r.opts, &r.timings, &method);
+  r.poses_methods[side] = method;
+  if (!v) return v.error();
+  r.side_views[side] = *v;
+  r.all_views.insert(r.all_views.end(), v->begin(), v->end());
+  return OkStatus();
+}
+
+// SfM without a rig calibration: the first side's camera is the sample's.
+Status CalibrationFromSfm(SampleRun& r) {
+  const std::string out = ResultsPath(r.dir, results::kCalibrationUsed);
+  if (!PathExists(out)) {
+    auto c = SfmCalibrationOfSide(r.dir, r.sides[0]);
     if (!c) return c.error();
     json j = CalibrationToJson(*c);
-    j["origin"] = ResultsPath(sample_dir, results::PosesName(sides[0]));
+    j["origin"] = ResultsPath(r.dir, results::PosesName(r.sides[0]));
     j["stage_seconds"] = 0.0;
-    if (Status s = WriteJson(ResultsPath(sample_dir, results::kCalibrationUsed), j); !s) return s;
-    timings["calibration_s"] = 0.0;
-    cal = std::move(*c);
+    if (Status s = WriteJson(out, j); !s) return s;
   }
-  if (opts.cancel && opts.cancel->load())
-    return MakeError(ErrorClass::kInvalidState, "interrupted before stitching");
+  auto j = ReadJson(out, "calibration record");
+  if (!j) return j.error();
+  auto cal = CalibrationFromJson(*j, out);
+  if (!cal) return cal.error();
+  r.timings["calibration_s"] = 0.0;
+  r.cal = std::move(*cal);
+  return OkStatus();
+}
+
+Status StitchSides(SampleRun& r) {
   StitchStageInput sin;
-  sin.sample_dir = sample_dir;
-  sin.calibration = &*cal;
+  sin.sample_dir = r.dir;
+  sin.calibration = &*r.cal;
   // The background labels are the ones configured when the sample was armed.
-  sin.rig = rig;
-  for (const auto& [side, vs] : side_views) {
+  sin.rig = r.rig;
+  for (const auto& [side, vs] : r.side_views) {
     for (const ViewInput& v : vs) {
       sin.views[side].push_back({v.view, v.angle_deg, v.image, v.mask, v.cam_from_table});
     }
   }
-  const std::string stitch_path = ResultsPath(sample_dir, results::kStitch);
-  ReportStageProgress(++steps_done, steps);
+  const std::string stitch_path = ResultsPath(r.dir, results::kStitch);
   if (!PathExists(stitch_path)) {
-    auto st = RunStage("stitch", [&] { return RunStitchStage(sin); });
+    auto st = RunStitchStage(sin);
     if (!st) return st.error();
     if (Status s = WriteJson(stitch_path, *st); !s) return s;
   }
   auto stitch = ReadJson(stitch_path, "stitch record");
   if (!stitch) return stitch.error();
-  std::map<int, Eigen::Isometry3d> table_from_object;
-  for (const auto& s : stitch->value("sides", json::array())) {
+  r.stitch = std::move(*stitch);
+  for (const auto& s : r.stitch.value("sides", json::array())) {
     auto T = IsoFromJson(s.value("table_from_object_4x4", json()), stitch_path);
     if (!T) return T.error();
-    table_from_object[s.value("side", 0)] = *T;
+    r.table_from_object[s.value("side", 0)] = *T;
   }
-  for (int side : sides) {
-    if (!table_from_object.count(side)) {
+  for (int side : r.sides) {
+    if (!r.table_from_object.count(side)) {
       return MakeError(ErrorClass::kCorrupt, stitch_path + " has no transform for " +
                                                  layout::SideDirName(side) +
-                                                 "; delete it to stitch again");
+                                                 "; run the reconstruction again from the stitch "
+                                                 "(aggscan reconstruct --from stitch)");
     }
   }
-  timings["stitch_s"] = stitch->value("stage_seconds", 0.0);
+  r.timings["stitch_s"] = r.stitch.value("stage_seconds", 0.0);
+  return OkStatus();
+}
 
-  if (opts.cancel && opts.cancel->load())
-    return MakeError(ErrorClass::kInvalidState, "interrupted before the surface");
-  ReportStageProgress(++steps_done, steps);
-  auto surface = RunStage("surface", [&] {
-    return SurfaceStage(sample_dir, all_views, table_from_object, *cal, opts, sample_id);
-  });
+Status SurfaceOfSample(SampleRun& r) {
+  auto surface = SurfaceStage(r.dir, r.all_views, r.table_from_object, *r.cal, r.opts, r.id);
   if (!surface) return surface.error();
-  timings["surface_s"] = surface->value("stage_seconds", 0.0);
-  timings["surface_detail_s"] = surface->value("timings_s", json::object());
+  r.surface = std::move(*surface);
+  r.timings["surface_s"] = r.surface.value("stage_seconds", 0.0);
+  r.timings["surface_detail_s"] = r.surface.value("timings_s", json::object());
+  return OkStatus();
+}
 
-  // Morphology (to the end: ReconstructSample's own boundary catches it).
-  ReportStageProgress(++steps_done, steps);
-  const StageScope morphology_stage("morphology");
+Status MorphologyStage(SampleRun& r) {
+  if (PathExists(r.morph_path)) return OkStatus();  // kept: the library row is added by the job
+  // The masks' and 2D figures' time: their stages' own (the side jobs ran
+  // most of them, in other processes).
+  auto ledger = ReadStageLedger(r.dir);
+  if (!ledger) return ledger.error();
+  for (const auto& [name, e] : (*ledger)["stages"].items()) {
+    if (name == "2d" || name.rfind("masks ", 0) == 0) r.masks_s += e.value("seconds", 0.0);
+  }
   const auto t_m = std::chrono::steady_clock::now();
-  auto mesh = LoadMesh(ResultsPath(sample_dir, results::kMeshPly), "mm");
+  auto mesh = LoadMesh(ResultsPath(r.dir, results::kMeshPly), "mm");
   if (!mesh) return mesh.error();
   const Status watertight = CheckClosedManifold(*mesh, "reconstructed mesh");
   const MeshProps p = ComputeMeshProps(*mesh);
@@ -1171,12 +1141,12 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
 
   // Every view's 2D figures, in mm at the rock's depth in that view.
   std::map<std::pair<int, int>, const ViewInput*> by_view;
-  for (const ViewInput& v : all_views) by_view[{v.side, v.view}] = &v;
+  for (const ViewInput& v : r.all_views) by_view[{v.side, v.view}] = &v;
   json views2d = json::array();
   std::map<int, std::map<std::string, std::vector<double>>> per_side;
   std::map<std::string, std::vector<double>> overall;
-  for (int side : sides) {
-    auto sr = ReadJson(SideResultPath(sample_dir, side), "side result");
+  for (int side : r.sides) {
+    auto sr = ReadJson(SideResultPath(r.dir, side), "side result");
     if (!sr) return sr.error();
     for (const auto& v : sr->value("views", json::array())) {
       if (!v.value("ok", false)) continue;
@@ -1185,8 +1155,9 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
       double mm_per_px = 0;
       auto it = by_view.find({side, view});
       if (it != by_view.end()) {
-        const Eigen::Vector3d pc = it->second->cam_from_table * table_from_object[side] * centroid;
-        mm_per_px = pc.z() / std::sqrt(cal->camera.fx * cal->camera.fy);
+        const Eigen::Vector3d pc =
+            it->second->cam_from_table * r.table_from_object[side] * centroid;
+        mm_per_px = pc.z() / std::sqrt(r.cal->camera.fx * r.cal->camera.fy);
         jv["angle_deg"] = it->second->angle_deg;
       }
       jv["fer_2d"] = v.value("fer_2d", 0.0);
@@ -1212,7 +1183,7 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
       b[k] = StatsJson(vals[k]);
     return b;
   };
-  for (int side : sides) stats[layout::SideDirName(side)] = block(per_side[side]);
+  for (int side : r.sides) stats[layout::SideDirName(side)] = block(per_side[side]);
   stats["overall"] = block(overall);
   stats["std_kind"] = "sample";
   const double fer2d_mean = ComputeStats(overall["fer_2d"]).mean;
@@ -1220,7 +1191,7 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
   const double lo = std::min(p.c_over_b, p.b_over_a), hi = std::max(p.c_over_b, p.b_over_a);
 
   std::vector<double> ious;
-  for (const auto& e : surface->value("silhouette_iou", json::array()))
+  for (const auto& e : r.surface.value("silhouette_iou", json::array()))
     ious.push_back(e.value("iou", 0.0));
   const Stats iou = ComputeStats(ious);
   json quality = {
@@ -1229,37 +1200,38 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
       {"silhouette_iou_note",
        "IoU of each mask with the reconstructed surface's silhouette: an estimate of mask and pose "
        "consistency (1 = every mask agrees with all the others)"},
-      {"calibration_reprojection_rms_px", cal->reprojection_rms_px},
-      {"stitch_rms_mm", stitch->value("rms_mm", json())},
-      {"stitch_max_mm", stitch->value("max_mm", json())},
-      {"stitch_silhouette_deficit", stitch->value("silhouette_deficit", json())},
-      {"scale_residual_mm", stitch->value("scale_residual_mm", json())},
-      {"scale_reference", stitch->value("scale_reference", json())},
+      {"calibration_reprojection_rms_px", r.cal->reprojection_rms_px},
+      {"stitch_rms_mm", r.stitch.value("rms_mm", json())},
+      {"stitch_max_mm", r.stitch.value("max_mm", json())},
+      {"stitch_silhouette_deficit", r.stitch.value("silhouette_deficit", json())},
+      {"scale_residual_mm", r.stitch.value("scale_residual_mm", json())},
+      {"scale_reference", r.stitch.value("scale_reference", json())},
       {"watertight", watertight.ok()}};
   // What the figures cannot be trusted for, with the reason: never a
   // confident number from poor masks or an unconfirmed stitch.
   quality["flags"] =
-      QualityFlags(quality, *stitch, surface->value("silhouette_iou", json::array()));
+      QualityFlags(quality, r.stitch, r.surface.value("silhouette_iou", json::array()));
   quality["confident"] = quality["flags"].empty();
   for (const json& f : quality["flags"]) {
-    LogLine(LogLevel::kWarning, kCat, sample_id, "not confident: " + f.value("reason", ""));
+    LogLine(LogLevel::kWarning, kCat, r.id, "not confident: " + f.value("reason", ""));
   }
-  timings["masks_and_2d_s"] = masks_s;
-  timings["morphology_s"] = Seconds(t_m);
-  double total = masks_s;
+  r.timings["masks_and_2d_s"] = r.masks_s;
+  r.timings["morphology_s"] = Seconds(t_m);
+  double total = r.masks_s;
   for (const char* k : {"calibration_s", "stitch_s", "surface_s", "morphology_s"})
-    total += timings.value(k, 0.0);
-  for (int side : sides) total += timings.value("poses_" + layout::SideDirName(side) + "_s", 0.0);
-  timings["total"] = total;
-  timings["this_run_wall"] = Seconds(t_all);
+    total += r.timings.value(k, 0.0);
+  for (int side : r.sides)
+    total += r.timings.value("poses_" + layout::SideDirName(side) + "_s", 0.0);
+  r.timings["total"] = total;
+  r.timings["this_run_wall"] = Seconds(r.t_all);
 
   // One method when every side agrees, else each side's.
   std::string poses_method;
-  for (const auto& [side, m] : poses_methods) {
+  for (const auto& [side, m] : r.poses_methods) {
     if (poses_method.empty()) poses_method = m;
-    if (m != poses_methods.begin()->second) {
+    if (m != r.poses_methods.begin()->second) {
       poses_method.clear();
-      for (const auto& [s2, m2] : poses_methods) {
+      for (const auto& [s2, m2] : r.poses_methods) {
         poses_method += (poses_method.empty() ? "" : ", ") + layout::SideDirName(s2) + ": " + m2;
       }
       break;
@@ -1268,8 +1240,8 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
   // Each side's poses figures (the method's own: SfM's registration and
   // scale, or the bundle adjustment's).
   json poses_detail = json::array();
-  for (int side : sides) {
-    auto pj = ReadJson(ResultsPath(sample_dir, results::PosesName(side)), "poses");
+  for (int side : r.sides) {
+    auto pj = ReadJson(ResultsPath(r.dir, results::PosesName(side)), "poses");
     if (!pj) return pj.error();
     json e = {{"side", side}, {"method", pj->value("method", "")}};
     if (pj->contains("sfm")) {
@@ -1294,20 +1266,20 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
   // Everything left out or doubtful, with what to do: a figure computed
   // without some views is still a figure, but the operator must know.
   json warnings = json::array();
-  for (int side : sides) {
-    auto sr = ReadJson(SideResultPath(sample_dir, side), "side result");
+  for (int side : r.sides) {
+    auto sr = ReadJson(SideResultPath(r.dir, side), "side result");
     if (!sr) return sr.error();
     for (const char* k : {"image_problems", "mask_problems"}) {
       const std::string w = sr->value(k, "");
       if (!w.empty()) warnings.push_back(layout::SideDirName(side) + ": " + w);
     }
   }
-  for (const auto& v : surface->value("views_left_out", json::array())) {
+  for (const auto& v : r.surface.value("views_left_out", json::array())) {
     warnings.push_back(layout::SideDirName(v.value("side", 0)) + " view " +
                        std::to_string(v.value("view", 0)) +
                        " left out of the model: " + v.value("reason", ""));
   }
-  for (const auto& v : surface->value("views_disagreeing", json::array())) {
+  for (const auto& v : r.surface.value("views_disagreeing", json::array())) {
     warnings.push_back(layout::SideDirName(v.value("side", 0)) + " view " +
                        std::to_string(v.value("view", 0)) +
                        " disagrees with the model: " + v.value("reason", ""));
@@ -1315,17 +1287,17 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
   json morphology_3d = MeshPropsJson(p);
   morphology_3d["watertight"] = watertight.ok();
   json out = {{"format", "aggscan-morphology-1"},
-              {"sample_id", sample_id},
+              {"r.id", r.id},
               {"created_utc", NowUtcString()},
               {"units",
                "mm, mm2, mm3, degrees; ratios dimensionless; 2D lengths in px and in mm at the "
                "rock's depth"},
               {"methods",
-               {{"calibration", cal->method},
+               {{"calibration", r.cal->method},
                 {"poses", poses_method},
-                {"stitch", stitch->value("method", "")},
-                {"surface", surface->value("method", "")},
-                {"masks", mask_method}}},
+                {"stitch", r.stitch.value("method", "")},
+                {"surface", r.surface.value("method", "")},
+                {"masks", r.mask_method}}},
               {"morphology_3d", morphology_3d},
               {"poses", poses_detail},
               {"views_2d", views2d},
@@ -1342,7 +1314,7 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
                 {"circularity_mean_minus_sphericity", circ_mean - p.sphericity}}},
               {"quality", quality},
               {"warnings", warnings},
-              {"timings_s", timings},
+              {"timings_s", r.timings},
               {"files",
                {{"mesh_ply", results::kMeshPly},
                 {"mesh_obj", results::kMeshObj},
@@ -1350,18 +1322,244 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
                 {"stitch", results::kStitch},
                 {"surface", results::kSurface}}}};
   if (!watertight) out["morphology_3d"]["watertight_problem"] = watertight.error().message;
-  if (Status s = WriteJson(morph_path, out); !s) return s;
-  LogLine(LogLevel::kNotice, kCat, sample_id,
+  if (Status s = WriteJson(r.morph_path, out); !s) return s;
+  LogLine(LogLevel::kNotice, kCat, r.id,
           "reconstructed: V " + std::to_string(static_cast<long>(p.volume_mm3)) + " mm3, a/b/c " +
               std::to_string(p.a_mm) + "/" + std::to_string(p.b_mm) + "/" + std::to_string(p.c_mm) +
               " mm");
-  return AppendLibraryRow(opts.state_dir, out);
+  return AppendLibraryRow(r.opts.state_dir, out);
+}
+
+// The fingerprints of the stages (pipeline/stage_runner.h): each stage's
+// options and inputs, the stages it reads by their own fingerprints.
+struct SampleFingerprints {
+  std::map<int, std::string> masks;  // per side
+  std::string two_d, calibration;
+  std::map<int, std::string> poses;
+  std::string stitch, surface, morphology;
+};
+
+Result<std::string> CalibrationFingerprint(const SampleRun& r) {
+  Fingerprint f;
+  f.Add("stage", std::string_view("calibration"));
+  std::string path = r.dir + "/" + layout::kCalibrationCopy;
+  if (!PathExists(path) && !r.opts.state_dir.empty()) path = CalibrationPath(r.opts.state_dir);
+  f.Add("source", std::string_view(path));
+  if (Status s = f.AddFile("calibration", path); !s) return s.error();
+  return f.Hex();
+}
+
+Result<SampleFingerprints> SampleJobFingerprints(const SampleRun& r) {
+  SampleFingerprints fp;
+  Fingerprint two_d;
+  two_d.Add("stage", std::string_view("2d"));
+  for (int side : r.sides) {
+    auto m = MasksFingerprint(r.dir, side, r.opts.worker);
+    if (!m) return m.error();
+    fp.masks[side] = *m;
+    two_d.Add("masks", std::string_view(*m));
+  }
+  fp.two_d = two_d.Hex();
+  Fingerprint config;  // the armed config: labels and markers (poses, stitch), camera
+  if (Status s = config.AddFile("config", r.dir + "/" + layout::kConfigCopy); !s) return s.error();
+  if (!r.use_sfm || HasCalibration(r.dir, r.opts)) {
+    auto c = CalibrationFingerprint(r);
+    if (!c) return c.error();
+    fp.calibration = *c;
+  }
+  Fingerprint stitch;
+  stitch.Add("stage", std::string_view("stitch")).Add("config", std::string_view(config.Hex()));
+  for (int side : r.sides) {
+    Fingerprint f;
+    f.Add("stage", std::string_view("poses"))
+        .Add("side", std::string_view(std::to_string(side)))
+        .Add("masks", std::string_view(fp.masks[side]))
+        .Add("config", std::string_view(config.Hex()))
+        .Add("path", std::string_view(r.use_sfm ? "sfm" : "turntable"));
+    if (r.use_sfm) {
+      f.Add("sfm", OptionsJson(r.opts.sfm));
+      // Without a rig calibration every later side is posed with the first
+      // side's SfM camera.
+      if (fp.calibration.empty() && side != r.sides[0])
+        f.Add("first side", std::string_view(fp.poses[r.sides[0]]));
+    } else {
+      f.Add("bundle_adjust", json(r.opts.bundle_adjust));
+      if (r.opts.bundle_adjust) f.Add("ba", OptionsJson(r.opts.ba));
+    }
+    f.Add("calibration", std::string_view(fp.calibration));
+    fp.poses[side] = f.Hex();
+    stitch.Add("poses", std::string_view(fp.poses[side]));
+  }
+  if (fp.calibration.empty()) {
+    fp.calibration = Fingerprint()
+                         .Add("stage", std::string_view("calibration from sfm"))
+                         .Add("poses", std::string_view(fp.poses[r.sides[0]]))
+                         .Hex();
+    stitch.Add("calibration", std::string_view(fp.calibration));
+  }
+  fp.stitch = stitch.Hex();
+  fp.surface = Fingerprint()
+                   .Add("stage", std::string_view("surface"))
+                   .Add("stitch", std::string_view(fp.stitch))
+                   .Add("hull", OptionsJson(r.opts.hull))
+                   .Add("photo_refine", json(r.opts.photo_refine))
+                   .Add("photo", r.opts.photo_refine ? OptionsJson(r.opts.photo) : json())
+                   .Add("photo_max_width", json(r.opts.photo_max_width))
+                   .Add("surface_smooth_iterations", json(r.opts.surface_smooth_iterations))
+                   .Hex();
+  fp.morphology = Fingerprint()
+                      .Add("stage", std::string_view("morphology"))
+                      .Add("surface", std::string_view(fp.surface))
+                      .Add("2d", std::string_view(fp.two_d))
+                      .Hex();
+  return fp;
+}
+
+// The masks stages of the sides and the 2D figures over all of them.
+void AddMasksStages(const std::string& sample_dir, const std::vector<int>& sides,
+                    const std::map<int, std::string>& fingerprints, const WorkerOptions& wo,
+                    std::vector<StageDecl>* stages) {
+  for (int side : sides) {
+    stages->push_back(
+        {"masks side " + std::to_string(side),
+         "masks",
+         fingerprints.at(side),
+         {"results/masks/" + layout::SideDirName(side),
+          "results/" + layout::SideDirName(side) + "_morph2d.json"},
+         {},
+         [sample_dir, side, wo](StageContext&) { return ProcessSide(sample_dir, side, wo); }});
+  }
+}
+
+Status TwoDFiguresStages(const std::string& sample_dir, const WorkerOptions& wo) {
+  auto sides = CapturedSides(sample_dir);
+  if (!sides) return sides.error();
+  std::map<int, std::string> masks;
+  Fingerprint two_d;
+  two_d.Add("stage", std::string_view("2d"));
+  for (int side : *sides) {
+    auto m = MasksFingerprint(sample_dir, side, wo);
+    if (!m) return m.error();
+    masks[side] = *m;
+    two_d.Add("masks", std::string_view(*m));
+  }
+  std::vector<StageDecl> stages;
+  AddMasksStages(sample_dir, *sides, masks, wo, &stages);
+  stages.push_back({"2d", "", two_d.Hex(), {"results/morph2d.json"}, {}, [&](StageContext&) {
+                      return ProcessSample(sample_dir, wo);
+                    }});
+  StageRunOptions ro;
+  ro.cancel = wo.cancel;
+  auto run = RunStages(sample_dir, stages, ro);
+  return run ? OkStatus() : Status(run.error());
+}
+
+Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructOptions& opts) {
+  SampleRun r(sample_dir, opts);
+  r.id = SampleIdOf(sample_dir);
+  r.morph_path = ResultsPath(sample_dir, results::kMorphology);
+  auto sides = CapturedSides(sample_dir);
+  if (!sides) return sides.error();
+  r.sides = *sides;
+  // The config the sample was armed with: its background labels (the SfM
+  // path's scale, the stitch stage's check) and its camera.
+  if (const std::string cfg_path = sample_dir + "/" + layout::kConfigCopy; PathExists(cfg_path)) {
+    std::vector<ConfigProblem> problems;
+    auto c = LoadConfigFile(cfg_path, &problems);
+    if (!c) {
+      return MakeError(ErrorClass::kInvalidConfig,
+                       "sample " + r.id + ": its " + cfg_path + " does not load (" +
+                           c.error().message +
+                           "); it is written at arm time and must not be edited");
+    }
+    r.sample_cfg = std::move(*c);
+    r.rig = r.sample_cfg->rig;
+  }
+  auto use_sfm = ChoosePosesPath(sample_dir, opts);
+  if (!use_sfm) return use_sfm.error();
+  r.use_sfm = *use_sfm;
+  auto fp = SampleJobFingerprints(r);
+  if (!fp) return fp.error();
+
+  WorkerOptions wo = opts.worker;
+  if (!wo.cancel) wo.cancel = opts.cancel;
+  std::vector<StageDecl> stages;
+  AddMasksStages(sample_dir, r.sides, fp->masks, wo, &stages);
+  stages.push_back({"2d", "", fp->two_d, {"results/morph2d.json"}, {}, [&](StageContext&) {
+                      if (Status s = ProcessSample(sample_dir, wo); !s) return s;
+                      return ReadImageSize(r);
+                    }});
+  const bool cal_first = !r.use_sfm || HasCalibration(sample_dir, opts);
+  auto calibration_stage = [&](bool from_sfm) {
+    return StageDecl{"calibration",
+                     "",
+                     fp->calibration,
+                     {std::string("results/") + results::kCalibrationUsed},
+                     {},
+                     [&, from_sfm](StageContext&) -> Status {
+                       if (from_sfm) return CalibrationFromSfm(r);
+                       auto c = CalibrationStage(sample_dir, opts, r.image_size, &r.timings);
+                       if (!c) return c.error();
+                       r.cal = std::move(*c);
+                       if (r.use_sfm) SetUpSfm(r);
+                       return OkStatus();
+                     }};
+  };
+  if (cal_first) stages.push_back(calibration_stage(false));
+  for (int side : r.sides) {
+    stages.push_back({"poses side " + std::to_string(side),
+                      "poses",
+                      fp->poses[side],
+                      {"results/" + results::PosesName(side)},
+                      // COLMAP's workspace (work/side<N>/sfm) stays: each of its
+                      // steps is kept or redone by its own fingerprint.
+                      {"results/" + SfmModelDirName(side)},
+                      [&, side](StageContext&) -> Status {
+                        if (r.use_sfm && !r.cal && side == r.sides[0]) SetUpSfm(r);
+                        return PosesOfSide(r, side);
+                      }});
+  }
+  if (!cal_first) stages.push_back(calibration_stage(true));
+  stages.push_back({"stitch",
+                    "",
+                    fp->stitch,
+                    {std::string("results/") + results::kStitch},
+                    {},
+                    [&](StageContext&) { return StitchSides(r); }});
+  stages.push_back(
+      {"surface",
+       "",
+       fp->surface,
+       {std::string("results/") + results::kSurface, std::string("results/") + results::kMeshPly,
+        std::string("results/") + results::kMeshObj, std::string("results/") + results::kMeshStl},
+       {},
+       [&](StageContext&) { return SurfaceOfSample(r); }});
+  stages.push_back({"morphology",
+                    "",
+                    fp->morphology,
+                    {std::string("results/") + results::kMorphology},
+                    {},
+                    [&](StageContext&) { return MorphologyStage(r); }});
+
+  StageRunOptions ro;
+  ro.from = opts.from_stage;
+  ro.cancel = opts.cancel;
+  // The masks' time for the record: the side jobs' (and this run's) seconds.
+  auto run = RunStages(sample_dir, stages, ro);
+  if (!run) return run.error();
+  auto m = ReadJson(r.morph_path, "results");
+  if (!m) return m.error();
+  return AppendLibraryRow(opts.state_dir, *m);
 }
 
 }  // namespace
 
 Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions& opts) {
   return RunStage("reconstruction", [&] { return ReconstructSampleStages(sample_dir, opts); });
+}
+
+Status TwoDFigures(const std::string& sample_dir, const WorkerOptions& opts) {
+  return RunStage("2D figures", [&] { return TwoDFiguresStages(sample_dir, opts); });
 }
 
 }  // namespace aggscan

@@ -1,23 +1,26 @@
-// The sample stages after the per-side masks (side_job.h): from a captured,
-// masked sample to a metric, closed rock model and its morphology.
-//
-// Stages, each finished iff its output file exists (written atomically), so a
-// crash or kill at any stage resumes at that stage:
-//   results/calibration_used.json  the rig calibration the sample is reconstructed with
-//                                  (samples/<id>/calibration.json, else the state dir's)
-//   results/poses_side<N>.json     every view's pose in its side's turntable frame
-//                                  (measured angles, refined by bundle adjustment; or
-//                                  full SfM scaled by the background labels: "method": "sfm",
-//                                  its model exported to results/sfm/side<N>/)
-//   (SfM without a calibration: calibration_used.json is then written after the poses,
-//   from side 1's SfM camera, "method": "sfm"; every later side is posed with it fixed,
+// The sample job: from a captured sample to a metric, closed rock model and
+// its morphology, as a declared list of stages run by the stage runner
+// (pipeline/stage_runner.h: each stage kept only while its fingerprint of
+// options and inputs matches, results/stages.json the ledger):
+//   masks side N     results/masks/side<N>/, results/side<N>_morph2d.json (side_job.h;
+//                    the side jobs usually ran these already)
+//   2d               results/morph2d.json: the 2D figures over all sides
+//   calibration      results/calibration_used.json: the rig calibration the sample is
+//                    reconstructed with (samples/<id>/calibration.json, else the state dir's)
+//   poses side N     results/poses_side<N>.json: every view's pose in its side's turntable
+//                    frame (measured angles, refined by bundle adjustment; or full SfM
+//                    scaled by the background labels: "method": "sfm", its model exported
+//                    to results/sfm/side<N>/, COLMAP's workspace in work/side<N>/sfm, whose
+//                    steps keep their own fingerprints)
+//   (SfM without a calibration: the calibration stage comes after the poses and takes
+//   side 1's SfM camera, "method": "sfm"; every later side is posed with it fixed,
 //   so all views share one camera model, as the surface stage needs)
-//   results/stitch.json            each side's turntable frame -> side 1's (object frame)
-//   results/surface.json           the mesh files below are complete
-//     results/mesh.ply (binary, per-vertex colour), mesh.obj, mesh.stl   (mm, object frame)
-//   results/morphology.json        3D figures, every view's 2D figures, statistics,
-//                                  2D-vs-3D comparison, quality figures, timings
-// and one row per sample appended to state_dir/library.csv.
+//   stitch           results/stitch.json: each side's turntable frame -> side 1's (object frame)
+//   surface          results/surface.json and the meshes (mm, object frame):
+//                    results/mesh.ply (binary, per-vertex colour), mesh.obj, mesh.stl
+//   morphology       results/morphology.json: 3D figures, every view's 2D figures,
+//                    statistics, 2D-vs-3D comparison, quality figures, timings
+// and the sample's row in state_dir/library.csv (replaced when it changes).
 #pragma once
 
 #include <atomic>
@@ -85,6 +88,10 @@ struct ReconstructOptions {
   /// unchanged (0.02 %); 20 passes gain only 0.1 % more.
   int surface_smooth_iterations = 10;
   std::string state_dir;       // for the library CSV and the fallback calibration; may be empty
+  /// Run this stage ("masks", "2d", "calibration", "poses", "stitch",
+  /// "surface", "morphology", or one side's: "poses side 2") and every one
+  /// after it again, whatever the ledger says. Empty: only what changed.
+  std::string from_stage;
   const std::atomic<bool>* cancel = nullptr;
 };
 
@@ -100,9 +107,14 @@ inline constexpr const char* kLibraryCsv = "library.csv";
 std::string PosesName(int side);  // "poses_side1.json"
 }  // namespace results
 
-/// Runs every unfinished stage of the sample (sides first) and writes
-/// results/morphology.json. Errors name the stage and what to do.
+/// Runs every stage of the sample whose result is missing or was made with
+/// other options or inputs (sides first) and writes results/morphology.json.
+/// Errors name the stage and what to do; cancellation is kCancelled.
 Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions& opts);
+
+/// The masks of every side and the 2D figures over them (a sample without a
+/// rig calibration on the turntable path), through the same stages.
+Status TwoDFigures(const std::string& sample_dir, const WorkerOptions& opts);
 
 /// results/morphology.json of a sample, parsed; kNotFound before it exists.
 Result<nlohmann::json> ReadMorphology(const std::string& sample_dir);

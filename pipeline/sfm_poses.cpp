@@ -120,7 +120,8 @@ Result<json> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts) {
       unregistered.push_back(in.views[i].view);
       continue;
     }
-    if (in.cancel && in.cancel->load()) return MakeError(ErrorClass::kInvalidState, what + "interrupted");
+    if (in.cancel && in.cancel->load())
+      return MakeError(ErrorClass::kCancelled, what + "interrupted");
     auto loaded = LoadImage(in.views[i].image, ImageMode::kColor);
     auto loaded_mask = LoadImage(in.views[i].mask, ImageMode::kGray);
     const cv::Mat bgr = loaded ? *loaded : cv::Mat();

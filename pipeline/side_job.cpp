@@ -16,7 +16,9 @@
 #include "common/log.h"
 #include "pipeline/image_io.h"
 #include "pipeline/morph2d.h"
+#include "pipeline/options_json.h"
 #include "pipeline/stage.h"
+#include "pipeline/stage_runner.h"
 #include "store/empty_turntable.h"
 #include "store/layout.h"
 
@@ -324,9 +326,9 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
   int views_done = 0;
   for (const ManifestView& v : *views) {
     if (opts.cancel && opts.cancel->load())
-      return MakeError(ErrorClass::kInvalidState,
-                       "interrupted: side " + std::to_string(side) + " of " + sample_id +
-                           " will resume from view " + std::to_string(v.view));
+      return MakeError(ErrorClass::kCancelled, "interrupted: side " + std::to_string(side) +
+                                                   " of " + sample_id + " will resume from view " +
+                                                   std::to_string(v.view));
     ReportStageProgress(views_done++, view_count);
     const StageScope view_stage("masks side " + std::to_string(side) + " view " +
                                 std::to_string(v.view));
@@ -501,26 +503,13 @@ Status ProcessSampleStage(const std::string& sample_dir, const WorkerOptions& op
     LogLine(LogLevel::kInfo, kCat, sample_id, "sample morphology already done, skipped");
     return OkStatus();
   }
-  std::vector<int> sides;
-  std::error_code ec;
-  for (const auto& e : fs::directory_iterator(sample_dir, ec)) {
-    const std::string n = e.path().filename().string();
-    if (!e.is_directory() || n.size() <= 4 || n.rfind("side", 0) != 0) continue;
-    const std::string num = n.substr(4);
-    if (!std::all_of(num.begin(), num.end(), [](char c) { return c >= '0' && c <= '9'; }) ||
-        num.size() > 4)
-      continue;
-    sides.push_back(std::stoi(num));
-  }
-  if (ec) return ErrnoError("cannot list sample directory " + sample_dir, ec.value());
-  std::sort(sides.begin(), sides.end());
-  if (sides.empty())
-    return MakeError(ErrorClass::kNotFound, "sample " + sample_id + " has no captured side");
+  auto sides = CapturedSides(sample_dir);
+  if (!sides) return sides.error();
 
   json jsides = json::array();
   std::map<std::string, std::vector<double>> all;
   int views_ok = 0;
-  for (int side : sides) {
+  for (int side : *sides) {
     const std::string side_result = SideResultPath(sample_dir, side);
     if (!PathExists(side_result)) {
       if (Status s = ProcessSide(sample_dir, side, opts); !s.ok()) return s;
@@ -550,7 +539,7 @@ Status ProcessSampleStage(const std::string& sample_dir, const WorkerOptions& op
               {"std_kind", "sample"}};
   if (Status s = WriteJson(result_path, out); !s.ok()) return s;
   LogLine(LogLevel::kInfo, kCat, sample_id,
-          "sample morphology written: " + std::to_string(sides.size()) + " sides, " +
+          "sample morphology written: " + std::to_string(sides->size()) + " sides, " +
               std::to_string(views_ok) + " views");
   return OkStatus();
 }
@@ -564,6 +553,69 @@ Status ProcessSide(const std::string& sample_dir, int side, const WorkerOptions&
 
 Status ProcessSample(const std::string& sample_dir, const WorkerOptions& opts) {
   return RunStage("2D figures", [&] { return ProcessSampleStage(sample_dir, opts); });
+}
+
+Result<std::vector<int>> CapturedSides(const std::string& sample_dir) {
+  std::vector<int> sides;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(sample_dir, ec)) {
+    const std::string n = e.path().filename().string();
+    if (!e.is_directory() || n.size() <= 4 || n.rfind("side", 0) != 0) continue;
+    const std::string num = n.substr(4);
+    if (!std::all_of(num.begin(), num.end(), [](char c) { return c >= '0' && c <= '9'; }) ||
+        num.size() > 4)
+      continue;
+    sides.push_back(std::stoi(num));
+  }
+  if (ec) return ErrnoError("cannot list sample directory " + sample_dir, ec.value());
+  std::sort(sides.begin(), sides.end());
+  if (sides.empty())
+    return MakeError(ErrorClass::kNotFound,
+                     "sample " + SampleIdOf(sample_dir) + " has no captured side");
+  return sides;
+}
+
+Result<std::string> MasksFingerprint(const std::string& sample_dir, int side,
+                                     const WorkerOptions& opts) {
+  Fingerprint f;
+  f.Add("stage", std::string_view("masks")).Add("side", json(side));
+  if (Status s = f.AddFile("manifest",
+                           sample_dir + "/" + layout::SideDirName(side) + "/" + layout::kManifest);
+      !s) {
+    return s.error();
+  }
+  f.Add("image_limits", OptionsJson(opts.image_limits));
+  if (opts.mask_net) {
+    // The network and, after it, the refinement with these options.
+    f.Add("net", OptionsJson(opts.mask_net->options()));
+    if (Status s = f.AddFile("model", opts.mask_net->options().model_path); !s) return s.error();
+  }
+  f.Add("mask", OptionsJson(opts.mask));
+  auto set = LoadEmptyTurntableSet(sample_dir + "/" + layout::kEmptyDir);
+  f.Add("empty", set ? set->ToJson() : json(ErrorClassName(set.error().cls)));
+  f.Add("empty_max_angle", json(opts.empty_turntable_max_angle_deg));
+  return f.Hex();
+}
+
+Status RunSideJob(const std::string& sample_dir, int side, const WorkerOptions& opts) {
+  if (side < 1)
+    return MakeError(ErrorClass::kInvalidArgument,
+                     "side must be >= 1, got " + std::to_string(side));
+  auto fp = MasksFingerprint(sample_dir, side, opts);
+  if (!fp) return fp.error();
+  StageDecl d{
+      "masks side " + std::to_string(side),
+      "masks",
+      *fp,
+      {std::string(layout::kResultsDir) + "/masks/" + layout::SideDirName(side),
+       std::string(layout::kResultsDir) + "/" + layout::SideDirName(side) + "_morph2d.json"},
+      {},
+      [&](StageContext&) { return ProcessSide(sample_dir, side, opts); }};
+  StageRunOptions ro;
+  ro.cancel = opts.cancel;
+  auto r = RunStages(sample_dir, {d}, ro);
+  if (!r) return r.error();
+  return OkStatus();
 }
 
 }  // namespace aggscan

@@ -17,6 +17,7 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <string>
+#include <vector>
 
 #include "common/error.h"
 #include "pipeline/image_io.h"
@@ -34,7 +35,7 @@ struct WorkerOptions {
   double empty_turntable_max_angle_deg =
       0.5;  // [mask]: the empty-turntable photo's angle within this of the view's
   const std::atomic<bool>* cancel =
-      nullptr;  // checked between views; set -> kInvalidState "interrupted"
+      nullptr;  // checked between views; set -> kCancelled "interrupted"
 };
 
 /// Masks and 2D morphology of side `side` (>= 1) of the sample at `sample_dir`.
@@ -46,6 +47,21 @@ Status ProcessSide(const std::string& sample_dir, int side, const WorkerOptions&
 /// manifest but no result yet are processed first. kNotFound when no side has
 /// been captured or a side directory has no manifest.
 Status ProcessSample(const std::string& sample_dir, const WorkerOptions& opts = {});
+
+/// The captured sides of a sample (its side<N> directories), ascending;
+/// kNotFound naming the sample when there is none.
+Result<std::vector<int>> CapturedSides(const std::string& sample_dir);
+
+/// The fingerprint of side `side`'s masks (pipeline/stage_runner.h): the
+/// side's manifest, the mask options, the network's options and file, the
+/// sample's empty-turntable set and how near its photos must be.
+Result<std::string> MasksFingerprint(const std::string& sample_dir, int side,
+                                     const WorkerOptions& opts);
+
+/// The side job: the stage "masks side<N>" (masks and every view's 2D
+/// figures) through the stage runner, so that the sample job later keeps its
+/// result when its fingerprint still matches and redoes it when not.
+Status RunSideJob(const std::string& sample_dir, int side, const WorkerOptions& opts);
 
 /// A view whose mask has at least this many pixels on the photo's outermost
 /// rows and columns shows a rock cut by the frame.

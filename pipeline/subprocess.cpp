@@ -193,7 +193,7 @@ Result<SubprocessResult> RunSubprocess(const std::vector<std::string>& argv,
     if (opts.cancel && opts.cancel->load()) {
       child.Kill(opts.kill_grace_s, &status);
       WriteAll(log_fd.get(), "==== cancelled: killed\n");
-      return MakeError(ErrorClass::kInvalidState, "interrupted",
+      return MakeError(ErrorClass::kCancelled, "interrupted",
                        argv[0] + " was cancelled and killed");
     }
     if (has_deadline && SteadyClock::now() >= deadline) {

@@ -37,7 +37,7 @@ struct SubprocessResult {
 /// Returns the exit status even when it is not 0: the caller decides what a
 /// failure means. Errors: kInvalidArgument (empty argv), kNotFound (the program
 /// does not exist or is not executable; detail: exec's errno text), kIo (log
-/// file, fork), kTimeout (ran past timeout_s; killed), kInvalidState with
+/// file, fork), kTimeout (ran past timeout_s; killed), kCancelled with
 /// message "interrupted" (cancelled; killed).
 Result<SubprocessResult> RunSubprocess(const std::vector<std::string>& argv,
                                        const SubprocessOptions& opts = {});

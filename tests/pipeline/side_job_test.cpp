@@ -365,7 +365,7 @@ TEST_F(SideJobTest, CancelStopsBetweenViewsAndResumes) {
   o.cancel = &cancel;
   Status s = ProcessSide(dir_, 1, o);
   ASSERT_FALSE(s.ok());
-  EXPECT_EQ(s.error().cls, ErrorClass::kInvalidState);
+  EXPECT_EQ(s.error().cls, ErrorClass::kCancelled);
   EXPECT_FALSE(PathExists(SideResultPath(dir_, 1)));
   cancel = false;
   EXPECT_TRUE(ProcessSide(dir_, 1, o).ok());

@@ -292,6 +292,59 @@ TEST(ReconstructCommand, SurfaceAndPosesOptionsChooseTheMethods) {
   EXPECT_FALSE(surface["photo_refine"]["enabled"].get<bool>());
   const json printed = json::parse(out.str());
   EXPECT_EQ(printed["methods"]["surface"], "visual-hull");
+
+  // The same sample asked for with other options: the stages those options
+  // decide run again (and every one after them), the others are kept.
+  const std::string res = sample + "/results/";
+  auto ledger = [&] { return json::parse(*ReadFile(res + "stages.json"))["stages"]; };
+  const json first = ledger();
+  const double hull_volume = printed["morphology_3d"]["volume_mm3"].get<double>();
+  std::ostringstream out2, err2;
+  ASSERT_EQ(RunReconstructCommand({sample, "--state-dir", tmp.path(), "--poses", "turntable"}, out2,
+                                  err2),
+            0)
+      << err2.str();
+  const json second = ledger();
+  for (const char* kept : {"masks side 1", "2d", "calibration", "poses side 1", "stitch"}) {
+    EXPECT_EQ(second[kept]["finished_utc"], first[kept]["finished_utc"]) << kept;
+  }
+  for (const char* rerun : {"surface", "morphology"}) {
+    EXPECT_NE(second[rerun]["fingerprint"], first[rerun]["fingerprint"]) << rerun;
+  }
+  const json refined = json::parse(out2.str());
+  EXPECT_EQ(refined["methods"]["surface"], "visual-hull+photo");
+  EXPECT_NE(refined["morphology_3d"]["volume_mm3"].get<double>(), hull_volume);
+  // The library holds the sample's new figures, in one row.
+  const std::string library = *ReadFile(tmp.path() + "/library.csv");
+  const std::string id = fs::path(sample).filename().string();
+  EXPECT_EQ(library.find("\n" + id + ","), library.rfind("\n" + id + ",")) << library;
+
+  // Nothing changed: everything kept, nothing rewritten.
+  const auto morph_time = fs::last_write_time(res + "morphology.json");
+  std::ostringstream out3, err3;
+  ASSERT_EQ(RunReconstructCommand({sample, "--state-dir", tmp.path(), "--poses", "turntable"}, out3,
+                                  err3),
+            0)
+      << err3.str();
+  EXPECT_EQ(ledger(), second);
+  EXPECT_EQ(fs::last_write_time(res + "morphology.json"), morph_time);
+
+  // --from reruns that stage and the later ones.
+  std::ostringstream out4, err4;
+  ASSERT_EQ(RunReconstructCommand(
+                {sample, "--state-dir", tmp.path(), "--poses", "turntable", "--from", "stitch"},
+                out4, err4),
+            0)
+      << err4.str();
+  const json fourth = ledger();
+  EXPECT_EQ(fourth["poses side 1"], second["poses side 1"]);
+  EXPECT_NE(fourth["stitch"]["finished_utc"], second["stitch"]["finished_utc"]);
+  EXPECT_NE(fourth["surface"]["finished_utc"], second["surface"]["finished_utc"]);
+  std::ostringstream out5, err5;
+  EXPECT_EQ(RunReconstructCommand({sample, "--from", "colour"}, out5, err5), 1);
+  EXPECT_NE(err5.str().find("masks, 2d, calibration, poses, stitch, surface, morphology"),
+            std::string::npos)
+      << err5.str();
 }
 
 }  // namespace

@@ -125,7 +125,7 @@ TEST(Subprocess, CancelKillsAndReportsInterrupted) {
   auto r = RunSubprocess({"/bin/sleep", "30"}, o);
   t.join();
   ASSERT_FALSE(r.ok());
-  EXPECT_EQ(r.error().cls, ErrorClass::kInvalidState);
+  EXPECT_EQ(r.error().cls, ErrorClass::kCancelled);
   EXPECT_EQ(r.error().message, "interrupted");
   EXPECT_LT(std::chrono::duration<double>(Clock::now() - t0).count(), 5.0);
 }
