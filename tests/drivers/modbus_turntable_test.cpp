@@ -405,7 +405,15 @@ TEST(ModbusTurntable, Rs485ModeIsOptionalWhereThePortLacksIt) {
   TurntableConfig c = testing::ModbusConfigFor(*server, false);
   c.modbus.rs485 = true;
   auto t = Make(c);
+  ::testing::internal::CaptureStderr();
   OpenHome(*t);
+  const std::string log = ::testing::internal::GetCapturedStderr();
+  // The warning names the port and says why it is fine, once.
+  const std::string warning = c.modbus.device + " does not support RS-485 mode";
+  const size_t at = log.find(warning);
+  ASSERT_NE(at, std::string::npos) << log;
+  EXPECT_NE(log.find("adapters that switch direction themselves", at), std::string::npos) << log;
+  EXPECT_EQ(log.find(warning, at + 1), std::string::npos) << log;
 }
 
 // Link hygiene: one answer that comes after response_timeout. The peer
