@@ -39,12 +39,6 @@ using nlohmann::json;
 
 constexpr const char* kCat = "worker";
 
-std::string SampleIdOf(const std::string& sample_dir) {
-  fs::path p = fs::path(sample_dir).lexically_normal();
-  if (p.filename().empty()) p = p.parent_path();
-  return p.filename().string();
-}
-
 std::string ResultsPath(const std::string& sample_dir, const std::string& name) {
   return sample_dir + "/" + layout::kResultsDir + "/" + name;
 }
@@ -247,7 +241,7 @@ Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int sid
     if (!j) return j.error();
     (*j)["stage_seconds"] = Seconds(t0);
     if (Status s = WriteJson(out, *j); !s) return s.error();
-    LogLine(LogLevel::kInfo, kCat, SampleIdOf(sample_dir),
+    LogLine(LogLevel::kInfo, kCat, layout::SampleIdOfDir(sample_dir),
             layout::SideDirName(side) + ": SfM registered " +
                 std::to_string((*j)["sfm"].value("registered_views", 0)) +
                 " views, scale residual " +
@@ -316,7 +310,7 @@ Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int sid
               IsoToJson(geom::IsoFromRowMajor(ba.calibration.CamFromTable(ba.angle_deg[i])));
         }
       } else {
-        LogLine(LogLevel::kWarning, kCat, SampleIdOf(sample_dir),
+        LogLine(LogLevel::kWarning, kCat, layout::SampleIdOfDir(sample_dir),
                 layout::SideDirName(side) + ": poses not refined: " + ba.reason);
       }
     } else {
@@ -953,7 +947,7 @@ Result<json> ReadMorphology(const std::string& sample_dir) {
   const std::string path = ResultsPath(sample_dir, results::kMorphology);
   if (!PathExists(path)) {
     return MakeError(ErrorClass::kNotFound,
-                     "no results yet for " + SampleIdOf(sample_dir) +
+                     "no results yet for " + layout::SampleIdOfDir(sample_dir) +
                          " (the worker has not finished it; see its state and the worker log)");
   }
   return ReadJson(path, "results");
@@ -1349,17 +1343,12 @@ Result<std::string> CalibrationFingerprint(const SampleRun& r) {
   return f.Hex();
 }
 
-Result<SampleFingerprints> SampleJobFingerprints(const SampleRun& r) {
+// `masks`: every side's masks and the 2D figures (AddMasksAndTwoDStages).
+Result<SampleFingerprints> SampleJobFingerprints(const SampleRun& r,
+                                                 const SampleFingerprints& masks) {
   SampleFingerprints fp;
-  Fingerprint two_d;
-  two_d.Add("stage", std::string_view("2d"));
-  for (int side : r.sides) {
-    auto m = MasksFingerprint(r.dir, side, r.opts.worker);
-    if (!m) return m.error();
-    fp.masks[side] = *m;
-    two_d.Add("masks", std::string_view(*m));
-  }
-  fp.two_d = two_d.Hex();
+  fp.masks = masks.masks;
+  fp.two_d = masks.two_d;
   Fingerprint config;  // the armed config: labels and markers (poses, stitch), camera
   if (Status s = config.AddFile("config", r.dir + "/" + layout::kConfigCopy); !s) return s.error();
   if (!r.use_sfm || HasCalibration(r.dir, r.opts)) {
@@ -1415,39 +1404,43 @@ Result<SampleFingerprints> SampleJobFingerprints(const SampleRun& r) {
   return fp;
 }
 
-// The masks stages of the sides and the 2D figures over all of them.
-void AddMasksStages(const std::string& sample_dir, const std::vector<int>& sides,
-                    const std::map<int, std::string>& fingerprints, const WorkerOptions& wo,
-                    std::vector<StageDecl>* stages) {
+// The masks stages of every side and the 2D figures over them ("2d", which
+// then runs `then`, if given); their fingerprints.
+Result<SampleFingerprints> AddMasksAndTwoDStages(const std::string& sample_dir,
+                                                 const std::vector<int>& sides,
+                                                 const WorkerOptions& wo,
+                                                 std::function<Status()> then,
+                                                 std::vector<StageDecl>* stages) {
+  SampleFingerprints fp;
+  Fingerprint two_d;
+  two_d.Add("stage", std::string_view("2d"));
   for (int side : sides) {
-    stages->push_back(
-        {"masks side " + std::to_string(side),
-         "masks",
-         fingerprints.at(side),
-         {"results/masks/" + layout::SideDirName(side),
-          "results/" + layout::SideDirName(side) + "_morph2d.json"},
-         {},
-         [sample_dir, side, wo](StageContext&) { return ProcessSide(sample_dir, side, wo); }});
+    auto d = MasksStage(sample_dir, side, wo);
+    if (!d) return d.error();
+    fp.masks[side] = d->fingerprint;
+    two_d.Add("masks", std::string_view(d->fingerprint));
+    stages->push_back(std::move(*d));
   }
+  fp.two_d = two_d.Hex();
+  stages->push_back({"2d",
+                     "",
+                     fp.two_d,
+                     {"results/morph2d.json"},
+                     {},
+                     [sample_dir, wo, then](StageContext&) -> Status {
+                       if (Status s = ProcessSample(sample_dir, wo); !s) return s;
+                       return then ? then() : OkStatus();
+                     }});
+  return fp;
 }
 
 Status TwoDFiguresStages(const std::string& sample_dir, const WorkerOptions& wo) {
   auto sides = CapturedSides(sample_dir);
   if (!sides) return sides.error();
-  std::map<int, std::string> masks;
-  Fingerprint two_d;
-  two_d.Add("stage", std::string_view("2d"));
-  for (int side : *sides) {
-    auto m = MasksFingerprint(sample_dir, side, wo);
-    if (!m) return m.error();
-    masks[side] = *m;
-    two_d.Add("masks", std::string_view(*m));
-  }
   std::vector<StageDecl> stages;
-  AddMasksStages(sample_dir, *sides, masks, wo, &stages);
-  stages.push_back({"2d", "", two_d.Hex(), {"results/morph2d.json"}, {}, [&](StageContext&) {
-                      return ProcessSample(sample_dir, wo);
-                    }});
+  if (auto fp = AddMasksAndTwoDStages(sample_dir, *sides, wo, nullptr, &stages); !fp) {
+    return fp.error();
+  }
   StageRunOptions ro;
   ro.cancel = wo.cancel;
   auto run = RunStages(sample_dir, stages, ro);
@@ -1456,7 +1449,7 @@ Status TwoDFiguresStages(const std::string& sample_dir, const WorkerOptions& wo)
 
 Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructOptions& opts) {
   SampleRun r(sample_dir, opts);
-  r.id = SampleIdOf(sample_dir);
+  r.id = layout::SampleIdOfDir(sample_dir);
   r.morph_path = ResultsPath(sample_dir, results::kMorphology);
   auto sides = CapturedSides(sample_dir);
   if (!sides) return sides.error();
@@ -1478,17 +1471,14 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
   auto use_sfm = ChoosePosesPath(sample_dir, opts);
   if (!use_sfm) return use_sfm.error();
   r.use_sfm = *use_sfm;
-  auto fp = SampleJobFingerprints(r);
-  if (!fp) return fp.error();
-
   WorkerOptions wo = opts.worker;
   if (!wo.cancel) wo.cancel = opts.cancel;
   std::vector<StageDecl> stages;
-  AddMasksStages(sample_dir, r.sides, fp->masks, wo, &stages);
-  stages.push_back({"2d", "", fp->two_d, {"results/morph2d.json"}, {}, [&](StageContext&) {
-                      if (Status s = ProcessSample(sample_dir, wo); !s) return s;
-                      return ReadImageSize(r);
-                    }});
+  auto masks = AddMasksAndTwoDStages(
+      sample_dir, r.sides, wo, [&] { return ReadImageSize(r); }, &stages);
+  if (!masks) return masks.error();
+  auto fp = SampleJobFingerprints(r, *masks);
+  if (!fp) return fp.error();
   const bool cal_first = !r.use_sfm || HasCalibration(sample_dir, opts);
   auto calibration_stage = [&](bool from_sfm) {
     return StageDecl{"calibration",

@@ -18,7 +18,6 @@
 #include "pipeline/morph2d.h"
 #include "pipeline/options_json.h"
 #include "pipeline/stage.h"
-#include "pipeline/stage_runner.h"
 #include "store/empty_turntable.h"
 #include "store/layout.h"
 
@@ -32,13 +31,6 @@ constexpr const char* kCat = "worker";
 
 // The figures summarised per side and per sample.
 constexpr const char* kStatFields[] = {"fer_2d", "circularity", "l_max_px", "l_min_px"};
-
-// The sample id is the directory name (layout.h); tolerate a trailing slash.
-std::string SampleIdOf(const std::string& sample_dir) {
-  fs::path p = fs::path(sample_dir).lexically_normal();
-  if (p.filename().empty()) p = p.parent_path();
-  return p.filename().string();
-}
 
 std::string ResultsDir(const std::string& sample_dir) {
   return sample_dir + "/" + layout::kResultsDir;
@@ -289,7 +281,7 @@ cv::Mat EmptyTurntablePhoto(const std::string& sample_dir, const EmptyTurntableS
 namespace {
 
 Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOptions& opts) {
-  const std::string sample_id = SampleIdOf(sample_dir);
+  const std::string sample_id = layout::SampleIdOfDir(sample_dir);
   if (side < 1)
     return MakeError(ErrorClass::kInvalidArgument,
                      "side must be >= 1, got " + std::to_string(side));
@@ -497,7 +489,7 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
 }
 
 Status ProcessSampleStage(const std::string& sample_dir, const WorkerOptions& opts) {
-  const std::string sample_id = SampleIdOf(sample_dir);
+  const std::string sample_id = layout::SampleIdOfDir(sample_dir);
   const std::string result_path = SampleResultPath(sample_dir);
   if (PathExists(result_path)) {
     LogLine(LogLevel::kInfo, kCat, sample_id, "sample morphology already done, skipped");
@@ -571,7 +563,7 @@ Result<std::vector<int>> CapturedSides(const std::string& sample_dir) {
   std::sort(sides.begin(), sides.end());
   if (sides.empty())
     return MakeError(ErrorClass::kNotFound,
-                     "sample " + SampleIdOf(sample_dir) + " has no captured side");
+                     "sample " + layout::SampleIdOfDir(sample_dir) + " has no captured side");
   return sides;
 }
 
@@ -597,25 +589,30 @@ Result<std::string> MasksFingerprint(const std::string& sample_dir, int side,
   return f.Hex();
 }
 
-Status RunSideJob(const std::string& sample_dir, int side, const WorkerOptions& opts) {
+Result<StageDecl> MasksStage(const std::string& sample_dir, int side, const WorkerOptions& opts) {
   if (side < 1)
     return MakeError(ErrorClass::kInvalidArgument,
                      "side must be >= 1, got " + std::to_string(side));
   auto fp = MasksFingerprint(sample_dir, side, opts);
   if (!fp) return fp.error();
-  StageDecl d{
+  const std::string results = layout::kResultsDir;
+  return StageDecl{
       "masks side " + std::to_string(side),
       "masks",
       *fp,
-      {std::string(layout::kResultsDir) + "/masks/" + layout::SideDirName(side),
-       std::string(layout::kResultsDir) + "/" + layout::SideDirName(side) + "_morph2d.json"},
+      {results + "/masks/" + layout::SideDirName(side),
+       results + "/" + layout::SideDirName(side) + "_morph2d.json"},
       {},
-      [&](StageContext&) { return ProcessSide(sample_dir, side, opts); }};
+      [sample_dir, side, opts](StageContext&) { return ProcessSide(sample_dir, side, opts); }};
+}
+
+Status RunSideJob(const std::string& sample_dir, int side, const WorkerOptions& opts) {
+  auto d = MasksStage(sample_dir, side, opts);
+  if (!d) return d.error();
   StageRunOptions ro;
   ro.cancel = opts.cancel;
-  auto r = RunStages(sample_dir, {d}, ro);
-  if (!r) return r.error();
-  return OkStatus();
+  auto r = RunStages(sample_dir, {*d}, ro);
+  return r ? OkStatus() : Status(r.error());
 }
 
 }  // namespace aggscan

@@ -23,6 +23,7 @@
 #include "pipeline/image_io.h"
 #include "pipeline/mask.h"
 #include "pipeline/mask_net.h"
+#include "pipeline/stage_runner.h"
 #include "store/empty_turntable.h"
 
 namespace aggscan {
@@ -58,9 +59,14 @@ Result<std::vector<int>> CapturedSides(const std::string& sample_dir);
 Result<std::string> MasksFingerprint(const std::string& sample_dir, int side,
                                      const WorkerOptions& opts);
 
-/// The side job: the stage "masks side<N>" (masks and every view's 2D
-/// figures) through the stage runner, so that the sample job later keeps its
-/// result when its fingerprint still matches and redoes it when not.
+/// The stage "masks side N" (masks and every view's 2D figures,
+/// ProcessSide) with its fingerprint and outputs, as the side job and the
+/// sample job both declare it.
+Result<StageDecl> MasksStage(const std::string& sample_dir, int side, const WorkerOptions& opts);
+
+/// The side job: MasksStage through the stage runner, so that the sample job
+/// later keeps its result when its fingerprint still matches and redoes it
+/// when not.
 Status RunSideJob(const std::string& sample_dir, int side, const WorkerOptions& opts);
 
 /// A view whose mask has at least this many pixels on the photo's outermost

@@ -21,10 +21,6 @@ std::string ResultsDir(const std::string& sample_dir) {
   return sample_dir + "/" + layout::kResultsDir;
 }
 
-std::string SampleIdOf(const std::string& sample_dir) {
-  return std::filesystem::path(sample_dir).lexically_normal().filename().string();
-}
-
 Status WriteLedger(const std::string& sample_dir, const json& ledger) {
   if (Status s = MakeDirsDurable(ResultsDir(sample_dir)); !s) return s;
   return WriteFileAtomic(ResultsDir(sample_dir) + "/" + kStageLedger,
@@ -130,7 +126,7 @@ Result<json> ReadStageLedger(const std::string& sample_dir) {
       !j["stages"].is_object()) {
     // Damaged or from another release: every stage is run again, which is
     // always correct, only slower.
-    LogLine(LogLevel::kWarning, kCat, SampleIdOf(sample_dir),
+    LogLine(LogLevel::kWarning, kCat, layout::SampleIdOfDir(sample_dir),
             path + " is not a stage ledger this worker reads; every stage runs again");
     return json{{"format", kLedgerFormat}, {"stages", json::object()}};
   }
@@ -140,7 +136,7 @@ Result<json> ReadStageLedger(const std::string& sample_dir) {
 Result<StageRunReport> RunStages(const std::string& sample_dir,
                                  const std::vector<StageDecl>& stages,
                                  const StageRunOptions& opts) {
-  const std::string sample_id = SampleIdOf(sample_dir);
+  const std::string sample_id = layout::SampleIdOfDir(sample_dir);
   if (!opts.from.empty()) {
     bool known = false;
     std::string names;

@@ -30,4 +30,10 @@ std::string StateDirOfSample(const std::string& sample_dir) {
              : std::string();
 }
 
+std::string SampleIdOfDir(const std::string& sample_dir) {
+  std::filesystem::path p = std::filesystem::path(sample_dir).lexically_normal();
+  if (p.filename().empty()) p = p.parent_path();
+  return p.filename().string();
+}
+
 }  // namespace aggscan::layout

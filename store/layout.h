@@ -54,6 +54,8 @@ inline std::string QueuePath(const std::string& state_dir) { return state_dir + 
 /// The state directory a sample directory lies in (STATE_DIR/samples/ID or
 /// STATE_DIR/calibration-captures/ID), or "" when it is not laid out so.
 std::string StateDirOfSample(const std::string& sample_dir);
+/// The sample id of a sample directory: its name (a trailing slash allowed).
+std::string SampleIdOfDir(const std::string& sample_dir);
 
 /// Sample ids: 1..64 chars of [A-Za-z0-9._-], not starting with '.' or '-'.
 /// Anything else could name a path outside the state directory.
