@@ -7,21 +7,36 @@ namespace aggscan {
 
 const char* ErrorClassName(ErrorClass c) {
   switch (c) {
-    case ErrorClass::kInvalidArgument: return "invalid_argument";
-    case ErrorClass::kInvalidConfig: return "invalid_config";
-    case ErrorClass::kInvalidState: return "invalid_state";
-    case ErrorClass::kNotFound: return "not_found";
-    case ErrorClass::kConflict: return "conflict";
-    case ErrorClass::kDeviceMissing: return "device_missing";
-    case ErrorClass::kDisconnected: return "disconnected";
-    case ErrorClass::kTimeout: return "timeout";
-    case ErrorClass::kStalled: return "stalled";
-    case ErrorClass::kDeviceFault: return "device_fault";
-    case ErrorClass::kDiskFull: return "disk_full";
-    case ErrorClass::kIo: return "io";
-    case ErrorClass::kCorrupt: return "corrupt";
-    case ErrorClass::kCancelled: return "cancelled";
-    case ErrorClass::kInternal: return "internal";
+    case ErrorClass::kInvalidArgument:
+      return "invalid_argument";
+    case ErrorClass::kInvalidConfig:
+      return "invalid_config";
+    case ErrorClass::kInvalidState:
+      return "invalid_state";
+    case ErrorClass::kNotFound:
+      return "not_found";
+    case ErrorClass::kConflict:
+      return "conflict";
+    case ErrorClass::kDeviceMissing:
+      return "device_missing";
+    case ErrorClass::kDisconnected:
+      return "disconnected";
+    case ErrorClass::kTimeout:
+      return "timeout";
+    case ErrorClass::kStalled:
+      return "stalled";
+    case ErrorClass::kDeviceFault:
+      return "device_fault";
+    case ErrorClass::kDiskFull:
+      return "disk_full";
+    case ErrorClass::kIo:
+      return "io";
+    case ErrorClass::kCorrupt:
+      return "corrupt";
+    case ErrorClass::kCancelled:
+      return "cancelled";
+    case ErrorClass::kInternal:
+      return "internal";
   }
   return "internal";
 }

@@ -25,9 +25,8 @@
 
 #include <atomic>
 #include <functional>
-#include <string>
-
 #include <nlohmann/json.hpp>
+#include <string>
 
 #include "common/error.h"
 #include "pipeline/bundle_adjust.h"
@@ -50,12 +49,12 @@ bool ParsePosesPath(const std::string& name, PosesPath* out);
 const char* PosesPathName(PosesPath p);
 
 struct ReconstructOptions {
-  WorkerOptions worker;        // per-side masks
+  WorkerOptions worker;  // per-side masks
   /// The poses path. The turntable by default: the SfM path costs minutes a
   /// side on the rig's 2 cores (../shared/notes/colmap-debian.md) and is
   /// asked for explicitly ([worker] poses, aggscan reconstruct --poses).
   PosesPath poses = PosesPath::kTurntable;
-  SfmPosesOptions sfm;         // the SfM path's settings
+  SfmPosesOptions sfm;  // the SfM path's settings
   /// Poses: refine each side's measured turntable angles by bundle adjustment
   /// over the features inside the rock masks (pipeline/bundle_adjust.h);
   /// recorded as "turntable+ba", or "turntable" with the reason when there
@@ -74,9 +73,10 @@ struct ReconstructOptions {
     o.features.distinct_viewpoints_only = false;
     return o;
   }();
-  VisualHullOptions hull;      // surface
-  bool photo_refine = true;    // refine the hull by photo-consistency (concavities the silhouettes miss)
-  PhotoRefineOptions photo;    // ... with these options
+  VisualHullOptions hull;  // surface
+  bool photo_refine =
+      true;  // refine the hull by photo-consistency (concavities the silhouettes miss)
+  PhotoRefineOptions photo;  // ... with these options
   /// ... on the photos scaled to at most this width (0: full size). Its
   /// patches were tuned at 1008 x 756; on full 2016 x 1512 photos the same
   /// 9 x 9 px patch covers a quarter of the rock surface and the refinement
@@ -87,7 +87,7 @@ struct ReconstructOptions {
   /// seeds 1, 6, 9, 15: area error +2.92 -> +2.47 % (mean) with 10, volume
   /// unchanged (0.02 %); 20 passes gain only 0.1 % more.
   int surface_smooth_iterations = 10;
-  std::string state_dir;       // for the library CSV and the fallback calibration; may be empty
+  std::string state_dir;  // for the library CSV and the fallback calibration; may be empty
   /// Run this stage ("masks", "2d", "calibration", "poses", "stitch",
   /// "surface", "morphology", or one side's: "poses side 2") and every one
   /// after it again, whatever the ledger says. Empty: only what changed.

@@ -3,7 +3,6 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-
 #include <opencv2/imgcodecs.hpp>
 
 #include "pipeline/aruco_scale.h"
@@ -51,8 +50,9 @@ Result<json> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts) {
   const std::string side_name = layout::SideDirName(in.side);
   const std::string what = "poses stage (sfm), " + side_name + ": ";
   if (in.views.size() < 3) {
-    return MakeError(ErrorClass::kCorrupt, what + "only " + std::to_string(in.views.size()) +
-                                               " views with a rock; at least 3 are needed: re-capture the side");
+    return MakeError(ErrorClass::kCorrupt,
+                     what + "only " + std::to_string(in.views.size()) +
+                         " views with a rock; at least 3 are needed: re-capture the side");
   }
   const auto t0 = std::chrono::steady_clock::now();
   ColmapSfmOptions o;
@@ -66,7 +66,8 @@ Result<json> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts) {
   o.fixed_camera = in.fixed_camera;
   if (!in.fixed_camera) {
     o.expected_focal_px = in.expected_focal_px;
-    o.hold_focal_hint = in.expected_focal_px.has_value();  // the worker's hint is a lens's nominal focal
+    o.hold_focal_hint =
+        in.expected_focal_px.has_value();  // the worker's hint is a lens's nominal focal
   }
   o.free_camera_model = opts.free_camera_model;
   o.sift.max_image_size = opts.max_image_size;
@@ -81,7 +82,9 @@ Result<json> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts) {
   if (!sfm) {
     std::string advice;
     if (sfm.error().cls == ErrorClass::kNotFound) {
-      advice = " (install Debian's colmap package, or use the calibrated turntable: [worker] poses = \"turntable\")";
+      advice =
+          " (install Debian's colmap package, or use the calibrated turntable: [worker] poses = "
+          "\"turntable\")";
     }
     return MakeError(sfm.error().cls, what + sfm.error().message + advice, sfm.error().detail);
   }
@@ -94,7 +97,8 @@ Result<json> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts) {
   } else {
     const SfmCamera* c = sfm->model.cameras.empty() ? nullptr : &sfm->model.cameras.front();
     if (!c || sfm->model.cameras.size() != 1) {
-      return MakeError(ErrorClass::kCorrupt, what + "the SfM model has " + std::to_string(sfm->model.cameras.size()) +
+      return MakeError(ErrorClass::kCorrupt, what + "the SfM model has " +
+                                                 std::to_string(sfm->model.cameras.size()) +
                                                  " cameras, one shared camera was asked for");
     }
     auto oc = OpenCvCameraFromColmap(*c);
@@ -127,9 +131,10 @@ Result<json> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts) {
     const cv::Mat bgr = loaded ? *loaded : cv::Mat();
     const cv::Mat mask = loaded_mask ? *loaded_mask : cv::Mat();
     if (bgr.empty() || mask.empty() || mask.size() != bgr.size()) {
-      return MakeError(ErrorClass::kCorrupt, what + "photo " + in.views[i].image + " or its mask " + in.views[i].mask +
-                                                 " is unreadable or of different sizes; the sample's photos must not "
-                                                 "change (delete the side's results to compute its masks again)");
+      return MakeError(ErrorClass::kCorrupt,
+                       what + "photo " + in.views[i].image + " or its mask " + in.views[i].mask +
+                           " is unreadable or of different sizes; the sample's photos must not "
+                           "change (delete the side's results to compute its masks again)");
     }
     registered.push_back(static_cast<int>(i));
     poses.push_back({img->R_cam_world, img->t_cam_world});
@@ -146,7 +151,10 @@ Result<json> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts) {
   std::string problems;
   if (labels) {
     for (const LabelPoint& l : labels->labels) {
-      json jl = {{"color", l.color}, {"located", l.located}, {"views_seen", l.views_seen}, {"views_used", l.views_used}};
+      json jl = {{"color", l.color},
+                 {"located", l.located},
+                 {"views_seen", l.views_seen},
+                 {"views_used", l.views_used}};
       if (l.located) {
         refs.push_back({"label " + l.color, l.position, l.configured});
         jl["rms_px"] = l.rms_px;
@@ -166,25 +174,28 @@ Result<json> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts) {
       for (const ArucoMarkerPoint& m : as->markers) {
         if (!m.located) continue;
         for (int k = 0; k < 4; ++k) {
-          refs.push_back({"aruco " + std::to_string(m.id) + " corner " + std::to_string(k), m.corners[k],
-                          m.configured[k]});
+          refs.push_back({"aruco " + std::to_string(m.id) + " corner " + std::to_string(k),
+                          m.corners[k], m.configured[k]});
         }
         by_aruco = true;
       }
       jaruco["markers_used"] = as->markers_used;
     } else {
       jaruco["problem"] = as.error().message;
-      problems += std::string(problems.empty() ? "" : "; ") + "ArUco markers: " + as.error().message;
+      problems +=
+          std::string(problems.empty() ? "" : "; ") + "ArUco markers: " + as.error().message;
     }
   }
   const bool by_labels = labels.ok();
   if (!by_labels && !by_aruco) {
-    return MakeError(ErrorClass::kCorrupt,
-                     what + "no metric scale: " + problems +
-                         ". The SfM model has no scale of its own; it takes it from the background labels "
-                         "(rig.markers, at least 3 located) or the ArUco markers (rig.aruco_markers): check that "
-                         "they lie on the disc where [rig] says, uncovered and in view, or use the calibrated "
-                         "turntable ([worker] poses = \"turntable\")");
+    return MakeError(
+        ErrorClass::kCorrupt,
+        what + "no metric scale: " + problems +
+            ". The SfM model has no scale of its own; it takes it from the background labels "
+            "(rig.markers, at least 3 located) or the ArUco markers (rig.aruco_markers): check "
+            "that "
+            "they lie on the disc where [rig] says, uncovered and in view, or use the calibrated "
+            "turntable ([worker] poses = \"turntable\")");
   }
   std::vector<Eigen::Vector3d> src, dst;
   for (const Reference& r : refs) {
@@ -193,7 +204,8 @@ Result<json> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts) {
   }
   double rms = 0;
   auto sim = EstimateSimilarity(src, dst, true, &rms);
-  if (!sim) return MakeError(ErrorClass::kCorrupt, what + "scale references: " + sim.error().message);
+  if (!sim)
+    return MakeError(ErrorClass::kCorrupt, what + "scale references: " + sim.error().message);
   json jrefs = json::array();
   double worst = 0;
   for (const Reference& r : refs) {
@@ -201,24 +213,29 @@ Result<json> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts) {
     worst = std::max(worst, e);
     jrefs.push_back({{"name", r.name}, {"table_mm", Vec(r.table)}, {"residual_mm", e}});
   }
-  const std::string reference = by_labels && by_aruco ? "labels+aruco" : (by_labels ? "labels" : "aruco");
+  const std::string reference =
+      by_labels && by_aruco ? "labels+aruco" : (by_labels ? "labels" : "aruco");
   if (!(rms <= opts.max_scale_residual_mm)) {
-    return MakeError(ErrorClass::kCorrupt,
-                     what + "SfM model rejected: the " + reference + " located in it do not fit their configured " +
-                         "positions (RMS " + Fmt("%.2f", rms) + " mm, worst " + Fmt("%.2f", worst) + " mm, limit " +
-                         Fmt("%.2f", opts.max_scale_residual_mm) +
-                         " mm): either the model is distorted or [rig] does not describe the labels as placed; "
-                         "measure the label positions again, or use the calibrated turntable ([worker] poses = "
-                         "\"turntable\")");
+    return MakeError(
+        ErrorClass::kCorrupt,
+        what + "SfM model rejected: the " + reference +
+            " located in it do not fit their configured " + "positions (RMS " + Fmt("%.2f", rms) +
+            " mm, worst " + Fmt("%.2f", worst) + " mm, limit " +
+            Fmt("%.2f", opts.max_scale_residual_mm) +
+            " mm): either the model is distorted or [rig] does not describe the labels as placed; "
+            "measure the label positions again, or use the calibrated turntable ([worker] poses = "
+            "\"turntable\")");
   }
-  const double ref_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_ref).count();
+  const double ref_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t_ref).count();
 
   // Into the metric turntable frame.
   SfmModel model = sfm->model;
   ApplySimilarity(*sim, &model);
   const std::string results_dir = in.sample_dir + "/" + layout::kResultsDir;
   if (Status s = WriteColmapTextModel(results_dir + "/" + SfmModelDirName(in.side), model); !s) {
-    return MakeError(s.error().cls, what + "exporting the model: " + s.error().message, s.error().detail);
+    return MakeError(s.error().cls, what + "exporting the model: " + s.error().message,
+                     s.error().detail);
   }
   json jviews = json::array();
   std::optional<RigCalibration> cal;
@@ -233,7 +250,8 @@ Result<json> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts) {
     if (!cal) {
       // A turntable pose consistent with CamFromTable(angle) at this view:
       // cam_from_table0 = cam_from_table * Rz(-angle).
-      const geom::Rigid3 t0 = geom::Rigid3{img->R_cam_world, img->t_cam_world} * geom::Rigid3::RotZ(-v.angle_deg);
+      const geom::Rigid3 t0 =
+          geom::Rigid3{img->R_cam_world, img->t_cam_world} * geom::Rigid3::RotZ(-v.angle_deg);
       cal.emplace();
       for (int r = 0; r < 3; ++r) {
         for (int c = 0; c < 3; ++c) cal->R_cam_table0[r * 3 + c] = t0.R(r, c);
@@ -275,8 +293,10 @@ Result<json> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts) {
   json j = {{"side", in.side},
             {"method", "sfm"},
             {"method_detail",
-             "full SfM through COLMAP (masked SIFT, circular pair list, mapper), scaled into the turntable frame by a "
-             "similarity onto the configured " + reference},
+             "full SfM through COLMAP (masked SIFT, circular pair list, mapper), scaled into the "
+             "turntable frame by a "
+             "similarity onto the configured " +
+                 reference},
             {"sfm", jsfm},
             {"scale",
              {{"reference", reference},
@@ -298,8 +318,9 @@ std::optional<FocalHint> FocalHintFromConfig(const Config& cfg, int image_width)
   const CameraConfig& c = cfg.camera;
   if (c.lens_focal_mm > 0 && c.sensor_width_mm > 0) {
     return FocalHint{c.lens_focal_mm / c.sensor_width_mm * image_width,
-                     "camera.lens_focal_mm " + Fmt("%g", c.lens_focal_mm) + " / camera.sensor_width_mm " +
-                         Fmt("%g", c.sensor_width_mm) + " of the sample's config"};
+                     "camera.lens_focal_mm " + Fmt("%g", c.lens_focal_mm) +
+                         " / camera.sensor_width_mm " + Fmt("%g", c.sensor_width_mm) +
+                         " of the sample's config"};
   }
   if (c.backend == "sim" && cfg.sim.hfov_deg > 0 && cfg.sim.hfov_deg < 180) {
     return FocalHint{FocalPxFromHfov(cfg.sim.hfov_deg, image_width),

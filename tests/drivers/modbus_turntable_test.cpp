@@ -6,8 +6,8 @@
 #include "drivers/modbus/modbus_turntable.h"
 
 #include <gmock/gmock.h>
-#include <modbus/modbus.h>
 #include <gtest/gtest.h>
+#include <modbus/modbus.h>
 #include <netinet/in.h>
 #include <sys/socket.h>
 #include <unistd.h>
@@ -549,9 +549,8 @@ TEST(ModbusTurntable, TcpAnswerWithAnotherTransactionIdIsRefused) {
   Result<TurntableStatus> st = t->ReadStatus();
   ASSERT_FALSE(st.ok());
   EXPECT_EQ(st.error().cls, ErrorClass::kTimeout);
-  EXPECT_THAT(st.error().message,
-              HasSubstr("no valid answer from Modbus unit 1 at 127.0.0.1:" +
-                        std::to_string(server->port())));
+  EXPECT_THAT(st.error().message, HasSubstr("no valid answer from Modbus unit 1 at 127.0.0.1:" +
+                                            std::to_string(server->port())));
   EXPECT_THAT(st.error().message, HasSubstr("speaking Modbus/TCP"));
   EXPECT_THAT(st.error().message, ::testing::Not(HasSubstr("termination")));
   EXPECT_THAT(st.error().message, ::testing::Not(HasSubstr("line settings")));

@@ -6,9 +6,8 @@
 
 #include <filesystem>
 #include <fstream>
-#include <sstream>
-
 #include <opencv2/imgcodecs.hpp>
+#include <sstream>
 
 #include "cli/reconstruct_command.h"
 #include "cli/sim_capture.h"
@@ -84,11 +83,13 @@ TEST(Reconstruct, OneSideGivesAClosedMeshAndResults) {
       EXPECT_EQ(poses["method"], "turntable");
       EXPECT_FALSE(ba.value("reason", "").empty()) << ba.dump();
     }
-    std::printf("one side: poses %s, %d tracks, RMS %.3f -> %.3f px, max correction %.3f deg, SIFT %.2f s, "
-                "matching %.2f s, solve %.2f s %s\n",
-                poses.value("method", "").c_str(), ba.value("tracks", 0), ba.value("initial_rms_px", 0.0),
-                ba.value("final_rms_px", 0.0), ba.value("max_abs_correction_deg", 0.0), ba.value("features_s", 0.0),
-                ba.value("matching_s", 0.0), ba.value("solve_s", 0.0), ba.value("reason", "").c_str());
+    std::printf(
+        "one side: poses %s, %d tracks, RMS %.3f -> %.3f px, max correction %.3f deg, SIFT %.2f s, "
+        "matching %.2f s, solve %.2f s %s\n",
+        poses.value("method", "").c_str(), ba.value("tracks", 0), ba.value("initial_rms_px", 0.0),
+        ba.value("final_rms_px", 0.0), ba.value("max_abs_correction_deg", 0.0),
+        ba.value("features_s", 0.0), ba.value("matching_s", 0.0), ba.value("solve_s", 0.0),
+        ba.value("reason", "").c_str());
   }
   // The library has one row; a second run changes nothing.
   auto csv = ReadFile(tmp.path() + "/library.csv");
@@ -110,8 +111,9 @@ TEST(Reconstruct, OneSideGivesAClosedMeshAndResults) {
     }
   }
   EXPECT_EQ(kept, 1);
-  std::printf("one side: V %.0f (truth %.0f), iou %.4f, total %.1f s\n", d["volume_mm3"].get<double>(),
-              truth["volume_mm3"].get<double>(), (*m)["quality"]["silhouette_iou_mean"].get<double>(),
+  std::printf("one side: V %.0f (truth %.0f), iou %.4f, total %.1f s\n",
+              d["volume_mm3"].get<double>(), truth["volume_mm3"].get<double>(),
+              (*m)["quality"]["silhouette_iou_mean"].get<double>(),
               (*m)["timings_s"]["total"].get<double>());
 }
 
@@ -155,7 +157,8 @@ TEST(Reconstruct, ResumesAtTheInterruptedStage) {
   auto m = ReadMorphology(sample);
   ASSERT_TRUE(m);
   const json before = json::parse(*morph_before);
-  EXPECT_DOUBLE_EQ((*m)["morphology_3d"]["volume_mm3"].get<double>(), before["morphology_3d"]["volume_mm3"].get<double>());
+  EXPECT_DOUBLE_EQ((*m)["morphology_3d"]["volume_mm3"].get<double>(),
+                   before["morphology_3d"]["volume_mm3"].get<double>());
 }
 
 // Two sides, the real worker path: masks computed from the photos, markers
@@ -178,14 +181,18 @@ void TwoSides(bool truth_masks, bool photo_refine) {
   auto rel = [&](const char* k) { return d[k].get<double>() / truth[k].get<double>() - 1.0; };
   auto stitch = json::parse(*ReadFile(sample + "/results/stitch.json"));
   auto surface = json::parse(*ReadFile(sample + "/results/surface.json"));
-  std::printf("surface %s: %s\n", surface["method"].get<std::string>().c_str(), surface["photo_refine"].dump().c_str());
-  std::printf("two sides: V %+.2f %% A %+.2f %% a %+.2f %% b %+.2f %% c %+.2f %%, sphericity %.4f (truth %.4f); "
-              "stitch %s rms %.3f mm, scale residual %s mm; iou %.4f; total %.1f s\n",
-              100 * rel("volume_mm3"), 100 * rel("surface_area_mm2"), 100 * rel("a_mm"), 100 * rel("b_mm"),
-              100 * rel("c_mm"), d["sphericity"].get<double>(), truth["sphericity"].get<double>(),
-              stitch["method"].get<std::string>().c_str(), stitch["rms_mm"].get<double>(),
-              stitch["scale_residual_mm"].dump().c_str(), (*m)["quality"]["silhouette_iou_mean"].get<double>(),
-              (*m)["timings_s"]["total"].get<double>());
+  std::printf("surface %s: %s\n", surface["method"].get<std::string>().c_str(),
+              surface["photo_refine"].dump().c_str());
+  std::printf(
+      "two sides: V %+.2f %% A %+.2f %% a %+.2f %% b %+.2f %% c %+.2f %%, sphericity %.4f (truth "
+      "%.4f); "
+      "stitch %s rms %.3f mm, scale residual %s mm; iou %.4f; total %.1f s\n",
+      100 * rel("volume_mm3"), 100 * rel("surface_area_mm2"), 100 * rel("a_mm"), 100 * rel("b_mm"),
+      100 * rel("c_mm"), d["sphericity"].get<double>(), truth["sphericity"].get<double>(),
+      stitch["method"].get<std::string>().c_str(), stitch["rms_mm"].get<double>(),
+      stitch["scale_residual_mm"].dump().c_str(),
+      (*m)["quality"]["silhouette_iou_mean"].get<double>(),
+      (*m)["timings_s"]["total"].get<double>());
   EXPECT_TRUE(d["watertight"].get<bool>());
   // A sound capture of the sim rig: nothing to doubt, and the library says so.
   EXPECT_TRUE((*m)["quality"]["confident"].get<bool>()) << (*m)["quality"]["flags"].dump();
@@ -239,7 +246,8 @@ TEST(Reconstruct, LostMasksAreLeftOutAndNamed) {
     EXPECT_EQ(v["ok"].get<bool>(), view != 2 && view != 3 && view != 14) << view;
   }
   const json poses = ReadJsonFile(sample + "/results/poses_side1.json");
-  for (const json& v : poses["views"]) EXPECT_TRUE(v["view"] != 2 && v["view"] != 3 && v["view"] != 14) << v["view"];
+  for (const json& v : poses["views"])
+    EXPECT_TRUE(v["view"] != 2 && v["view"] != 3 && v["view"] != 14) << v["view"];
 }
 
 TEST(Reconstruct, MissingCalibrationSaysWhatToDo) {
@@ -270,12 +278,14 @@ TEST(ReconstructCommand, SurfaceAndPosesOptionsChooseTheMethods) {
   for (const char* bad : {"--surface", "--poses"}) {
     std::ostringstream out, err;
     EXPECT_EQ(RunReconstructCommand({sample, bad, "mesh"}, out, err), 2);
-    EXPECT_NE(err.str().find(std::string(bad) == "--surface" ? "hull+photo" : "turntable+ba"), std::string::npos)
+    EXPECT_NE(err.str().find(std::string(bad) == "--surface" ? "hull+photo" : "turntable+ba"),
+              std::string::npos)
         << err.str();
   }
   std::ostringstream out, err;
-  ASSERT_EQ(RunReconstructCommand({sample, "--state-dir", tmp.path(), "--surface", "hull", "--poses", "turntable"},
-                                  out, err),
+  ASSERT_EQ(RunReconstructCommand(
+                {sample, "--state-dir", tmp.path(), "--surface", "hull", "--poses", "turntable"},
+                out, err),
             0)
       << err.str();
   {

@@ -4,19 +4,17 @@
 // (camera centres, volume, dimensions). Small captures (12 views a side)
 // keep COLMAP at about a minute a side on 2 cores. Skips when
 // /usr/bin/colmap is not installed.
-#include <unistd.h>
-
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <opencv2/imgcodecs.hpp>
 #include <regex>
 #include <sstream>
-
-#include <opencv2/imgcodecs.hpp>
 
 #include "cli/reconstruct_command.h"
 #include "cli/sim_capture.h"
@@ -46,13 +44,16 @@ constexpr int kWidth = 2016, kHeight = 1512;
 
 // A sample rendered offline with the sim's ground-truth masks where the side
 // stage keeps its masks (the geometric stages under test).
-std::string Capture(const std::string& dir, uint64_t seed, int sides, bool calibration, int views = kViews,
-                    int width = kWidth, int height = kHeight, double step_deg = 360.0 / kViews) {
-  return test::CaptureSimSample(dir, seed, sides, calibration, true, views, width, height, step_deg);
+std::string Capture(const std::string& dir, uint64_t seed, int sides, bool calibration,
+                    int views = kViews, int width = kWidth, int height = kHeight,
+                    double step_deg = 360.0 / kViews) {
+  return test::CaptureSimSample(dir, seed, sides, calibration, true, views, width, height,
+                                step_deg);
 }
 
 // A two-side capture reconstructed on `path`; empty when it failed.
-std::string CaptureAndReconstruct(const std::string& dir, uint64_t seed, bool calibration, PosesPath path) {
+std::string CaptureAndReconstruct(const std::string& dir, uint64_t seed, bool calibration,
+                                  PosesPath path) {
   const std::string sample = Capture(dir, seed, 2, calibration);
   ReconstructOptions opts;
   opts.poses = path;
@@ -84,7 +85,8 @@ double WorstCentreErrorMm(const std::string& sample, int side, uint64_t seed) {
       std::array<double, 16> m{};
       for (int i = 0; i < 16; ++i) m[i] = v["cam_from_table_4x4"][i].get<double>();
       const geom::Rigid3 sfm = geom::Rigid3::FromRowMajor4(m);
-      const geom::Rigid3 tru = geom::Rigid3::FromRowMajor4(truth_cal.CamFromTable(t["platter_deg"].get<double>()));
+      const geom::Rigid3 tru =
+          geom::Rigid3::FromRowMajor4(truth_cal.CamFromTable(t["platter_deg"].get<double>()));
       const Eigen::Vector3d cs = -(sfm.R.transpose() * sfm.t), ct = -(tru.R.transpose() * tru.t);
       worst = std::max(worst, (cs - ct).norm());
       ++compared;
@@ -95,7 +97,8 @@ double WorstCentreErrorMm(const std::string& sample, int side, uint64_t seed) {
 }
 
 // What every successful SfM side must show.
-void ExpectSfmSide(const std::string& sample, int side, const std::string& camera_source, int views = kViews) {
+void ExpectSfmSide(const std::string& sample, int side, const std::string& camera_source,
+                   int views = kViews) {
   const json p = ReadJsonFile(sample + "/results/poses_side" + std::to_string(side) + ".json");
   EXPECT_EQ(p["method"], "sfm");
   const json& s = p["sfm"];
@@ -113,28 +116,32 @@ void ExpectSfmSide(const std::string& sample, int side, const std::string& camer
   ASSERT_TRUE(model) << model.error().ToString();
   ASSERT_EQ(model->images.size(), static_cast<size_t>(views));
   const json& v0 = p["views"][0];
-  const SfmImage* img = model->FindImageByName(fs::path(v0["image"].get<std::string>()).filename().string());
+  const SfmImage* img =
+      model->FindImageByName(fs::path(v0["image"].get<std::string>()).filename().string());
   ASSERT_NE(img, nullptr);
   std::array<double, 16> m{};
   for (int i = 0; i < 16; ++i) m[i] = v0["cam_from_table_4x4"][i].get<double>();
   const geom::Rigid3 T = geom::Rigid3::FromRowMajor4(m);
   EXPECT_LT((img->Centre() - (-(T.R.transpose() * T.t))).norm(), 1e-3);
   std::printf("side %d: %d/%d views, %.3f px, scale residual %.3f mm, COLMAP %.1f s\n", side,
-              s["registered_views"].get<int>(), s["input_views"].get<int>(), s["mean_reprojection_px"].get<double>(),
-              p["scale"]["residual_mm"].get<double>(), s["colmap_s"].get<double>());
+              s["registered_views"].get<int>(), s["input_views"].get<int>(),
+              s["mean_reprojection_px"].get<double>(), p["scale"]["residual_mm"].get<double>(),
+              s["colmap_s"].get<double>());
 }
 
 // Volume and dimensions against the truth; prints them.
-void ExpectMorphology(const std::string& sample, double volume_tol, double dim_tol, int views = kViews) {
+void ExpectMorphology(const std::string& sample, double volume_tol, double dim_tol,
+                      int views = kViews) {
   auto m = ReadMorphology(sample);
   ASSERT_TRUE(m) << m.error().ToString();
   EXPECT_EQ((*m)["methods"]["poses"], "sfm");
   const json& d = (*m)["morphology_3d"];
   const json truth = ReadJsonFile(sample + "/truth.json");
   auto rel = [&](const char* k) { return d[k].get<double>() / truth[k].get<double>() - 1.0; };
-  std::printf("V %+.2f %% a %+.2f %% b %+.2f %% c %+.2f %%, iou %.4f, stitch %s\n", 100 * rel("volume_mm3"),
-              100 * rel("a_mm"), 100 * rel("b_mm"), 100 * rel("c_mm"),
-              (*m)["quality"]["silhouette_iou_mean"].get<double>(), (*m)["methods"]["stitch"].dump().c_str());
+  std::printf("V %+.2f %% a %+.2f %% b %+.2f %% c %+.2f %%, iou %.4f, stitch %s\n",
+              100 * rel("volume_mm3"), 100 * rel("a_mm"), 100 * rel("b_mm"), 100 * rel("c_mm"),
+              (*m)["quality"]["silhouette_iou_mean"].get<double>(),
+              (*m)["methods"]["stitch"].dump().c_str());
   EXPECT_TRUE(d["watertight"].get<bool>());
   EXPECT_NEAR(rel("volume_mm3"), 0.0, volume_tol);
   for (const char* k : {"a_mm", "b_mm", "c_mm"}) EXPECT_NEAR(rel(k), 0.0, dim_tol) << k;
@@ -211,8 +218,8 @@ TEST(SfmReconstruct, ArucoMarkersScaleTheModel) {
   const json& d = (*m)["morphology_3d"];
   const json truth = ReadJsonFile(sample + "/truth.json");
   auto rel = [&](const char* k) { return d[k].get<double>() / truth[k].get<double>() - 1.0; };
-  std::printf("aruco: V %+.2f %% a %+.2f %% b %+.2f %% c %+.2f %%\n", 100 * rel("volume_mm3"), 100 * rel("a_mm"),
-              100 * rel("b_mm"), 100 * rel("c_mm"));
+  std::printf("aruco: V %+.2f %% a %+.2f %% b %+.2f %% c %+.2f %%\n", 100 * rel("volume_mm3"),
+              100 * rel("a_mm"), 100 * rel("b_mm"), 100 * rel("c_mm"));
   ASSERT_TRUE((*m)["poses"].is_array());
   EXPECT_EQ((*m)["poses"][0]["scale_reference"], "aruco") << (*m)["poses"].dump();
   EXPECT_NEAR(rel("volume_mm3"), 0.0, 0.03);  // measured +0.40 %
@@ -253,7 +260,8 @@ TEST(SfmReconstruct, AutoPicksSfmWithoutCalibration) {
 TEST(SfmReconstruct, AutoWithoutCalibrationPosesWithTheLensHint) {
   SKIP_WITHOUT_COLMAP();
   test::TempDir tmp;
-  const uint64_t seed = 1;  // seed 6's side 1 breaks COLMAP's ring at 12 views (pairs without matches)
+  const uint64_t seed =
+      1;  // seed 6's side 1 breaks COLMAP's ring at 12 views (pairs without matches)
   const std::string sample = CaptureAndReconstruct(tmp.path(), seed, false, PosesPath::kAuto);
   ASSERT_FALSE(sample.empty());
   ExpectSfmSide(sample, 1, "sfm (focal hint held)");
@@ -266,8 +274,8 @@ TEST(SfmReconstruct, AutoWithoutCalibrationPosesWithTheLensHint) {
   const RigCalibration truth = world.TruthCalibration(kWidth, kHeight);
   auto used = CalibrationFromJson(cal, "calibration_used");
   ASSERT_TRUE(used) << used.error().ToString();
-  std::printf("SfM camera: focal %.1f px (truth %.1f), k1 %.4f (%.4f)\n", used->camera.fx, truth.camera.fx,
-              used->camera.k1, truth.camera.k1);
+  std::printf("SfM camera: focal %.1f px (truth %.1f), k1 %.4f (%.4f)\n", used->camera.fx,
+              truth.camera.fx, used->camera.k1, truth.camera.k1);
   // The hint, held: the nominal lens of the sample's config.
   EXPECT_NEAR(used->camera.fx, kWidth / 2.0 / std::tan(Config{}.sim.hfov_deg * M_PI / 360.0), 1e-3);
   EXPECT_NEAR(used->camera.fx / truth.camera.fx, 1.0, 0.01);
@@ -327,14 +335,16 @@ TEST(SfmReconstruct, LabelsThatDoNotFitRejectTheSideAndTheRunResumes) {
   const std::string res = sample + "/results/";
   const auto poses_time = fs::last_write_time(res + "poses_side1.json");
   const auto model_time = fs::last_write_time(res + "sfm/side1/images.txt");
-  const double volume = ReadJsonFile(res + "morphology.json")["morphology_3d"]["volume_mm3"].get<double>();
+  const double volume =
+      ReadJsonFile(res + "morphology.json")["morphology_3d"]["volume_mm3"].get<double>();
   fs::remove(res + "surface.json");
   fs::remove(res + "morphology.json");
   st = ReconstructSample(sample, opts);
   ASSERT_TRUE(st) << st.error().ToString();
   EXPECT_EQ(fs::last_write_time(res + "poses_side1.json"), poses_time);
   EXPECT_EQ(fs::last_write_time(res + "sfm/side1/images.txt"), model_time);
-  EXPECT_DOUBLE_EQ(ReadJsonFile(res + "morphology.json")["morphology_3d"]["volume_mm3"].get<double>(), volume);
+  EXPECT_DOUBLE_EQ(
+      ReadJsonFile(res + "morphology.json")["morphology_3d"]["volume_mm3"].get<double>(), volume);
   EXPECT_EQ(ReadJsonFile(res + "calibration_used.json")["method"], "sim-truth");
 }
 
@@ -384,27 +394,34 @@ TEST(SfmReconstruct, DISABLED_FullSizeSfmAgainstTheTurntablePath) {
   const std::string fast = tmp.path() + "/fast/" + fs::path(sample).filename().string();
   fs::create_directories(fs::path(fast).parent_path());
   fs::copy(sample, fast, fs::copy_options::recursive);
-  for (const auto& [dir, path] : {std::pair{sample, PosesPath::kSfm}, std::pair{fast, PosesPath::kTurntable}}) {
+  for (const auto& [dir, path] :
+       {std::pair{sample, PosesPath::kSfm}, std::pair{fast, PosesPath::kTurntable}}) {
     ReconstructOptions opts;
     opts.poses = path;
     const auto t0 = std::chrono::steady_clock::now();
     auto st = ReconstructSample(dir, opts);
     ASSERT_TRUE(st) << st.error().ToString();
-    const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const double wall =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     auto m = ReadMorphology(dir);
     ASSERT_TRUE(m);
     const json& d = (*m)["morphology_3d"];
     const json truth = ReadJsonFile(dir + "/truth.json");
-    auto rel = [&](const char* k) { return 100 * (d[k].get<double>() / truth[k].get<double>() - 1.0); };
-    std::printf("%s: wall %.0f s; V %+.2f %% A %+.2f %% a %+.2f %% b %+.2f %% c %+.2f %%; stitch %s, scale residual %s\n",
-                PosesPathName(path), wall, rel("volume_mm3"), rel("surface_area_mm2"), rel("a_mm"), rel("b_mm"),
-                rel("c_mm"), (*m)["methods"]["stitch"].dump().c_str(),
-                (*m)["quality"]["scale_residual_mm"].dump().c_str());
+    auto rel = [&](const char* k) {
+      return 100 * (d[k].get<double>() / truth[k].get<double>() - 1.0);
+    };
+    std::printf(
+        "%s: wall %.0f s; V %+.2f %% A %+.2f %% a %+.2f %% b %+.2f %% c %+.2f %%; stitch %s, scale "
+        "residual %s\n",
+        PosesPathName(path), wall, rel("volume_mm3"), rel("surface_area_mm2"), rel("a_mm"),
+        rel("b_mm"), rel("c_mm"), (*m)["methods"]["stitch"].dump().c_str(),
+        (*m)["quality"]["scale_residual_mm"].dump().c_str());
     for (int side : {1, 2}) {
       const json p = ReadJsonFile(dir + "/results/poses_side" + std::to_string(side) + ".json");
       std::printf("  side %d: %s, poses stage %.1f s, worst centre error %.2f mm%s\n", side,
                   p["method"].get<std::string>().c_str(), p["stage_seconds"].get<double>(),
-                  WorstCentreErrorMm(dir, side, seed), p.contains("sfm") ? (", " + p["sfm"]["timings_s"].dump()).c_str() : "");
+                  WorstCentreErrorMm(dir, side, seed),
+                  p.contains("sfm") ? (", " + p["sfm"]["timings_s"].dump()).c_str() : "");
     }
     EXPECT_NEAR(rel("volume_mm3"), 0.0, 3.0);
   }
