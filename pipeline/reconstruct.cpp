@@ -1281,7 +1281,7 @@ Status MorphologyStage(SampleRun& r) {
   json morphology_3d = MeshPropsJson(p);
   morphology_3d["watertight"] = watertight.ok();
   json out = {{"format", "aggscan-morphology-1"},
-              {"r.id", r.id},
+              {"sample_id", r.id},
               {"created_utc", NowUtcString()},
               {"units",
                "mm, mm2, mm3, degrees; ratios dimensionless; 2D lengths in px and in mm at the "

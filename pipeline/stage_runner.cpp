@@ -156,7 +156,8 @@ Result<StageRunReport> RunStages(const std::string& sample_dir,
   json& recorded = (*ledger)["stages"];
 
   StageRunReport report;
-  bool afresh = false;  // an earlier stage runs afresh: so does every later one
+  bool afresh = false;   // an earlier stage runs afresh: so does every later one
+  bool resumed = false;  // an earlier stage resumes: no later one is kept
   const int n = static_cast<int>(stages.size());
   for (int i = 0; i < n; ++i) {
     const StageDecl& d = stages[i];
@@ -170,16 +171,20 @@ Result<StageRunReport> RunStages(const std::string& sample_dir,
     const json entry = recorded.value(d.name, json::object());
     const bool same = entry.value("fingerprint", "") == d.fingerprint;
     enum { kKeep, kResume, kAfresh } mode = kAfresh;
-    if (!afresh && same && entry.value("finished", false) && OutputsPresent(sample_dir, d)) {
+    const bool unrecorded = entry.empty() && AnyOutputPresent(sample_dir, d);
+    if (!afresh && !resumed && same && entry.value("finished", false) &&
+        OutputsPresent(sample_dir, d)) {
       mode = kKeep;
-    } else if (!afresh && ((same && !entry.value("finished", false)) ||
-                           (entry.empty() && AnyOutputPresent(sample_dir, d)))) {
+    } else if (!afresh && ((!resumed && same && !entry.value("finished", false)) || unrecorded)) {
       // Started with these options and stopped; or never recorded (results
       // placed by hand or by a test, or made before the ledger existed): the
-      // stage continues from what is there.
+      // stage continues from what is there. After a stage that resumed, only
+      // unrecorded results are continued from: a recorded one may be older
+      // than what the resumed stage is about to finish.
       mode = kResume;
     }
-    if (mode != kKeep) afresh = true;
+    if (mode == kAfresh) afresh = true;
+    if (mode == kResume) resumed = true;
     if (mode == kAfresh) {
       for (const auto* list : {&d.outputs, &d.scratch}) {
         for (const std::string& rel : *list) {

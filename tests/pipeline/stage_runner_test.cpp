@@ -178,16 +178,46 @@ TEST_F(StageRunnerTest, AnExceptionInAStageIsAnErrorNamingIt) {
 }
 
 // Results without a ledger entry (made before the ledger, or put in place
-// by hand): the first such stage continues from them, every later one runs
-// afresh.
-TEST_F(StageRunnerTest, UnrecordedResultsAreContinuedFromAndLaterStagesRerun) {
+// by hand): every such stage continues from them, none is kept as it is;
+// an unrecorded stage without results, and every one after it, runs afresh.
+TEST_F(StageRunnerTest, UnrecordedResultsAreContinuedFrom) {
   ASSERT_TRUE(RunStages(dir_, Job(kFp), {}).ok());
   ASSERT_TRUE(WriteFileAtomic(dir_ + "/results/stages.json", std::string_view("{not json")).ok());
   auto r = RunStages(dir_, Job(kFp), {});
   ASSERT_TRUE(r.ok());
+  EXPECT_EQ(r->resumed, (std::vector<std::string>{"a", "b", "c"}));
+  EXPECT_TRUE(r->kept.empty());
+  EXPECT_TRUE(partial_at_start_);  // b's earlier work there to continue from
+
+  // Neither b's result nor its work: b runs afresh, and so does c, whose
+  // result was made from an older b.
+  fs::remove(dir_ + "/results/stages.json");
+  fs::remove(dir_ + "/results/b.txt");
+  fs::remove_all(dir_ + "/work/b");
+  r = RunStages(dir_, Job(kFp), {});
+  ASSERT_TRUE(r.ok());
   EXPECT_EQ(r->resumed, (std::vector<std::string>{"a"}));
   EXPECT_EQ(r->ran, (std::vector<std::string>{"b", "c"}));
-  EXPECT_FALSE(partial_at_start_);  // b's earlier work removed: it runs afresh
+  EXPECT_FALSE(partial_at_start_);
+  EXPECT_EQ(runs_["c"], 3);
+}
+
+// A stage that resumes (it stopped with these options): a later stage the
+// ledger holds as finished is not kept, since it may be older than what the
+// resumed stage finishes now; it runs afresh.
+TEST_F(StageRunnerTest, AfterAResumedStageRecordedLaterStagesRunAfresh) {
+  ASSERT_TRUE(RunStages(dir_, Job(kFp), {}).ok());
+  // b asked for again and stopped: a's and c's entries still say finished.
+  fail_b_ = true;
+  StageRunOptions from;
+  from.from = "b";
+  ASSERT_FALSE(RunStages(dir_, Job(kFp), from).ok());
+  auto r = RunStages(dir_, Job(kFp), {});
+  ASSERT_TRUE(r.ok()) << r.error().ToString();
+  EXPECT_EQ(r->kept, (std::vector<std::string>{"a"}));
+  EXPECT_EQ(r->resumed, (std::vector<std::string>{"b"}));
+  EXPECT_EQ(r->ran, (std::vector<std::string>{"c"}));
+  EXPECT_EQ(runs_["c"], 2);
 }
 
 TEST(Fingerprint, FieldsAreDelimitedAndFilesCount) {
