@@ -3,8 +3,8 @@
 #include <filesystem>
 
 #include "config/config.h"
-#include "pipeline/mask_net.h"
 #include "pipeline/reconstruct.h"
+#include "pipeline/worker_config.h"
 
 namespace aggscan {
 
@@ -22,14 +22,13 @@ int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& ou
   };
   for (size_t i = 0; i < args.size(); ++i) {
     if (args[i] == "--poses") {
-      PosesPath unused;
-      if (i + 1 >= args.size() ||
-          (args[i + 1] != "turntable+ba" && !ParsePosesPath(args[i + 1], &unused))) {
-        err << "aggscan reconstruct: --poses needs turntable (calibration and measured angles), "
-               "turntable+ba "
-               "(refined by bundle adjustment, the default), sfm (full SfM through COLMAP, scaled "
-               "by the "
-               "background labels) or auto (turntable with a rig calibration, sfm without)\n";
+      PosesChoice unused;
+      if (i + 1 >= args.size() || !ParsePosesChoice(args[i + 1], &unused)) {
+        err << "aggscan reconstruct: --poses needs turntable+ba (calibration and measured "
+               "angles refined by bundle adjustment), turntable (calibration and measured angles "
+               "as read), sfm (full SfM through COLMAP, scaled by the background labels) or auto "
+               "(turntable+ba with a rig calibration, sfm without); without it, [worker] poses of "
+               "the config\n";
         return 2;
       }
       poses = args[++i];
@@ -83,32 +82,39 @@ int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& ou
     const auto parent = std::filesystem::absolute(sample_dir).lexically_normal().parent_path();
     if (parent.filename() == "samples") state_dir = parent.parent_path().string();
   }
-  ReconstructOptions opts;
-  opts.state_dir = state_dir;
-  opts.photo_refine = surface == "hull+photo";
-  opts.from_stage = from;
-  if (poses == "turntable") opts.bundle_adjust = false;
-  if (!poses.empty() && poses != "turntable+ba") ParsePosesPath(poses, &opts.poses);
+  // The config: the one given, else the one the sample was armed with (what
+  // the worker used), else the defaults. Its [mask] and [worker] sections
+  // become the options exactly as in aggscan-worker (pipeline/worker_config.h).
+  Config cfg;
   if (!config_path.empty()) {
-    // The [mask] section (an ONNX mask network, if configured) and [worker] poses.
     std::vector<ConfigProblem> problems;
-    auto cfg = LoadConfigFile(config_path, &problems);
-    if (!cfg.ok()) {
+    auto loaded = LoadConfigFile(config_path, &problems);
+    if (!loaded.ok()) {
       for (const auto& p : problems) err << "aggscan reconstruct: " << p.ToString() << "\n";
-      err << "aggscan reconstruct: invalid config: " << cfg.error().ToString() << "\n";
+      err << "aggscan reconstruct: invalid config: " << loaded.error().ToString() << "\n";
       return 2;
     }
-    auto net = LoadMaskNet(cfg->mask);
-    if (!net.ok()) {
-      err << "aggscan reconstruct: " << net.error().ToString() << "\n";
+    cfg = std::move(loaded.value());
+  } else {
+    std::string source;
+    auto armed = ConfigForSample(sample_dir, &source);
+    if (!armed.ok()) {
+      err << "aggscan reconstruct: " << armed.error().ToString() << "\n";
       return 2;
     }
-    opts.worker.mask_net = *net;
-    opts.worker.empty_turntable_max_angle_deg = cfg->mask.empty_turntable_max_angle_deg;
-    if (poses.empty())
-      ParsePosesPath(cfg->worker.poses, &opts.poses);  // validated by LoadConfigFile
+    cfg = std::move(armed.value());
+    err << "aggscan reconstruct: config: " << source << "\n";
   }
-  if (Status s = ReconstructSample(sample_dir, opts); !s) {
+  if (!poses.empty()) cfg.worker.poses = poses;  // checked above
+  auto opts = ReconstructOptionsFromConfig(cfg);
+  if (!opts.ok()) {
+    err << "aggscan reconstruct: " << opts.error().ToString() << "\n";
+    return 2;
+  }
+  opts->state_dir = state_dir;
+  opts->photo_refine = surface == "hull+photo";
+  opts->from_stage = from;
+  if (Status s = ReconstructSample(sample_dir, *opts); !s) {
     err << "aggscan reconstruct: " << s.error().ToString() << "\n";
     return 1;
   }

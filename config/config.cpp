@@ -408,11 +408,11 @@ const std::vector<Field<Config>>& Fields() {
 
       D(worker.poll_interval, Above(0, 60 * kSec), "queue polling period when idle"),
       F(worker.nice, Range(0, 19), "CPU priority below the capture daemon (0..19)"),
-      F(worker.poses, OneOf({"auto", "turntable", "sfm"}),
-        "poses: turntable (rig calibration + measured angles) | sfm (full SfM through COLMAP, "
-        "scaled by "
-        "the background labels; minutes a side) | auto (turntable with a calibration, sfm "
-        "without)"),
+      F(worker.poses, OneOf({"turntable+ba", "turntable", "sfm", "auto"}),
+        "poses: turntable+ba (rig calibration + measured angles refined by bundle adjustment) | "
+        "turntable (rig calibration + measured angles as read) | sfm (full SfM through COLMAP, "
+        "scaled by the background labels; minutes a side) | auto (turntable+ba with a "
+        "calibration, sfm without)"),
       F(worker.max_attempts, Range(1, 100),
         "failed or crashed runs after which a job is marked failed (retry it with `aggscan retry "
         "ID`)"),

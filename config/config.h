@@ -424,10 +424,11 @@ struct MaskConfig {
 struct WorkerConfig {
   TimeNs poll_interval = 500 * kNsPerMs;  // queue polling period when idle
   int nice = 10;                          // CPU priority below the capture daemon
-  /// Poses path: turntable (calibration + measured angles) | sfm (COLMAP) |
-  /// auto (turntable with a rig calibration, sfm without). Not auto by
-  /// default: SfM costs minutes a side on the rig's CPU.
-  std::string poses = "turntable";
+  /// Poses: turntable+ba (calibration + measured angles refined by bundle
+  /// adjustment, ~2.5 s a side) | turntable (calibration + measured angles as
+  /// read) | sfm (COLMAP) | auto (turntable+ba with a rig calibration, sfm
+  /// without). Not auto by default: SfM costs minutes a side on the rig's CPU.
+  std::string poses = "turntable+ba";
   /// A job whose run fails or crashes this many times is marked failed (the
   /// queue moves on; `aggscan retry ID` puts it back after a fix).
   int max_attempts = 3;

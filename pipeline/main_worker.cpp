@@ -50,6 +50,7 @@
 #include "pipeline/reconstruct.h"
 #include "pipeline/side_job.h"
 #include "pipeline/stage.h"
+#include "pipeline/worker_config.h"
 #include "store/layout.h"
 #include "store/queue.h"
 
@@ -288,27 +289,22 @@ void IdleWait(long ms, WorkerReporter* reporter) {
 // The sample stage: the 3D reconstruction when the sample carries its rig
 // calibration or [worker] poses asks for SfM (auto, sfm), the 2D figures
 // alone otherwise.
-Status RunSampleStage(const std::string& dir, const std::string& state_dir,
-                      const WorkerOptions& opts, PosesPath poses) {
-  if (poses == PosesPath::kTurntable && !PathExists(dir + "/" + layout::kCalibrationCopy)) {
+Status RunSampleStage(const std::string& dir, const std::string& state_dir, ReconstructOptions ro) {
+  if (ro.poses == PosesPath::kTurntable && !PathExists(dir + "/" + layout::kCalibrationCopy)) {
     AGG_LOGW(
         kCat,
         "%s: no rig calibration recorded in the sample: 2D figures only; run `aggscan calibrate` "
         "(the daemon records it in every later sample), or give this sample a calibration.json and "
         "run `aggscan reconstruct %s`",
         dir.c_str(), dir.c_str());
-    return TwoDFigures(dir, opts);
+    return TwoDFigures(dir, ro.worker);
   }
-  ReconstructOptions ro;
-  ro.worker = opts;
   ro.state_dir = state_dir;
-  ro.cancel = opts.cancel;
-  ro.poses = poses;
+  ro.cancel = ro.worker.cancel;
   return ReconstructSample(dir, ro);
 }
 
-Status RunJob(const std::string& state_dir, const Job& job, const WorkerOptions& opts,
-              PosesPath poses) {
+Status RunJob(const std::string& state_dir, const Job& job, const ReconstructOptions& ro) {
   if (!layout::IsValidSampleId(job.sample_id))
     return MakeError(ErrorClass::kCorrupt,
                      "job " + std::to_string(job.id) + " names an invalid sample id");
@@ -319,8 +315,7 @@ Status RunJob(const std::string& state_dir, const Job& job, const WorkerOptions&
                     [&] { return RunCalibrationCapture(dir, std::max(1, job.side), state_dir); });
   }
   const std::string dir = layout::SampleDir(state_dir, job.sample_id);
-  return job.side > 0 ? RunSideJob(dir, job.side, opts)
-                      : RunSampleStage(dir, state_dir, opts, poses);
+  return job.side > 0 ? RunSideJob(dir, job.side, ro.worker) : RunSampleStage(dir, state_dir, ro);
 }
 
 // How a child process ended.
@@ -410,7 +405,7 @@ Result<ChildEnd> RunInChild(F&& fn, WorkerReporter* reporter = nullptr) {
 }
 
 // The child's side of a job: exit code for RunInChild.
-int ChildRunJob(const std::string& state_dir, const Job& job, const Config& cfg, PosesPath poses) {
+int ChildRunJob(const std::string& state_dir, const Job& job, const Config& cfg) {
   if (const char* hook = std::getenv("AGGSCAN_WORKER_TEST_ABORT")) {
     const std::string h = hook;
     const size_t slash = h.find('/');
@@ -421,13 +416,10 @@ int ChildRunJob(const std::string& state_dir, const Job& job, const Config& cfg,
   Status st = RunStage("job", [&]() -> Status {
     // Loaded here, not in the parent: its check pass starts OpenCV's thread
     // pool, which a process that forks must never have.
-    auto mask_net = LoadMaskNet(cfg.mask);
-    if (!mask_net.ok()) return mask_net.error();
-    WorkerOptions opts;
-    opts.cancel = &g_stop;
-    opts.mask_net = *mask_net;
-    opts.empty_turntable_max_angle_deg = cfg.mask.empty_turntable_max_angle_deg;
-    return RunJob(state_dir, job, opts, poses);
+    auto ro = ReconstructOptionsFromConfig(cfg);
+    if (!ro.ok()) return ro.error();
+    ro->worker.cancel = &g_stop;
+    return RunJob(state_dir, job, *ro);
   });
   if (st.ok()) return kChildDone;
   if (g_stop.load() && st.error().cls == ErrorClass::kCancelled) return kChildStopped;
@@ -479,21 +471,15 @@ int main(int argc, char** argv) {
     AGG_LOGW(kCat, "cannot set nice %d (staying at %d): %s", cfg.worker.nice, current,
              std::strerror(errno));
 
-  PosesPath poses = PosesPath::kTurntable;
-  ParsePosesPath(cfg.worker.poses, &poses);  // validated with the config
-
   if (!args.sample_dir.empty()) {
     // One sample in this process: the stages' boundaries catch what the
     // libraries throw; there is no queue to protect from a crash.
-    auto mask_net = LoadMaskNet(cfg.mask);
-    if (!mask_net.ok()) {
-      std::fprintf(stderr, "aggscan-worker: %s\n", mask_net.error().ToString().c_str());
+    auto one = ReconstructOptionsFromConfig(cfg);
+    if (!one.ok()) {
+      std::fprintf(stderr, "aggscan-worker: %s\n", one.error().ToString().c_str());
       return 2;
     }
-    WorkerOptions one;
-    one.mask_net = *mask_net;
-    one.empty_turntable_max_angle_deg = cfg.mask.empty_turntable_max_angle_deg;
-    Status st = RunSampleStage(args.sample_dir, "", one, poses);
+    Status st = RunSampleStage(args.sample_dir, "", *one);
     if (!st.ok()) {
       AGG_LOGE(kCat, "%s: %s", args.sample_dir.c_str(), st.error().ToString().c_str());
       return 1;
@@ -580,7 +566,7 @@ int main(int argc, char** argv) {
             name + ": " + what + ", attempt " + std::to_string(job.attempts + 1) + " of " +
                 std::to_string(cfg.worker.max_attempts));
     reporter.Busy(job);
-    auto end = RunInChild([&] { return ChildRunJob(args.state_dir, job, cfg, poses); }, &reporter);
+    auto end = RunInChild([&] { return ChildRunJob(args.state_dir, job, cfg); }, &reporter);
     reporter.Idle();
     if (!end.ok()) {
       // No process for the job (out of processes or memory): not its fault.

@@ -1,4 +1,4 @@
-// The full-SfM poses path (issue 3 item 4b) on simulated captures: COLMAP
+// The full-SfM poses path on simulated captures: COLMAP
 // poses each side, the background labels scale it into the turntable frame,
 // and the stages after the poses run unchanged. Compared with the sim's truth
 // (camera centres, volume, dimensions). Small captures (12 views a side)
@@ -375,58 +375,6 @@ TEST(SfmReconstruct, AnglesContradictingThePhotosAreRejected) {
   EXPECT_FALSE(fs::exists(sample + "/results/morphology.json"));
 }
 
-// The measurement of issue 3 item 4b (run by hand: --gtest_also_run_disabled_tests
-// --gtest_filter='*FullSize*'): one paper-profile capture (2 x 30 views, 30 deg
-// steps, 2016 x 1512), posed by SfM (calibration known, intrinsics fixed) and
-// by the calibrated turntable with bundle adjustment, same truth masks.
-// Measured (seed 1, Debug build, 2 cores): SfM 262 s (SIFT 96 s a side,
-// matching 12-13 s, mapper 4-6 s), 30/30 views a side, V -0.06 %, a/b/c
-// -0.31 / -0.65 / -0.98 %, camera centres within 4.3 / 5.4 mm; turntable+ba
-// 32 s, V -0.08 %, a/b/c -0.50 / -0.79 / -0.74 %, centres within 0.9 mm.
-// With the capture-order pair list side 2 stopped at 19 of 30 views: the
-// paper profile goes round 2.5 times and views of one angle were never matched.
-TEST(SfmReconstruct, DISABLED_FullSizeSfmAgainstTheTurntablePath) {
-  SKIP_WITHOUT_COLMAP();
-  test::TempDir tmp;
-  const uint64_t seed = 1;
-  const std::string sample = Capture(tmp.path(), seed, 2, true, 30, 2016, 1512, 30.0);
-  // The copy keeps the folder's name: a sample's manifests name their sample.
-  const std::string fast = tmp.path() + "/fast/" + fs::path(sample).filename().string();
-  fs::create_directories(fs::path(fast).parent_path());
-  fs::copy(sample, fast, fs::copy_options::recursive);
-  for (const auto& [dir, path] :
-       {std::pair{sample, PosesPath::kSfm}, std::pair{fast, PosesPath::kTurntable}}) {
-    ReconstructOptions opts;
-    opts.poses = path;
-    const auto t0 = std::chrono::steady_clock::now();
-    auto st = ReconstructSample(dir, opts);
-    ASSERT_TRUE(st) << st.error().ToString();
-    const double wall =
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    auto m = ReadMorphology(dir);
-    ASSERT_TRUE(m);
-    const json& d = (*m)["morphology_3d"];
-    const json truth = ReadJsonFile(dir + "/truth.json");
-    auto rel = [&](const char* k) {
-      return 100 * (d[k].get<double>() / truth[k].get<double>() - 1.0);
-    };
-    std::printf(
-        "%s: wall %.0f s; V %+.2f %% A %+.2f %% a %+.2f %% b %+.2f %% c %+.2f %%; stitch %s, scale "
-        "residual %s\n",
-        PosesPathName(path), wall, rel("volume_mm3"), rel("surface_area_mm2"), rel("a_mm"),
-        rel("b_mm"), rel("c_mm"), (*m)["methods"]["stitch"].dump().c_str(),
-        (*m)["quality"]["scale_residual_mm"].dump().c_str());
-    for (int side : {1, 2}) {
-      const json p = ReadJsonFile(dir + "/results/poses_side" + std::to_string(side) + ".json");
-      std::printf("  side %d: %s, poses stage %.1f s, worst centre error %.2f mm%s\n", side,
-                  p["method"].get<std::string>().c_str(), p["stage_seconds"].get<double>(),
-                  WorstCentreErrorMm(dir, side, seed),
-                  p.contains("sfm") ? (", " + p["sfm"]["timings_s"].dump()).c_str() : "");
-    }
-    EXPECT_NEAR(rel("volume_mm3"), 0.0, 3.0);
-  }
-}
-
 // The setting: parsed names, the CLI's --poses choices, the config's
 // [worker] poses validated with a clear error.
 TEST(SfmReconstruct, PosesSettingIsValidated) {
@@ -456,7 +404,7 @@ TEST(SfmReconstruct, PosesSettingIsValidated) {
   auto ok = LoadConfigFile(cfg, &problems);
   ASSERT_TRUE(ok) << ok.error().ToString();
   EXPECT_EQ(ok->worker.poses, "auto");
-  EXPECT_EQ(Config{}.worker.poses, "turntable");
+  EXPECT_EQ(Config{}.worker.poses, "turntable+ba");
 }
 
 }  // namespace
