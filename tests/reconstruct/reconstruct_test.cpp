@@ -16,6 +16,7 @@
 #include "common/mesh_check.h"
 #include "config/config.h"
 #include "drivers/sim/world.h"
+#include "pipeline/worker_config.h"
 #include "tests/reconstruct/sim_sample.h"
 #include "tests/util/temp_dir.h"
 
@@ -161,66 +162,107 @@ TEST(Reconstruct, ResumesAtTheInterruptedStage) {
                    before["morphology_3d"]["volume_mm3"].get<double>());
 }
 
-// Two sides, the real worker path: masks computed from the photos, markers
-// and features detected, the sides stitched, one closed mesh from all views.
-void TwoSides(bool truth_masks, bool photo_refine) {
-  test::TempDir tmp;
-  const std::string sample = Capture(tmp.path(), 1, 2, truth_masks);
+// A reconstruction's figures against the sim's truth: relative errors of
+// volume, area, a, b, c, and the sphericity with the truth's.
+struct Figures {
+  double volume, area, a, b, c, sphericity, sphericity_truth;
+};
+
+// Reconstructs a copy of `capture` under `state_dir` (its own library),
+// truth or computed masks, with or without the photo refinement, on the
+// measured angles (the stitch and surface are under test), and checks what
+// every sound two-side reconstruction must hold.
+Figures TwoSides(const std::string& capture, const std::string& state_dir, bool truth_masks,
+                 bool photo_refine) {
+  // The copy keeps the folder's name: a sample's manifests name their sample.
+  const std::string sample = state_dir + "/samples/" + fs::path(capture).filename().string();
+  fs::create_directories(fs::path(sample).parent_path());
+  fs::copy(capture, sample, fs::copy_options::recursive);
+  if (truth_masks) test::PlaceTruthMasks(sample, 2, 30);
   ReconstructOptions opts;
-  opts.state_dir = tmp.path();
+  opts.state_dir = state_dir;
   opts.photo_refine = photo_refine;
-  opts.bundle_adjust = false;  // the stitch and surface are under test, on the measured angles
-  {
-    auto st = ReconstructSample(sample, opts);
-    ASSERT_TRUE(st) << st.error().ToString();
-  }
+  opts.bundle_adjust = false;
+  Figures f{};
+  auto st = ReconstructSample(sample, opts);
+  EXPECT_TRUE(st) << st.error().ToString();
   auto m = ReadMorphology(sample);
-  ASSERT_TRUE(m) << m.error().ToString();
+  EXPECT_TRUE(m) << m.error().ToString();
+  if (!st || !m) return f;
   const json& d = (*m)["morphology_3d"];
   const json truth = Truth(sample);
   auto rel = [&](const char* k) { return d[k].get<double>() / truth[k].get<double>() - 1.0; };
+  f = {rel("volume_mm3"),
+       rel("surface_area_mm2"),
+       rel("a_mm"),
+       rel("b_mm"),
+       rel("c_mm"),
+       d["sphericity"].get<double>(),
+       truth["sphericity"].get<double>()};
   auto stitch = json::parse(*ReadFile(sample + "/results/stitch.json"));
   auto surface = json::parse(*ReadFile(sample + "/results/surface.json"));
-  std::printf("surface %s: %s\n", surface["method"].get<std::string>().c_str(),
-              surface["photo_refine"].dump().c_str());
-  std::printf(
-      "two sides: V %+.2f %% A %+.2f %% a %+.2f %% b %+.2f %% c %+.2f %%, sphericity %.4f (truth "
-      "%.4f); "
-      "stitch %s rms %.3f mm, scale residual %s mm; iou %.4f; total %.1f s\n",
-      100 * rel("volume_mm3"), 100 * rel("surface_area_mm2"), 100 * rel("a_mm"), 100 * rel("b_mm"),
-      100 * rel("c_mm"), d["sphericity"].get<double>(), truth["sphericity"].get<double>(),
-      stitch["method"].get<std::string>().c_str(), stitch["rms_mm"].get<double>(),
-      stitch["scale_residual_mm"].dump().c_str(),
-      (*m)["quality"]["silhouette_iou_mean"].get<double>(),
-      (*m)["timings_s"]["total"].get<double>());
+  EXPECT_EQ(surface["photo_refine"]["enabled"].get<bool>(), photo_refine);
   EXPECT_TRUE(d["watertight"].get<bool>());
   // A sound capture of the sim rig: nothing to doubt, and the library says so.
   EXPECT_TRUE((*m)["quality"]["confident"].get<bool>()) << (*m)["quality"]["flags"].dump();
-  const std::string csv = *ReadFile(tmp.path() + "/library.csv");
+  const std::string csv = *ReadFile(state_dir + "/library.csv");
   EXPECT_NE(csv.find(",yes,\n"), std::string::npos) << csv;
+  // Both name the sample.
+  const std::string id = fs::path(sample).filename().string();
+  EXPECT_EQ((*m)["sample_id"], id);
+  EXPECT_NE(csv.find("\n" + id + ","), std::string::npos) << csv;
   EXPECT_EQ(stitch["sides"].size(), 2u);
   EXPECT_NE(stitch["method"].get<std::string>(), "single-side");
   EXPECT_LT(stitch["rms_mm"].get<double>(), 2.0);
-  ASSERT_TRUE(stitch["scale_residual_mm"].is_number());
-  EXPECT_LT(stitch["scale_residual_mm"].get<double>(), 0.5);
+  EXPECT_TRUE(stitch["scale_residual_mm"].is_number());
+  if (stitch["scale_residual_mm"].is_number()) {
+    EXPECT_LT(stitch["scale_residual_mm"].get<double>(), 0.5);
+  }
   EXPECT_EQ((*m)["views_2d"].size(), 60u);
-  // A visual hull only over-estimates (concavities); the stitch misalignment
-  // and the masks' edge errors shift it either way.
-  EXPECT_NEAR(rel("volume_mm3"), 0.0, 0.05);
-  EXPECT_NEAR(rel("a_mm"), 0.0, 0.03);
-  EXPECT_NEAR(rel("b_mm"), 0.0, 0.03);
-  EXPECT_NEAR(rel("c_mm"), 0.0, 0.03);
-  EXPECT_NEAR(d["sphericity"].get<double>(), truth["sphericity"].get<double>(), 0.03);
+  std::printf(
+      "%s masks, %s: V %+.2f %% A %+.2f %% a %+.2f %% b %+.2f %% c %+.2f %%, sphericity %.4f "
+      "(truth %.4f); stitch %s rms %.3f mm; total %.1f s\n",
+      truth_masks ? "truth" : "computed", photo_refine ? "hull+photo" : "hull", 100 * f.volume,
+      100 * f.area, 100 * f.a, 100 * f.b, 100 * f.c, f.sphericity, f.sphericity_truth,
+      stitch["method"].get<std::string>().c_str(), stitch["rms_mm"].get<double>(),
+      (*m)["timings_s"]["total"].get<double>());
+  return f;
 }
 
-TEST(Reconstruct, TwoSidesStitchedFromComputedMasks) { TwoSides(false, true); }
-// The visual hull alone, and refined by photo-consistency (the default).
-// Measured (seed 1): hull V +4.49 % A +1.57 % a +1.46 % b -0.52 % c +0.06 %,
-// sphericity 0.8941 (truth 0.8820); refined V +0.51 % A +1.45 % a -0.04 %
-// b -0.50 % c -0.57 %, sphericity 0.8723, refinement 6.1 s. Computed masks,
-// refined: V +0.20 % A +1.11 % a +0.04 % b +0.01 % c -1.82 %, 0.8734.
-TEST(Reconstruct, TwoSidesStitchedFromTruthMasks) { TwoSides(true, false); }
-TEST(Reconstruct, TwoSidesPhotoRefinedFromTruthMasks) { TwoSides(true, true); }
+// Two sides, the real worker path (masks computed from the photos, markers
+// and features detected, the sides stitched, one closed mesh from all views)
+// and the geometric stages alone on the true masks, the visual hull with and
+// without the photo refinement: three reconstructions of one capture
+// (seed 1, 2 x 30 views at 1008 x 756). The tolerances are what each method
+// achieves here (docs/validation.md has the figures), with room for the
+// platform's floating point, not for a method that got worse.
+TEST(Reconstruct, TwoSidesHullRefinedAndComputedMasksFromOneCapture) {
+  test::TempDir tmp;
+  const std::string capture = Capture(tmp.path(), 1, 2, /*truth_masks=*/false);
+  const Figures hull = TwoSides(capture, tmp.path() + "/hull", true, false);
+  const Figures refined = TwoSides(capture, tmp.path() + "/refined", true, true);
+  const Figures computed = TwoSides(capture, tmp.path() + "/computed", false, true);
+  // The visual hull only over-estimates the volume (concavities the
+  // silhouettes cannot see), and rounds the rock.
+  EXPECT_GT(hull.volume, 0.03);
+  EXPECT_LT(hull.volume, 0.06);
+  EXPECT_GT(hull.sphericity, hull.sphericity_truth);
+  EXPECT_LT(hull.sphericity, hull.sphericity_truth + 0.025);
+  // The photo refinement carves that excess away, to within a fraction of a
+  // per cent, from the true masks and from the computed ones alike.
+  EXPECT_NEAR(refined.volume, 0.0, 0.008);
+  EXPECT_NEAR(computed.volume, 0.0, 0.008);
+  EXPECT_LT(refined.volume, hull.volume - 0.03);
+  EXPECT_NEAR(refined.sphericity, refined.sphericity_truth, 0.01);
+  EXPECT_NEAR(computed.sphericity, computed.sphericity_truth, 0.01);
+  for (const Figures* f : {&hull, &refined, &computed}) {
+    const char* which = f == &hull ? "hull" : f == &refined ? "refined" : "computed masks";
+    EXPECT_NEAR(f->a, 0.0, 0.02) << which;
+    EXPECT_NEAR(f->b, 0.0, 0.02) << which;
+    EXPECT_NEAR(f->c, 0.0, 0.02) << which;
+    EXPECT_NEAR(f->area, 0.0, 0.02) << which;
+  }
+}
 
 // Masks that lost the rock (on a rock too large for the frame, a colour label
 // became the mask) are left out by the side job (side_job.h CheckSideMasks)
@@ -269,12 +311,21 @@ namespace aggscan {
 namespace {
 
 // `aggscan reconstruct --surface hull` skips the photo refinement and says so
-// in surface.json; `--poses turntable` keeps the measured angles (bundle
-// adjustment is the default); an unknown value is a usage error naming the
-// choices.
+// in surface.json; poses "turntable" keeps the measured angles (bundle
+// adjustment is the default), whether it comes from the config the sample
+// was armed with, as the worker reads it, or from --poses; an unknown value
+// is a usage error naming the choices.
 TEST(ReconstructCommand, SurfaceAndPosesOptionsChooseTheMethods) {
   test::TempDir tmp;
-  const std::string sample = Capture(tmp.path(), 6, 1);
+  const std::string sample = test::CaptureSimSample(tmp.path(), 6, 1, true, true, 30, 1008, 756,
+                                                    30.0, "[worker]\nposes = \"turntable\"\n");
+  {
+    // The CLI and the worker read [worker] poses alike.
+    std::string source;
+    auto armed = ConfigForSample(sample, &source);
+    ASSERT_TRUE(armed) << armed.error().ToString();
+    EXPECT_EQ(armed->worker.poses, "turntable");
+  }
   for (const char* bad : {"--surface", "--poses"}) {
     std::ostringstream out, err;
     EXPECT_EQ(RunReconstructCommand({sample, bad, "mesh"}, out, err), 2);
@@ -283,11 +334,10 @@ TEST(ReconstructCommand, SurfaceAndPosesOptionsChooseTheMethods) {
         << err.str();
   }
   std::ostringstream out, err;
-  ASSERT_EQ(RunReconstructCommand(
-                {sample, "--state-dir", tmp.path(), "--surface", "hull", "--poses", "turntable"},
-                out, err),
-            0)
+  ASSERT_EQ(
+      RunReconstructCommand({sample, "--state-dir", tmp.path(), "--surface", "hull"}, out, err), 0)
       << err.str();
+  EXPECT_NE(err.str().find("config: " + sample + "/config.toml"), std::string::npos) << err.str();
   {
     auto poses = ReadFile(sample + "/results/poses_side1.json");
     ASSERT_TRUE(poses);
@@ -327,6 +377,7 @@ TEST(ReconstructCommand, SurfaceAndPosesOptionsChooseTheMethods) {
   // The library holds the sample's new figures, in one row.
   const std::string library = *ReadFile(tmp.path() + "/library.csv");
   const std::string id = fs::path(sample).filename().string();
+  ASSERT_NE(library.find("\n" + id + ","), std::string::npos) << library;
   EXPECT_EQ(library.find("\n" + id + ","), library.rfind("\n" + id + ",")) << library;
 
   // Nothing changed: everything kept, nothing rewritten.
@@ -355,6 +406,20 @@ TEST(ReconstructCommand, SurfaceAndPosesOptionsChooseTheMethods) {
   EXPECT_NE(err5.str().find("masks, 2d, calibration, poses, stitch, surface, morphology"),
             std::string::npos)
       << err5.str();
+
+  // --poses over the armed config's word: bundle adjustment on, the poses
+  // and every later stage again, the masks kept.
+  std::ostringstream out6, err6;
+  ASSERT_EQ(RunReconstructCommand({sample, "--state-dir", tmp.path(), "--poses", "turntable+ba"},
+                                  out6, err6),
+            0)
+      << err6.str();
+  const json sixth = ledger();
+  EXPECT_EQ(sixth["masks side 1"], fourth["masks side 1"]);
+  EXPECT_NE(sixth["poses side 1"]["fingerprint"], fourth["poses side 1"]["fingerprint"]);
+  const json p6 = json::parse(*ReadFile(res + "poses_side1.json"));
+  EXPECT_NE(p6["bundle_adjustment"].value("reason", ""), "bundle adjustment is turned off")
+      << p6.dump();
 }
 
 }  // namespace

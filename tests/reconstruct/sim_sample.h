@@ -18,6 +18,25 @@
 
 namespace aggscan::test {
 
+// Puts the sim's ground-truth masks where the side stage keeps its masks (it
+// reuses them), so that the geometric stages can be tested alone.
+inline void PlaceTruthMasks(const std::string& sample, int sides, int views) {
+  namespace fs = std::filesystem;
+  for (int side = 1; side <= sides; ++side) {
+    const std::string dst = sample + "/results/masks/side" + std::to_string(side);
+    fs::create_directories(dst);
+    for (int v = 0; v < views; ++v) {
+      char name[32];
+      std::snprintf(name, sizeof name, "view_%03d", v);
+      const cv::Mat m =
+          cv::imread(sample + "/truth/side" + std::to_string(side) + "/" + name + "_mask.pgm",
+                     cv::IMREAD_GRAYSCALE);
+      EXPECT_FALSE(m.empty()) << sample << " side " << side << " " << name;
+      cv::imwrite(dst + "/" + name + ".png", m);
+    }
+  }
+}
+
 /// Renders `sides` x `views` photos (custom profile, `step_deg` apart) of the
 /// sim rock `seed` at width x height into dir/sample and returns that path.
 /// calibration: the sim's exact rig calibration is recorded in the sample.
@@ -46,20 +65,7 @@ inline std::string CaptureSimSample(const std::string& dir, uint64_t seed, int s
     sim::SimWorld world(c);
     EXPECT_TRUE(SaveCalibration(o.out + "/calibration.json", world.TruthCalibration(width, height)));
   }
-  if (truth_masks) {
-    for (int side = 1; side <= sides; ++side) {
-      const std::string dst = o.out + "/results/masks/side" + std::to_string(side);
-      fs::create_directories(dst);
-      for (int v = 0; v < views; ++v) {
-        char name[32];
-        std::snprintf(name, sizeof name, "view_%03d", v);
-        const cv::Mat m = cv::imread(o.out + "/truth/side" + std::to_string(side) + "/" + name + "_mask.pgm",
-                                     cv::IMREAD_GRAYSCALE);
-        EXPECT_FALSE(m.empty());
-        cv::imwrite(dst + "/" + name + ".png", m);
-      }
-    }
-  }
+  if (truth_masks) PlaceTruthMasks(o.out, sides, views);
   return o.out;
 }
 
