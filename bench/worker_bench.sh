@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Benchmark of the whole worker on one rock (issue 3 item 11): a two-side sim
+# Benchmark of the whole worker on one rock: a two-side sim
 # capture at 2016x1512 (the default paper profile, 2 x 30 views), the rig
 # calibrated from a ChArUco capture first (not timed), then
 #   1. aggscan-worker --sample on it: wall time, CPU time, peak RSS, and the

@@ -1,4 +1,4 @@
-// `aggscan validate`: the accuracy harness (issue 3 item 9). For each rock
+// `aggscan validate`: the accuracy harness. For each rock
 // (procedural seeds, or the meshes of a folder scaled to riprap size) it
 // captures a simulated sample with the sim rig's realism on, reconstructs it
 // with the worker's stages (computed masks, calibrated turntable poses,
@@ -47,7 +47,7 @@ struct ValidateOptions {
                              // test sets for `aggscan masks eval`
 };
 
-/// Targets of issue 3 item 9.
+/// The accuracy targets: the product aims at a tenth of the study's errors.
 struct ValidateTargets {
   double volume_mpe_pct = 1.0;   // |mean((R-T)/T)| in %
   double volume_mape_pct = 2.0;  // mean(|R-T|/T) in %

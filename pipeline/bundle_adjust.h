@@ -1,5 +1,5 @@
-// Bundle adjustment of one side of a calibrated turntable capture (issue 3
-// item 4a, the fast path): every view's pose is cam_from_table0 * Rz(angle)
+// Bundle adjustment of one side of a calibrated turntable capture (the
+// fast path): every view's pose is cam_from_table0 * Rz(angle)
 // (common/rig_calibration.h); the measured turntable angles are refined, with
 // the 3D feature points, by minimising the reprojection error of feature
 // tracks. The study's Eq. 2: only features inside the rock mask take part

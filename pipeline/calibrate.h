@@ -1,4 +1,4 @@
-// Rig calibration from a ChArUco board lying on the turntable (issue 3 item 1).
+// Rig calibration from a ChArUco board lying on the turntable.
 //
 // One captured side of a "sample" made with the [calibration] board flat on
 // the disc: every view's ArUco markers are detected and the ChArUco corners

@@ -1,6 +1,6 @@
-// Full structure-from-motion through Debian's COLMAP 3.8, run as a subprocess
-// (issue 3 item 4b): the path for captures without a rig calibration or with
-// a moving camera. COLMAP there has no library and no headers, so this module
+// Full structure-from-motion through Debian's COLMAP 3.8, run as a
+// subprocess: the path for captures without a rig calibration or with a
+// moving camera. COLMAP there has no library and no headers, so this module
 // drives its command-line steps, checks what each step wrote (COLMAP exits 0
 // after silent failures, ../shared/notes/colmap-debian.md), parses the text
 // model itself and refuses implausible models instead of reporting them as
@@ -23,7 +23,7 @@
 // current inputs and whose output is still valid is skipped; a stage whose
 // inputs changed is redone with everything after it.
 //
-// How the worker calls it (per side, after masks; the lead wires the CLI):
+// How the worker calls it (per side, after masks):
 //
 //   ColmapSfmOptions o;
 //   o.workspace = sample_dir + "/work/side1/sfm";

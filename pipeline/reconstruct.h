@@ -37,7 +37,7 @@
 
 namespace aggscan {
 
-/// Where the views' poses come from (issue 3 item 4): the calibrated
+/// Where the views' poses come from: the calibrated
 /// turntable (fast path) or full SfM through COLMAP (pipeline/sfm_poses.h).
 enum class PosesPath {
   kAuto,       // the turntable when the sample has a rig calibration, SfM otherwise

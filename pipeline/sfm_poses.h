@@ -1,4 +1,4 @@
-// The full-SfM poses path of the reconstruction (issue 3 item 4b): one side's
+// The full-SfM poses path of the reconstruction. One side's
 // views posed by Debian's COLMAP (colmap_sfm.h) instead of the calibrated
 // turntable, for captures without a rig calibration or with a moving camera.
 //

@@ -15,7 +15,7 @@ using ::testing::HasSubstr;
 
 const std::string kDir = std::string(AGGSCAN_SOURCE_DIR) + "/config/turntables";
 
-// The generic map, exactly as issue 4 gives it.
+// The generic map, register by register as the reference map gives it.
 TEST(TurntableProfile, GenericIsTheReferenceMap) {
   Result<TurntableProfile> p = FindTurntableProfile("generic", kDir);
   ASSERT_TRUE(p.ok()) << p.error().ToString() << "\n" << p.error().detail;

@@ -16,7 +16,7 @@
 namespace aggscan {
 namespace {
 
-// Issue 3 item 2: IoU >= 0.98 (measured 0.9816-0.9984). 18 views at the
+// Target: IoU >= 0.98 (measured 0.9816-0.9984). 18 views at the
 // rig's 2016 x 1512: ~25 s (the renderer is built with -O2
 // even in Debug builds).
 TEST(SimMask, IoUOnRenderedViews) {

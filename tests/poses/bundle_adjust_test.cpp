@@ -1,4 +1,4 @@
-// Bundle adjustment of one side's turntable angles (issue 3 item 4a) on sim
+// Bundle adjustment of one side's turntable angles on sim
 // renders at 1008 x 756 with the sim's own angle errors (stop N(0, 0.05 deg),
 // read N(0, 0.02 deg)) plus larger reading errors injected into a few views:
 // the refined angles must come closer to where the platter really stood, the

@@ -1,4 +1,4 @@
-// Issue 3 item 10: the SfM path on real turntable photos, Oxford VGG's dino
+// The SfM path on real turntable photos, Oxford VGG's dino
 // (36 views 720x576, ~10° apart, projection matrices given; camera centres on
 // a circle of radius 1). Skips when the data or /usr/bin/colmap is absent.
 #include <gtest/gtest.h>
