@@ -85,7 +85,8 @@ void BM_RenderCharuco(benchmark::State& state) {
   std::vector<uint8_t> px(2100 * 1500);
   for (int y = 0; y < 1500; ++y)
     for (int x = 0; x < 2100; ++x) px[y * 2100 + x] = ((x / 300 + y / 300) % 2) ? 255 : 0;
-  if (!aggscan::sim::WritePgm(px, 2100, 1500, path)) state.SkipWithError("cannot write the board PGM");
+  if (!aggscan::sim::WritePgm(px, 2100, 1500, path))
+    state.SkipWithError("cannot write the board PGM");
   Config c;
   c.sim.scene = "charuco";
   c.sim.board_image = path;

@@ -3,12 +3,11 @@
 // ground-truth rock mask, and counts ratio-test matches (Lowe 0.8) between
 // views one turntable step (30 deg) apart, i.e. what SfM needs.
 //   sift_features [seeds=3] [width=2016 height=1512]
+#include <cstdio>
+#include <cstdlib>
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
-
-#include <cstdio>
-#include <cstdlib>
 #include <vector>
 
 #include "config/config.h"
@@ -68,7 +67,8 @@ int main(int argc, char** argv) {
       if (!da.empty() && !db.empty()) matcher.knnMatch(da, db, knn, 2);
       int good = 0;
       for (const auto& m : knn) good += m.size() == 2 && m[0].distance < 0.8f * m[1].distance;
-      std::printf("%4d %4d  %23zu  %13d  %7d\n", seed, side, ka.size(), good, cv::countNonZero(a.mask));
+      std::printf("%4d %4d  %23zu  %13d  %7d\n", seed, side, ka.size(), good,
+                  cv::countNonZero(a.mask));
     }
   }
   return 0;

@@ -1,5 +1,5 @@
 // `aggscan calibrate`: the rig calibration from a ChArUco board lying on the
-// turntable (pipeline/calibrate.h).
+// turntable (pipeline/calib/calibrate.h).
 //
 //   aggscan calibrate board --out FILE.png|FILE.pgm [--dpi N] [--margin-mm M] [--config FILE]
 //       the printable board of the config's [calibration] section (PGM with

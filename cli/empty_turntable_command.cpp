@@ -5,7 +5,7 @@
 #include <filesystem>
 
 #include "common/fsutil.h"
-#include "pipeline/image_io.h"
+#include "pipeline/core/image_io.h"
 #include "store/empty_turntable.h"
 #include "store/layout.h"
 

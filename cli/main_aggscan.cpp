@@ -16,7 +16,7 @@
 #include "cli/sim_capture.h"
 #include "cli/user_command.h"
 #include "cli/validate_command.h"
-#include "pipeline/morph2d_cli.h"
+#include "cli/morph2d_command.h"
 
 namespace {
 

@@ -17,12 +17,12 @@
 #include <set>
 
 #include "common/fsutil.h"
-#include "pipeline/image_io.h"
-#include "pipeline/mask.h"
-#include "pipeline/mask_dataset.h"
-#include "pipeline/mask_net.h"
-#include "pipeline/side_job.h"
-#include "pipeline/subprocess.h"
+#include "pipeline/core/image_io.h"
+#include "pipeline/masks/mask.h"
+#include "pipeline/masks/mask_dataset.h"
+#include "pipeline/masks/mask_net.h"
+#include "pipeline/worker/side_job.h"
+#include "pipeline/core/subprocess.h"
 #include "store/layout.h"
 
 #ifndef AGGSCAN_SOURCE_DIR

@@ -3,8 +3,8 @@
 #include <filesystem>
 
 #include "config/config.h"
-#include "pipeline/reconstruct.h"
-#include "pipeline/worker_config.h"
+#include "pipeline/worker/reconstruct.h"
+#include "pipeline/worker/worker_config.h"
 
 namespace aggscan {
 
@@ -84,7 +84,7 @@ int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& ou
   }
   // The config: the one given, else the one the sample was armed with (what
   // the worker used), else the defaults. Its [mask] and [worker] sections
-  // become the options exactly as in aggscan-worker (pipeline/worker_config.h).
+  // become the options exactly as in aggscan-worker (pipeline/worker/worker_config.h).
   Config cfg;
   if (!config_path.empty()) {
     std::vector<ConfigProblem> problems;

@@ -12,8 +12,8 @@
 #include "daemon/event_loop.h"
 #include "drivers/factory.h"
 #include "drivers/sim/truth.h"
-#include "pipeline/aruco_scale.h"
-#include "pipeline/calibrate.h"
+#include "pipeline/markers/aruco_scale.h"
+#include "pipeline/calib/calibrate.h"
 #include "store/layout.h"
 #include "store/sample_store.h"
 

@@ -24,9 +24,9 @@
 #include "common/rig_calibration.h"
 #include "config/config.h"
 #include "drivers/sim/world.h"
-#include "pipeline/calibrate.h"
-#include "pipeline/reconstruct.h"
-#include "pipeline/side_job.h"
+#include "pipeline/calib/calibrate.h"
+#include "pipeline/worker/reconstruct.h"
+#include "pipeline/worker/side_job.h"
 
 namespace aggscan {
 

@@ -4,7 +4,7 @@
 Input: a dataset written by `aggscan masks dataset` (index.json listing
 pairs of a photo and the silhouette of the rig's own reconstructed mesh
 projected into it, PNG 0/255). Output: an ONNX model that the worker runs
-through OpenCV DNN (pipeline/mask_net.h: 1x3xHxW RGB input normalised with
+through OpenCV DNN (pipeline/masks/mask_net.h: 1x3xHxW RGB input normalised with
 ImageNet's mean/std, one 1x1xhxw probability map), and MODEL.json with
 what was trained and how long it took.
 

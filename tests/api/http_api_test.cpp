@@ -132,7 +132,9 @@ TEST_F(HttpApiTest, ListAndShowSamples) {
 TEST_F(HttpApiTest, ResultsAndMeshFiles) {
   const std::string dir = ::testing::TempDir();
   const std::string morph = dir + "/api_morphology.json", ply = dir + "/api_mesh.ply";
-  { std::ofstream(morph) << R"({"sample_id": "rock-11", "morphology_3d": {"volume_mm3": 1234.5}})"; }
+  {
+    std::ofstream(morph) << R"({"sample_id": "rock-11", "morphology_3d": {"volume_mm3": 1234.5}})";
+  }
   { std::ofstream(ply, std::ios::binary) << std::string("ply\0\x01\x02binary", 15); }
   fake_.result_files["rock-11/morphology.json"] = morph;
   fake_.result_files["rock-11/mesh.ply"] = ply;
@@ -151,7 +153,8 @@ TEST_F(HttpApiTest, ResultsAndMeshFiles) {
   auto stl = client_->Get("/api/v1/samples/rock-11/mesh.stl");
   ASSERT_TRUE(stl);
   EXPECT_EQ(stl->status, 404);
-  EXPECT_NE(Body(stl)["error"]["message"].get<std::string>().find("no results yet"), std::string::npos);
+  EXPECT_NE(Body(stl)["error"]["message"].get<std::string>().find("no results yet"),
+            std::string::npos);
   auto other = client_->Get("/api/v1/samples/rock-11/sample.json");
   ASSERT_TRUE(other);
   EXPECT_EQ(other->status, 400);  // not a result: "rock-11/sample.json" is no sample id
@@ -161,8 +164,9 @@ TEST_F(HttpApiTest, ResultsAndMeshFiles) {
   auto post = client_->Post("/api/v1/samples/rock-11/results", "", "text/plain");
   ASSERT_TRUE(post);
   EXPECT_EQ(post->status, 405);
-  EXPECT_EQ(fake_.Calls(), (std::vector<std::string>{"result:rock-11/morphology.json", "result:rock-11/mesh.ply",
-                                                     "result:rock-11/mesh.stl"}));
+  EXPECT_EQ(fake_.Calls(),
+            (std::vector<std::string>{"result:rock-11/morphology.json", "result:rock-11/mesh.ply",
+                                      "result:rock-11/mesh.stl"}));
 }
 
 TEST_F(HttpApiTest, ButtonAbortReset) {

@@ -17,7 +17,7 @@
 #include "common/rig_calibration.h"
 #include "config/config.h"
 #include "drivers/sim/world.h"
-#include "pipeline/calibrate.h"
+#include "pipeline/calib/calibrate.h"
 #include "tests/util/temp_dir.h"
 
 namespace aggscan {
@@ -37,8 +37,9 @@ std::string WriteToml(const std::string& dir, const std::string& body) {
 
 std::string CaptureToml(int width, int height) {
   std::ostringstream t;
-  t << "[camera]\nwidth = " << width << "\nheight = " << height << "\n\n[sim]\nseed = 11\nboard_x_mm = " << kBoardX
-    << "\nboard_y_mm = " << kBoardY << "\nboard_yaw_deg = " << kBoardYaw << "\n";
+  t << "[camera]\nwidth = " << width << "\nheight = " << height
+    << "\n\n[sim]\nseed = 11\nboard_x_mm = " << kBoardX << "\nboard_y_mm = " << kBoardY
+    << "\nboard_yaw_deg = " << kBoardYaw << "\n";
   return t.str();
 }
 
@@ -98,7 +99,8 @@ double MaxProjectionDiffPx(const RigCalibration& a, const RigCalibration& b) {
       for (double r : {0.0, 50.0, 100.0, 150.0}) {
         for (int k = 0; k < 12; ++k) {
           const double p[3] = {r * std::cos(k * M_PI / 6), r * std::sin(k * M_PI / 6), z};
-          auto proj = [&](const std::array<double, 16>& M, const CameraModel& cam, double* u, double* v) {
+          auto proj = [&](const std::array<double, 16>& M, const CameraModel& cam, double* u,
+                          double* v) {
             const std::array<double, 3> pc = {M[0] * p[0] + M[1] * p[1] + M[2] * p[2] + M[3],
                                               M[4] * p[0] + M[5] * p[1] + M[6] * p[2] + M[7],
                                               M[8] * p[0] + M[9] * p[1] + M[10] * p[2] + M[11]};
@@ -150,9 +152,11 @@ TEST_F(CalibrateSim, FreeK2IsPoorlyDetermined) {
   auto r = CalibrateSampleSide(sample_, 1, CalibrationConfig{}, o);
   ASSERT_TRUE(r) << r.error().ToString();
   const RigCalibration truth = Truth(kW, kH);
-  std::printf("free k2: fx %+.4f %%, k1 %.4f (sigma %.4f), k2 %.4f (sigma %.4f; truth %.2f), projection max %.3f px\n",
-              100 * (r->cal.camera.fx / truth.camera.fx - 1), r->cal.camera.k1, r->sigma_k1, r->cal.camera.k2,
-              r->sigma_k2, truth.camera.k2, MaxProjectionDiffPx(r->cal, truth));
+  std::printf(
+      "free k2: fx %+.4f %%, k1 %.4f (sigma %.4f), k2 %.4f (sigma %.4f; truth %.2f), projection "
+      "max %.3f px\n",
+      100 * (r->cal.camera.fx / truth.camera.fx - 1), r->cal.camera.k1, r->sigma_k1,
+      r->cal.camera.k2, r->sigma_k2, truth.camera.k2, MaxProjectionDiffPx(r->cal, truth));
   EXPECT_LT(std::abs(r->cal.camera.fx / truth.camera.fx - 1), 0.005);
   EXPECT_GT(r->sigma_k2, CalibrateOptions{}.max_k2_sigma);  // so kAuto fixes it
 }
@@ -165,28 +169,33 @@ TEST_F(CalibrateSim, MatchesTheSimTruth) {
   const RigCalibration truth = Truth(kW, kH);
   const auto C = cal.CameraCentreTable0(), Ct = truth.CameraCentreTable0();
   // The turntable axis (table z) as the camera sees it: third column of R.
-  const std::array<double, 3> axis = {cal.R_cam_table0[2], cal.R_cam_table0[5], cal.R_cam_table0[8]};
-  const std::array<double, 3> axis_t = {truth.R_cam_table0[2], truth.R_cam_table0[5], truth.R_cam_table0[8]};
+  const std::array<double, 3> axis = {cal.R_cam_table0[2], cal.R_cam_table0[5],
+                                      cal.R_cam_table0[8]};
+  const std::array<double, 3> axis_t = {truth.R_cam_table0[2], truth.R_cam_table0[5],
+                                        truth.R_cam_table0[8]};
   const double fx_err = cal.camera.fx / truth.camera.fx - 1;
   const double centre_err = std::hypot(C[0] - Ct[0], C[1] - Ct[1], C[2] - Ct[2]);
   const double axis_err = AngleBetweenDeg(axis, axis_t);
   const double rot_err = RotationDiffDeg(cal.R_cam_table0, truth.R_cam_table0);
   const double proj_err = MaxProjectionDiffPx(cal, truth);
   std::printf(
-      "capture %.1f s, calibrate %.1f s: views %d/%d, corners %d, RMS %.3f px (worst view %.3f, OpenCV init "
-      "%.3f)\n  fx %.2f (truth %.2f, %+.4f %%, sigma %.2f px), k1 %.4f (%.4f), k2 %.4f (%.4f)\n  camera centre "
+      "capture %.1f s, calibrate %.1f s: views %d/%d, corners %d, RMS %.3f px (worst view %.3f, "
+      "OpenCV init "
+      "%.3f)\n  fx %.2f (truth %.2f, %+.4f %%, sigma %.2f px), k1 %.4f (%.4f), k2 %.4f (%.4f)\n  "
+      "camera centre "
       "error %.3f mm, "
-      "axis %.4f deg, rotation %.4f deg, board (%.2f, %.2f) mm yaw %.3f deg\n  projection over the disc "
+      "axis %.4f deg, rotation %.4f deg, board (%.2f, %.2f) mm yaw %.3f deg\n  projection over the "
+      "disc "
       "up to 150 mm: max %.3f px\n",
-      capture_s_, r->seconds, cal.views_used, r->views_total, cal.corners_used, cal.reprojection_rms_px,
-      r->max_view_rms_px, r->init_rms_px, cal.camera.fx, truth.camera.fx, 100 * fx_err, r->sigma_fx_px, cal.camera.k1,
-      truth.camera.k1, cal.camera.k2, truth.camera.k2, centre_err, axis_err, rot_err, r->board_x_mm, r->board_y_mm,
-      r->board_yaw_deg, proj_err);
+      capture_s_, r->seconds, cal.views_used, r->views_total, cal.corners_used,
+      cal.reprojection_rms_px, r->max_view_rms_px, r->init_rms_px, cal.camera.fx, truth.camera.fx,
+      100 * fx_err, r->sigma_fx_px, cal.camera.k1, truth.camera.k1, cal.camera.k2, truth.camera.k2,
+      centre_err, axis_err, rot_err, r->board_x_mm, r->board_y_mm, r->board_yaw_deg, proj_err);
   EXPECT_EQ(cal.views_used, 30);
   EXPECT_GE(cal.corners_used, 30 * 20);
-  // Measured (seed 11, 2016x1512): RMS 0.045 px, fx -0.0000 % (sigma 0.39 px = 0.014 %), k1 -0.0801,
-  // centre 0.007 mm, axis 0.0004 deg, board 0.00 mm / 0.000 deg, projection 0.13 px. Tolerances
-  // leave 5-20x margin for other seeds and platforms.
+  // Measured (seed 11, 2016x1512): RMS 0.045 px, fx -0.0000 % (sigma 0.39 px = 0.014 %), k1
+  // -0.0801, centre 0.007 mm, axis 0.0004 deg, board 0.00 mm / 0.000 deg, projection 0.13 px.
+  // Tolerances leave 5-20x margin for other seeds and platforms.
   EXPECT_LT(cal.reprojection_rms_px, 0.2);
   EXPECT_LT(std::abs(fx_err), 0.001);
   EXPECT_NEAR(cal.camera.k1, truth.camera.k1, 0.005);
@@ -228,7 +237,8 @@ TEST_F(CalibrateSim, CommandWritesTheFileAndKeepsThePreviousOne) {
   EXPECT_EQ(prev, 1);
   // --out and --state-dir together are a usage error.
   std::ostringstream o3, e3;
-  EXPECT_EQ(RunCalibrateCommand({sample_, "--state-dir", state, "--out", state + "/x.json"}, o3, e3), 2);
+  EXPECT_EQ(
+      RunCalibrateCommand({sample_, "--state-dir", state, "--out", state + "/x.json"}, o3, e3), 2);
 }
 
 TEST_F(CalibrateSim, TooFewViewsIsRefusedWithWhatToDo) {
@@ -243,14 +253,16 @@ TEST_F(CalibrateSim, TooFewViewsIsRefusedWithWhatToDo) {
   const std::string msg = r.error().message;
   EXPECT_NE(msg.find("found in 5 of 5 views"), std::string::npos) << msg;
   EXPECT_NE(msg.find("at least 8 views"), std::string::npos) << msg;
-  for (const char* hint : {"in view", "lit", "focus"}) EXPECT_NE(msg.find(hint), std::string::npos) << hint;
+  for (const char* hint : {"in view", "lit", "focus"})
+    EXPECT_NE(msg.find(hint), std::string::npos) << hint;
   // Views over too little rotation: the axis cannot be found.
   CalibrateOptions narrow;
   narrow.min_views = 3;
   narrow.min_rotation_deg = 60;
   r = CalibrateSampleSide(s, 1, CalibrationConfig{}, narrow);
   ASSERT_FALSE(r);
-  EXPECT_NE(r.error().message.find("deg of turntable rotation"), std::string::npos) << r.error().message;
+  EXPECT_NE(r.error().message.find("deg of turntable rotation"), std::string::npos)
+      << r.error().message;
 }
 
 TEST_F(CalibrateSim, WrongBoardConfigFindsNoCorners) {
@@ -258,7 +270,8 @@ TEST_F(CalibrateSim, WrongBoardConfigFindsNoCorners) {
   other.dictionary = "DICT_4X4_50";
   auto r = CalibrateSampleSide(sample_, 1, other);
   ASSERT_FALSE(r);
-  EXPECT_NE(r.error().message.find("found in 0 of 30 views"), std::string::npos) << r.error().message;
+  EXPECT_NE(r.error().message.find("found in 0 of 30 views"), std::string::npos)
+      << r.error().message;
   EXPECT_NE(r.error().message.find("DICT_4X4_50"), std::string::npos);
 }
 
@@ -293,7 +306,8 @@ TEST(CalibrateSimRock, RockCaptureHasNoBoardAndRecordsTheCalibrationGiven) {
   EXPECT_EQ(recorded->created_utc, "2026-03-04T05:06:07Z");
   auto r = CalibrateSampleSide(s, 1, CalibrationConfig{});
   ASSERT_FALSE(r);
-  EXPECT_NE(r.error().message.find("found in 0 of 6 views"), std::string::npos) << r.error().message;
+  EXPECT_NE(r.error().message.find("found in 0 of 6 views"), std::string::npos)
+      << r.error().message;
 }
 
 }  // namespace

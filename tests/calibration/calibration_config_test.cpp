@@ -28,27 +28,37 @@ TEST(CalibrationConfig, DefaultsFitTheDisc) {
   EXPECT_EQ(c.calibration.squares_x, 7);
   EXPECT_EQ(c.calibration.squares_y, 5);
   EXPECT_TRUE(Problems("").empty());
-  EXPECT_TRUE(Problems("[calibration]\nsquares_x = 9\nsquares_y = 6\nsquare_mm = 25.0\nmarker_mm = 18.0\n").empty());
+  EXPECT_TRUE(
+      Problems("[calibration]\nsquares_x = 9\nsquares_y = 6\nsquare_mm = 25.0\nmarker_mm = 18.0\n")
+          .empty());
 }
 
 TEST(CalibrationConfig, BadValuesAreNamedWithTheirLine) {
-  ExpectOne("[calibration]\ndictionary = \"DICT_9X9_1\"\n", "calibration.dictionary", 2, "must be one of");
+  ExpectOne("[calibration]\ndictionary = \"DICT_9X9_1\"\n", "calibration.dictionary", 2,
+            "must be one of");
   ExpectOne("[calibration]\nsquares_x = 2\n", "calibration.squares_x", 2, "must be in 3..40");
   ExpectOne("[calibration]\n\nsquare_mm = -3.0\n", "calibration.square_mm", 3, "must be > 0");
-  ExpectOne("[calibration]\nmarker_mm = 30.0\n", "calibration.marker_mm", 2, "smaller than calibration.square_mm");
-  ExpectOne("[calibration]\nsquares_x = 12\nsquares_y = 9\nsquare_mm = 15.0\nmarker_mm = 11.0\ndictionary = \"DICT_4X4_50\"\n",
-            "calibration.dictionary", 6, "needs 54");
-  ExpectOne("[calibration]\nsquare_mm = 45.0\n", "calibration.square_mm", 2, "does not fit on the 305 mm turntable");
-  ExpectOne("[calibration]\nsquare_x = 7\n", "calibration.square_x", 2, "did you mean calibration.squares_x?");
-  ExpectOne("[calibration]\nsquares_y = \"five\"\n", "calibration.squares_y", 2, "expected an integer");
+  ExpectOne("[calibration]\nmarker_mm = 30.0\n", "calibration.marker_mm", 2,
+            "smaller than calibration.square_mm");
+  ExpectOne(
+      "[calibration]\nsquares_x = 12\nsquares_y = 9\nsquare_mm = 15.0\nmarker_mm = "
+      "11.0\ndictionary = \"DICT_4X4_50\"\n",
+      "calibration.dictionary", 6, "needs 54");
+  ExpectOne("[calibration]\nsquare_mm = 45.0\n", "calibration.square_mm", 2,
+            "does not fit on the 305 mm turntable");
+  ExpectOne("[calibration]\nsquare_x = 7\n", "calibration.square_x", 2,
+            "did you mean calibration.squares_x?");
+  ExpectOne("[calibration]\nsquares_y = \"five\"\n", "calibration.squares_y", 2,
+            "expected an integer");
 }
 
 TEST(CalibrationConfig, CharucoSceneNeedsTheBoardOnTheDisc) {
   ExpectOne("[sim]\nscene = \"charuco\"\n", "sim.board_image", 0, "aggscan calibrate board");
   ExpectOne("[sim]\nscene = \"table\"\n", "sim.scene", 2, "rock | charuco");
-  ExpectOne("[sim]\nscene = \"charuco\"\nboard_image = \"b.pgm\"\nboard_x_mm = 40.0\n", "sim.board_x_mm", 4,
-            "beyond the disc edge");
-  EXPECT_TRUE(Problems("[sim]\nscene = \"charuco\"\nboard_image = \"b.pgm\"\nboard_x_mm = 6.0\nboard_yaw_deg = 30.0\n")
+  ExpectOne("[sim]\nscene = \"charuco\"\nboard_image = \"b.pgm\"\nboard_x_mm = 40.0\n",
+            "sim.board_x_mm", 4, "beyond the disc edge");
+  EXPECT_TRUE(Problems("[sim]\nscene = \"charuco\"\nboard_image = \"b.pgm\"\nboard_x_mm = "
+                       "6.0\nboard_yaw_deg = 30.0\n")
                   .empty());
 }
 

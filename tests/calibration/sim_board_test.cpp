@@ -7,7 +7,7 @@
 #include "common/fsutil.h"
 #include "drivers/sim/jpeg.h"
 #include "drivers/sim/render.h"
-#include "pipeline/calibrate.h"
+#include "pipeline/calib/calibrate.h"
 #include "tests/util/temp_dir.h"
 
 namespace aggscan {
@@ -42,7 +42,8 @@ CornerErrors RenderAndCompare(int width, int height, double platter_deg, bool jp
   if (jpeg) {
     auto bytes = sim::EncodeJpeg(img.rgb.data(), width, height, c.camera.jpeg_quality);
     EXPECT_TRUE(bytes);
-    EXPECT_TRUE(WriteFileAtomic(path, std::span<const unsigned char>(bytes->data(), bytes->size())));
+    EXPECT_TRUE(
+        WriteFileAtomic(path, std::span<const unsigned char>(bytes->data(), bytes->size())));
   } else {
     EXPECT_TRUE(sim::WritePpm(img.rgb, width, height, path));
   }
@@ -75,16 +76,19 @@ TEST(SimBoard, CornersAreWhereTheTruthProjectsThem) {
   for (double angle : {0.0, 77.0, 200.0}) {
     for (bool jpeg : {false, true}) {
       const CornerErrors e = RenderAndCompare(2016, 1512, angle, jpeg);
-      std::printf("2016x1512 %s %5.1f deg: %d corners, mean %.3f px, rms %.3f, max %.3f, bias (%.3f, %.3f)\n",
-                  jpeg ? "jpeg" : "ppm ", angle, e.n, e.mean, e.rms, e.max, e.mean_du, e.mean_dv);
+      std::printf(
+          "2016x1512 %s %5.1f deg: %d corners, mean %.3f px, rms %.3f, max %.3f, bias (%.3f, "
+          "%.3f)\n",
+          jpeg ? "jpeg" : "ppm ", angle, e.n, e.mean, e.rms, e.max, e.mean_du, e.mean_dv);
       EXPECT_EQ(e.n, 24);
       EXPECT_LT(e.rms, 0.15);
       EXPECT_LT(e.max, 0.35);
     }
   }
   const CornerErrors half = RenderAndCompare(1008, 756, 77.0, true);
-  std::printf("1008x756 jpeg 77 deg: %d corners, mean %.3f px, rms %.3f, max %.3f, bias (%.3f, %.3f)\n", half.n,
-              half.mean, half.rms, half.max, half.mean_du, half.mean_dv);
+  std::printf(
+      "1008x756 jpeg 77 deg: %d corners, mean %.3f px, rms %.3f, max %.3f, bias (%.3f, %.3f)\n",
+      half.n, half.mean, half.rms, half.max, half.mean_du, half.mean_dv);
   EXPECT_EQ(half.n, 24);
   EXPECT_LT(half.rms, 0.25);
 }

@@ -97,8 +97,10 @@ TEST(StateMachine, EveryPhaseEventPair) {
   for (const Row& r : kTable) table[{r.from, r.event}] = r;
   for (Phase p : {Phase::kHoming, Phase::kRotating, Phase::kSettling, Phase::kWaitingDue,
                   Phase::kCapturing, Phase::kStoring, Phase::kFinishing, Phase::kAwaitingPose}) {
-    table[{p, "device_fault"}] = {p, "device_fault", Phase::kFaulted, "stop_motion,mark_interrupted,record_fault"};
-    table[{p, "store_failed"}] = {p, "store_failed", Phase::kFaulted, "stop_motion,mark_interrupted,record_fault"};
+    table[{p, "device_fault"}] = {p, "device_fault", Phase::kFaulted,
+                                  "stop_motion,mark_interrupted,record_fault"};
+    table[{p, "store_failed"}] = {p, "store_failed", Phase::kFaulted,
+                                  "stop_motion,mark_interrupted,record_fault"};
     table[{p, "abort"}] = {p, "abort", Phase::kIdle, "stop_motion,mark_aborted"};
   }
   int accepted = 0, rejected = 0;
@@ -193,13 +195,15 @@ TEST(StateMachine, MoveTargetsAreViewTimesStep) {
 }
 
 TEST(StateMachine, FaultRecordsReasonAndInterruptedSide) {
-  StepResult r = Step(InPhase(Phase::kCapturing), DeviceFault{ErrorClass::kStalled, "turntable stalled at 47 deg"});
+  StepResult r = Step(InPhase(Phase::kCapturing),
+                      DeviceFault{ErrorClass::kStalled, "turntable stalled at 47 deg"});
   ASSERT_TRUE(r.accepted);
   EXPECT_EQ(r.next.fault_class, ErrorClass::kStalled);
   EXPECT_EQ(r.next.fault_message, "turntable stalled at 47 deg");
   EXPECT_EQ(std::get<MarkInterrupted>(r.effects[1]).side, 1);
   // Awaiting the next pose: no side is in progress, the finished ones stay complete.
-  StepResult a = Step(InPhase(Phase::kAwaitingPose), DeviceFault{ErrorClass::kDisconnected, "gone"});
+  StepResult a =
+      Step(InPhase(Phase::kAwaitingPose), DeviceFault{ErrorClass::kDisconnected, "gone"});
   EXPECT_EQ(std::get<MarkInterrupted>(a.effects[1]).side, 0);
 }
 
@@ -212,7 +216,8 @@ TEST(StateMachine, ArmRejectsBadPlanAndBusyRig) {
   StepResult busy = Step(InPhase(Phase::kCapturing), Arm{"y", Plan{}, 1});
   EXPECT_FALSE(busy.accepted);
   EXPECT_NE(busy.reason.find("abort it first"), std::string::npos);
-  EXPECT_NE(Step(InPhase(Phase::kFaulted), Arm{"y", Plan{}, 1}).reason.find("reset"), std::string::npos);
+  EXPECT_NE(Step(InPhase(Phase::kFaulted), Arm{"y", Plan{}, 1}).reason.find("reset"),
+            std::string::npos);
 }
 
 TEST(StateMachine, FullSampleWalk) {

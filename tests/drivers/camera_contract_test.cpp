@@ -82,7 +82,8 @@ CameraSetup SetupV4l2() {
   }
   const std::string node = testutil::FindCaptureNode(driver);
   if (node.empty()) {
-    ADD_FAILURE() << "AGGSCAN_V4L2_CONTRACT_DRIVER=" << driver << " but no capture node of that driver";
+    ADD_FAILURE() << "AGGSCAN_V4L2_CONTRACT_DRIVER=" << driver
+                  << " but no capture node of that driver";
     s.skip = "no device";
     return s;
   }
@@ -121,7 +122,8 @@ CameraSetup SetupLibcamera() {
   for (const auto& cam : (*manager)->cameras())
     if (cam->id().find(want) != std::string::npos) c.libcamera.camera_id = cam->id();
   if (c.libcamera.camera_id.empty()) {
-    ADD_FAILURE() << "AGGSCAN_LIBCAMERA_CONTRACT_CAMERA=" << want << " but libcamera lists no such camera";
+    ADD_FAILURE() << "AGGSCAN_LIBCAMERA_CONTRACT_CAMERA=" << want
+                  << " but libcamera lists no such camera";
     s.skip = "no camera";
     return s;
   }
@@ -147,7 +149,8 @@ CameraSetup SetupLibcamera() {
 // Readable names where gtest prints the parameter.
 void PrintTo(const BackendParam& b, std::ostream* os) { *os << b.name; }
 
-const BackendParam kBackends[] = {{"sim", SetupSim}, {"v4l2", SetupV4l2}, {"libcamera", SetupLibcamera}};
+const BackendParam kBackends[] = {
+    {"sim", SetupSim}, {"v4l2", SetupV4l2}, {"libcamera", SetupLibcamera}};
 
 // The locked settings every test asks for (white balance off neutral, so a
 // backend that ignores it is seen).
@@ -166,8 +169,8 @@ CameraSettings Settings(int w, int h) {
 // Takes one still and waits for it (bounded: a hang guard, longer than any
 // backend's frame timeout).
 Result<FramePtr> TakeStill(Camera& cam, int view, std::thread::id* delivered_on = nullptr) {
-  return testutil::TakeStill(cam, {static_cast<uint64_t>(100 + view), "contract", 1, view}, delivered_on,
-                             std::chrono::seconds(120));
+  return testutil::TakeStill(cam, {static_cast<uint64_t>(100 + view), "contract", 1, view},
+                             delivered_on, std::chrono::seconds(120));
 }
 
 // Takes a still and checks it is a JPEG of w x h, framed as that; null when
@@ -193,7 +196,8 @@ FramePtr ExpectStill(Camera& cam, int view, int w, int h, std::thread::id* deliv
 }
 
 bool Named(const Frame& f, const std::string& setting) {
-  return std::find(f.missing_controls.begin(), f.missing_controls.end(), setting) != f.missing_controls.end();
+  return std::find(f.missing_controls.begin(), f.missing_controls.end(), setting) !=
+         f.missing_controls.end();
 }
 
 // Every locked setting is either the locked value or named as missing, with
@@ -207,8 +211,9 @@ void ExpectLockedOrNamed(const Frame& f, const CameraSettings& s) {
     const char* name;
     double got, locked, unknown;
   };
-  for (const Check& c : {Check{"exposure", f.exposure_us, s.exposure_us, 0.0}, Check{"gain", f.gain, s.gain, 0.0},
-                         Check{"wb_red", f.wb_red, s.wb_red, 1.0}, Check{"wb_blue", f.wb_blue, s.wb_blue, 1.0}}) {
+  for (const Check& c :
+       {Check{"exposure", f.exposure_us, s.exposure_us, 0.0}, Check{"gain", f.gain, s.gain, 0.0},
+        Check{"wb_red", f.wb_red, s.wb_red, 1.0}, Check{"wb_blue", f.wb_blue, s.wb_blue, 1.0}}) {
     if (Named(f, c.name)) {
       EXPECT_DOUBLE_EQ(c.got, c.unknown) << c.name << " has no control: it must not read as locked";
     } else {
@@ -334,7 +339,8 @@ TEST_P(CameraContract, StrictControlsLockEverythingOrNameWhatTheyCannot) {
   const std::vector<std::string> missing = (*f)->missing_controls;
   lenient.Close();
 
-  Camera& strict = Make([](CameraConfig& c) { c.v4l2.strict_controls = c.libcamera.strict_controls = true; });
+  Camera& strict =
+      Make([](CameraConfig& c) { c.v4l2.strict_controls = c.libcamera.strict_controls = true; });
   ASSERT_TRUE(strict.Open());
   Status s = strict.Configure(Ordinary());
   if (missing.empty()) {
@@ -405,7 +411,8 @@ TEST_P(CameraContract, ASizeTheDeviceCannotGiveIsRefusedAndLeavesItOpened) {
   ASSERT_TRUE(cam.Configure(Ordinary()));
   ASSERT_TRUE(ExpectStill(cam, 0, setup_.width, setup_.height));
   const bool every_size = setup_.odd_width == 0;
-  const CameraSettings odd = every_size ? Settings(641, 481) : Settings(setup_.odd_width, setup_.odd_height);
+  const CameraSettings odd =
+      every_size ? Settings(641, 481) : Settings(setup_.odd_width, setup_.odd_height);
   Status s = cam.Configure(odd);
   if (every_size) {
     ASSERT_TRUE(s.ok()) << s.error().ToString();
@@ -413,9 +420,11 @@ TEST_P(CameraContract, ASizeTheDeviceCannotGiveIsRefusedAndLeavesItOpened) {
   } else {
     ASSERT_FALSE(s.ok()) << "the device cannot give " << odd.width << "x" << odd.height;
     EXPECT_EQ(s.error().cls, ErrorClass::kInvalidConfig) << s.error().ToString();
-    EXPECT_THAT(s.error().message, HasSubstr(std::to_string(odd.width) + "x" + std::to_string(odd.height)));
+    EXPECT_THAT(s.error().message,
+                HasSubstr(std::to_string(odd.width) + "x" + std::to_string(odd.height)));
     EXPECT_EQ(cam.state(), Camera::State::kOpened);
-    EXPECT_EQ(cam.RequestStill({1, "c", 1, 1}, [](Result<FramePtr>) {}).error().cls, ErrorClass::kInvalidState)
+    EXPECT_EQ(cam.RequestStill({1, "c", 1, 1}, [](Result<FramePtr>) {}).error().cls,
+              ErrorClass::kInvalidState)
         << "no still with settings the camera no longer has";
     Status again = cam.Configure(Ordinary());
     ASSERT_TRUE(again.ok()) << again.error().ToString();
@@ -452,7 +461,9 @@ TEST_P(CameraContract, FullResolutionStill) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Backends, CameraContract, ::testing::ValuesIn(kBackends),
-                         [](const ::testing::TestParamInfo<BackendParam>& i) { return std::string(i.param.name); });
+                         [](const ::testing::TestParamInfo<BackendParam>& i) {
+                           return std::string(i.param.name);
+                         });
 
 // The base class's part of the rule above, on every machine: a backend that
 // refuses a Configure (after stopping its stream, as V4L2 and libcamera do)
@@ -466,7 +477,8 @@ class RefusingCamera final : public Camera {
  protected:
   Status DoOpen() override { return OkStatus(); }
   Status DoConfigure(const CameraSettings& s) override {
-    if (refuse) return MakeError(ErrorClass::kInvalidConfig, "cannot deliver " + std::to_string(s.width));
+    if (refuse)
+      return MakeError(ErrorClass::kInvalidConfig, "cannot deliver " + std::to_string(s.width));
     return OkStatus();
   }
   Status DoRequestStill(const StillRequest&, FrameCallback done) override {

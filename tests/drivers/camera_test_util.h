@@ -80,7 +80,8 @@ inline std::pair<int, int> LargestFrameSize(const std::string& node, uint32_t fo
       h = static_cast<int>(fs.stepwise.max_height);
       break;
     }
-    if (static_cast<int64_t>(fs.discrete.width) * fs.discrete.height > static_cast<int64_t>(w) * h) {
+    if (static_cast<int64_t>(fs.discrete.width) * fs.discrete.height >
+        static_cast<int64_t>(w) * h) {
       w = static_cast<int>(fs.discrete.width);
       h = static_cast<int>(fs.discrete.height);
     }

@@ -22,16 +22,18 @@ TEST(Factory, UnknownBackendNamesTheKeyAndTheKnownOnes) {
   auto r = CreateRig(c, clock);
   ASSERT_FALSE(r.ok());
   EXPECT_EQ(r.error().cls, ErrorClass::kInvalidConfig);
-  EXPECT_EQ(r.error().message, "camera.backend \"foo\" is not known; available: sim, v4l2, libcamera");
+  EXPECT_EQ(r.error().message,
+            "camera.backend \"foo\" is not known; available: sim, v4l2, libcamera");
 
   c = Config{};
   c.turntable.backend = "usb";
   c.button.backend = "knob";
   r = CreateRig(c, clock);
   ASSERT_FALSE(r.ok());
-  EXPECT_EQ(r.error().message,
-            "turntable.backend \"usb\" is not known; available: sim, modbus-tcp, modbus-rtu, usb-tic; "
-            "button.backend \"knob\" is not known; available: sim, gpio, evdev, modbus");
+  EXPECT_EQ(
+      r.error().message,
+      "turntable.backend \"usb\" is not known; available: sim, modbus-tcp, modbus-rtu, usb-tic; "
+      "button.backend \"knob\" is not known; available: sim, gpio, evdev, modbus");
 }
 
 TEST(Factory, ModbusTurntableFromConfigAndProfile) {

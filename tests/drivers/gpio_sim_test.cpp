@@ -20,12 +20,12 @@
 #include <thread>
 
 #include "common/clock.h"
-#include "tests/util/eventually.h"
 #include "config/config.h"
 #include "drivers/gpio/gpio_button.h"
 #include "drivers/gpio/gpio_light.h"
 #include "tests/drivers/gpio_sim_chip.h"
 #include "tests/scenario/process.h"
+#include "tests/util/eventually.h"
 
 namespace aggscan::gpio {
 namespace {
@@ -34,7 +34,7 @@ namespace gpiosim = test::gpiosim;
 using test::Eventually;
 using test::WriteFile;
 
-gpiosim::Chip g_sim;  // the simulated bank, made in main()
+gpiosim::Chip g_sim;                     // the simulated bank, made in main()
 const std::string& g_chip = g_sim.name;  // "gpiochipN"
 
 // The simulated level of a line's input (what a switch would do to it).
@@ -138,7 +138,7 @@ TEST(GpioSim, ActiveLowPressIsTheFallingEdge) {
   const int before = b.edges_seen();
   Pull(0, false);  // pressed: pulled to ground
   ASSERT_TRUE(Eventually([&] { return got.n == 1; })) << "falling edge not taken as a press";
-  Pull(0, true);   // released
+  Pull(0, true);  // released
   ASSERT_TRUE(Eventually([&] { return b.edges_seen() >= before + 2; }));
   EXPECT_EQ(got.n, 1) << "the rising edge of an active-low button must not press";
   b.Stop();
@@ -168,7 +168,8 @@ TEST(GpioSim, BusyMissingAndUnknownLinesAreClassified) {
   GpioButton far(clock, Config("9", false, 20 * kNsPerMs));
   s = far.Start([](const ButtonPress&) {});
   ASSERT_FALSE(s.ok());
-  EXPECT_NE(s.error().message.find("has 4 lines; no line 9"), std::string::npos) << s.error().ToString();
+  EXPECT_NE(s.error().message.find("has 4 lines; no line 9"), std::string::npos)
+      << s.error().ToString();
 
   ButtonConfig c = Config("start", false, 20 * kNsPerMs);
   c.gpio.chip = "gpiochip77";
@@ -176,7 +177,8 @@ TEST(GpioSim, BusyMissingAndUnknownLinesAreClassified) {
   s = nochip.Start([](const ButtonPress&) {});
   ASSERT_FALSE(s.ok());
   EXPECT_EQ(s.error().cls, ErrorClass::kDeviceMissing);
-  EXPECT_NE(s.error().message.find("no GPIO chip 'gpiochip77'"), std::string::npos) << s.error().ToString();
+  EXPECT_NE(s.error().message.find("no GPIO chip 'gpiochip77'"), std::string::npos)
+      << s.error().ToString();
 }
 
 TEST(GpioSim, LightLineFollowsThePattern) {
@@ -224,10 +226,13 @@ TEST(GpioSim, SimulatedPressStartsACaptureInAggscand) {
   ASSERT_TRUE(d.ok()) << test::ReadAll(d.log());
   int code = 0;
   json h;
-  ASSERT_TRUE(Eventually([&] {
-    h = d.Get("/api/v1/health", &code);
-    return h.is_object() && h["devices"]["button"].value("state", "") == "ok";
-  }, 60)) << h.dump() << test::ReadAll(d.log());
+  ASSERT_TRUE(Eventually(
+      [&] {
+        h = d.Get("/api/v1/health", &code);
+        return h.is_object() && h["devices"]["button"].value("state", "") == "ok";
+      },
+      60))
+      << h.dump() << test::ReadAll(d.log());
   EXPECT_EQ(h["devices"]["button"]["backend"], "gpio");
   EXPECT_TRUE(Eventually([&] { return Value(1) == 1; })) << "the lamp shows ready (steady on)";
 
@@ -246,7 +251,9 @@ TEST(GpioSim, SimulatedPressStartsACaptureInAggscand) {
   // The lamp blinks while the side runs.
   EXPECT_TRUE(Eventually([&] { return Value(1) == 0; }, 60)) << "no blink while capturing";
   ASSERT_TRUE(d.WaitFor(
-      [](const json& s) { return s.value("state", "") == "idle" && s.value("views_captured", 0) == 2; },
+      [](const json& s) {
+        return s.value("state", "") == "idle" && s.value("views_captured", 0) == 2;
+      },
       120, &st))
       << st.dump() << test::ReadAll(d.log());
   EXPECT_TRUE(Eventually([&] { return Value(1) == 1; })) << "steady again when idle";

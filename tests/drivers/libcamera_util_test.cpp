@@ -143,7 +143,8 @@ TEST(LibcameraUtil, ValuesOutsideTheControlRangeAreRefused) {
   Result<ControlPlan> p = PlanControls(FullInfo(), s);
   ASSERT_FALSE(p.ok());
   EXPECT_EQ(p.error().cls, ErrorClass::kInvalidConfig);
-  EXPECT_THAT(p.error().message, HasSubstr("exposure 100000 us is outside the camera's range 100..66666 us"));
+  EXPECT_THAT(p.error().message,
+              HasSubstr("exposure 100000 us is outside the camera's range 100..66666 us"));
   s = Manual();
   s.gain = 20;
   p = PlanControls(FullInfo(), s);
@@ -165,7 +166,8 @@ TEST(LibcameraUtil, AutomaticExposureSwitchesTheLoopsOnAndLocksNothing) {
 TEST(LibcameraUtil, MetadataIsReadBackAndCheckedAgainstTheLockedValues) {
   libcamera::ControlList md(controls::controls);
   EXPECT_FALSE(ReadMetadata(md).has_exposure);
-  EXPECT_EQ(UnsettledReason(ReadMetadata(md), Manual(), {}), "") << "nothing reported, nothing to check";
+  EXPECT_EQ(UnsettledReason(ReadMetadata(md), Manual(), {}), "")
+      << "nothing reported, nothing to check";
   md.set(controls::ExposureTime, 5990);  // quantised to sensor lines: within 2 %
   md.set(controls::AnalogueGain, 1.5f);
   md.set(controls::ColourGains, libcamera::Span<const float, 2>({1.8f, 1.3f}));
@@ -201,11 +203,13 @@ TEST(LibcameraUtil, CameraPickedByIdOrIndexElseMissingWithTheList) {
                         "B\", \"/base/usb-cam\""));
   Result<std::string> none = PickCamera({}, "", 0);
   ASSERT_FALSE(none.ok());
-  EXPECT_THAT(none.error().message, HasSubstr("no libcamera camera at index 0; cameras found: none"));
+  EXPECT_THAT(none.error().message,
+              HasSubstr("no libcamera camera at index 0; cameras found: none"));
 }
 
 TEST(LibcameraUtil, ErrorsAreClassifiedLikeV4l2s) {
-  EXPECT_EQ(LibcameraError("c", "queueing a request", -ENODEV, true).cls, ErrorClass::kDisconnected);
+  EXPECT_EQ(LibcameraError("c", "queueing a request", -ENODEV, true).cls,
+            ErrorClass::kDisconnected);
   EXPECT_EQ(LibcameraError("c", "acquire", -ENODEV, false).cls, ErrorClass::kDeviceMissing);
   EXPECT_EQ(LibcameraError("c", "start", -ETIMEDOUT, true).cls, ErrorClass::kTimeout);
   Error busy = LibcameraError("c", "acquire", -EBUSY, false);
@@ -257,9 +261,9 @@ frame_timeout = "0s"
   ASSERT_FALSE(bad.ok());
   std::string all;
   for (const auto& p : problems) all += p.ToString() + "\n";
-  for (const char* key : {"camera.libcamera.role", "camera.libcamera.pixel_format",
-                          "camera.libcamera.buffers", "camera.libcamera.index",
-                          "camera.libcamera.frame_timeout"})
+  for (const char* key :
+       {"camera.libcamera.role", "camera.libcamera.pixel_format", "camera.libcamera.buffers",
+        "camera.libcamera.index", "camera.libcamera.frame_timeout"})
     EXPECT_THAT(all, HasSubstr(key));
 }
 
@@ -277,7 +281,8 @@ TEST(LibcameraFactory, BackendIsBuiltOrNamesThePackage) {
   Status s = rig->camera->Open();
   ASSERT_FALSE(s.ok());
   EXPECT_EQ(s.error().cls, ErrorClass::kDeviceMissing) << s.error().ToString();
-  EXPECT_THAT(s.error().message, HasSubstr("no libcamera camera \"no-such-camera\"; cameras found: "));
+  EXPECT_THAT(s.error().message,
+              HasSubstr("no libcamera camera \"no-such-camera\"; cameras found: "));
   EXPECT_EQ(rig->camera->state(), Camera::State::kClosed);
 #else
   ASSERT_FALSE(rig.ok());

@@ -136,13 +136,15 @@ TEST_F(Vimc, StillsAreFreshOnTheDriverThreadInTheRightColours) {
   for (const auto& f : neg.offered) offered += f.toString() + " ";
   std::string ctrls;
   for (const auto& n : neg.controls) ctrls += n + " ";
-  std::fprintf(stderr, "vimc: role still -> %s %dx%d stride %d, %u buffers; offered: %s; controls: %s\n",
+  std::fprintf(stderr,
+               "vimc: role still -> %s %dx%d stride %d, %u buffers; offered: %s; controls: %s\n",
                neg.format.toString().c_str(), neg.width, neg.height, neg.stride, neg.buffers,
                offered.c_str(), ctrls.c_str());
   EXPECT_EQ(neg.format.toString(), "BGR888") << "the pipeline's default, R, G, B in memory";
   EXPECT_THAT(neg.controls, ElementsAre("Brightness", "Contrast", "Saturation"));
   EXPECT_THAT(neg.missing_controls, ElementsAre("exposure", "gain", "wb_red", "wb_blue"));
-  EXPECT_EQ(MappedDmabufs(static_cast<size_t>(neg.stride) * neg.height), static_cast<int>(neg.buffers))
+  EXPECT_EQ(MappedDmabufs(static_cast<size_t>(neg.stride) * neg.height),
+            static_cast<int>(neg.buffers))
       << "one mapping per frame buffer";
   uint64_t last_seq = 0;
   for (uint64_t v = 0; v < 3; ++v) {
@@ -199,7 +201,8 @@ TEST_F(Vimc, ASizeThePipelineAdjustsIsRefused) {
   c.width = 640;
   LibcameraCamera cam(clock_, c);
   ASSERT_TRUE(cam.Open());
-  ExpectConfigureRefused(cam, Settings(c), "cannot deliver BGR888 640x480; it offers BGR888 636x480");
+  ExpectConfigureRefused(cam, Settings(c),
+                         "cannot deliver BGR888 640x480; it offers BGR888 636x480");
   cam.Close();
 }
 
@@ -281,7 +284,8 @@ TEST_F(Vimc, FullResolutionStill) {
 // is dropped first and the backend's Close releases the last one, which is
 // what the daemon's close-and-reopen does too.
 TEST_F(Vimc, ZzUnbindIsDisconnectedThenMissingThenRecovers) {
-  if (std::getenv("AGGSCAN_IN_VM") == nullptr) GTEST_SKIP() << "not unbinding drivers outside the VM";
+  if (std::getenv("AGGSCAN_IN_VM") == nullptr)
+    GTEST_SKIP() << "not unbinding drivers outside the VM";
   g_manager.reset();
   const std::string drv = "/sys/bus/platform/drivers/vimc/";
   CameraConfig c = BaseConfig();

@@ -13,8 +13,8 @@
 #include <thread>
 
 #include "tests/drivers/modbus_test_server.h"
-#include "tests/util/eventually.h"
 #include "tests/scenario/process.h"
+#include "tests/util/eventually.h"
 
 namespace aggscan {
 namespace {
@@ -35,9 +35,12 @@ TEST(ModbusButtonDaemon, HealthPressAndLampThroughTheRealDaemon) {
   const std::string config = test::WriteConfig(
       t.path(),
       "[button]\nbackend = \"modbus\"\ndebounce = \"0s\"\n[button.modbus]\nlink = \"tcp\"\n"
-      "host = \"127.0.0.1\"\nport = " + std::to_string(port) + "\ninput = \"discrete\"\naddress = 2\n"
-      "poll_interval = \"10ms\"\n\n[light]\nbackend = \"modbus\"\n[light.modbus]\nlink = \"button\"\n"
-      "coil = 5\n\n[turntable]\nmax_speed_deg_s = 360.0\naccel_deg_s2 = 1440.0\n",
+      "host = \"127.0.0.1\"\nport = " +
+          std::to_string(port) +
+          "\ninput = \"discrete\"\naddress = 2\n"
+          "poll_interval = \"10ms\"\n\n[light]\nbackend = \"modbus\"\n[light.modbus]\nlink = "
+          "\"button\"\n"
+          "coil = 5\n\n[turntable]\nmax_speed_deg_s = 360.0\naccel_deg_s2 = 1440.0\n",
       1,
       "profile = \"custom\"\nsides = 2\nviews_per_side = 2\nstep_deg = 90.0\ninterval = \"1s\"\n"
       "settle = \"50ms\"\n");
@@ -59,7 +62,8 @@ TEST(ModbusButtonDaemon, HealthPressAndLampThroughTheRealDaemon) {
   EXPECT_EQ(b["state"], "device_missing") << h.dump();
   EXPECT_EQ(b["backend"], "modbus") << h.dump();
   const std::string msg = b["message"].get<std::string>();
-  EXPECT_EQ(msg.rfind("button: cannot reach Modbus unit 1 at 127.0.0.1:" + std::to_string(port), 0), 0u)
+  EXPECT_EQ(msg.rfind("button: cannot reach Modbus unit 1 at 127.0.0.1:" + std::to_string(port), 0),
+            0u)
       << msg;
   EXPECT_NE(msg.find("[button.modbus]"), std::string::npos) << msg;
   EXPECT_FALSE(h["devices"]["light"]["healthy"].get<bool>()) << h.dump();
@@ -89,16 +93,20 @@ TEST(ModbusButtonDaemon, HealthPressAndLampThroughTheRealDaemon) {
   EXPECT_TRUE(Eventually([&] { return !server->coil(5); })) << "lamp blinks while capturing";
   // Side 1 done: the lamp asks for the rock to be flipped; the next press
   // shoots side 2.
-  ASSERT_TRUE(d.WaitFor([](const json& s) { return s.value("state", "") == "awaiting_pose"; }, 30, &st))
+  ASSERT_TRUE(
+      d.WaitFor([](const json& s) { return s.value("state", "") == "awaiting_pose"; }, 30, &st))
       << st.dump() << test::ReadAll(d.log());
   h = d.Get("/api/v1/health", &code);
   EXPECT_EQ(h["devices"]["light"]["pattern"], "flip") << h.dump();
   server->SetDiscreteInput(2, true);
-  ASSERT_TRUE(d.WaitFor([](const json& s) { return s.value("state", "") != "awaiting_pose"; }, 20, &st))
+  ASSERT_TRUE(
+      d.WaitFor([](const json& s) { return s.value("state", "") != "awaiting_pose"; }, 20, &st))
       << st.dump();
   server->SetDiscreteInput(2, false);
   ASSERT_TRUE(d.WaitFor(
-      [](const json& s) { return s.value("state", "") == "idle" && s.value("views_captured", 0) == 4; },
+      [](const json& s) {
+        return s.value("state", "") == "idle" && s.value("views_captured", 0) == 4;
+      },
       30, &st))
       << st.dump() << test::ReadAll(d.log());
   EXPECT_TRUE(Eventually([&] { return server->coil(5); })) << "steady again when idle";
@@ -110,8 +118,9 @@ TEST(ModbusButtonDaemon, HealthPressAndLampThroughTheRealDaemon) {
     h = d.Get("/api/v1/health", &code);
     return h["devices"]["button"].value("state", "") == "timeout";
   })) << h.dump();
-  EXPECT_NE(h["devices"]["button"]["message"].get<std::string>().find("no answer from Modbus unit 1"),
-            std::string::npos)
+  EXPECT_NE(
+      h["devices"]["button"]["message"].get<std::string>().find("no answer from Modbus unit 1"),
+      std::string::npos)
       << h.dump();
   EXPECT_EQ(h["devices"]["light"]["pattern"], "fault") << h.dump();
   r = d.Post("/api/v1/samples", R"({"id": "rock-n"})", &code);

@@ -8,11 +8,11 @@
 #include <thread>
 
 #include "common/clock.h"
-#include "tests/util/eventually.h"
 #include "config/config.h"
 #include "drivers/factory.h"
 #include "drivers/modbus/modbus_io.h"
 #include "tests/drivers/modbus_test_server.h"
+#include "tests/util/eventually.h"
 
 namespace aggscan::modbus {
 namespace {

@@ -26,12 +26,14 @@ std::string WriteModbusConfig(const TempDir& t, const testing::ModbusTestServer&
   const TurntableConfig tt = testing::ModbusConfigFor(server, true);
   const std::string extra =
       "[turntable]\nbackend = \"modbus-tcp\"\nmax_speed_deg_s = 360.0\naccel_deg_s2 = 1440.0\n"
-      "[turntable.modbus]\nprofile = \"" + tt.modbus.profile + "\"\nhost = \"127.0.0.1\"\nport = " +
-      std::to_string(server.port()) + "\nmotor_steps_per_rev = 200\nmicrosteps = 16\n"
+      "[turntable.modbus]\nprofile = \"" +
+      tt.modbus.profile + "\"\nhost = \"127.0.0.1\"\nport = " + std::to_string(server.port()) +
+      "\nmotor_steps_per_rev = 200\nmicrosteps = 16\n"
       "gear_ratio = 10.0\n";
   const std::string capture =
       "profile = \"custom\"\nsides = 1\nviews_per_side = 4\nstep_deg = 90.0\ninterval = \"1s\"\n"
-      "settle = \"50ms\"\n" + capture_extra;
+      "settle = \"50ms\"\n" +
+      capture_extra;
   return test::WriteConfig(t.path(), extra, 1.0, capture);
 }
 
@@ -51,8 +53,8 @@ TEST(ModbusDaemon, SidecarsCarryTheAnglesThePeerReports) {
   ASSERT_EQ(code, 200);
   json last;
   ASSERT_TRUE(d.WaitFor(
-      [](const json& st) { return StateOf(st) == "idle" && st.value("views_captured", 0) == 4; }, 30,
-      &last))
+      [](const json& st) { return StateOf(st) == "idle" && st.value("views_captured", 0) == 4; },
+      30, &last))
       << last.dump() << ReadAll(d.log());
 
   const double step = 360.0 / 32000;

@@ -57,7 +57,8 @@ struct ModbusTestServer::Mapping {
 ModbusTestServer::ModbusTestServer(const ModbusServerOptions& options)
     : opt_(options), map_(std::make_unique<Mapping>()) {
   const bool gen = opt_.map == ServerMap::kGeneric;
-  map_->m = modbus_mapping_new_start_address(0, kBits, 0, kBits, gen ? generic::kFirst : leadshine::kFirst,
+  map_->m = modbus_mapping_new_start_address(0, kBits, 0, kBits,
+                                             gen ? generic::kFirst : leadshine::kFirst,
                                              gen ? generic::kCount : leadshine::kCount, 0, 0);
   if (!map_->m) throw std::runtime_error("modbus_mapping_new_start_address failed");
   UpdateRegisters(NowNs());
@@ -185,7 +186,8 @@ void ModbusTestServer::Handle(const uint8_t* req, int len) {
   const bool late = late_seconds_ > 0 && (late_function_ == 0 || late_function_ == function);
   const bool wrong_tid = wrong_tid_ && pty_master_ < 0;
   if (!late && !wrong_tid) {
-    if (modbus_reply(ctx_, req, len, map_->m) > 0 && function == MODBUS_FC_WRITE_SINGLE_COIL) ++coil_writes_;
+    if (modbus_reply(ctx_, req, len, map_->m) > 0 && function == MODBUS_FC_WRITE_SINGLE_COIL)
+      ++coil_writes_;
     ApplyCommands(now);
     UpdateRegisters(now);
     return;

@@ -87,7 +87,7 @@ class ModbusTestServer {
   // 4 reset; kLeadshine: the trigger values), in order, each write counted.
   std::vector<int> commands();
   std::vector<int64_t> rest_positions();  // where each of those moves came to rest, in order
-  int64_t min_steps_since_last_move();  // lowest position since the last move command
+  int64_t min_steps_since_last_move();    // lowest position since the last move command
   int64_t max_steps_since_last_move();
   uint16_t reg(int address);  // a holding register as the backend left it
   bool coil(int address);     // a coil as the backend left it

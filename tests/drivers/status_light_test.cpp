@@ -1,12 +1,13 @@
 // The status light's base: the pattern table, and the pattern thread driving
 // a recording backend (levels written on changes only, in the pattern's
 // order, a failed write reported as health and retried).
+#include "drivers/status_light.h"
+
 #include <gtest/gtest.h>
 
 #include <mutex>
 #include <vector>
 
-#include "drivers/status_light.h"
 #include "tests/util/eventually.h"
 
 namespace aggscan {
@@ -48,7 +49,8 @@ TEST(StatusLight, PatternTable) {
   EXPECT_TRUE(PatternSteps(LightPattern::kReady)[0].on);
   EXPECT_FALSE(PatternSteps(LightPattern::kOff)[0].on);
   // Capturing blinks slower than the flip request; fault is a double flash.
-  EXPECT_GT(PatternSteps(LightPattern::kCapturing)[0].duration, PatternSteps(LightPattern::kFlip)[0].duration);
+  EXPECT_GT(PatternSteps(LightPattern::kCapturing)[0].duration,
+            PatternSteps(LightPattern::kFlip)[0].duration);
   const auto& fault = PatternSteps(LightPattern::kFault);
   ASSERT_EQ(fault.size(), 4u);
   EXPECT_TRUE(fault[0].on && !fault[1].on && fault[2].on && !fault[3].on);
@@ -69,7 +71,8 @@ TEST(StatusLight, ThreadWritesLevelChangesInPatternOrder) {
   light.Show(LightPattern::kFlip);  // already lit: the first write is the next "off"
   ASSERT_TRUE(Eventually([&] { return light.levels().size() >= 6; }));
   const std::vector<bool> v = light.levels();
-  for (size_t i = 1; i < v.size(); ++i) EXPECT_NE(v[i], v[i - 1]) << "only changes are written, at " << i;
+  for (size_t i = 1; i < v.size(); ++i)
+    EXPECT_NE(v[i], v[i - 1]) << "only changes are written, at " << i;
   EXPECT_EQ(light.pattern(), LightPattern::kFlip);
   light.Close();
   EXPECT_FALSE(light.levels().back()) << "dark after close";

@@ -29,13 +29,25 @@ std::array<uint8_t, 0x2A> Block() {
   b[0x03] = 0x01;  //               ERR line high (bit 8)
   b[0x09] = 1;     // planning mode: target position
   // target position -1600 = 0xFFFFF9C0, little-endian
-  b[0x0A] = 0xC0; b[0x0B] = 0xF9; b[0x0C] = 0xFF; b[0x0D] = 0xFF;
+  b[0x0A] = 0xC0;
+  b[0x0B] = 0xF9;
+  b[0x0C] = 0xFF;
+  b[0x0D] = 0xFF;
   // max speed 2'666'667 = 0x0028B0AB
-  b[0x16] = 0xAB; b[0x17] = 0xB0; b[0x18] = 0x28; b[0x19] = 0x00;
+  b[0x16] = 0xAB;
+  b[0x17] = 0xB0;
+  b[0x18] = 0x28;
+  b[0x19] = 0x00;
   // current position 123456 = 0x0001E240
-  b[0x22] = 0x40; b[0x23] = 0xE2; b[0x24] = 0x01; b[0x25] = 0x00;
+  b[0x22] = 0x40;
+  b[0x23] = 0xE2;
+  b[0x24] = 0x01;
+  b[0x25] = 0x00;
   // current velocity -10000 = 0xFFFFD8F0
-  b[0x26] = 0xF0; b[0x27] = 0xD8; b[0x28] = 0xFF; b[0x29] = 0xFF;
+  b[0x26] = 0xF0;
+  b[0x27] = 0xD8;
+  b[0x28] = 0xFF;
+  b[0x29] = 0xFF;
   return b;
 }
 
@@ -71,7 +83,8 @@ TEST(TicProtocol, RejectsAShortBlockAndAnUnknownState) {
 
 TEST(TicProtocol, NamesErrorsAndStates) {
   EXPECT_EQ(tic::ErrorStatusText(0), "none");
-  EXPECT_EQ(tic::ErrorStatusText(0x0182), "motor driver error, safe start violation, ERR line high");
+  EXPECT_EQ(tic::ErrorStatusText(0x0182),
+            "motor driver error, safe start violation, ERR line high");
   EXPECT_EQ(tic::ErrorStatusText(1u << 12), "error bit 12");
   EXPECT_STREQ(tic::OperationStateName(2), "de-energized");
   EXPECT_STREQ(tic::ProductName(0x00B5), "Tic T834");

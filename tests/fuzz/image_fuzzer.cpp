@@ -15,9 +15,9 @@
 #include <sstream>
 #include <string>
 
+#include "cli/morph2d_command.h"
 #include "common/log.h"
-#include "pipeline/morph2d_cli.h"
-#include "pipeline/side_job.h"
+#include "pipeline/worker/side_job.h"
 #include "store/layout.h"
 #include "tests/fuzz/fuzz_util.h"
 

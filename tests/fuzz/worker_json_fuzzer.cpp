@@ -10,7 +10,7 @@
 #include <string>
 
 #include "common/log.h"
-#include "pipeline/side_job.h"
+#include "pipeline/worker/side_job.h"
 #include "store/layout.h"
 #include "tests/fuzz/fuzz_util.h"
 #include "tests/fuzz/synthetic_view.h"

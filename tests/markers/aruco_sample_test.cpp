@@ -7,14 +7,13 @@
 
 #include <filesystem>
 #include <fstream>
-#include <sstream>
-
 #include <opencv2/imgcodecs.hpp>
+#include <sstream>
 
 #include "cli/sim_capture.h"
 #include "common/fsutil.h"
 #include "drivers/sim/world.h"
-#include "pipeline/reconstruct.h"
+#include "pipeline/worker/reconstruct.h"
 #include "tests/util/temp_dir.h"
 
 namespace aggscan {

@@ -1,11 +1,11 @@
-// ArUco scale markers (pipeline/aruco_scale.h): corners on a drawn marker,
+// ArUco scale markers (pipeline/markers/aruco_scale.h): corners on a drawn marker,
 // then sim renders with the markers on the disc (truth calibration): 2D
 // corners against the projected truth, 3D corners against the configured
 // ones, the scale and its residual; a marker hidden by the rock or missing is
 // reported and the others still give the scale; and the stitch stage's record.
 // Each test prints its figures; tolerances carry a margin over what was
 // measured (noted beside each).
-#include "pipeline/aruco_scale.h"
+#include "pipeline/markers/aruco_scale.h"
 
 #include <gtest/gtest.h>
 
@@ -13,8 +13,8 @@
 #include <cstdio>
 #include <vector>
 
-#include "pipeline/mask.h"
-#include "pipeline/stitch_stage.h"
+#include "pipeline/masks/mask.h"
+#include "pipeline/stitch/stitch_stage.h"
 #include "tests/markers/sim_capture.h"
 #include "tests/util/temp_dir.h"
 

@@ -1,12 +1,12 @@
 // Geometry helpers and the stitch decisions on synthetic data (no rendering).
+#include <gtest/gtest.h>
+
 #include <cmath>
 #include <random>
 
-#include <gtest/gtest.h>
-
-#include "pipeline/geometry.h"
-#include "pipeline/markers.h"
-#include "pipeline/stitch.h"
+#include "pipeline/core/geometry.h"
+#include "pipeline/markers/markers.h"
+#include "pipeline/stitch/stitch.h"
 
 namespace aggscan {
 namespace {
@@ -90,7 +90,8 @@ TEST(Geometry, AlignsWithAndWithoutScale) {
   EXPECT_LT(geom::RotationAngleDeg(s->R * truth.R.transpose()), 1e-6);
   EXPECT_LT((s->t - truth.t).norm(), 1e-9);
   // Collinear points leave a rotation free.
-  EXPECT_FALSE(geom::AlignPoints({{0, 0, 0}, {1, 1, 1}, {2, 2, 2}}, {{0, 0, 0}, {1, 1, 1}, {2, 2, 2}}, false));
+  EXPECT_FALSE(geom::AlignPoints({{0, 0, 0}, {1, 1, 1}, {2, 2, 2}},
+                                 {{0, 0, 0}, {1, 1, 1}, {2, 2, 2}}, false));
 }
 
 TEST(Geometry, RansacRigidIgnoresHalfWrongPairs) {
@@ -116,7 +117,8 @@ TEST(Geometry, RansacRigidIgnoresHalfWrongPairs) {
 
 SideMarkers MarkersAt(const std::vector<Vector3d>& p) {
   SideMarkers s;
-  const char* names[4][2] = {{"purple", "head"}, {"purple", "tail"}, {"red", "head"}, {"red", "tail"}};
+  const char* names[4][2] = {
+      {"purple", "head"}, {"purple", "tail"}, {"red", "head"}, {"red", "tail"}};
   for (size_t i = 0; i < 4; ++i) {
     MarkerPoint m;
     m.color = names[i][0], m.segment = names[i][1];

@@ -9,20 +9,19 @@
 #include <cmath>
 #include <cstdint>
 #include <memory>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 #include <random>
 #include <string>
 #include <vector>
 
-#include <opencv2/imgcodecs.hpp>
-#include <opencv2/imgproc.hpp>
-
+#include "common/clock.h"
 #include "config/config.h"
 #include "drivers/sim/render.h"
 #include "drivers/sim/world.h"
-#include "common/clock.h"
-#include "pipeline/geometry.h"
-#include "pipeline/markers.h"
-#include "pipeline/stitch.h"
+#include "pipeline/core/geometry.h"
+#include "pipeline/markers/markers.h"
+#include "pipeline/stitch/stitch.h"
 
 namespace aggscan::testing {
 
@@ -33,9 +32,9 @@ struct SimView {
   double measured_deg = 0;
 };
 
-inline std::vector<SimView> RenderSide(sim::Renderer& r, int side,
-                                       int views, uint64_t seed, double step_deg = 30.0,
-                                       double stop_sigma_deg = 0.05, double read_sigma_deg = 0.02) {
+inline std::vector<SimView> RenderSide(sim::Renderer& r, int side, int views, uint64_t seed,
+                                       double step_deg = 30.0, double stop_sigma_deg = 0.05,
+                                       double read_sigma_deg = 0.02) {
   std::mt19937_64 rng(seed * 7919 + side);
   std::normal_distribution<double> stop(0.0, stop_sigma_deg), read(0.0, read_sigma_deg);
   std::vector<SimView> out;
@@ -82,8 +81,8 @@ inline const std::vector<std::string>& ObjectColors() {
   return c;
 }
 
-inline SideCapture CaptureSide(sim::Renderer& r, const RigCalibration& cal, int side,
-                               uint64_t seed, int views = 30) {
+inline SideCapture CaptureSide(sim::Renderer& r, const RigCalibration& cal, int side, uint64_t seed,
+                               int views = 30) {
   SideCapture c;
   c.views = RenderSide(r, side, views, seed);
   const TimeNs t0 = MonotonicNs();

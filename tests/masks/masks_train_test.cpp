@@ -17,8 +17,8 @@
 #include <opencv2/imgproc.hpp>
 #include <string>
 
-#include "pipeline/mask_dataset.h"
-#include "pipeline/mask_net.h"
+#include "pipeline/masks/mask_dataset.h"
+#include "pipeline/masks/mask_net.h"
 #include "tests/util/shell.h"
 
 namespace aggscan {

@@ -272,15 +272,18 @@ TEST_F(MeshIoTest, ErrorsNameTheFileAndTheDefect) {
   claims.replace(claims.find("vertex 3"), 8, "vertex 9223372036854775807");
   const std::string absurd = Write("absurd.ply", claims);
   expect_err(LoadMesh(absurd, "mm"), ErrorClass::kCorrupt, absurd,
-             "element vertex has 9223372036854775807 rows of at least 12 bytes each, but the file holds only 36 "
+             "element vertex has 9223372036854775807 rows of at least 12 bytes each, but the file "
+             "holds only 36 "
              "bytes after its header");
   // A binary STL whose one triangle has a NaN corner.
   std::string nan_stl(80, ' ');
   Put<uint32_t>(&nan_stl, 1);
-  for (int i = 0; i < 12; ++i) Put<float>(&nan_stl, i == 4 ? std::nanf("") : static_cast<float>(i % 3 == 0));
+  for (int i = 0; i < 12; ++i)
+    Put<float>(&nan_stl, i == 4 ? std::nanf("") : static_cast<float>(i % 3 == 0));
   nan_stl.append(2, '\0');
   const std::string pnan = Write("nan.stl", nan_stl);
-  expect_err(LoadMesh(pnan, "mm"), ErrorClass::kCorrupt, pnan, "vertex 0 has coordinate nan mm: not a finite number");
+  expect_err(LoadMesh(pnan, "mm"), ErrorClass::kCorrupt, pnan,
+             "vertex 0 has coordinate nan mm: not a finite number");
 }
 
 // ---------------------------------------------------------------- shared data

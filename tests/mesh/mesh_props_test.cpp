@@ -244,12 +244,15 @@ TEST(MeshProps, ConvexHullOfRoundedCoplanarLatticeIsTheCube) {
   // Every input point inside every face plane, to the rounding.
   for (const auto& f : hull.faces) {
     const Vec3d &a = hull.vertices[f[0]], &b = hull.vertices[f[1]], &c = hull.vertices[f[2]];
-    const Vec3d ab{b[0] - a[0], b[1] - a[1], b[2] - a[2]}, ac{c[0] - a[0], c[1] - a[1], c[2] - a[2]};
-    Vec3d n{ab[1] * ac[2] - ab[2] * ac[1], ab[2] * ac[0] - ab[0] * ac[2], ab[0] * ac[1] - ab[1] * ac[0]};
+    const Vec3d ab{b[0] - a[0], b[1] - a[1], b[2] - a[2]},
+        ac{c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+    Vec3d n{ab[1] * ac[2] - ab[2] * ac[1], ab[2] * ac[0] - ab[0] * ac[2],
+            ab[0] * ac[1] - ab[1] * ac[0]};
     const double len = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
     if (len < 1e-9) continue;  // a sliver from the triangulation of a merged face
     for (double& x : n) x /= len;
-    for (const Vec3d& p : pts) EXPECT_LE(n[0] * (p[0] - a[0]) + n[1] * (p[1] - a[1]) + n[2] * (p[2] - a[2]), 1e-4);
+    for (const Vec3d& p : pts)
+      EXPECT_LE(n[0] * (p[0] - a[0]) + n[1] * (p[1] - a[1]) + n[2] * (p[2] - a[2]), 1e-4);
   }
   const OrientedBox box = MinVolumeBox(pts);
   for (double s : box.size) EXPECT_NEAR(s, side, 1e-3);

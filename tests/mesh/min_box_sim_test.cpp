@@ -3,11 +3,11 @@
 // minimum-area rectangle of the projection for the other two): rounded rocks
 // have several nearly equal local minima, and a box that settles in the wrong
 // one swaps b and c by 10-20 % (validate found seeds 6, 10 and 17).
+#include <gtest/gtest.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-
-#include <gtest/gtest.h>
 
 #include "common/mesh_props.h"
 #include "config/config.h"
@@ -70,10 +70,12 @@ TEST(MinBoxSim, WithinHalfAPercentOfBruteForceOnSimRocks) {
     const OrientedBox box = MinVolumeBox(rock.vertices);
     std::array<double, 3> d{box.size[0], box.size[1], box.size[2]};
     std::sort(d.begin(), d.end());
-    std::printf("seed %llu: MinVolumeBox %.1f x %.1f x %.1f = %.0f mm3; brute force %.1f x %.1f x %.1f = %.0f mm3 "
-                "(%+.2f %%)\n",
-                static_cast<unsigned long long>(seed), d[0], d[1], d[2], box.Volume(), bf[0], bf[1], bf[2], v_bf,
-                100 * (box.Volume() / v_bf - 1));
+    std::printf(
+        "seed %llu: MinVolumeBox %.1f x %.1f x %.1f = %.0f mm3; brute force %.1f x %.1f x %.1f = "
+        "%.0f mm3 "
+        "(%+.2f %%)\n",
+        static_cast<unsigned long long>(seed), d[0], d[1], d[2], box.Volume(), bf[0], bf[1], bf[2],
+        v_bf, 100 * (box.Volume() / v_bf - 1));
     EXPECT_LT(box.Volume(), v_bf * 1.005);
   }
 }
@@ -91,9 +93,10 @@ TEST(MinBoxSim, ReportsTheSecondBoxOfAnIllConditionedRock) {
     auto world = sim::SimWorld::Create(cfg);
     ASSERT_TRUE(world.ok());
     const MeshProps p = ComputeMeshProps((*world)->rock());
-    std::printf("seed %llu: box %.1f x %.1f x %.1f; second box %.1f x %.1f x %.1f at %+.2f %% volume\n",
-                static_cast<unsigned long long>(seed), p.a_mm, p.b_mm, p.c_mm, p.second_a_mm, p.second_b_mm,
-                p.second_c_mm, 100 * (p.second_box_volume_ratio - 1));
+    std::printf(
+        "seed %llu: box %.1f x %.1f x %.1f; second box %.1f x %.1f x %.1f at %+.2f %% volume\n",
+        static_cast<unsigned long long>(seed), p.a_mm, p.b_mm, p.c_mm, p.second_a_mm, p.second_b_mm,
+        p.second_c_mm, 100 * (p.second_box_volume_ratio - 1));
     if (seed == 17) {
       ASSERT_GT(p.second_box_volume_ratio, 1.0);
       EXPECT_LT(p.second_box_volume_ratio, 1.005);
@@ -104,7 +107,8 @@ TEST(MinBoxSim, ReportsTheSecondBoxOfAnIllConditionedRock) {
       ASSERT_GE(p.near_boxes.size(), 2u);
       EXPECT_EQ(p.near_boxes.front().c_mm, p.second_c_mm);
       for (const MeshProps::NearBox& b : p.near_boxes) {
-        std::printf("  near box %.1f x %.1f x %.1f at %+.2f %%\n", b.a_mm, b.b_mm, b.c_mm, 100 * (b.volume_ratio - 1));
+        std::printf("  near box %.1f x %.1f x %.1f at %+.2f %%\n", b.a_mm, b.b_mm, b.c_mm,
+                    100 * (b.volume_ratio - 1));
         EXPECT_LE(b.volume_ratio, 1 + kBoxAmbiguousVolume);
         EXPECT_GT(std::max({std::fabs(b.a_mm / p.a_mm - 1), std::fabs(b.b_mm / p.b_mm - 1),
                             std::fabs(b.c_mm / p.c_mm - 1)}),
@@ -113,7 +117,8 @@ TEST(MinBoxSim, ReportsTheSecondBoxOfAnIllConditionedRock) {
       EXPECT_TRUE(MeshPropsJson(p)["near_minimal_boxes"].is_array());
       EXPECT_EQ(MeshPropsJson(p)["near_minimal_boxes"].size(), p.near_boxes.size());
     } else {
-      EXPECT_TRUE(p.second_box_volume_ratio == 0 || p.second_box_volume_ratio > 1.01) << p.second_box_volume_ratio;
+      EXPECT_TRUE(p.second_box_volume_ratio == 0 || p.second_box_volume_ratio > 1.01)
+          << p.second_box_volume_ratio;
       EXPECT_TRUE(p.near_boxes.empty());
     }
     if (p.second_box_volume_ratio > 0) {

@@ -1,5 +1,7 @@
 // `aggscan morph`: the 3D morphology command on analytic and real meshes, and
 // the refusal of open / non-manifold meshes with the defect named.
+#include "cli/morph_command.h"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -8,7 +10,6 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
-#include "cli/morph_command.h"
 #include "common/mesh_check.h"
 #include "drivers/sim/world.h"
 
@@ -33,7 +34,8 @@ MorphRun Morph(const std::string& path, const std::string& unit = "mm") {
 
 Mesh Cube() {
   Mesh m;
-  m.vertices = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}, {0, 0, 1}, {1, 0, 1}, {1, 1, 1}, {0, 1, 1}};
+  m.vertices = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0},
+                {0, 0, 1}, {1, 0, 1}, {1, 1, 1}, {0, 1, 1}};
   m.faces = {{0, 2, 1}, {0, 3, 2}, {4, 5, 6}, {4, 6, 7}, {0, 1, 5}, {0, 5, 4},
              {1, 2, 6}, {1, 6, 5}, {2, 3, 7}, {2, 7, 6}, {3, 0, 4}, {3, 4, 7}};
   return m;
@@ -110,7 +112,8 @@ TEST_P(ShapeToolboxMorph, WithinStatedTolerances) {
   EXPECT_NEAR(j["sphericity"].get<double>(), e.sphericity, 0.002);
   if (e.box[0] > 0) {
     const char* keys[3] = {"a_mm", "b_mm", "c_mm"};
-    for (int i = 0; i < 3; ++i) EXPECT_NEAR(j[keys[i]].get<double>() / 10.0, e.box[i], e.box[i] * 0.005) << keys[i];
+    for (int i = 0; i < 3; ++i)
+      EXPECT_NEAR(j[keys[i]].get<double>() / 10.0, e.box[i], e.box[i] * 0.005) << keys[i];
     EXPECT_NEAR(j["fer_3d"].get<double>(), e.box[2] / e.box[0], 0.01 * e.box[2] / e.box[0]);
     // Every box near the minimum of these solids has the same sides: a, b, c
     // are well-conditioned (compare seed 17 in min_box_sim_test).
@@ -119,17 +122,18 @@ TEST_P(ShapeToolboxMorph, WithinStatedTolerances) {
 }
 
 // Values from ../shared/data/README.md (analytic).
-INSTANTIATE_TEST_SUITE_P(Analytic, ShapeToolboxMorph,
-                         ::testing::Values(Analytic{"Sphere_R_1", 4.188790, 12.566371, 1.0, {2, 2, 2}},
-                                           Analytic{"Ellipsoid_R_1_1_2", 8.377580, 21.478435, 0.92874, {2, 2, 4}},
-                                           Analytic{"Ellipsoid_R_1_2_2", 16.755161, 34.687531, 0.91287, {2, 4, 4}},
-                                           Analytic{"Ellipsoid_R_1_2_3", 25.132741, 48.8822, 0.84884, {2, 4, 6}},
-                                           Analytic{"Tetrahedron", 1.0 / 3.0, 3.464102, 0.67114, {0, 0, 0}},
-                                           Analytic{"Hexahedron", 1.0, 6.0, 0.80600, {1, 1, 1}},
-                                           Analytic{"Octahedron", 1.0 / 6.0, 1.732051, 0.84558, {0, 0, 0}},
-                                           Analytic{"Dodecahedron", 0.427051, 3.012171, 0.91045, {0, 0, 0}},
-                                           Analytic{"Icosahedron", 0.515028, 3.307923, 0.93933, {0, 0, 0}}),
-                         [](const ::testing::TestParamInfo<Analytic>& i) { return std::string(i.param.name); });
+INSTANTIATE_TEST_SUITE_P(
+    Analytic, ShapeToolboxMorph,
+    ::testing::Values(Analytic{"Sphere_R_1", 4.188790, 12.566371, 1.0, {2, 2, 2}},
+                      Analytic{"Ellipsoid_R_1_1_2", 8.377580, 21.478435, 0.92874, {2, 2, 4}},
+                      Analytic{"Ellipsoid_R_1_2_2", 16.755161, 34.687531, 0.91287, {2, 4, 4}},
+                      Analytic{"Ellipsoid_R_1_2_3", 25.132741, 48.8822, 0.84884, {2, 4, 6}},
+                      Analytic{"Tetrahedron", 1.0 / 3.0, 3.464102, 0.67114, {0, 0, 0}},
+                      Analytic{"Hexahedron", 1.0, 6.0, 0.80600, {1, 1, 1}},
+                      Analytic{"Octahedron", 1.0 / 6.0, 1.732051, 0.84558, {0, 0, 0}},
+                      Analytic{"Dodecahedron", 0.427051, 3.012171, 0.91045, {0, 0, 0}},
+                      Analytic{"Icosahedron", 0.515028, 3.307923, 0.93933, {0, 0, 0}}),
+    [](const ::testing::TestParamInfo<Analytic>& i) { return std::string(i.param.name); });
 
 struct Dirty {
   const char* file;
@@ -149,18 +153,21 @@ TEST_P(DirtyMeshes, RefusedWithTheDefectNamed) {
   EXPECT_FALSE(j["watertight"].get<bool>());
 }
 
-INSTANTIATE_TEST_SUITE_P(Data, DirtyMeshes,
-                         ::testing::Values(Dirty{"classic/stanford-bunny.obj", "223 boundary edges (holes)"},
-                                           Dirty{"classic/cow.obj", "1 non-manifold vertex (pinched)"},
-                                           Dirty{"epfl_stones/remeshed_high_res_A13.ply", "non-manifold edges"},
-                                           Dirty{"epfl_stones/remeshed_high_res_A13.ply", "misoriented edges"}));
+INSTANTIATE_TEST_SUITE_P(
+    Data, DirtyMeshes,
+    ::testing::Values(Dirty{"classic/stanford-bunny.obj", "223 boundary edges (holes)"},
+                      Dirty{"classic/cow.obj", "1 non-manifold vertex (pinched)"},
+                      Dirty{"epfl_stones/remeshed_high_res_A13.ply", "non-manifold edges"},
+                      Dirty{"epfl_stones/remeshed_high_res_A13.ply", "misoriented edges"}));
 
 TEST(MorphCommand, ScannedStonesAreMeasured) {
   const std::string dir = kData + "/meshes/epfl_stones";
   if (!fs::exists(dir)) GTEST_SKIP() << "shared test data absent: " << dir;
   int measured = 0;
   for (const auto& e : fs::directory_iterator(dir)) {
-    if (e.path().extension() != ".ply" || e.path().filename().string().find("A13") != std::string::npos) continue;
+    if (e.path().extension() != ".ply" ||
+        e.path().filename().string().find("A13") != std::string::npos)
+      continue;
     MorphRun r = Morph(e.path().string(), "mm");
     ASSERT_EQ(r.rc, 0) << e.path() << ": " << r.err;
     json j = json::parse(r.out);

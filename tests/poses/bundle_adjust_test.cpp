@@ -3,7 +3,7 @@
 // read N(0, 0.02 deg)) plus larger reading errors injected into a few views:
 // the refined angles must come closer to where the platter really stood, the
 // reprojection RMS must drop, and too few features must fall back cleanly.
-#include "pipeline/bundle_adjust.h"
+#include "pipeline/poses/bundle_adjust.h"
 
 #include <gtest/gtest.h>
 

@@ -16,7 +16,7 @@
 #include <string>
 
 #include "common/fsutil.h"
-#include "pipeline/reconstruct.h"
+#include "pipeline/worker/reconstruct.h"
 #include "tests/reconstruct/sim_sample.h"
 #include "tests/util/temp_dir.h"
 

@@ -3,7 +3,7 @@
 // fit and an open model each give a flag whose reason names the figure and
 // the limit. Inputs are shaped as morphology.json's quality block,
 // results/stitch.json and surface.json's per-view IoU.
-#include "pipeline/quality.h"
+#include "pipeline/worker/quality.h"
 
 #include <gtest/gtest.h>
 

@@ -1,6 +1,6 @@
 // The sample stages on simulated captures: from photos to a closed metric
 // mesh and morphology.json, resumable, compared with the sim's ground truth.
-#include "pipeline/reconstruct.h"
+#include "pipeline/worker/reconstruct.h"
 
 #include <gtest/gtest.h>
 
@@ -16,7 +16,7 @@
 #include "common/mesh_check.h"
 #include "config/config.h"
 #include "drivers/sim/world.h"
-#include "pipeline/worker_config.h"
+#include "pipeline/worker/worker_config.h"
 #include "tests/reconstruct/sim_sample.h"
 #include "tests/util/temp_dir.h"
 

@@ -21,9 +21,9 @@
 #include "common/fsutil.h"
 #include "config/config.h"
 #include "drivers/sim/world.h"
-#include "pipeline/colmap_sfm.h"
-#include "pipeline/geometry.h"
-#include "pipeline/reconstruct.h"
+#include "pipeline/core/geometry.h"
+#include "pipeline/sfm/colmap_sfm.h"
+#include "pipeline/worker/reconstruct.h"
 #include "tests/reconstruct/sim_sample.h"
 #include "tests/util/temp_dir.h"
 

@@ -6,10 +6,9 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <opencv2/imgcodecs.hpp>
 #include <sstream>
 #include <string>
-
-#include <opencv2/imgcodecs.hpp>
 
 #include "cli/sim_capture.h"
 #include "common/rig_calibration.h"
@@ -43,13 +42,14 @@ inline void PlaceTruthMasks(const std::string& sample, int sides, int views) {
 /// truth_masks: the sim's ground-truth masks are put where the side stage
 /// keeps its masks (it reuses them), to test the geometric stages alone.
 /// extra_config: more TOML for the capture's config (e.g. a [rig] table).
-inline std::string CaptureSimSample(const std::string& dir, uint64_t seed, int sides, bool calibration,
-                                    bool truth_masks, int views, int width, int height, double step_deg,
+inline std::string CaptureSimSample(const std::string& dir, uint64_t seed, int sides,
+                                    bool calibration, bool truth_masks, int views, int width,
+                                    int height, double step_deg,
                                     const std::string& extra_config = "") {
   namespace fs = std::filesystem;
   const std::string cfg = dir + "/cfg.toml";
-  std::ofstream(cfg) << "[capture]\nprofile = \"custom\"\nsides = " << sides << "\nviews_per_side = " << views
-                     << "\nstep_deg = " << step_deg << "\n"
+  std::ofstream(cfg) << "[capture]\nprofile = \"custom\"\nsides = " << sides
+                     << "\nviews_per_side = " << views << "\nstep_deg = " << step_deg << "\n"
                      << extra_config;
   SimCaptureOptions o;
   o.seed = seed;
@@ -63,7 +63,8 @@ inline std::string CaptureSimSample(const std::string& dir, uint64_t seed, int s
     Config c;
     c.sim.seed = seed;
     sim::SimWorld world(c);
-    EXPECT_TRUE(SaveCalibration(o.out + "/calibration.json", world.TruthCalibration(width, height)));
+    EXPECT_TRUE(
+        SaveCalibration(o.out + "/calibration.json", world.TruthCalibration(width, height)));
   }
   if (truth_masks) PlaceTruthMasks(o.out, sides, views);
   return o.out;

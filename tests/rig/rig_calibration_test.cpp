@@ -22,7 +22,8 @@ TEST(RigCalibration, ProjectsTablePointsLikeTheSimCamera) {
   const RigCalibration cal = SimCalibration(world);
   const sim::Intrinsics intr = world.intrinsics();
   for (double angle : {0.0, 30.0, 137.5, 300.0}) {
-    for (const sim::Vec3 p : {sim::Vec3{120, 0, 0}, sim::Vec3{-50, 80, 40}, sim::Vec3{10, -140, 90}}) {
+    for (const sim::Vec3 p :
+         {sim::Vec3{120, 0, 0}, sim::Vec3{-50, 80, 40}, sim::Vec3{10, -140, 90}}) {
       double u0, v0;
       ASSERT_TRUE(world.ProjectTurntablePoint(p, angle, intr, &u0, &v0));
       const auto m = cal.CamFromTable(angle);
@@ -39,7 +40,8 @@ TEST(RigCalibration, ProjectsTablePointsLikeTheSimCamera) {
   const auto c = cal.CameraCentreTable0();
   const double horiz = std::hypot(c[0], c[1]);
   EXPECT_GT(c[2], 0);
-  EXPECT_NEAR(std::atan2(c[2] - sim::kAimHeightMm, horiz) * 180 / M_PI, config.sim.camera_elevation_deg, 3.0);
+  EXPECT_NEAR(std::atan2(c[2] - sim::kAimHeightMm, horiz) * 180 / M_PI,
+              config.sim.camera_elevation_deg, 3.0);
 }
 
 TEST(RigCalibration, JsonRoundTripAndFileIo) {
@@ -88,7 +90,8 @@ TEST(RigCalibration, DamagedFilesAreRefusedWithTheReason) {
       {"rotation", [](nlohmann::json& j) { j["cam_from_table0"]["R"][0] = 2.0; }, "not a rotation"},
       {"reflection",
        [](nlohmann::json& j) {
-         for (int k = 0; k < 3; ++k) j["cam_from_table0"]["R"][k] = -j["cam_from_table0"]["R"][k].get<double>();
+         for (int k = 0; k < 3; ++k)
+           j["cam_from_table0"]["R"][k] = -j["cam_from_table0"]["R"][k].get<double>();
        },
        "reflection"},
   };
@@ -98,7 +101,8 @@ TEST(RigCalibration, DamagedFilesAreRefusedWithTheReason) {
     auto r = CalibrationFromJson(j, "calibration.json");
     ASSERT_FALSE(r) << c.name;
     EXPECT_EQ(r.error().cls, ErrorClass::kCorrupt) << c.name;
-    EXPECT_NE(r.error().message.find(c.expect), std::string::npos) << c.name << ": " << r.error().message;
+    EXPECT_NE(r.error().message.find(c.expect), std::string::npos)
+        << c.name << ": " << r.error().message;
   }
   test::TempDir tmp;
   std::ofstream(tmp.path() + "/calibration.json") << "{ not json";

@@ -44,7 +44,8 @@ int CheckSampleConsistent(const std::string& sample_dir) {
       EXPECT_FALSE(m.is_discarded());
       for (const auto& v : m["views"]) {
         EXPECT_TRUE(fs::exists(e.path() / v["image"].get<std::string>()));
-        EXPECT_EQ(static_cast<int64_t>(fs::file_size(e.path() / v["image"].get<std::string>())), v["bytes"].get<int64_t>());
+        EXPECT_EQ(static_cast<int64_t>(fs::file_size(e.path() / v["image"].get<std::string>())),
+                  v["bytes"].get<int64_t>());
       }
     }
   }
@@ -58,7 +59,8 @@ TEST(CaptureScenario, TwoSidesSixtyViewsThenWorker) {
   ASSERT_TRUE(d.ok()) << ReadAll(d.log());
   json s = d.Get("/api/v1/status");
   ASSERT_EQ(StateOf(s), "idle") << s.dump();
-  for (const char* dev : {"camera", "turntable", "button"}) EXPECT_TRUE(s["devices"][dev]["healthy"]) << dev;
+  for (const char* dev : {"camera", "turntable", "button"})
+    EXPECT_TRUE(s["devices"][dev]["healthy"]) << dev;
 
   int code = 0;
   json armed = d.Post("/api/v1/samples", R"({"id": "rock-1"})", &code);
@@ -73,7 +75,8 @@ TEST(CaptureScenario, TwoSidesSixtyViewsThenWorker) {
   EXPECT_GE(last["queue_depth"].get<int>(), 1);
   d.Post("/api/v1/button", "{}", &code);
   ASSERT_EQ(code, 200);
-  ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "idle"; }, 60, &last)) << last.dump();
+  ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "idle"; }, 60, &last))
+      << last.dump();
 
   const std::string sample = t.path() + "/state/samples/rock-1";
   json rec = json::parse(ReadAll(sample + "/sample.json"));
@@ -112,11 +115,13 @@ TEST(CaptureScenario, TwoSidesSixtyViewsThenWorker) {
   ASSERT_EQ(m["jobs"].size(), 3u) << m.dump();
 
   // The worker takes the queued side and sample jobs.
-  const int wrc = WaitExit(Spawn({Bin("pipeline/aggscan-worker"), "--state-dir", t.path() + "/state", "--once"},
-                                 t.path() + "/worker.log"));
+  const int wrc =
+      WaitExit(Spawn({Bin("pipeline/aggscan-worker"), "--state-dir", t.path() + "/state", "--once"},
+                     t.path() + "/worker.log"));
   ASSERT_EQ(wrc, 0) << ReadAll(t.path() + "/worker.log");
   for (int side = 1; side <= 2; ++side) {
-    json r = json::parse(ReadAll(sample + "/results/side" + std::to_string(side) + "_morph2d.json"), nullptr, false);
+    json r = json::parse(ReadAll(sample + "/results/side" + std::to_string(side) + "_morph2d.json"),
+                         nullptr, false);
     ASSERT_FALSE(r.is_discarded()) << "side " << side << " results missing";
     EXPECT_EQ(r["views"].size(), 30u);
   }
@@ -159,8 +164,9 @@ TEST(CaptureScenario, SigkillDuringCaptureLosesNothing) {
       // Enough kills: let it finish, pressing for each further side.
       json last;
       for (;;) {
-        ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "awaiting_pose" || StateOf(s) == "idle"; }, 60,
-                              &last))
+        ASSERT_TRUE(d.WaitFor(
+            [](const json& s) { return StateOf(s) == "awaiting_pose" || StateOf(s) == "idle"; }, 60,
+            &last))
             << last.dump();
         if (StateOf(last) == "idle") break;
         d.Post("/api/v1/button", "{}", &code);
@@ -178,7 +184,8 @@ TEST(CaptureScenario, SigkillDuringCaptureLosesNothing) {
       if (n.rfind("view_", 0) == 0 && e.path().extension() == ".json") {
         fs::path img = e.path();
         img.replace_extension(".jpg");
-        seen[img.filename().string() + "@" + std::to_string(fs::file_size(img))] = fs::file_size(img);
+        seen[img.filename().string() + "@" + std::to_string(fs::file_size(img))] =
+            fs::file_size(img);
       }
     }
   }
@@ -194,8 +201,10 @@ TEST(CaptureScenario, SigkillDuringCaptureLosesNothing) {
   // Every view that was complete at some kill is still there (moved aside with its attempt).
   std::set<std::string> now;
   for (const auto& e : fs::recursive_directory_iterator(sample)) {
-    if (e.path().extension() == ".jpg") now.insert(e.path().filename().string() + "@" + std::to_string(fs::file_size(e.path())));
-    EXPECT_NE(e.path().filename().string().rfind(".tmp-", 0), 0u) << "leftover temp file " << e.path();
+    if (e.path().extension() == ".jpg")
+      now.insert(e.path().filename().string() + "@" + std::to_string(fs::file_size(e.path())));
+    EXPECT_NE(e.path().filename().string().rfind(".tmp-", 0), 0u)
+        << "leftover temp file " << e.path();
   }
   for (const auto& [key, size] : seen) EXPECT_TRUE(now.count(key)) << "lost view " << key;
 }
@@ -211,7 +220,8 @@ class FaultScenario : public ::testing::TestWithParam<FaultCase> {};
 TEST_P(FaultScenario, EndsInNamedFaultWhileApiAnswers) {
   const FaultCase& fc = GetParam();
   TempDir t;
-  const std::string cfg = WriteConfig(t.path(), std::string("[turntable.faults]\n") + fc.toml + "\n");
+  const std::string cfg =
+      WriteConfig(t.path(), std::string("[turntable.faults]\n") + fc.toml + "\n");
   Daemon d(cfg, t.path());
   ASSERT_TRUE(d.ok()) << ReadAll(d.log());
   int code = 0;
@@ -219,7 +229,8 @@ TEST_P(FaultScenario, EndsInNamedFaultWhileApiAnswers) {
   ASSERT_EQ(code, 200);
   d.Post("/api/v1/button", "{}", &code);
   json last;
-  ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "faulted"; }, 60, &last)) << last.dump();
+  ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "faulted"; }, 60, &last))
+      << last.dump();
   EXPECT_EQ(last["fault"]["class"], fc.expected_class) << last.dump();
   EXPECT_FALSE(last["fault"]["message"].get<std::string>().empty());
   // The API keeps answering while faulted.
@@ -228,7 +239,9 @@ TEST_P(FaultScenario, EndsInNamedFaultWhileApiAnswers) {
     EXPECT_EQ(code, 200);
   }
   const std::string metrics = d.Get("/metrics").get<std::string>();
-  EXPECT_NE(metrics.find(std::string("aggscan_faults_total{class=\"") + fc.expected_class + "\"} 1"), std::string::npos)
+  EXPECT_NE(
+      metrics.find(std::string("aggscan_faults_total{class=\"") + fc.expected_class + "\"} 1"),
+      std::string::npos)
       << metrics;
   // A new sample cannot be armed until the fault is reset.
   d.Post("/api/v1/samples", R"({"id": "fault-2"})", &code);
@@ -252,8 +265,10 @@ INSTANTIATE_TEST_SUITE_P(
 TEST(CaptureScenario, InvalidConfigExits78WithEveryProblem) {
   TempDir t;
   const std::string path = t.path() + "/bad.toml";
-  std::ofstream(path) << "[capture]\nviews_per_side = 0\ninterval = \"fast\"\n[camera]\nwidht = 5\n";
-  const int rc = WaitExit(Spawn({Bin("daemon/aggscand"), "--config", path, "--check-config"}, t.path() + "/out.log"));
+  std::ofstream(path)
+      << "[capture]\nviews_per_side = 0\ninterval = \"fast\"\n[camera]\nwidht = 5\n";
+  const int rc = WaitExit(
+      Spawn({Bin("daemon/aggscand"), "--config", path, "--check-config"}, t.path() + "/out.log"));
   EXPECT_EQ(rc, 78);
   const std::string out = ReadAll(t.path() + "/out.log");
   EXPECT_NE(out.find("bad.toml:2"), std::string::npos) << out;
@@ -305,7 +320,8 @@ TEST(SimCaptureScenario, WorkerMasksMatchGroundTruthOnEveryView) {
   ASSERT_EQ(truth["views"].size(), 60u);
   ASSERT_EQ(truth["poses"].size(), 2u);
 
-  const int wrc = WaitExit(Spawn({Bin("pipeline/aggscan-worker"), "--sample", out}, t.path() + "/worker.log"));
+  const int wrc =
+      WaitExit(Spawn({Bin("pipeline/aggscan-worker"), "--sample", out}, t.path() + "/worker.log"));
   ASSERT_EQ(wrc, 0) << ReadAll(t.path() + "/worker.log");
   double worst = 1.0;
   for (int side = 1; side <= 2; ++side) {
@@ -338,13 +354,15 @@ namespace {
 // shape toolbox read in cm is a 20 x 40 x 60 mm rock; truth.json carries its
 // analytic volume (25.133 cm^3) and box within the tessellation's 0.2 %.
 TEST(SimCaptureScenario, RockFromMeshFileWithUnit) {
-  const std::string mesh = std::string(AGGSCAN_SHARED_DATA) + "/meshes/shape_toolbox/Ellipsoid_R_1_2_3.stl";
+  const std::string mesh =
+      std::string(AGGSCAN_SHARED_DATA) + "/meshes/shape_toolbox/Ellipsoid_R_1_2_3.stl";
   if (!fs::exists(mesh)) GTEST_SKIP() << "shared test data absent: " << mesh;
   TempDir t;
   const std::string out = t.path() + "/ellipsoid";
-  const int rc = WaitExit(Spawn({Bin("cli/aggscan"), "sim", "capture", "--mesh", mesh, "--unit", "cm", "--out", out,
-                                 "--profile", "full-turn", "--views", "8", "--width", "1008", "--height", "756"},
-                                t.path() + "/capture.log"));
+  const int rc = WaitExit(
+      Spawn({Bin("cli/aggscan"), "sim", "capture", "--mesh", mesh, "--unit", "cm", "--out", out,
+             "--profile", "full-turn", "--views", "8", "--width", "1008", "--height", "756"},
+            t.path() + "/capture.log"));
   ASSERT_EQ(rc, 0) << ReadAll(t.path() + "/capture.log");
   json truth = json::parse(ReadAll(out + "/truth.json"));
   EXPECT_NEAR(truth["volume_mm3"].get<double>(), 25132.741, 25132.741 * 0.002);
@@ -362,8 +380,8 @@ TEST(SimCaptureScenario, BadMeshIsAClearError) {
   TempDir t;
   const std::string bad = t.path() + "/broken.obj";
   std::ofstream(bad) << "v 0 0 0\nv 1 0 0\nf 1 2 9\n";
-  const int rc = WaitExit(Spawn({Bin("cli/aggscan"), "sim", "capture", "--mesh", bad, "--unit", "mm", "--out",
-                                 t.path() + "/x"},
+  const int rc = WaitExit(Spawn({Bin("cli/aggscan"), "sim", "capture", "--mesh", bad, "--unit",
+                                 "mm", "--out", t.path() + "/x"},
                                 t.path() + "/capture.log"));
   EXPECT_NE(rc, 0);
   const std::string log = ReadAll(t.path() + "/capture.log");
@@ -392,10 +410,12 @@ TEST(CaptureScenario, LostQueueIsRebuiltAtStartUp) {
     ASSERT_EQ(code, 200);
     d.Post("/api/v1/button", "{}", &code);
     json last;
-    ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "idle"; }, 30, &last)) << last.dump();
+    ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "idle"; }, 30, &last))
+        << last.dump();
     EXPECT_EQ(d.Stop(), 0);
   }
-  for (const char* f : {"/state/queue.db", "/state/queue.db-wal", "/state/queue.db-shm"}) fs::remove(t.path() + f);
+  for (const char* f : {"/state/queue.db", "/state/queue.db-wal", "/state/queue.db-shm"})
+    fs::remove(t.path() + f);
   Daemon d(cfg, t.path());
   ASSERT_TRUE(d.ok()) << ReadAll(d.log());
   json s = d.Get("/api/v1/samples/q-1");
@@ -452,7 +472,8 @@ TEST(CaptureScenario, FailedJobsAreShownAndRetriedAfterAFix) {
   ASSERT_EQ(code, 200);
   d.Post("/api/v1/button", "{}", &code);
   json last;
-  ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "idle"; }, 30, &last)) << last.dump();
+  ASSERT_TRUE(d.WaitFor([](const json& s) { return StateOf(s) == "idle"; }, 30, &last))
+      << last.dump();
   // Every photo of the side replaced by a zero-byte file the manifest agrees with.
   const std::string side = t.path() + "/state/samples/bad-photo/side1";
   json manifest = json::parse(ReadAll(side + "/manifest.json"));
@@ -464,9 +485,14 @@ TEST(CaptureScenario, FailedJobsAreShownAndRetriedAfterAFix) {
   }
   const std::string good_manifest = ReadAll(side + "/manifest.json");
   std::ofstream(side + "/manifest.json", std::ios::trunc) << manifest.dump();
-  const std::vector<std::string> worker = {Bin("pipeline/aggscan-worker"), "--state-dir", t.path() + "/state",
-                                           "--once", "--poll-ms", "20"};
-  EXPECT_EQ(WaitExit(Spawn(worker, t.path() + "/worker.log")), 1) << ReadAll(t.path() + "/worker.log");
+  const std::vector<std::string> worker = {Bin("pipeline/aggscan-worker"),
+                                           "--state-dir",
+                                           t.path() + "/state",
+                                           "--once",
+                                           "--poll-ms",
+                                           "20"};
+  EXPECT_EQ(WaitExit(Spawn(worker, t.path() + "/worker.log")), 1)
+      << ReadAll(t.path() + "/worker.log");
 
   json s = d.Get("/api/v1/status");
   ASSERT_EQ(s["failed_jobs"].size(), 2u) << s.dump();  // side 1 and the sample stage
@@ -477,13 +503,15 @@ TEST(CaptureScenario, FailedJobsAreShownAndRetriedAfterAFix) {
     EXPECT_NE(j["error"].get<std::string>().find("view"), std::string::npos) << j.dump();
   }
   EXPECT_EQ(d.Get("/api/v1/samples/bad-photo")["jobs"][0]["state"], "failed");
-  EXPECT_NE(d.Get("/metrics").get<std::string>().find("aggscan_jobs_failed 2\n"), std::string::npos);
+  EXPECT_NE(d.Get("/metrics").get<std::string>().find("aggscan_jobs_failed 2\n"),
+            std::string::npos);
   json none = d.Post("/api/v1/samples/nothing-here/retry", "{}", &code);
   EXPECT_EQ(code, 404) << none.dump();
 
   // Fixed: the original photos back.
   for (size_t i = 0; i < photos.size(); ++i) {
-    std::ofstream(side + "/" + manifest["views"][i]["image"].get<std::string>(), std::ios::binary | std::ios::trunc)
+    std::ofstream(side + "/" + manifest["views"][i]["image"].get<std::string>(),
+                  std::ios::binary | std::ios::trunc)
         << photos[i];
   }
   std::ofstream(side + "/manifest.json", std::ios::trunc) << good_manifest;
@@ -492,8 +520,10 @@ TEST(CaptureScenario, FailedJobsAreShownAndRetriedAfterAFix) {
   EXPECT_EQ(retried["requeued"], 2);
   json again = d.Post("/api/v1/samples/bad-photo/retry", "{}", &code);
   EXPECT_EQ(code, 404) << again.dump();
-  EXPECT_NE(again["error"]["message"].get<std::string>().find("no failed job"), std::string::npos) << again.dump();
-  EXPECT_EQ(WaitExit(Spawn(worker, t.path() + "/worker.log")), 0) << ReadAll(t.path() + "/worker.log");
+  EXPECT_NE(again["error"]["message"].get<std::string>().find("no failed job"), std::string::npos)
+      << again.dump();
+  EXPECT_EQ(WaitExit(Spawn(worker, t.path() + "/worker.log")), 0)
+      << ReadAll(t.path() + "/worker.log");
   s = d.Get("/api/v1/status");
   EXPECT_TRUE(s["failed_jobs"].empty()) << s.dump();
   for (const json& j : d.Get("/api/v1/samples/bad-photo")["jobs"]) {
@@ -624,7 +654,8 @@ TEST(CaptureScenario, DamagedRecordIsAClearErrorNotACrash) {
   TempDir t;
   const std::string cfg = WriteConfig(t.path(), "", 20, kTinyPlan);
   fs::create_directories(t.path() + "/state/samples/bad-1");
-  std::ofstream(t.path() + "/state/samples/bad-1/sample.json") << R"({"state": "capturing", "sides": 7})";
+  std::ofstream(t.path() + "/state/samples/bad-1/sample.json")
+      << R"({"state": "capturing", "sides": 7})";
   Daemon d(cfg, t.path());
   ASSERT_TRUE(d.ok()) << ReadAll(d.log());
   int code = 0;
@@ -683,7 +714,8 @@ TEST(CaptureScenario, NotifiesSystemdReadyStatusAndWatchdog) {
   });
   ::setenv("NOTIFY_SOCKET", sock_path.c_str(), 1);
   ::setenv("WATCHDOG_USEC", "200000", 1);  // 200 ms: pings every 100 ms
-  const std::string cfg = WriteConfig(t.path(), "", 20, "profile = \"custom\"\nsides = 1\nviews_per_side = 2\nstep_deg = 30.0\n");
+  const std::string cfg = WriteConfig(
+      t.path(), "", 20, "profile = \"custom\"\nsides = 1\nviews_per_side = 2\nstep_deg = 30.0\n");
   Daemon d(cfg, t.path());
   ::unsetenv("NOTIFY_SOCKET");
   ::unsetenv("WATCHDOG_USEC");

@@ -1,6 +1,7 @@
 // Runs the real aggscand / aggscan-worker binaries for scenario tests.
 #pragma once
 
+#include <httplib.h>
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -8,7 +9,6 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
-#include <httplib.h>
 #include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
@@ -19,8 +19,9 @@
 
 namespace aggscan::test {
 
-inline std::string Bin(const std::string& rel) { return std::string(AGGSCAN_BINARY_DIR) + "/" + rel; }
-
+inline std::string Bin(const std::string& rel) {
+  return std::string(AGGSCAN_BINARY_DIR) + "/" + rel;
+}
 
 /// Starts a program with arguments; stdout+stderr go to `log`.
 inline pid_t Spawn(const std::vector<std::string>& argv, const std::string& log) {
@@ -64,7 +65,9 @@ class Daemon {
     port_file_ = dir + "/port";
     std::filesystem::remove(port_file_);
     log_ = dir + "/aggscand.log";
-    pid_ = Spawn({Bin("daemon/aggscand"), "--config", config, "--port", "0", "--port-file", port_file_}, log_);
+    pid_ = Spawn(
+        {Bin("daemon/aggscand"), "--config", config, "--port", "0", "--port-file", port_file_},
+        log_);
     for (int i = 0; i < start_s * 100 && port_ == 0; ++i) {
       std::this_thread::sleep_for(std::chrono::milliseconds(10));
       std::string p = ReadAll(port_file_);
@@ -102,7 +105,8 @@ class Daemon {
     auto j = nlohmann::json::parse(r->body, nullptr, false);
     return j.is_discarded() ? nlohmann::json(r->body) : j;
   }
-  nlohmann::json Post(const std::string& path, const std::string& body = "{}", int* status = nullptr) {
+  nlohmann::json Post(const std::string& path, const std::string& body = "{}",
+                      int* status = nullptr) {
     httplib::Client c("127.0.0.1", port_);
     c.set_read_timeout(15, 0);
     auto r = c.Post(path.c_str(), body, "application/json");
@@ -114,7 +118,8 @@ class Daemon {
   /// Polls status until `pred` holds or `seconds` pass.
   template <typename P>
   bool WaitFor(P pred, double seconds, nlohmann::json* last = nullptr) {
-    const auto end = std::chrono::steady_clock::now() + std::chrono::milliseconds(static_cast<int>(seconds * 1000));
+    const auto end = std::chrono::steady_clock::now() +
+                     std::chrono::milliseconds(static_cast<int>(seconds * 1000));
     while (std::chrono::steady_clock::now() < end) {
       nlohmann::json s = Get("/api/v1/status");
       if (last) *last = s;
@@ -132,13 +137,14 @@ class Daemon {
 };
 
 /// A sim-rig config for tests: small frames, fast clock.
-inline std::string WriteConfig(const std::string& dir, const std::string& extra = "", double time_scale = 20,
-                               const std::string& capture = "") {
+inline std::string WriteConfig(const std::string& dir, const std::string& extra = "",
+                               double time_scale = 20, const std::string& capture = "") {
   const std::string path = dir + "/test.toml";
   std::ofstream f(path);
   f << "[daemon]\nstate_dir = \"" << dir << "/state\"\nlisten_port = 0\ntime_scale = " << time_scale
     << "\nlog_level = \"info\"\n\n"
-    << "[capture]\n" << capture << "\n"
+    << "[capture]\n"
+    << capture << "\n"
     << "[camera]\nwidth = 640\nheight = 480\n\n"
     << extra;
   return path;

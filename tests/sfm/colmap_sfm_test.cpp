@@ -2,8 +2,7 @@
 // model reader/writer, the similarity, the plausibility checks on synthetic
 // good and deliberately wrong models, and the runner's errors with a missing
 // or failing colmap binary.
-#include "pipeline/colmap_sfm.h"
-#include "pipeline/sfm_poses.h"
+#include "pipeline/sfm/colmap_sfm.h"
 
 #include <gtest/gtest.h>
 #include <sys/stat.h>
@@ -17,6 +16,7 @@
 #include <set>
 
 #include "common/fsutil.h"
+#include "pipeline/sfm/sfm_poses.h"
 #include "tests/util/temp_dir.h"
 
 namespace aggscan {
@@ -188,7 +188,9 @@ TEST(FocalHint, FromTheConfigsLensElseTheSimsElseNone) {
   h = FocalHintFromConfig(c, 4056);
   ASSERT_TRUE(h);
   EXPECT_NEAR(h->focal_px, 6.0 / 6.287 * 4056, 1e-9);
-  EXPECT_NE(h->source.find("camera.lens_focal_mm 6 / camera.sensor_width_mm 6.287"), std::string::npos) << h->source;
+  EXPECT_NE(h->source.find("camera.lens_focal_mm 6 / camera.sensor_width_mm 6.287"),
+            std::string::npos)
+      << h->source;
   c.camera.backend = "v4l2";
   EXPECT_TRUE(FocalHintFromConfig(c, 4056));
   c.camera.lens_focal_mm = 0;

@@ -15,7 +15,7 @@
 #include <sstream>
 
 #include "common/fsutil.h"
-#include "pipeline/colmap_sfm.h"
+#include "pipeline/sfm/colmap_sfm.h"
 #include "tests/util/temp_dir.h"
 
 namespace aggscan {

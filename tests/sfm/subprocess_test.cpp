@@ -1,4 +1,4 @@
-#include "pipeline/subprocess.h"
+#include "pipeline/core/subprocess.h"
 
 #include <gtest/gtest.h>
 #include <signal.h>

@@ -29,7 +29,8 @@ SamplePlan SmallPlan() {
 }
 
 TEST(Layout, SampleIdValidation) {
-  for (const char* ok : {"rock-1", "RR3_2026.11.22", "a", "0123456789"}) EXPECT_TRUE(layout::IsValidSampleId(ok)) << ok;
+  for (const char* ok : {"rock-1", "RR3_2026.11.22", "a", "0123456789"})
+    EXPECT_TRUE(layout::IsValidSampleId(ok)) << ok;
   for (const char* bad : {"", "..", "../x", "a/b", ".hidden", "-x", "a b", "a\nb", "x%2f", "é"}) {
     EXPECT_FALSE(layout::IsValidSampleId(bad)) << bad;
   }
@@ -49,7 +50,8 @@ TEST(FsUtil, AtomicWriteNoReplaceKeepsOriginal) {
   EXPECT_EQ(*ReadFile(p), "third");
   // No temporary files are left behind.
   int n = 0;
-  for (auto& e : fs::directory_iterator(t.path())) n += e.path().filename().string().rfind(".tmp-", 0) == 0;
+  for (auto& e : fs::directory_iterator(t.path()))
+    n += e.path().filename().string().rfind(".tmp-", 0) == 0;
   EXPECT_EQ(n, 0);
 }
 
@@ -91,7 +93,8 @@ TEST(SampleStore, FullSampleLifecycle) {
   for (int side = 1; side <= 2; ++side) {
     ASSERT_TRUE(store.BeginSide("rock-1", side));
     for (int v = 0; v < 3; ++v) {
-      ASSERT_TRUE(store.WriteView("rock-1", side, v, Bytes("jpeg" + std::to_string(v)), {{"view", v}}));
+      ASSERT_TRUE(
+          store.WriteView("rock-1", side, v, Bytes("jpeg" + std::to_string(v)), {{"view", v}}));
     }
     ASSERT_TRUE(store.FinishSide("rock-1", side));
   }
@@ -122,9 +125,11 @@ TEST(SampleStore, InterruptedSideIsMarkedAndReshotWithoutLoss) {
   ASSERT_TRUE(store.BeginSide("r", 1));
   ASSERT_TRUE(store.WriteView("r", 1, 0, Bytes("v0"), {{"view", 0}}));
   // A crash mid-write leaves a temporary file and an image without sidecar.
-  ASSERT_TRUE(WriteFileAtomic(store.SampleDir("r") + "/side1/view_001.jpg", std::string_view("half")));
+  ASSERT_TRUE(
+      WriteFileAtomic(store.SampleDir("r") + "/side1/view_001.jpg", std::string_view("half")));
   {
-    std::FILE* f = std::fopen((store.SampleDir("r") + "/side1/.tmp-view_002.jpg.1234").c_str(), "w");
+    std::FILE* f =
+        std::fopen((store.SampleDir("r") + "/side1/.tmp-view_002.jpg.1234").c_str(), "w");
     std::fputs("partial", f);
     std::fclose(f);
   }
@@ -304,9 +309,10 @@ TEST(SampleStore, DamagedRecordIsRefusedNotThrown) {
   SampleStore store(t.path());
   ASSERT_TRUE(store.Init());
   ASSERT_TRUE(store.CreateOrResume("r", SmallPlan(), "cfg"));
-  for (const char* bad : {R"({"state": "armed"})", R"({"state": "armed", "plan": 3, "sides": []})",
-                          R"({"state": "armed", "plan": {"sides": 2, "views_per_side": 3}, "sides": [{"x": 1}]})",
-                          "[1,2]", "{not json"}) {
+  for (const char* bad :
+       {R"({"state": "armed"})", R"({"state": "armed", "plan": 3, "sides": []})",
+        R"({"state": "armed", "plan": {"sides": 2, "views_per_side": 3}, "sides": [{"x": 1}]})",
+        "[1,2]", "{not json"}) {
     ASSERT_TRUE(WriteFileAtomic(store.SampleDir("r") + "/sample.json", std::string_view(bad)));
     auto rec = store.LoadRecord("r");
     ASSERT_FALSE(rec.ok()) << bad;
@@ -558,7 +564,7 @@ TEST(JobQueue, RetryRequeuesFailedJobsWithAttemptsReset) {
   EXPECT_EQ((*jobs)[0].state, "queued");
   EXPECT_EQ((*jobs)[0].attempts, 0);
   EXPECT_EQ((*jobs)[0].error, "");
-  EXPECT_EQ((*jobs)[1].state, "done");  // untouched
+  EXPECT_EQ((*jobs)[1].state, "done");   // untouched
   EXPECT_FALSE(queue.Retry("r1").ok());  // nothing failed any more
 }
 
@@ -570,15 +576,18 @@ TEST(JobQueue, OldQueueDatabaseIsMigrated) {
   {
     sqlite3* db = nullptr;
     ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
-    ASSERT_EQ(sqlite3_exec(db,
-                           "CREATE TABLE jobs (id INTEGER PRIMARY KEY AUTOINCREMENT, sample_id TEXT NOT NULL,"
-                           " side INTEGER NOT NULL, state TEXT NOT NULL CHECK (state IN "
-                           "('queued','running','done','failed')), attempts INTEGER NOT NULL DEFAULT 0, error TEXT,"
-                           " created_utc TEXT NOT NULL, updated_utc TEXT NOT NULL);"
-                           "INSERT INTO jobs(sample_id, side, state, attempts, created_utc, updated_utc) VALUES "
-                           "('old', 1, 'running', 2, 'x', 'x');",
-                           nullptr, nullptr, nullptr),
-              SQLITE_OK);
+    ASSERT_EQ(
+        sqlite3_exec(
+            db,
+            "CREATE TABLE jobs (id INTEGER PRIMARY KEY AUTOINCREMENT, sample_id TEXT NOT NULL,"
+            " side INTEGER NOT NULL, state TEXT NOT NULL CHECK (state IN "
+            "('queued','running','done','failed')), attempts INTEGER NOT NULL DEFAULT 0, error "
+            "TEXT,"
+            " created_utc TEXT NOT NULL, updated_utc TEXT NOT NULL);"
+            "INSERT INTO jobs(sample_id, side, state, attempts, created_utc, updated_utc) VALUES "
+            "('old', 1, 'running', 2, 'x', 'x');",
+            nullptr, nullptr, nullptr),
+        SQLITE_OK);
     sqlite3_close(db);
   }
   for (int open = 0; open < 2; ++open) {  // the second open finds the column there

@@ -1,7 +1,7 @@
 // Photo-consistency refinement of the visual hull on the sim rock seen from
 // both sides (textured renders, ground-truth masks and poses): the refined
 // mesh must be closer to the rock's volume than the hull and stay closed.
-#include "pipeline/photo_refine.h"
+#include "pipeline/surface/photo_refine.h"
 
 #include <gtest/gtest.h>
 
@@ -10,7 +10,6 @@
 #include <cstdio>
 #include <filesystem>
 #include <memory>
-
 #include <opencv2/imgproc.hpp>
 
 #include "common/mesh.h"
@@ -19,7 +18,7 @@
 #include "config/config.h"
 #include "drivers/sim/render.h"
 #include "drivers/sim/world.h"
-#include "pipeline/visual_hull.h"
+#include "pipeline/surface/visual_hull.h"
 #include "tests/util/temp_dir.h"
 
 namespace aggscan {
@@ -55,8 +54,10 @@ std::unique_ptr<Capture> CaptureOf(Config config, double step_deg = 12.0) {
   std::vector<HalfSpace> floors;
   for (int side = 1; side <= 2; ++side) {
     // Object frame = side 1's table frame.
-    const Eigen::Isometry3d ts_from_t1 = ToIso(world.pose(side).rock_to_turntable.Matrix4()) * rock_to_t1.inverse();
-    floors.push_back(HalfSpace{ts_from_t1.linear().row(2).transpose(), ts_from_t1.translation().z()});
+    const Eigen::Isometry3d ts_from_t1 =
+        ToIso(world.pose(side).rock_to_turntable.Matrix4()) * rock_to_t1.inverse();
+    floors.push_back(
+        HalfSpace{ts_from_t1.linear().row(2).transpose(), ts_from_t1.translation().z()});
     for (int i = 0; i < 30; ++i) {
       const double angle = std::fmod(i * step_deg, 360.0);
       sim::RenderOptions o;
@@ -65,20 +66,22 @@ std::unique_ptr<Capture> CaptureOf(Config config, double step_deg = 12.0) {
       const sim::RenderedImage img = renderer.Render(side, angle, o);
       SilhouetteView v;
       v.camera = cal.camera;
-      v.mask = cv::Mat(img.height, img.width, CV_8UC1, const_cast<uint8_t*>(img.mask.data())).clone();
+      v.mask =
+          cv::Mat(img.height, img.width, CV_8UC1, const_cast<uint8_t*>(img.mask.data())).clone();
       v.cam_from_object = ToIso(cal.CamFromTable(angle)) * ts_from_t1;
       PhotoView p;
       p.camera = cal.camera;
       p.cam_from_object = v.cam_from_object;
       p.mask = v.mask.clone();
-      cv::cvtColor(cv::Mat(img.height, img.width, CV_8UC3, const_cast<uint8_t*>(img.rgb.data())), p.image,
-                   cv::COLOR_RGB2BGR);
+      cv::cvtColor(cv::Mat(img.height, img.width, CV_8UC3, const_cast<uint8_t*>(img.rgb.data())),
+                   p.image, cv::COLOR_RGB2BGR);
       views.push_back(std::move(v));
       cap->photos.push_back(std::move(p));
     }
   }
   const double R = config.rig.turntable_diameter_mm / 2;
-  auto hull = CarveVisualHull(views, floors, Eigen::AlignedBox3d(Eigen::Vector3d(-R, -R, -5), Eigen::Vector3d(R, R, 300)));
+  auto hull = CarveVisualHull(
+      views, floors, Eigen::AlignedBox3d(Eigen::Vector3d(-R, -R, -5), Eigen::Vector3d(R, R, 300)));
   EXPECT_TRUE(hull) << hull.error().ToString();
   if (hull) cap->hull = std::move(*hull);
   cap->truth = ComputeMeshProps(world.rock());
@@ -113,15 +116,17 @@ TEST(PhotoRefine, RecoversPartOfWhatTheHullCannotSee) {
   auto pct = [](double a, double b) { return 100 * (a / b - 1); };
   std::printf("hull:    V %+.2f%% A %+.2f%% a %+.2f%% b %+.2f%% c %+.2f%% sph %.4f (truth %.4f)\n",
               pct(hull.volume_mm3, t.volume_mm3), pct(hull.surface_area_mm2, t.surface_area_mm2),
-              pct(hull.a_mm, t.a_mm), pct(hull.b_mm, t.b_mm), pct(hull.c_mm, t.c_mm), hull.sphericity, t.sphericity);
+              pct(hull.a_mm, t.a_mm), pct(hull.b_mm, t.b_mm), pct(hull.c_mm, t.c_mm),
+              hull.sphericity, t.sphericity);
   std::printf("refined: V %+.2f%% A %+.2f%% a %+.2f%% b %+.2f%% c %+.2f%% sph %.4f\n",
               pct(got.volume_mm3, t.volume_mm3), pct(got.surface_area_mm2, t.surface_area_mm2),
               pct(got.a_mm, t.a_mm), pct(got.b_mm, t.b_mm), pct(got.c_mm, t.c_mm), got.sphericity);
-  std::printf("refine: %lld vertices, %lld scored, %lld confident, %lld moved, mean %.2f max %.2f mm, "
-              "%d fold passes, %.2f s\n",
-              static_cast<long long>(res->vertices), static_cast<long long>(res->vertices_scored),
-              static_cast<long long>(res->vertices_confident), static_cast<long long>(res->vertices_moved),
-              res->mean_displacement_mm, res->max_displacement_mm, res->fold_passes, res->seconds);
+  std::printf(
+      "refine: %lld vertices, %lld scored, %lld confident, %lld moved, mean %.2f max %.2f mm, "
+      "%d fold passes, %.2f s\n",
+      static_cast<long long>(res->vertices), static_cast<long long>(res->vertices_scored),
+      static_cast<long long>(res->vertices_confident), static_cast<long long>(res->vertices_moved),
+      res->mean_displacement_mm, res->max_displacement_mm, res->fold_passes, res->seconds);
   // Only inward moves: the hull bounds the rock.
   EXPECT_LE(got.volume_mm3, hull.volume_mm3);
   EXPECT_LT(std::abs(got.volume_mm3 - t.volume_mm3), std::abs(hull.volume_mm3 - t.volume_mm3));
@@ -147,15 +152,18 @@ TEST(PhotoRefine, NoFaceIsLeftFolded) {
     for (const auto& f : cap.hull.mesh.faces) {
       auto normal = [&](const Mesh& m) {
         Eigen::Vector3d p[3];
-        for (int k = 0; k < 3; ++k) p[k] = {m.vertices[f[k]][0], m.vertices[f[k]][1], m.vertices[f[k]][2]};
+        for (int k = 0; k < 3; ++k)
+          p[k] = {m.vertices[f[k]][0], m.vertices[f[k]][1], m.vertices[f[k]][2]};
         return Eigen::Vector3d((p[1] - p[0]).cross(p[2] - p[0]));
       };
       const Eigen::Vector3d n0 = normal(cap.hull.mesh).normalized(), n = normal(res->mesh);
       if (n.norm() > 1e-12 && n0.dot(n) / n.norm() < cos_turn) ++folded;
     }
-    std::printf("untangle %d: %lld faces folded before undoing, %d centroid passes, %d pull-back passes; "
-                "%d left\n",
-                untangle, static_cast<long long>(res->faces_folded), res->untangle_passes, res->fold_passes, folded);
+    std::printf(
+        "untangle %d: %lld faces folded before undoing, %d centroid passes, %d pull-back passes; "
+        "%d left\n",
+        untangle, static_cast<long long>(res->faces_folded), res->untangle_passes, res->fold_passes,
+        folded);
     EXPECT_EQ(folded, 0);
     EXPECT_LE(res->untangle_passes, untangle);
   }
@@ -201,14 +209,17 @@ TEST(PhotoRefine, CurvedPatchesKeepTheConvexSurface) {
   ASSERT_TRUE(f && c);
   const MeshProps pf = ComputeMeshProps(f->mesh), pc = ComputeMeshProps(c->mesh), &t = cap.truth;
   auto pct = [](double a, double b) { return 100 * (a / b - 1); };
-  std::printf("flat:   V %+.2f%% A %+.2f%% a %+.2f%% b %+.2f%% c %+.2f%% sph %+.4f\n", pct(pf.volume_mm3, t.volume_mm3),
-              pct(pf.surface_area_mm2, t.surface_area_mm2), pct(pf.a_mm, t.a_mm), pct(pf.b_mm, t.b_mm),
-              pct(pf.c_mm, t.c_mm), pf.sphericity - t.sphericity);
-  std::printf("curved: V %+.2f%% A %+.2f%% a %+.2f%% b %+.2f%% c %+.2f%% sph %+.4f\n", pct(pc.volume_mm3, t.volume_mm3),
-              pct(pc.surface_area_mm2, t.surface_area_mm2), pct(pc.a_mm, t.a_mm), pct(pc.b_mm, t.b_mm),
-              pct(pc.c_mm, t.c_mm), pc.sphericity - t.sphericity);
+  std::printf("flat:   V %+.2f%% A %+.2f%% a %+.2f%% b %+.2f%% c %+.2f%% sph %+.4f\n",
+              pct(pf.volume_mm3, t.volume_mm3), pct(pf.surface_area_mm2, t.surface_area_mm2),
+              pct(pf.a_mm, t.a_mm), pct(pf.b_mm, t.b_mm), pct(pf.c_mm, t.c_mm),
+              pf.sphericity - t.sphericity);
+  std::printf("curved: V %+.2f%% A %+.2f%% a %+.2f%% b %+.2f%% c %+.2f%% sph %+.4f\n",
+              pct(pc.volume_mm3, t.volume_mm3), pct(pc.surface_area_mm2, t.surface_area_mm2),
+              pct(pc.a_mm, t.a_mm), pct(pc.b_mm, t.b_mm), pct(pc.c_mm, t.c_mm),
+              pc.sphericity - t.sphericity);
   auto worst_dim = [&](const MeshProps& p) {
-    return std::max({std::abs(pct(p.a_mm, t.a_mm)), std::abs(pct(p.b_mm, t.b_mm)), std::abs(pct(p.c_mm, t.c_mm))});
+    return std::max({std::abs(pct(p.a_mm, t.a_mm)), std::abs(pct(p.b_mm, t.b_mm)),
+                     std::abs(pct(p.c_mm, t.c_mm))});
   };
   EXPECT_LT(worst_dim(pc), worst_dim(pf));
   EXPECT_LT(std::abs(pc.sphericity - t.sphericity), std::abs(pf.sphericity - t.sphericity));
@@ -228,7 +239,8 @@ TEST(PhotoRefine, CurvedPatchesKeepTheConvexSurface) {
 // -0.0234; reach x depth 273 folded, none pulled back, A -0.62 %, +0.0110
 // (V +1.27 / +1.28 %, a/b/c equal: the ridges add area, not volume).
 TEST(PhotoRefine, DeepMovesBehindAnEdgeDoNotCollapse) {
-  const std::string stone = std::string(AGGSCAN_SHARED_DATA) + "/meshes/epfl_stones/low_res_E34.ply";
+  const std::string stone =
+      std::string(AGGSCAN_SHARED_DATA) + "/meshes/epfl_stones/low_res_E34.ply";
   if (!std::filesystem::exists(stone)) GTEST_SKIP() << "no shared data: " << stone;
   auto mesh = LoadMesh(stone, "m");
   ASSERT_TRUE(mesh) << mesh.error().ToString();
@@ -248,16 +260,19 @@ TEST(PhotoRefine, DeepMovesBehindAnEdgeDoNotCollapse) {
   auto before = RefineByPhotoConsistency(cap->hull.mesh, cap->photos, along_n);
   auto now = RefineByPhotoConsistency(cap->hull.mesh, cap->photos);
   ASSERT_TRUE(before && now);
-  const MeshProps pb = ComputeMeshProps(before->mesh), pn = ComputeMeshProps(now->mesh), &t = cap->truth;
+  const MeshProps pb = ComputeMeshProps(before->mesh), pn = ComputeMeshProps(now->mesh),
+                  &t = cap->truth;
   auto pct = [](double a, double b) { return 100 * (a / b - 1); };
   for (const auto* r : {&*before, &*now}) {
     const MeshProps p = ComputeMeshProps(r->mesh);
-    std::printf("%s: V %+.2f%% A %+.2f%% a %+.2f%% b %+.2f%% c %+.2f%% sph %+.4f; %lld faces folded, %d centroid "
-                "passes, %d pull-back passes, direction passes up to %d\n",
-                r == &*before ? "3-ring normals" : "reach x depth", pct(p.volume_mm3, t.volume_mm3),
-                pct(p.surface_area_mm2, t.surface_area_mm2), pct(p.a_mm, t.a_mm), pct(p.b_mm, t.b_mm),
-                pct(p.c_mm, t.c_mm), p.sphericity - t.sphericity, static_cast<long long>(r->faces_folded),
-                r->untangle_passes, r->fold_passes, r->max_direction_passes);
+    std::printf(
+        "%s: V %+.2f%% A %+.2f%% a %+.2f%% b %+.2f%% c %+.2f%% sph %+.4f; %lld faces folded, %d "
+        "centroid "
+        "passes, %d pull-back passes, direction passes up to %d\n",
+        r == &*before ? "3-ring normals" : "reach x depth", pct(p.volume_mm3, t.volume_mm3),
+        pct(p.surface_area_mm2, t.surface_area_mm2), pct(p.a_mm, t.a_mm), pct(p.b_mm, t.b_mm),
+        pct(p.c_mm, t.c_mm), p.sphericity - t.sphericity, static_cast<long long>(r->faces_folded),
+        r->untangle_passes, r->fold_passes, r->max_direction_passes);
   }
   EXPECT_TRUE(CheckClosedManifold(now->mesh, "refined hull"));
   EXPECT_EQ(before->max_direction_passes, 0);
@@ -266,7 +281,8 @@ TEST(PhotoRefine, DeepMovesBehindAnEdgeDoNotCollapse) {
   EXPECT_GT(before->fold_passes, 0);
   EXPECT_EQ(now->fold_passes, 0);
   EXPECT_LT(now->faces_folded, before->faces_folded);
-  EXPECT_LT(std::abs(pn.surface_area_mm2 / t.surface_area_mm2 - 1), std::abs(pb.surface_area_mm2 / t.surface_area_mm2 - 1));
+  EXPECT_LT(std::abs(pn.surface_area_mm2 / t.surface_area_mm2 - 1),
+            std::abs(pb.surface_area_mm2 / t.surface_area_mm2 - 1));
   EXPECT_NEAR(pn.surface_area_mm2 / t.surface_area_mm2, 1.0, 0.015);
   EXPECT_LT(std::abs(pn.sphericity - t.sphericity), std::abs(pb.sphericity - t.sphericity));
   EXPECT_LT(std::abs(pn.sphericity - t.sphericity), 0.02);
@@ -283,7 +299,7 @@ TEST(PhotoRefine, DeepMovesBehindAnEdgeDoNotCollapse) {
 // c -2.03 -> -1.44 %, seed 13 -2.02 -> -1.49 %, dims within 2 % on 20 (18).
 TEST(PhotoRefine, MaskedPatchesKeepTheRims) {
   Config config;
-  config.sim.seed = 11;  // a small, long rock: 50 cm3, c 74 mm
+  config.sim.seed = 11;                      // a small, long rock: 50 cm3, c 74 mm
   const auto cap = CaptureOf(config, 30.0);  // the rig's default: 30 views 30 deg apart (2.5 turns)
   ASSERT_FALSE(cap->hull.mesh.faces.empty());
   PhotoRefineOptions unmasked;
@@ -297,14 +313,15 @@ TEST(PhotoRefine, MaskedPatchesKeepTheRims) {
   for (const MeshProps* p : {&pu, &pm}) {
     std::printf("%s: V %+.2f%% A %+.2f%% a %+.2f%% b %+.2f%% c %+.2f%% sph %+.4f\n",
                 p == &pu ? "unmasked" : "masked  ", pct(p->volume_mm3, t.volume_mm3),
-                pct(p->surface_area_mm2, t.surface_area_mm2), pct(p->a_mm, t.a_mm), pct(p->b_mm, t.b_mm),
-                pct(p->c_mm, t.c_mm), p->sphericity - t.sphericity);
+                pct(p->surface_area_mm2, t.surface_area_mm2), pct(p->a_mm, t.a_mm),
+                pct(p->b_mm, t.b_mm), pct(p->c_mm, t.c_mm), p->sphericity - t.sphericity);
   }
   auto worst_dim = [&](const MeshProps& p) {
-    return std::max({std::abs(pct(p.a_mm, t.a_mm)), std::abs(pct(p.b_mm, t.b_mm)), std::abs(pct(p.c_mm, t.c_mm))});
+    return std::max({std::abs(pct(p.a_mm, t.a_mm)), std::abs(pct(p.b_mm, t.b_mm)),
+                     std::abs(pct(p.c_mm, t.c_mm))});
   };
-  std::printf("worst dimension: hull %.2f %%, unmasked %.2f %%, masked %.2f %%\n", worst_dim(ph), worst_dim(pu),
-              worst_dim(pm));
+  std::printf("worst dimension: hull %.2f %%, unmasked %.2f %%, masked %.2f %%\n", worst_dim(ph),
+              worst_dim(pu), worst_dim(pm));
   EXPECT_LT(std::abs(pct(pm.c_mm, t.c_mm)), std::abs(pct(pu.c_mm, t.c_mm)));
   EXPECT_LT(worst_dim(pm), worst_dim(pu));
   EXPECT_LT(worst_dim(pm), 1.0);

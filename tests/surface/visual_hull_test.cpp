@@ -1,4 +1,4 @@
-#include "pipeline/visual_hull.h"
+#include "pipeline/surface/visual_hull.h"
 
 #include <gtest/gtest.h>
 
@@ -37,7 +37,8 @@ CameraModel Pinhole(int w, int h, double f) {
 // A camera at distance d and elevation el looking at the origin, azimuth az.
 Eigen::Isometry3d LookAt(double az_deg, double el_deg, double d) {
   const double az = az_deg * M_PI / 180, el = el_deg * M_PI / 180;
-  const Eigen::Vector3d C(d * std::cos(el) * std::cos(az), d * std::cos(el) * std::sin(az), d * std::sin(el));
+  const Eigen::Vector3d C(d * std::cos(el) * std::cos(az), d * std::cos(el) * std::sin(az),
+                          d * std::sin(el));
   const Eigen::Vector3d z = (-C).normalized();
   const Eigen::Vector3d x = z.cross(Eigen::Vector3d::UnitZ()).normalized();
   const Eigen::Vector3d y = z.cross(x);
@@ -53,12 +54,14 @@ Eigen::Isometry3d LookAt(double az_deg, double el_deg, double d) {
 
 // Exact silhouette of a sphere (centre c, radius r): pixels whose ray passes
 // within r of the centre.
-cv::Mat SphereMask(const CameraModel& cam, const Eigen::Isometry3d& T, const Eigen::Vector3d& c, double r) {
+cv::Mat SphereMask(const CameraModel& cam, const Eigen::Isometry3d& T, const Eigen::Vector3d& c,
+                   double r) {
   cv::Mat m(cam.height, cam.width, CV_8UC1);
   const Eigen::Vector3d cc = T * c;
   for (int y = 0; y < cam.height; ++y) {
     for (int x = 0; x < cam.width; ++x) {
-      const Eigen::Vector3d ray = Eigen::Vector3d((x - cam.cx) / cam.fx, (y - cam.cy) / cam.fy, 1).normalized();
+      const Eigen::Vector3d ray =
+          Eigen::Vector3d((x - cam.cx) / cam.fx, (y - cam.cy) / cam.fy, 1).normalized();
       const double along = ray.dot(cc);
       const double dist2 = cc.squaredNorm() - along * along;
       m.at<uint8_t>(y, x) = (along > 0 && dist2 <= r * r) ? 255 : 0;
@@ -83,7 +86,8 @@ TEST(VisualHull, SphereFromTwoRingsIsClosedAndNearlyExact) {
   const Eigen::AlignedBox3d box(Eigen::Vector3d(-150, -150, -150), Eigen::Vector3d(150, 150, 150));
   auto res = CarveVisualHull(views, {}, box);
   ASSERT_TRUE(res) << res.error().ToString();
-  EXPECT_TRUE(CheckClosedManifold(res->mesh, "hull")) << CheckClosedManifold(res->mesh, "hull").error().ToString();
+  EXPECT_TRUE(CheckClosedManifold(res->mesh, "hull"))
+      << CheckClosedManifold(res->mesh, "hull").error().ToString();
   const MeshProps p = ComputeMeshProps(res->mesh);
   const double v_true = 4.0 / 3 * M_PI * r * r * r;
   const double a_true = 4 * M_PI * r * r;
@@ -98,8 +102,8 @@ TEST(VisualHull, SphereFromTwoRingsIsClosedAndNearlyExact) {
   EXPECT_GT(res->mesh.faces.size(), 50000u);
   EXPECT_LT(res->mesh.faces.size(), 200000u);
   std::printf("sphere: V %.4f%%  A %.4f%%  faces %zu  voxel %.3f mm  %.2f s\n",
-              100 * (p.volume_mm3 / v_true - 1), 100 * (p.surface_area_mm2 / a_true - 1), res->mesh.faces.size(),
-              res->voxel_mm, res->seconds);
+              100 * (p.volume_mm3 / v_true - 1), 100 * (p.surface_area_mm2 / a_true - 1),
+              res->mesh.faces.size(), res->voxel_mm, res->seconds);
 }
 
 TEST(VisualHull, FloorCutsTheHull) {
@@ -148,7 +152,8 @@ TEST(VisualHull, RefusesDisjointSilhouettesAndBadMasks) {
   // A mask that is all rock: the hull fills the search box.
   views[0].mask = cv::Mat(cam.height, cam.width, CV_8UC1, cv::Scalar(255));
   views[1].mask = cv::Mat(cam.height, cam.width, CV_8UC1, cv::Scalar(255));
-  res = CarveVisualHull(views, {}, Eigen::AlignedBox3d(Eigen::Vector3d(-20, -20, -20), Eigen::Vector3d(20, 20, 20)));
+  res = CarveVisualHull(
+      views, {}, Eigen::AlignedBox3d(Eigen::Vector3d(-20, -20, -20), Eigen::Vector3d(20, 20, 20)));
   ASSERT_FALSE(res);
   EXPECT_NE(res.error().message.find("edge of the search region"), std::string::npos);
 }
@@ -168,7 +173,8 @@ TEST(VisualHull, SimRockBothSidesWithTruthMasks) {
   std::vector<HalfSpace> floors;
   for (int side = 1; side <= 2; ++side) {
     // object frame = side-1 table frame; table_s <- table_1
-    const Eigen::Isometry3d ts_from_t1 = ToIso(world.pose(side).rock_to_turntable) * rock_to_t1.inverse();
+    const Eigen::Isometry3d ts_from_t1 =
+        ToIso(world.pose(side).rock_to_turntable) * rock_to_t1.inverse();
     HalfSpace floor;
     floor.normal = ts_from_t1.linear().row(2).transpose();
     floor.offset = ts_from_t1.translation().z();
@@ -181,7 +187,8 @@ TEST(VisualHull, SimRockBothSidesWithTruthMasks) {
       const sim::RenderedImage img = renderer.Render(side, angle, o);
       SilhouetteView v;
       v.camera = cal.camera;
-      v.mask = cv::Mat(img.height, img.width, CV_8UC1, const_cast<uint8_t*>(img.mask.data())).clone();
+      v.mask =
+          cv::Mat(img.height, img.width, CV_8UC1, const_cast<uint8_t*>(img.mask.data())).clone();
       v.cam_from_object = ToIso(cal.CamFromTable(angle)) * ts_from_t1;
       views.push_back(std::move(v));
     }
@@ -194,11 +201,14 @@ TEST(VisualHull, SimRockBothSidesWithTruthMasks) {
   const MeshProps got = ComputeMeshProps(res->mesh);
   const MeshProps truth = ComputeMeshProps(world.rock());
   const double dv = got.volume_mm3 / truth.volume_mm3 - 1;
-  std::printf("sim rock seed 4: V %.0f vs %.0f (%+.2f%%), A %+.2f%%, a %+.2f%% b %+.2f%% c %+.2f%%, faces %zu, "
-              "voxel %.2f mm, %.2f s\n",
-              got.volume_mm3, truth.volume_mm3, 100 * dv, 100 * (got.surface_area_mm2 / truth.surface_area_mm2 - 1),
-              100 * (got.a_mm / truth.a_mm - 1), 100 * (got.b_mm / truth.b_mm - 1), 100 * (got.c_mm / truth.c_mm - 1),
-              res->mesh.faces.size(), res->voxel_mm, res->seconds);
+  std::printf(
+      "sim rock seed 4: V %.0f vs %.0f (%+.2f%%), A %+.2f%%, a %+.2f%% b %+.2f%% c %+.2f%%, faces "
+      "%zu, "
+      "voxel %.2f mm, %.2f s\n",
+      got.volume_mm3, truth.volume_mm3, 100 * dv,
+      100 * (got.surface_area_mm2 / truth.surface_area_mm2 - 1), 100 * (got.a_mm / truth.a_mm - 1),
+      100 * (got.b_mm / truth.b_mm - 1), 100 * (got.c_mm / truth.c_mm - 1), res->mesh.faces.size(),
+      res->voxel_mm, res->seconds);
   EXPECT_GT(dv, -0.01);
   EXPECT_LT(dv, 0.05);
   EXPECT_NEAR(got.c_mm / truth.c_mm, 1.0, 0.02);

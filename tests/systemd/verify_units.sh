@@ -60,7 +60,7 @@ unitdir="$root$prefix/lib/systemd/system"
 daemon_bin="$root$prefix/$sbindir/aggscand"
 worker_bin="$root$prefix/$bindir/aggscan-worker"
 [ -x "$daemon_bin" ] || fail "aggscand is not installed by this build ($prefix/$sbindir/aggscand): build the aggscand target (daemon/main_aggscand.cpp) before this test"
-[ -x "$worker_bin" ] || fail "aggscan-worker is not installed by this build ($prefix/$bindir/aggscan-worker): build the aggscan-worker target (pipeline/main_worker.cpp) before this test"
+[ -x "$worker_bin" ] || fail "aggscan-worker is not installed by this build ($prefix/$bindir/aggscan-worker): build the aggscan-worker target (pipeline/worker/main_worker.cpp) before this test"
 
 # The units pull in targets (multi-user, sysinit, ...): give the root the
 # host's vendor units, never overwriting ours.

@@ -150,7 +150,9 @@ class SimTic {
   std::array<uint8_t, 0x58> Variables() const {
     std::array<uint8_t, 0x58> b{};
     const bool energized = !(errors_ & Bit(kErrIntentionallyDeenergized));
-    b[kVarOperationState] = !energized ? kStateDeenergized : errors_ ? kStateSoftError : kStateNormal;
+    b[kVarOperationState] = !energized ? kStateDeenergized
+                            : errors_  ? kStateSoftError
+                                       : kStateNormal;
     b[kVarMiscFlags1] = static_cast<uint8_t>((energized ? kFlagEnergized : 0) |
                                              (uncertain_ ? kFlagPositionUncertain : 0) |
                                              (homing_ ? kFlagHomingActive : 0));
@@ -162,9 +164,11 @@ class SimTic {
     WriteU32(b, kVarMaxSpeed, max_speed_);
     WriteU32(b, kVarMaxDecel, max_decel_);
     WriteU32(b, kVarMaxAccel, max_accel_);
-    WriteU32(b, kVarCurrentPosition, static_cast<uint32_t>(static_cast<int32_t>(std::lround(pos_))));
-    WriteU32(b, kVarCurrentVelocity,
-             static_cast<uint32_t>(static_cast<int32_t>(std::lround(vel_ * kSpeedUnitsPerStepPerS))));
+    WriteU32(b, kVarCurrentPosition,
+             static_cast<uint32_t>(static_cast<int32_t>(std::lround(pos_))));
+    WriteU32(
+        b, kVarCurrentVelocity,
+        static_cast<uint32_t>(static_cast<int32_t>(std::lround(vel_ * kSpeedUnitsPerStepPerS))));
     return b;
   }
 
@@ -184,7 +188,7 @@ class SimTic {
                                     Bit(kErrSafeStartViolation));
     if (!initialized_) errors_ |= Bit(kErrIntentionallyDeenergized);
     initialized_ = true;
-    max_speed_ = 2'000'000;  // the Tic's default settings: 200 steps/s
+    max_speed_ = 2'000'000;            // the Tic's default settings: 200 steps/s
     max_accel_ = max_decel_ = 40'000;  // 400 steps/s^2
   }
 
@@ -240,7 +244,8 @@ class SimTic {
         physical_ = pos_ + offset_;
       }
     }
-    if (homing_ && std::floor((before - switch_) / rev_) != std::floor((physical_ - switch_) / rev_)) {
+    if (homing_ &&
+        std::floor((before - switch_) / rev_) != std::floor((physical_ - switch_) / rev_)) {
       // The home switch: the Tic backs off it slowly and calls the spot 0.
       vel_ = 0;
       homing_ = false;
@@ -291,12 +296,18 @@ int main(int argc, char** argv) {
   double switch_at = 0, start_at = 400, steps_per_rev = 1600, timeout_ms = 1000;
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string a = argv[i];
-    if (a == "--ffs") ffs = argv[i + 1];
-    else if (a == "--ready") ready = argv[i + 1];
-    else if (a == "--home-switch-at") switch_at = std::atof(argv[i + 1]);
-    else if (a == "--start-at") start_at = std::atof(argv[i + 1]);
-    else if (a == "--steps-per-rev") steps_per_rev = std::atof(argv[i + 1]);
-    else if (a == "--command-timeout-ms") timeout_ms = std::atof(argv[i + 1]);
+    if (a == "--ffs")
+      ffs = argv[i + 1];
+    else if (a == "--ready")
+      ready = argv[i + 1];
+    else if (a == "--home-switch-at")
+      switch_at = std::atof(argv[i + 1]);
+    else if (a == "--start-at")
+      start_at = std::atof(argv[i + 1]);
+    else if (a == "--steps-per-rev")
+      steps_per_rev = std::atof(argv[i + 1]);
+    else if (a == "--command-timeout-ms")
+      timeout_ms = std::atof(argv[i + 1]);
     else {
       std::fprintf(stderr, "tic_gadget: unknown option %s\n", a.c_str());
       return 2;
@@ -308,8 +319,10 @@ int main(int argc, char** argv) {
   }
   struct sigaction sa {};
   sa.sa_handler = [](int sig) {
-    if (sig == SIGUSR1) g_driver_error = true;
-    else g_stop = true;
+    if (sig == SIGUSR1)
+      g_driver_error = true;
+    else
+      g_stop = true;
   };
   sigaction(SIGUSR1, &sa, nullptr);
   sigaction(SIGTERM, &sa, nullptr);
@@ -376,7 +389,7 @@ int main(int argc, char** argv) {
       if (ev[i].type != FUNCTIONFS_SETUP) {
         // Bind, enable, disable, suspend, resume: no state here, but the log
         // tells a failing run's story.
-        static const char* const kNames[] = {"bind", "unbind", "enable", "disable",
+        static const char* const kNames[] = {"bind",  "unbind",  "enable", "disable",
                                              "setup", "suspend", "resume"};
         std::fprintf(stderr, "tic_gadget: %.3f s: %s\n", NowS(),
                      ev[i].type < 7 ? kNames[ev[i].type] : "unknown event");
@@ -391,20 +404,24 @@ int main(int argc, char** argv) {
         if (index < vars.size() && length >= 1 && length <= kMaxBlockRead) {
           const size_t len = std::min<size_t>(length, vars.size() - index);
           if (write(ep0, vars.data() + index, len) < 0) {
-            std::fprintf(stderr, "tic_gadget: answering a variable read: %s\n", std::strerror(errno));
+            std::fprintf(stderr, "tic_gadget: answering a variable read: %s\n",
+                         std::strerror(errno));
           }
           continue;
         }
         (void)!read(ep0, nullptr, 0);  // IN request: a read stalls it
         continue;
       }
-      if (r.bRequestType == kRequestTypeOut && length == 0 && tic.Command(r.bRequest, value, index)) {
+      if (r.bRequestType == kRequestTypeOut && length == 0 &&
+          tic.Command(r.bRequest, value, index)) {
         (void)!read(ep0, nullptr, 0);  // status stage: acknowledge
         continue;
       }
       // Unknown: stall (a write for an OUT request, a read for an IN one).
-      if (r.bRequestType & USB_DIR_IN) (void)!read(ep0, nullptr, 0);
-      else (void)!write(ep0, nullptr, 0);
+      if (r.bRequestType & USB_DIR_IN)
+        (void)!read(ep0, nullptr, 0);
+      else
+        (void)!write(ep0, nullptr, 0);
     }
   }
   close(ep0);

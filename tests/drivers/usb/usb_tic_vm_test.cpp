@@ -268,7 +268,8 @@ TEST_F(UsbTicVm, DaemonHealthFollowsUnplugAndReplug) {
       << "reopen_backoff_min = \"100ms\"\nreopen_backoff_max = \"400ms\"\n"
       << "health_probe_interval = \"200ms\"\n\n[camera]\nwidth = 640\nheight = 480\n\n"
       << "[turntable]\nbackend = \"usb-tic\"\nmax_speed_deg_s = 180.0\naccel_deg_s2 = 720.0\n"
-      << "[turntable.usb]\nserial_number = \"" << serial_ << "\"\nmicrosteps = 8\ntimeout = \"2s\"\n";
+      << "[turntable.usb]\nserial_number = \"" << serial_
+      << "\"\nmicrosteps = 8\ntimeout = \"2s\"\n";
   test::Daemon d(config, dir.path());
   ASSERT_TRUE(d.ok()) << test::ReadAll(d.log());
   auto turntable_state = [&](json* h) {
@@ -298,10 +299,10 @@ TEST_F(UsbTicVm, DaemonHealthFollowsUnplugAndReplug) {
   EXPECT_THAT(msg, HasSubstr("1ffb")) << msg;
   EXPECT_THAT(msg, HasSubstr("serial " + serial_)) << msg;
   const std::string cli_log = dir.path() + "/cli.log";
-  const int rc = test::WaitExit(test::Spawn(
-      {test::Bin("cli/aggscan"), "--url", "http://127.0.0.1:" + std::to_string(d.port()),
-       "selftest"},
-      cli_log));
+  const int rc =
+      test::WaitExit(test::Spawn({test::Bin("cli/aggscan"), "--url",
+                                  "http://127.0.0.1:" + std::to_string(d.port()), "selftest"},
+                                 cli_log));
   EXPECT_EQ(rc, 4) << test::ReadAll(cli_log);
   EXPECT_THAT(test::ReadAll(cli_log), HasSubstr("turntable: FAIL"));
 

@@ -1,0 +1,1555 @@
+#include "pipeline/worker/reconstruct.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <optional>
+#include <thread>
+
+#include "common/clock.h"
+#include "common/fsutil.h"
+#include "common/log.h"
+#include "common/mesh_check.h"
+#include "common/mesh_props.h"
+#include "common/rig_calibration.h"
+#include "pipeline/core/geometry.h"
+#include "pipeline/core/image_io.h"
+#include "pipeline/masks/mask_dataset.h"
+#include "pipeline/morph/morph2d.h"
+#include "pipeline/worker/options_json.h"
+#include "pipeline/worker/quality.h"
+#include "pipeline/core/stage.h"
+#include "pipeline/core/stage_runner.h"
+#include "pipeline/stitch/stitch_stage.h"
+#include "store/layout.h"
+
+namespace aggscan {
+
+std::string results::PosesName(int side) { return "poses_" + layout::SideDirName(side) + ".json"; }
+
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+constexpr const char* kCat = "worker";
+
+std::string ResultsPath(const std::string& sample_dir, const std::string& name) {
+  return sample_dir + "/" + layout::kResultsDir + "/" + name;
+}
+
+Status WriteJson(const std::string& path, const json& j) {
+  return WriteFileAtomic(path, j.dump(2) + "\n");
+}
+
+Result<json> ReadJson(const std::string& path, const std::string& what) {
+  auto text = ReadFile(path);
+  if (!text) return text.error();
+  json j = json::parse(*text, nullptr, false);
+  if (j.is_discarded() || !j.is_object()) {
+    return MakeError(ErrorClass::kCorrupt,
+                     what + " " + path + " is not valid JSON; delete it to recompute that stage");
+  }
+  return j;
+}
+
+double Seconds(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+json IsoToJson(const Eigen::Isometry3d& T) {
+  json a = json::array();
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c) a.push_back(T.matrix()(r, c));
+  return a;
+}
+
+Result<Eigen::Isometry3d> IsoFromJson(const json& j, const std::string& what) {
+  if (!j.is_array() || j.size() != 16)
+    return MakeError(ErrorClass::kCorrupt, what + ": not a 4x4 matrix");
+  std::array<double, 16> m{};
+  for (int i = 0; i < 16; ++i) {
+    if (!j[i].is_number()) return MakeError(ErrorClass::kCorrupt, what + ": not a 4x4 matrix");
+    m[i] = j[i].get<double>();
+  }
+  return geom::IsoFromRowMajor(m);
+}
+
+// --- stage: calibration --------------------------------------------------
+
+Result<RigCalibration> CalibrationStage(const std::string& sample_dir,
+                                        const ReconstructOptions& opts, const cv::Size& image_size,
+                                        json* timings) {
+  const std::string out = ResultsPath(sample_dir, results::kCalibrationUsed);
+  if (PathExists(out)) {
+    auto j = ReadJson(out, "calibration record");
+    if (!j) return j.error();
+    auto cal = CalibrationFromJson(*j, out);
+    if (!cal) return cal.error();
+    (*timings)["calibration_s"] = j->value("stage_seconds", 0.0);
+    return cal;
+  }
+  const auto t0 = std::chrono::steady_clock::now();
+  std::string path = sample_dir + "/calibration.json";
+  if (!PathExists(path) && !opts.state_dir.empty()) path = CalibrationPath(opts.state_dir);
+  auto cal = LoadCalibration(path);
+  if (!cal) {
+    std::string alt;
+    if (cal.error().cls == ErrorClass::kNotFound) {
+      alt =
+          "; or pose the views by full SfM, which needs no calibration: [worker] poses = \"auto\" "
+          "or \"sfm\" "
+          "(aggscan reconstruct --poses sfm)";
+    }
+    return MakeError(cal.error().cls, "calibration stage: " + cal.error().message + alt,
+                     cal.error().detail);
+  }
+  if (Status s = CheckCalibrationFits(*cal, image_size.width, image_size.height); !s) {
+    return MakeError(ErrorClass::kInvalidConfig, "calibration stage: " + s.error().message);
+  }
+  if (cal->camera.width != image_size.width)
+    cal->camera = cal->camera.Resized(image_size.width, image_size.height);
+  json j = CalibrationToJson(*cal);
+  j["origin"] = path;
+  j["stage_seconds"] = Seconds(t0);
+  if (Status s = WriteJson(out, j); !s) return s.error();
+  (*timings)["calibration_s"] = j["stage_seconds"];
+  return cal;
+}
+
+// --- poses path -----------------------------------------------------------
+
+// Whether a rig calibration is there for the sample (what CalibrationStage
+// reads): its own copy, else the state directory's.
+bool HasCalibration(const std::string& sample_dir, const ReconstructOptions& opts) {
+  return PathExists(sample_dir + "/" + layout::kCalibrationCopy) ||
+         (!opts.state_dir.empty() && PathExists(CalibrationPath(opts.state_dir)));
+}
+
+// True for the SfM path. "auto" takes the turntable whenever there is a rig
+// calibration; a sample posed by SfM before one was installed is then posed
+// again (the stages' fingerprints name the path).
+Result<bool> ChoosePosesPath(const std::string& sample_dir, const ReconstructOptions& opts) {
+  switch (opts.poses) {
+    case PosesPath::kSfm:
+      return true;
+    case PosesPath::kAuto:
+      return !HasCalibration(sample_dir, opts);
+    case PosesPath::kTurntable:
+      return false;
+  }
+  return false;
+}
+
+// The calibration record of a side's SfM poses (the camera it was posed with).
+Result<RigCalibration> SfmCalibrationOfSide(const std::string& sample_dir, int side) {
+  const std::string path = ResultsPath(sample_dir, results::PosesName(side));
+  auto j = ReadJson(path, "poses");
+  if (!j) return j.error();
+  if (j->value("method", "") != "sfm" || !j->contains("calibration")) {
+    return MakeError(ErrorClass::kCorrupt, path + " holds no SfM camera (method " +
+                                               j->value("method", "?") +
+                                               "); delete it to pose that side again");
+  }
+  return CalibrationFromJson((*j)["calibration"], path);
+}
+
+// --- stage: poses --------------------------------------------------------
+
+struct ViewInput {
+  int side = 0;
+  int view = 0;
+  double angle_deg = 0;
+  std::string image;  // path
+  std::string mask;   // path
+  Eigen::Isometry3d cam_from_table = Eigen::Isometry3d::Identity();
+};
+
+// The figures of a bundle adjustment for the poses record.
+json BundleAdjustJson(const BundleAdjustResult& r) {
+  json j = {{"refined", r.refined},
+            {"views_used", r.views_used},
+            {"tracks", r.tracks},
+            {"observations", r.observations},
+            {"outliers_dropped", r.outliers_dropped},
+            {"initial_rms_px", r.initial_rms_px},
+            {"final_rms_px", r.final_rms_px},
+            {"iterations", r.iterations},
+            {"gauge_view_index", r.fixed_view},
+            {"features_s", r.features_s},
+            {"matching_s", r.matching_s},
+            {"solve_s", r.solve_s}};
+  if (!r.reason.empty()) j["reason"] = r.reason;
+  double max_abs = 0;
+  for (double c : r.correction_deg) max_abs = std::max(max_abs, std::abs(c));
+  j["max_abs_correction_deg"] = max_abs;
+  return j;
+}
+
+// A side result view's measured turntable angle (from its sidecar).
+Result<double> MeasuredAngle(const json& v, int side) {
+  if (!v.contains("measured_angle_deg") || !v["measured_angle_deg"].is_number()) {
+    return MakeError(ErrorClass::kCorrupt, "poses stage: view " +
+                                               std::to_string(v.value("view", -1)) + " of " +
+                                               layout::SideDirName(side) +
+                                               " has no measured turntable angle in its sidecar");
+  }
+  return v["measured_angle_deg"].get<double>();
+}
+
+// The SfM poses record of a side (sfm_poses.h) from its side result.
+// `setup`: what the side needs besides its views (camera, focal hint, rig).
+Result<json> SfmPosesRecord(const std::string& sample_dir, int side, const json& side_result,
+                            const SfmPosesInput& setup, const ReconstructOptions& opts) {
+  SfmPosesInput in = setup;
+  in.sample_dir = sample_dir;
+  in.side = side;
+  for (const auto& v : side_result.value("views", json::array())) {
+    if (!v.value("ok", false)) continue;
+    auto angle = MeasuredAngle(v, side);
+    if (!angle) return angle.error();
+    SfmPosesView sv;
+    sv.view = v.value("view", 0);
+    sv.angle_deg = *angle;
+    sv.image_rel = v.value("image", "");
+    sv.mask_rel = v.value("mask", "");
+    sv.image = sample_dir + "/" + layout::SideDirName(side) + "/" + sv.image_rel;
+    sv.mask = ResultsPath(sample_dir, sv.mask_rel);
+    in.views.push_back(std::move(sv));
+  }
+  in.cancel = opts.cancel;
+  return RunSfmPoses(in, opts.sfm);
+}
+
+Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int side,
+                                          const RigCalibration* cal, const SfmPosesInput* sfm,
+                                          const ReconstructOptions& opts, json* timings,
+                                          std::string* method) {
+  const std::string out = ResultsPath(sample_dir, results::PosesName(side));
+  const std::string side_dir = sample_dir + "/" + layout::SideDirName(side);
+  std::vector<ViewInput> views;
+  if (!PathExists(out) && sfm) {
+    const auto t0 = std::chrono::steady_clock::now();
+    auto side_result = ReadJson(SideResultPath(sample_dir, side), "side result");
+    if (!side_result) return side_result.error();
+    auto j = SfmPosesRecord(sample_dir, side, *side_result, *sfm, opts);
+    if (!j) return j.error();
+    (*j)["stage_seconds"] = Seconds(t0);
+    if (Status s = WriteJson(out, *j); !s) return s.error();
+    LogLine(LogLevel::kInfo, kCat, layout::SampleIdOfDir(sample_dir),
+            layout::SideDirName(side) + ": SfM registered " +
+                std::to_string((*j)["sfm"].value("registered_views", 0)) +
+                " views, scale residual " +
+                std::to_string((*j)["scale"].value("residual_mm", 0.0)) + " mm");
+  } else if (!PathExists(out)) {
+    if (!cal)
+      return MakeError(ErrorClass::kInternal, "poses stage: no calibration for the turntable path");
+    const auto t0 = std::chrono::steady_clock::now();
+    auto side_result = ReadJson(SideResultPath(sample_dir, side), "side result");
+    if (!side_result) return side_result.error();
+    if (Status s = SideHasEnoughWholeViews(*side_result); !s) {
+      return MakeError(s.error().cls, "poses stage: " + s.error().message);
+    }
+    json jviews = json::array();
+    for (const auto& v : side_result->value("views", json::array())) {
+      if (!v.value("ok", false)) continue;  // no rock in this view: it cannot bound the hull
+      auto measured = MeasuredAngle(v, side);
+      if (!measured) return measured.error();
+      const double angle = *measured;
+      const Eigen::Isometry3d T = geom::IsoFromRowMajor(cal->CamFromTable(angle));
+      jviews.push_back({{"view", v["view"]},
+                        {"image", v.value("image", "")},
+                        {"mask", v.value("mask", "")},
+                        {"angle_deg", angle},
+                        {"cam_from_table_4x4", IsoToJson(T)}});
+    }
+    if (jviews.size() < 3) {
+      return MakeError(ErrorClass::kCorrupt,
+                       "poses stage: " + layout::SideDirName(side) + " has only " +
+                           std::to_string(jviews.size()) +
+                           " views with a rock; at least 3 are needed: re-capture the side");
+    }
+    json j = {{"side", side},
+              {"method", "turntable"},
+              {"method_detail", "calibrated turntable: cam_from_table0 * Rz(measured angle)"}};
+    if (opts.bundle_adjust) {
+      // Eq. 2 of the study: only the features inside the rock masks refine the
+      // poses; the photos are read one at a time.
+      std::vector<double> measured;
+      for (const auto& v : jviews) measured.push_back(v["angle_deg"].get<double>());
+      auto load = [&](int i, cv::Mat* bgr, cv::Mat* mask) {
+        auto img = LoadImage(side_dir + "/" + jviews[i].value("image", ""), ImageMode::kColor,
+                             opts.worker.image_limits);
+        auto m = LoadImage(ResultsPath(sample_dir, jviews[i].value("mask", "")), ImageMode::kGray,
+                           opts.worker.image_limits);
+        if (!img || !m) return false;
+        *bgr = std::move(*img);
+        *mask = std::move(*m);
+        return bgr->size() == mask->size();
+      };
+      const BundleAdjustResult ba =
+          BundleAdjustSideImages(static_cast<int>(jviews.size()), load, measured, *cal, opts.ba);
+      j["bundle_adjustment"] = BundleAdjustJson(ba);
+      if (ba.refined) {
+        j["method"] = "turntable+ba";
+        j["method_detail"] =
+            "calibrated turntable, angles refined by bundle adjustment (Ceres) over feature tracks "
+            "inside the "
+            "rock masks";
+        for (size_t i = 0; i < jviews.size(); ++i) {
+          jviews[i]["measured_angle_deg"] = measured[i];
+          jviews[i]["angle_deg"] = ba.angle_deg[i];
+          jviews[i]["angle_correction_deg"] = ba.correction_deg[i];
+          jviews[i]["ba_adjusted"] = static_cast<bool>(ba.adjusted[i]);
+          jviews[i]["cam_from_table_4x4"] =
+              IsoToJson(geom::IsoFromRowMajor(ba.calibration.CamFromTable(ba.angle_deg[i])));
+        }
+      } else {
+        LogLine(LogLevel::kWarning, kCat, layout::SampleIdOfDir(sample_dir),
+                layout::SideDirName(side) + ": poses not refined: " + ba.reason);
+      }
+    } else {
+      j["bundle_adjustment"] = {{"refined", false}, {"reason", "bundle adjustment is turned off"}};
+    }
+    j["views"] = jviews;
+    j["stage_seconds"] = Seconds(t0);
+    if (Status s = WriteJson(out, j); !s) return s.error();
+  }
+  auto j = ReadJson(out, "poses");
+  if (!j) return j.error();
+  for (const auto& v : j->value("views", json::array())) {
+    ViewInput in;
+    in.side = side;
+    in.view = v.value("view", 0);
+    in.angle_deg = v.value("angle_deg", 0.0);
+    in.image = side_dir + "/" + v.value("image", "");
+    in.mask = sample_dir + "/" + layout::kResultsDir + "/" + v.value("mask", "");
+    auto T = IsoFromJson(v.value("cam_from_table_4x4", json()), out);
+    if (!T) return T.error();
+    in.cam_from_table = *T;
+    views.push_back(std::move(in));
+  }
+  (*timings)["poses_" + layout::SideDirName(side) + "_s"] = j->value("stage_seconds", 0.0);
+  *method = j->value("method", "turntable");
+  return views;
+}
+
+// --- stage: surface ------------------------------------------------------
+
+// Per-vertex colour from the view that sees the vertex most head-on among
+// those where it lies well inside the silhouette.
+Result<VertexColors> ColourVertices(const Mesh& mesh, const std::vector<ViewInput>& views,
+                                    const std::vector<Eigen::Isometry3d>& cam_from_object,
+                                    const std::vector<cv::Mat>& masks, const CameraModel& cam,
+                                    const ImageLimits& limits) {
+  const size_t nv = mesh.vertices.size();
+  std::vector<Eigen::Vector3d> normals(nv, Eigen::Vector3d::Zero());
+  for (const auto& f : mesh.faces) {
+    const Eigen::Vector3d a(mesh.vertices[f[0]].data()), b(mesh.vertices[f[1]].data()),
+        c(mesh.vertices[f[2]].data());
+    const Eigen::Vector3d n = (b - a).cross(c - a);
+    for (int i : f) normals[i] += n;
+  }
+  std::vector<int> best(nv, -1);
+  std::vector<double> score(nv, 0.0);
+  std::vector<Eigen::Vector2f> uv(nv);
+  for (size_t vi = 0; vi < views.size(); ++vi) {
+    const Eigen::Isometry3d& T = cam_from_object[vi];
+    const Eigen::Vector3d C = T.inverse().translation();
+    for (size_t i = 0; i < nv; ++i) {
+      const Eigen::Vector3d p(mesh.vertices[i].data());
+      const Eigen::Vector3d to_cam = (C - p).normalized();
+      const double s = normals[i].normalized().dot(to_cam);
+      if (s <= score[i]) continue;
+      const Eigen::Vector3d pc = T * p;
+      double u, v;
+      if (!cam.Project({pc.x(), pc.y(), pc.z()}, &u, &v)) continue;
+      const int x = static_cast<int>(std::lround(u)), y = static_cast<int>(std::lround(v));
+      if (x < 2 || y < 2 || x >= cam.width - 2 || y >= cam.height - 2) continue;
+      if (masks[vi].at<uint8_t>(y, x) == 0) continue;
+      score[i] = s;
+      best[i] = static_cast<int>(vi);
+      uv[i] = Eigen::Vector2f(static_cast<float>(u), static_cast<float>(v));
+    }
+  }
+  VertexColors colors(nv, {128, 128, 128});
+  for (size_t vi = 0; vi < views.size(); ++vi) {
+    bool any = false;
+    for (size_t i = 0; i < nv && !any; ++i) any = best[i] == static_cast<int>(vi);
+    if (!any) continue;
+    auto loaded = LoadImage(views[vi].image, ImageMode::kColor, limits);
+    if (!loaded)
+      return MakeError(loaded.error().cls, "surface stage: " + loaded.error().message,
+                       loaded.error().detail);
+    const cv::Mat& img = *loaded;
+    for (size_t i = 0; i < nv; ++i) {
+      if (best[i] != static_cast<int>(vi)) continue;
+      cv::Mat patch;
+      cv::getRectSubPix(img, cv::Size(1, 1), cv::Point2f(uv[i].x(), uv[i].y()), patch);
+      const cv::Vec3b bgr = patch.at<cv::Vec3b>(0, 0);
+      colors[i] = {bgr[2], bgr[1], bgr[0]};
+    }
+  }
+  return colors;
+}
+
+// IoU between each view's mask and the hull's silhouette in it: how well the masks and poses agree.
+// A visual hull's silhouette lies inside every mask; a mask that disagrees with the others (a leak,
+// a wrong pose) loses area.
+std::vector<double> SilhouetteAgreement(const Mesh& mesh,
+                                        const std::vector<Eigen::Isometry3d>& cam_from_object,
+                                        const std::vector<cv::Mat>& masks, const CameraModel& cam) {
+  std::vector<double> iou(masks.size(), 0.0);
+  auto work = [&](size_t begin, size_t step) {
+    for (size_t vi = begin; vi < masks.size(); vi += step) {
+      const cv::Mat sil = RenderMeshSilhouette(mesh, cam_from_object[vi], cam);
+      const cv::Mat small_mask = masks[vi] > 127;
+      const double inter = cv::countNonZero(sil & small_mask);
+      const double uni = cv::countNonZero(sil | small_mask);
+      iou[vi] = uni > 0 ? inter / uni : 0.0;
+    }
+  };
+  std::thread t(work, 1, 2);
+  work(0, 2);
+  t.join();
+  return iou;
+}
+
+struct SurfaceOut {
+  Mesh mesh;
+  json record;
+};
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  const size_t n = v.size();
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+// Per view, the volume that view alone carves away from what every other view
+// (and the floors) holds to be rock, sampled on a grid over the hull's region
+// grown by half its size each way. A mask that lost part of the rock (a photo
+// decoded half grey, a segmentation that failed) carves that part out of the
+// hull, and in that view the hull then fits the mask well: the view's IoU
+// does not show it, the other views' IoUs do. Its sole carving does, and
+// names it. Good views carve alone only a thin shell at their outline.
+struct SoleCarving {
+  std::vector<double> volume_mm3;  // per view
+  double agreed_mm3 = 0;           // inside every view and floor
+};
+
+SoleCarving SoleCarvingVolumes(const std::vector<SilhouetteView>& sv,
+                               const std::vector<HalfSpace>& floors,
+                               const Eigen::AlignedBox3d& hull_box,
+                               const Eigen::AlignedBox3d& search) {
+  SoleCarving out;
+  out.volume_mm3.assign(sv.size(), 0.0);
+  const Eigen::Vector3d ext = hull_box.sizes();
+  Eigen::AlignedBox3d box(hull_box.min() - 0.5 * ext, hull_box.max() + 0.5 * ext);
+  box = box.intersection(search);
+  if (box.isEmpty()) return out;
+  // About 2 million samples: a few per cent of a rock's volume is thousands.
+  const double step = std::max(0.25, std::cbrt(box.volume() / 2e6));
+  const int nx = static_cast<int>(box.sizes().x() / step) + 1,
+            ny = static_cast<int>(box.sizes().y() / step) + 1,
+            nz = static_cast<int>(box.sizes().z() / step) + 1;
+  std::vector<std::vector<int64_t>> veto(2, std::vector<int64_t>(sv.size(), 0));
+  int64_t agreed[2] = {0, 0};
+  auto inside = [&](size_t k, const Eigen::Vector3d& p) {
+    const Eigen::Vector3d pc = sv[k].cam_from_object * p;
+    double u = 0, v = 0;
+    if (pc.z() <= 0 || !sv[k].camera.Project({pc.x(), pc.y(), pc.z()}, &u, &v)) return false;
+    const int x = static_cast<int>(std::lround(u)), y = static_cast<int>(std::lround(v));
+    if (x < 0 || y < 0 || x >= sv[k].mask.cols || y >= sv[k].mask.rows) return false;
+    return sv[k].mask.at<uint8_t>(y, x) > 127;
+  };
+  auto work = [&](int t) {
+    for (int iz = t; iz < nz; iz += 2) {
+      for (int iy = 0; iy < ny; ++iy) {
+        for (int ix = 0; ix < nx; ++ix) {
+          const Eigen::Vector3d p =
+              box.min() + step * Eigen::Vector3d(ix + 0.5, iy + 0.5, iz + 0.5);
+          bool below = false;
+          for (const HalfSpace& h : floors) below = below || h.normal.dot(p) + h.offset < 0;
+          if (below) continue;
+          int outside = 0;
+          size_t first = 0;
+          for (size_t k = 0; k < sv.size() && outside < 2; ++k) {
+            if (!inside(k, p)) {
+              if (outside == 0) first = k;
+              ++outside;
+            }
+          }
+          if (outside == 0) ++agreed[t];
+          if (outside == 1) ++veto[t][first];
+        }
+      }
+    }
+  };
+  std::thread th(work, 1);
+  work(0);
+  th.join();
+  const double cell = step * step * step;
+  out.agreed_mm3 = static_cast<double>(agreed[0] + agreed[1]) * cell;
+  for (size_t k = 0; k < sv.size(); ++k)
+    out.volume_mm3[k] = static_cast<double>(veto[0][k] + veto[1][k]) * cell;
+  return out;
+}
+
+// Robust outliers above: more than kMadOutlier scaled MADs above the median
+// and more than `floor` in absolute terms (so a set of near-identical good
+// values, whose MAD is almost 0, flags nothing).
+constexpr double kMadOutlier = 5.0;
+std::vector<size_t> HighOutliers(const std::vector<double>& v, double floor) {
+  const double med = Median(v);
+  std::vector<double> dev;
+  for (double x : v) dev.push_back(std::abs(x - med));
+  const double mad = 1.4826 * Median(dev);
+  std::vector<size_t> out;
+  for (size_t i = 0; i < v.size(); ++i) {
+    if (v[i] > med + kMadOutlier * mad && v[i] > floor) out.push_back(i);
+  }
+  return out;
+}
+
+// A view whose carving alone removes more than this fraction of the rock the
+// other views agree on is left out.
+constexpr double kSoleCarvingMaxFraction = 0.05;
+// A view whose mask has an IoU with the model's silhouette below this, and
+// far below the other views', is named as disagreeing.
+constexpr double kIouFloor = 0.90;
+
+// When the hull fails: the views whose mask is far smaller than their side's
+// largest (a rock's outline changes by a factor of 2-3 with the angle, not
+// 7), where the segmentation most likely lost the rock: ashlar 923 scaled to
+// 220 mm reaches the top of the frame, and the mask of 21 of its side-2 views
+// became a colour label. Empty when no view stands out.
+std::string SuspectMasks(const std::vector<ViewInput>& views, const std::vector<cv::Mat>& masks) {
+  std::map<int, std::vector<double>> areas;
+  for (size_t i = 0; i < views.size(); ++i)
+    areas[views[i].side].push_back(cv::countNonZero(masks[i]));
+  std::string out;
+  for (auto& [side, a] : areas) {
+    const double largest = *std::max_element(a.begin(), a.end());
+    std::string list;
+    size_t k = 0;
+    for (size_t i = 0; i < views.size(); ++i) {
+      if (views[i].side != side) continue;
+      if (a[k++] < 0.15 * largest)
+        list += (list.empty() ? "" : ", ") + std::to_string(views[i].view);
+    }
+    if (!list.empty()) out += "; side " + std::to_string(side) + " view(s) " + list;
+  }
+  if (out.empty()) return out;
+  return ". The mask of" + out.substr(1) +
+         " covers under 15 % of the area of its side's largest mask: the segmentation lost the "
+         "rock there (see "
+         "results/masks/). A rock that reaches the edge of the photo cannot be segmented: the "
+         "whole rock must "
+         "stay inside the frame at every angle (move the camera back or use a wider lens)";
+}
+
+Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewInput>& views,
+                          const std::map<int, Eigen::Isometry3d>& table_from_object,
+                          const RigCalibration& cal, const ReconstructOptions& opts,
+                          const std::string& sample_id) {
+  const std::string out = ResultsPath(sample_dir, results::kSurface);
+  if (PathExists(out)) return ReadJson(out, "surface record");
+  const auto t0 = std::chrono::steady_clock::now();
+  std::vector<SilhouetteView> sv;
+  std::vector<cv::Mat> masks;
+  std::vector<Eigen::Isometry3d> cam_from_object;
+  for (const ViewInput& v : views) {
+    auto loaded = LoadImage(v.mask, ImageMode::kGray, opts.worker.image_limits);
+    const cv::Mat m = loaded ? *loaded : cv::Mat();
+    if (m.empty()) {
+      return MakeError(ErrorClass::kCorrupt, "surface stage: mask " + v.mask +
+                                                 " is missing or unreadable (" +
+                                                 loaded.error().message + "); delete " +
+                                                 "results/" + layout::SideDirName(v.side) +
+                                                 "_morph2d.json to recompute the side's masks");
+    }
+    if (m.cols != cal.camera.width || m.rows != cal.camera.height) {
+      return MakeError(ErrorClass::kCorrupt, "surface stage: mask " + v.mask + " is " +
+                                                 std::to_string(m.cols) + "x" +
+                                                 std::to_string(m.rows) + ", the calibration is " +
+                                                 std::to_string(cal.camera.width) + "x" +
+                                                 std::to_string(cal.camera.height));
+    }
+    SilhouetteView s;
+    s.mask = m;
+    s.camera = cal.camera;
+    s.cam_from_object = v.cam_from_table * table_from_object.at(v.side);
+    cam_from_object.push_back(s.cam_from_object);
+    masks.push_back(m);
+    sv.push_back(std::move(s));
+  }
+  // Each side's turntable top is a floor: the rock lies on it.
+  std::vector<HalfSpace> floors;
+  for (const auto& [side, T] : table_from_object) {
+    HalfSpace h;
+    h.normal = T.linear().row(2).transpose();
+    h.offset = T.translation().z();
+    floors.push_back(h);
+  }
+  // The search region: the side-1 disc, up to the largest riprap size above it.
+  const Eigen::Vector3d lo(-260, -260, -5), hi(260, 260, 320);
+  auto hull = CarveVisualHull(sv, floors, Eigen::AlignedBox3d(lo, hi), opts.hull);
+  if (!hull) {
+    return MakeError(hull.error().cls,
+                     "surface stage: " + hull.error().message + SuspectMasks(views, masks),
+                     hull.error().detail);
+  }
+  // Views that disagree with the others: left out and the hull carved again
+  // without them; a side that would lose more than a third of its views is
+  // refused (the capture itself is in doubt).
+  json left_out = json::array();
+  json consistency = json::object();
+  std::vector<ViewInput> kept_views = views;
+  {
+    const auto tsc = std::chrono::steady_clock::now();
+    const SoleCarving sc = SoleCarvingVolumes(sv, floors, hull->box, Eigen::AlignedBox3d(lo, hi));
+    json per_view = json::array();
+    for (size_t k = 0; k < views.size(); ++k) {
+      per_view.push_back({{"side", views[k].side},
+                          {"view", views[k].view},
+                          {"sole_carving_mm3", sc.volume_mm3[k]}});
+    }
+    consistency = {{"method",
+                    "per view, the volume its mask alone carves from what every other view and the "
+                    "floors hold to "
+                    "be rock; a view far above the others (median + 5 MAD) and above 5 % of that "
+                    "agreed volume is "
+                    "left out and the hull carved again"},
+                   {"agreed_mm3", sc.agreed_mm3},
+                   {"views", per_view},
+                   {"seconds", Seconds(tsc)}};
+    const std::vector<size_t> bad =
+        HighOutliers(sc.volume_mm3, kSoleCarvingMaxFraction * sc.agreed_mm3);
+    if (!bad.empty()) {
+      std::map<int, int> per_side_total, per_side_bad;
+      for (const ViewInput& v : views) ++per_side_total[v.side];
+      std::string names;
+      for (size_t k : bad) {
+        ++per_side_bad[views[k].side];
+        const double frac = sc.volume_mm3[k] / std::max(1e-9, sc.agreed_mm3 + sc.volume_mm3[k]);
+        char why[256];
+        std::snprintf(why, sizeof why,
+                      "its mask alone carves away %.0f mm3 (%.1f %%) of what every other view "
+                      "holds to be rock "
+                      "(median of all views %.0f mm3): the photo or its mask lost part of the rock",
+                      sc.volume_mm3[k], 100 * frac, Median(sc.volume_mm3));
+        left_out.push_back({{"side", views[k].side},
+                            {"view", views[k].view},
+                            {"reason", why},
+                            {"sole_carving_mm3", sc.volume_mm3[k]}});
+        names += (names.empty() ? "" : ", ") + layout::SideDirName(views[k].side) + " view " +
+                 std::to_string(views[k].view);
+      }
+      for (const auto& [side, n] : per_side_bad) {
+        if (3 * n > per_side_total[side]) {
+          return MakeError(
+              ErrorClass::kCorrupt,
+              "surface stage: " + std::to_string(n) + " of the " +
+                  std::to_string(per_side_total[side]) + " views of " + layout::SideDirName(side) +
+                  " disagree with the others (" + names +
+                  "): too many to leave out; check the photos and masks and re-shoot the side");
+        }
+      }
+      LogLine(LogLevel::kWarning, kCat, sample_id,
+              "surface: left out " + names +
+                  ": each carves away rock every other view sees; carving again");
+      std::vector<SilhouetteView> sv2;
+      std::vector<cv::Mat> masks2;
+      std::vector<Eigen::Isometry3d> cfo2;
+      kept_views.clear();
+      for (size_t k = 0; k < views.size(); ++k) {
+        if (std::find(bad.begin(), bad.end(), k) != bad.end()) continue;
+        sv2.push_back(sv[k]);
+        masks2.push_back(masks[k]);
+        cfo2.push_back(cam_from_object[k]);
+        kept_views.push_back(views[k]);
+      }
+      sv = std::move(sv2);
+      masks = std::move(masks2);
+      cam_from_object = std::move(cfo2);
+      const double first_s = hull->seconds;
+      hull = CarveVisualHull(sv, floors, Eigen::AlignedBox3d(lo, hi), opts.hull);
+      if (!hull) {
+        return MakeError(hull.error().cls,
+                         "surface stage (without " + names + "): " + hull.error().message,
+                         hull.error().detail);
+      }
+      hull->seconds += first_s;
+    }
+  }
+  const std::vector<ViewInput>& used_views = kept_views;
+  const double carve_s = hull->seconds;
+  // Photo-consistency: the hull is an upper bound; concavities are recovered
+  // where the textured photos agree on a deeper surface.
+  json photo = {{"enabled", opts.photo_refine}};
+  double photo_s = 0;
+  if (opts.photo_refine) {
+    const auto tp = std::chrono::steady_clock::now();
+    // The photos are used at most photo_max_width wide: the NCC patch then
+    // covers the same part of the rock as at the resolution it was tuned on.
+    // Decoding at half size is much faster than decoding and shrinking.
+    const double scale = std::min(opts.photo.image_scale,
+                                  opts.photo_max_width > 0
+                                      ? static_cast<double>(opts.photo_max_width) / cal.camera.width
+                                      : 1.0);
+    const bool half = scale <= 0.5;
+    PhotoRefineOptions po = opts.photo;
+    po.image_scale = scale;
+    std::vector<PhotoView> pv(used_views.size());
+    std::vector<std::string> unreadable(used_views.size());
+    auto load = [&](size_t begin, size_t step) {
+      for (size_t i = begin; i < used_views.size(); i += step) {
+        auto img = LoadImage(used_views[i].image, half ? ImageMode::kGrayHalf : ImageMode::kGray,
+                             opts.worker.image_limits);
+        if (img) {
+          pv[i].image = std::move(*img);
+        } else {
+          unreadable[i] = img.error().message;
+        }
+        pv[i].camera = half ? cal.camera.Resized(pv[i].image.cols, pv[i].image.rows) : cal.camera;
+        pv[i].cam_from_object = cam_from_object[i];
+        pv[i].mask = masks[i];  // full size: the refinement brings it to its working scale
+      }
+    };
+    std::thread lt(load, 1, 2);
+    load(0, 2);
+    lt.join();
+    if (half) po.image_scale = std::min(1.0, scale * 2);
+    for (size_t i = 0; i < used_views.size(); ++i) {
+      if (pv[i].image.empty()) {
+        return MakeError(ErrorClass::kCorrupt,
+                         "surface stage: " + unreadable[i] +
+                             " (the photo refinement needs it); restore it, or turn "
+                             "the refinement off");
+      }
+    }
+    auto refined = RefineByPhotoConsistency(hull->mesh, pv, po);
+    if (!refined)
+      return MakeError(refined.error().cls, "surface stage: " + refined.error().message);
+    if (Status st = CheckClosedManifold(refined->mesh, "the photo-refined hull"); !st) {
+      return MakeError(ErrorClass::kInternal, "surface stage: " + st.error().message);
+    }
+    hull->mesh = std::move(refined->mesh);
+    photo_s = Seconds(tp);
+    photo.update({{"vertices", refined->vertices},
+                  {"vertices_scored", refined->vertices_scored},
+                  {"vertices_confident", refined->vertices_confident},
+                  {"vertices_moved", refined->vertices_moved},
+                  {"mean_displacement_mm", refined->mean_displacement_mm},
+                  {"max_displacement_mm", refined->max_displacement_mm},
+                  {"faces_folded", refined->faces_folded},
+                  {"max_direction_passes", refined->max_direction_passes},
+                  {"fold_passes", refined->fold_passes},
+                  {"untangle_passes", refined->untangle_passes},
+                  {"refine_s", refined->seconds},
+                  {"max_depth_mm", opts.photo.max_depth_mm},
+                  {"image_scale", scale}});
+  }
+  // Ripples a pixel or two high (the silhouettes' pixel steps, the depth
+  // search's noise) inflate the area: a few Taubin passes remove them.
+  if (opts.surface_smooth_iterations > 0) TaubinSmooth(&hull->mesh, opts.surface_smooth_iterations);
+  const auto tc = std::chrono::steady_clock::now();
+  auto colors = ColourVertices(hull->mesh, used_views, cam_from_object, masks, cal.camera,
+                               opts.worker.image_limits);
+  if (!colors) return colors.error();
+  const double colour_s = Seconds(tc);
+  const auto ti = std::chrono::steady_clock::now();
+  const std::vector<double> iou =
+      SilhouetteAgreement(hull->mesh, cam_from_object, masks, cal.camera);
+  const double iou_s = Seconds(ti);
+  const auto te = std::chrono::steady_clock::now();
+  for (auto [name, st] :
+       {std::pair{results::kMeshPly,
+                  SaveMeshPly(hull->mesh, ResultsPath(sample_dir, results::kMeshPly), &*colors)},
+        std::pair{results::kMeshObj,
+                  SaveMeshObj(hull->mesh, ResultsPath(sample_dir, results::kMeshObj), &*colors)},
+        std::pair{results::kMeshStl,
+                  SaveMeshStl(hull->mesh, ResultsPath(sample_dir, results::kMeshStl))}}) {
+    if (!st) return st.error();
+  }
+  json jiou = json::array();
+  for (size_t i = 0; i < used_views.size(); ++i) {
+    jiou.push_back({{"side", used_views[i].side}, {"view", used_views[i].view}, {"iou", iou[i]}});
+  }
+  // A mask far larger than the model's silhouette in it (a leak, a pose that
+  // does not fit) does not carve the model, but it disagrees: named.
+  json disagreeing = json::array();
+  {
+    std::vector<double> neg;
+    for (double x : iou) neg.push_back(-x);
+    for (size_t k : HighOutliers(neg, -kIouFloor)) {
+      char why[200];
+      std::snprintf(why, sizeof why,
+                    "its mask's IoU with the model's silhouette is %.3f, the views' median %.3f: "
+                    "the mask or the "
+                    "view's pose disagrees with the others; check its photo and mask",
+                    iou[k], Median(iou));
+      disagreeing.push_back({{"side", used_views[k].side},
+                             {"view", used_views[k].view},
+                             {"iou", iou[k]},
+                             {"reason", why}});
+    }
+  }
+  json j = {
+      {"method", opts.photo_refine ? "visual-hull+photo" : "visual-hull"},
+      {"method_detail",
+       std::string("silhouette signed-distance field over all views of all sides in the object "
+                   "frame (side 1's "
+                   "turntable frame), each side's turntable top as a floor; marching tetrahedra") +
+           (opts.photo_refine
+                ? "; vertices moved inward to the depth of best multi-view NCC of tangent-plane "
+                  "patches, confident moves only, smoothed, folds undone"
+                : "")},
+      {"photo_refine", photo},
+      {"voxel_mm", hull->voxel_mm},
+      {"vertices", hull->mesh.vertices.size()},
+      {"faces", hull->mesh.faces.size()},
+      {"views", used_views.size()},
+      {"silhouette_iou", jiou},
+      {"views_left_out", left_out},
+      {"consistency", consistency},
+      {"views_disagreeing", disagreeing},
+      {"files",
+       {{"ply", results::kMeshPly}, {"obj", results::kMeshObj}, {"stl", results::kMeshStl}}},
+      {"timings_s",
+       {{"carve", carve_s},
+        {"photo_refine", photo_s},
+        {"colour", colour_s},
+        {"silhouette_check", iou_s},
+        {"export", Seconds(te)}}},
+      {"stage_seconds", Seconds(t0)}};
+  if (Status s = WriteJson(out, j); !s) return s.error();
+  LogLine(LogLevel::kInfo, kCat, sample_id,
+          "surface: " + std::to_string(hull->mesh.faces.size()) + " faces at " +
+              std::to_string(hull->voxel_mm) + " mm in " + std::to_string(Seconds(t0)) + " s");
+  return j;
+}
+
+// --- stage: morphology ---------------------------------------------------
+
+json StatsJson(const std::vector<double>& v) {
+  const Stats s = ComputeStats(v);
+  return {{"mean", s.mean}, {"min", s.min}, {"max", s.max},
+          {"std", s.std},   {"cov", s.cov}, {"n", s.n}};
+}
+
+Status AppendLibraryRow(const std::string& state_dir, const json& morphology) {
+  if (state_dir.empty()) return OkStatus();
+  const std::string path = state_dir + "/" + results::kLibraryCsv;
+  const std::string id = morphology.value("sample_id", "");
+  std::string text;
+  if (PathExists(path)) {
+    auto t = ReadFile(path);
+    if (!t) return t.error();
+    text = *t;
+    // Already there: the same row (a resumed run after it was written) is
+    // left alone; a sample reconstructed again gets its new row in place.
+    if (const size_t at = text.find("\n" + id + ","); at != std::string::npos) {
+      const size_t end = text.find('\n', at + 1);
+      const std::string row = LibraryCsvRow(morphology);
+      const size_t len = (end == std::string::npos ? text.size() : end + 1) - (at + 1);
+      if (text.compare(at + 1, len, row) == 0) return OkStatus();
+      text.replace(at + 1, len, row);
+      return WriteFileAtomic(path, std::string_view(text));
+    }
+    if (text.compare(0, LibraryCsvHeader().size(), LibraryCsvHeader()) != 0) {
+      // Written with other columns (an older worker): kept beside under a
+      // new name, and a new library begins, so no row is mixed or lost.
+      const std::string kept = state_dir + "/library-" + NowUtcString() + ".csv";
+      if (Status s = RenameDurable(path, kept); !s) return s;
+      LogLine(LogLevel::kNotice, kCat, id,
+              "library.csv had other columns; kept as " + kept + ", a new one begun");
+      text = LibraryCsvHeader();
+    }
+  } else {
+    text = LibraryCsvHeader();
+  }
+  // Rewrite the whole file atomically: a crash leaves the old or the new one.
+  text += LibraryCsvRow(morphology);
+  return WriteFileAtomic(path, std::string_view(text));
+}
+
+}  // namespace
+
+std::string LibraryCsvHeader() {
+  return "sample_id,created_utc,volume_mm3,surface_area_mm2,a_mm,b_mm,c_mm,fer_3d,ratio_c_b,ratio_"
+         "b_a,sphericity,"
+         "fer_2d_mean,circularity_mean,views,poses_method,stitch_method,surface_method,stitch_rms_"
+         "mm,"
+         "silhouette_iou_mean,total_s,confident,quality_flags\n";
+}
+
+std::string LibraryCsvRow(const json& m) {
+  const json& d = m.at("morphology_3d");
+  const json& o = m.at("stats_2d").at("overall");
+  const json& q = m.at("quality");
+  auto num = [](const json& v) {
+    char b[64];
+    std::snprintf(b, sizeof b, "%.6g", v.is_number() ? v.get<double>() : std::nan(""));
+    return std::string(b);
+  };
+  std::string row = m.value("sample_id", "") + "," + m.value("created_utc", "");
+  for (const char* k : {"volume_mm3", "surface_area_mm2", "a_mm", "b_mm", "c_mm", "fer_3d",
+                        "ratio_c_b", "ratio_b_a", "sphericity"}) {
+    row += "," + num(d.value(k, json()));
+  }
+  row += "," + num(o.at("fer_2d").value("mean", json())) + "," +
+         num(o.at("circularity").value("mean", json()));
+  row += "," + std::to_string(m.value("views_2d", json::array()).size());
+  row += "," + m.at("methods").value("poses", "") + "," + m.at("methods").value("stitch", "") +
+         "," + m.at("methods").value("surface", "");
+  row += "," + num(q.value("stitch_rms_mm", json())) + "," +
+         num(q.value("silhouette_iou_mean", json()));
+  row += "," + num(m.at("timings_s").value("total", json()));
+  // Flag codes joined by ';' (no commas or quotes: one CSV field).
+  std::string codes;
+  for (const json& f : q.value("flags", json::array()))
+    codes += (codes.empty() ? "" : ";") + f.value("code", "");
+  row += std::string(",") + (q.value("confident", true) ? "yes" : "no") + "," + codes + "\n";
+  return row;
+}
+
+bool ParsePosesPath(const std::string& name, PosesPath* out) {
+  for (PosesPath p : {PosesPath::kAuto, PosesPath::kTurntable, PosesPath::kSfm}) {
+    if (name == PosesPathName(p)) {
+      *out = p;
+      return true;
+    }
+  }
+  return false;
+}
+
+const char* PosesPathName(PosesPath p) {
+  switch (p) {
+    case PosesPath::kAuto:
+      return "auto";
+    case PosesPath::kTurntable:
+      return "turntable";
+    case PosesPath::kSfm:
+      return "sfm";
+  }
+  return "?";
+}
+
+Result<json> ReadMorphology(const std::string& sample_dir) {
+  const std::string path = ResultsPath(sample_dir, results::kMorphology);
+  if (!PathExists(path)) {
+    return MakeError(ErrorClass::kNotFound,
+                     "no results yet for " + layout::SampleIdOfDir(sample_dir) +
+                         " (the worker has not finished it; see its state and the worker log)");
+  }
+  return ReadJson(path, "results");
+}
+
+namespace {
+
+// What the stages of one run of the sample job share: the setup read before
+// the first stage and what each stage hands on (loaded from its record when
+// the stage was kept).
+struct SampleRun {
+  SampleRun(const std::string& d, const ReconstructOptions& o) : dir(d), opts(o) {}
+  std::string dir, id;
+  const ReconstructOptions& opts;
+  std::chrono::steady_clock::time_point t_all = std::chrono::steady_clock::now();
+  std::string morph_path;
+  std::vector<int> sides;
+  std::optional<Config> sample_cfg;  // the config the sample was armed with
+  RigConfig rig;
+  bool use_sfm = false;
+  cv::Size image_size;
+  std::string mask_method = "classical";  // what the side jobs ran
+  double masks_s = 0;
+  json timings = json::object();
+  std::optional<RigCalibration> cal;
+  SfmPosesInput sfm_setup;
+  std::map<int, std::vector<ViewInput>> side_views;
+  std::map<int, std::string> poses_methods;
+  std::vector<ViewInput> all_views;
+  json stitch;
+  std::map<int, Eigen::Isometry3d> table_from_object;
+  json surface;
+};
+
+// The image size of the sample's photos, from the first readable mask.
+Status ReadImageSize(SampleRun& r) {
+  auto side1 = ReadJson(SideResultPath(r.dir, r.sides[0]), "side result");
+  if (!side1) return side1.error();
+  r.mask_method = side1->value("mask_method", r.mask_method);
+  for (const auto& v : side1->value("views", json::array())) {
+    if (!v.value("ok", false)) continue;
+    auto m = LoadImage(r.dir + "/" + layout::kResultsDir + "/" + v.value("mask", ""),
+                       ImageMode::kGray, r.opts.worker.image_limits);
+    if (m) {
+      r.image_size = m->size();
+      return OkStatus();
+    }
+  }
+  return MakeError(ErrorClass::kCorrupt,
+                   "sample " + r.id + ": no readable mask in " + layout::SideDirName(r.sides[0]));
+}
+
+// The SfM setup (camera held or estimated) once the calibration is known.
+void SetUpSfm(SampleRun& r) {
+  r.sfm_setup.rig = r.rig;
+  if (r.cal) {
+    r.sfm_setup.fixed_camera = r.cal->camera;
+    r.sfm_setup.camera_source =
+        r.cal->method == "sfm" ? "sfm (" + r.cal->source + ")" : "calibration";
+    r.sfm_setup.calibration = &*r.cal;
+    return;
+  }
+  r.sfm_setup.camera_source = "sfm (estimated)";
+  // The lens's nominal focal as the hint, held while COLMAP poses the ring
+  // (the config's lens, or the sim's). Without one COLMAP starts from its
+  // default, refines it, and the ring checks judge.
+  if (r.sample_cfg) {
+    if (auto hint = FocalHintFromConfig(*r.sample_cfg, r.image_size.width)) {
+      r.sfm_setup.expected_focal_px = hint->focal_px;
+      r.sfm_setup.focal_hint_source = hint->source;
+      r.sfm_setup.camera_source = "sfm (focal hint held)";
+    }
+  }
+}
+
+Status PosesOfSide(SampleRun& r, int side) {
+  if (r.use_sfm && !r.cal && side != r.sides[0]) {
+    // Every side in one camera model (the surface stage has one): the first
+    // side's SfM camera, held fixed.
+    auto first = SfmCalibrationOfSide(r.dir, r.sides[0]);
+    if (!first) return first.error();
+    r.sfm_setup.fixed_camera = first->camera;
+    r.sfm_setup.camera_source = "sfm " + layout::SideDirName(r.sides[0]);
+  }
+  std::string method;
+  auto v = PosesStage(r.dir, side, r.cal ? &*r.cal : nullptr, r.use_sfm ? &r.sfm_setup : nullptr,
+                      r.opts, &r.timings, &method);
+  r.poses_methods[side] = method;
+  if (!v) return v.error();
+  r.side_views[side] = *v;
+  r.all_views.insert(r.all_views.end(), v->begin(), v->end());
+  return OkStatus();
+}
+
+// SfM without a rig calibration: the first side's camera is the sample's.
+Status CalibrationFromSfm(SampleRun& r) {
+  const std::string out = ResultsPath(r.dir, results::kCalibrationUsed);
+  if (!PathExists(out)) {
+    auto c = SfmCalibrationOfSide(r.dir, r.sides[0]);
+    if (!c) return c.error();
+    json j = CalibrationToJson(*c);
+    j["origin"] = ResultsPath(r.dir, results::PosesName(r.sides[0]));
+    j["stage_seconds"] = 0.0;
+    if (Status s = WriteJson(out, j); !s) return s;
+  }
+  auto j = ReadJson(out, "calibration record");
+  if (!j) return j.error();
+  auto cal = CalibrationFromJson(*j, out);
+  if (!cal) return cal.error();
+  r.timings["calibration_s"] = 0.0;
+  r.cal = std::move(*cal);
+  return OkStatus();
+}
+
+Status StitchSides(SampleRun& r) {
+  StitchStageInput sin;
+  sin.sample_dir = r.dir;
+  sin.calibration = &*r.cal;
+  // The background labels are the ones configured when the sample was armed.
+  sin.rig = r.rig;
+  for (const auto& [side, vs] : r.side_views) {
+    for (const ViewInput& v : vs) {
+      sin.views[side].push_back({v.view, v.angle_deg, v.image, v.mask, v.cam_from_table});
+    }
+  }
+  const std::string stitch_path = ResultsPath(r.dir, results::kStitch);
+  if (!PathExists(stitch_path)) {
+    auto st = RunStitchStage(sin);
+    if (!st) return st.error();
+    if (Status s = WriteJson(stitch_path, *st); !s) return s;
+  }
+  auto stitch = ReadJson(stitch_path, "stitch record");
+  if (!stitch) return stitch.error();
+  r.stitch = std::move(*stitch);
+  for (const auto& s : r.stitch.value("sides", json::array())) {
+    auto T = IsoFromJson(s.value("table_from_object_4x4", json()), stitch_path);
+    if (!T) return T.error();
+    r.table_from_object[s.value("side", 0)] = *T;
+  }
+  for (int side : r.sides) {
+    if (!r.table_from_object.count(side)) {
+      return MakeError(ErrorClass::kCorrupt, stitch_path + " has no transform for " +
+                                                 layout::SideDirName(side) +
+                                                 "; run the reconstruction again from the stitch "
+                                                 "(aggscan reconstruct --from stitch)");
+    }
+  }
+  r.timings["stitch_s"] = r.stitch.value("stage_seconds", 0.0);
+  return OkStatus();
+}
+
+Status SurfaceOfSample(SampleRun& r) {
+  auto surface = SurfaceStage(r.dir, r.all_views, r.table_from_object, *r.cal, r.opts, r.id);
+  if (!surface) return surface.error();
+  r.surface = std::move(*surface);
+  r.timings["surface_s"] = r.surface.value("stage_seconds", 0.0);
+  r.timings["surface_detail_s"] = r.surface.value("timings_s", json::object());
+  return OkStatus();
+}
+
+Status MorphologyStage(SampleRun& r) {
+  if (PathExists(r.morph_path)) return OkStatus();  // kept: the library row is added by the job
+  // The masks' and 2D figures' time: their stages' own (the side jobs ran
+  // most of them, in other processes).
+  auto ledger = ReadStageLedger(r.dir);
+  if (!ledger) return ledger.error();
+  for (const auto& [name, e] : (*ledger)["stages"].items()) {
+    if (name == "2d" || name.rfind("masks ", 0) == 0) r.masks_s += e.value("seconds", 0.0);
+  }
+  const auto t_m = std::chrono::steady_clock::now();
+  auto mesh = LoadMesh(ResultsPath(r.dir, results::kMeshPly), "mm");
+  if (!mesh) return mesh.error();
+  const Status watertight = CheckClosedManifold(*mesh, "reconstructed mesh");
+  const MeshProps p = ComputeMeshProps(*mesh);
+  for (double v : {p.volume_mm3, p.surface_area_mm2, p.a_mm, p.b_mm, p.c_mm, p.sphericity}) {
+    if (!std::isfinite(v)) {
+      return MakeError(ErrorClass::kInternal,
+                       "morphology stage: the reconstructed mesh's figures are not finite "
+                       "numbers; delete results/ to reconstruct again and report it");
+    }
+  }
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  for (const auto& v : mesh->vertices) centroid += Eigen::Vector3d(v.data());
+  centroid /= std::max<size_t>(1, mesh->vertices.size());
+
+  // Every view's 2D figures, in mm at the rock's depth in that view.
+  std::map<std::pair<int, int>, const ViewInput*> by_view;
+  for (const ViewInput& v : r.all_views) by_view[{v.side, v.view}] = &v;
+  json views2d = json::array();
+  std::map<int, std::map<std::string, std::vector<double>>> per_side;
+  std::map<std::string, std::vector<double>> overall;
+  for (int side : r.sides) {
+    auto sr = ReadJson(SideResultPath(r.dir, side), "side result");
+    if (!sr) return sr.error();
+    for (const auto& v : sr->value("views", json::array())) {
+      if (!v.value("ok", false)) continue;
+      const int view = v.value("view", 0);
+      json jv = {{"side", side}, {"view", view}};
+      double mm_per_px = 0;
+      auto it = by_view.find({side, view});
+      if (it != by_view.end()) {
+        const Eigen::Vector3d pc =
+            it->second->cam_from_table * r.table_from_object[side] * centroid;
+        mm_per_px = pc.z() / std::sqrt(r.cal->camera.fx * r.cal->camera.fy);
+        jv["angle_deg"] = it->second->angle_deg;
+      }
+      jv["fer_2d"] = v.value("fer_2d", 0.0);
+      jv["circularity"] = v.value("circularity", 0.0);
+      jv["l_max_px"] = v.value("l_max_px", 0.0);
+      jv["l_min_px"] = v.value("l_min_px", 0.0);
+      jv["area_px"] = v.value("area_px", 0.0);
+      jv["perimeter_px"] = v.value("perimeter_px", 0.0);
+      jv["mm_per_px_at_rock"] = mm_per_px;
+      jv["l_max_mm"] = v.value("l_max_px", 0.0) * mm_per_px;
+      jv["l_min_mm"] = v.value("l_min_px", 0.0) * mm_per_px;
+      for (const char* k : {"fer_2d", "circularity", "l_max_mm", "l_min_mm"}) {
+        per_side[side][k].push_back(jv[k].get<double>());
+        overall[k].push_back(jv[k].get<double>());
+      }
+      views2d.push_back(std::move(jv));
+    }
+  }
+  json stats = json::object();
+  auto block = [&](std::map<std::string, std::vector<double>>& vals) {
+    json b = json::object();
+    for (const char* k : {"fer_2d", "circularity", "l_max_mm", "l_min_mm"})
+      b[k] = StatsJson(vals[k]);
+    return b;
+  };
+  for (int side : r.sides) stats[layout::SideDirName(side)] = block(per_side[side]);
+  stats["overall"] = block(overall);
+  stats["std_kind"] = "sample";
+  const double fer2d_mean = ComputeStats(overall["fer_2d"]).mean;
+  const double circ_mean = ComputeStats(overall["circularity"]).mean;
+  const double lo = std::min(p.c_over_b, p.b_over_a), hi = std::max(p.c_over_b, p.b_over_a);
+
+  std::vector<double> ious;
+  for (const auto& e : r.surface.value("silhouette_iou", json::array()))
+    ious.push_back(e.value("iou", 0.0));
+  const Stats iou = ComputeStats(ious);
+  json quality = {
+      {"silhouette_iou_mean", iou.mean},
+      {"silhouette_iou_min", iou.min},
+      {"silhouette_iou_note",
+       "IoU of each mask with the reconstructed surface's silhouette: an estimate of mask and pose "
+       "consistency (1 = every mask agrees with all the others)"},
+      {"calibration_reprojection_rms_px", r.cal->reprojection_rms_px},
+      {"stitch_rms_mm", r.stitch.value("rms_mm", json())},
+      {"stitch_max_mm", r.stitch.value("max_mm", json())},
+      {"stitch_silhouette_deficit", r.stitch.value("silhouette_deficit", json())},
+      {"scale_residual_mm", r.stitch.value("scale_residual_mm", json())},
+      {"scale_reference", r.stitch.value("scale_reference", json())},
+      {"watertight", watertight.ok()}};
+  // What the figures cannot be trusted for, with the reason: never a
+  // confident number from poor masks or an unconfirmed stitch.
+  quality["flags"] =
+      QualityFlags(quality, r.stitch, r.surface.value("silhouette_iou", json::array()));
+  quality["confident"] = quality["flags"].empty();
+  for (const json& f : quality["flags"]) {
+    LogLine(LogLevel::kWarning, kCat, r.id, "not confident: " + f.value("reason", ""));
+  }
+  r.timings["masks_and_2d_s"] = r.masks_s;
+  r.timings["morphology_s"] = Seconds(t_m);
+  double total = r.masks_s;
+  for (const char* k : {"calibration_s", "stitch_s", "surface_s", "morphology_s"})
+    total += r.timings.value(k, 0.0);
+  for (int side : r.sides)
+    total += r.timings.value("poses_" + layout::SideDirName(side) + "_s", 0.0);
+  r.timings["total"] = total;
+  r.timings["this_run_wall"] = Seconds(r.t_all);
+
+  // One method when every side agrees, else each side's.
+  std::string poses_method;
+  for (const auto& [side, m] : r.poses_methods) {
+    if (poses_method.empty()) poses_method = m;
+    if (m != r.poses_methods.begin()->second) {
+      poses_method.clear();
+      for (const auto& [s2, m2] : r.poses_methods) {
+        poses_method += (poses_method.empty() ? "" : ", ") + layout::SideDirName(s2) + ": " + m2;
+      }
+      break;
+    }
+  }
+  // Each side's poses figures (the method's own: SfM's registration and
+  // scale, or the bundle adjustment's).
+  json poses_detail = json::array();
+  for (int side : r.sides) {
+    auto pj = ReadJson(ResultsPath(r.dir, results::PosesName(side)), "poses");
+    if (!pj) return pj.error();
+    json e = {{"side", side}, {"method", pj->value("method", "")}};
+    if (pj->contains("sfm")) {
+      const json& s = (*pj)["sfm"];
+      const json& sc = pj->value("scale", json::object());
+      e.update({{"registered_views", s.value("registered_views", 0)},
+                {"input_views", s.value("input_views", 0)},
+                {"mean_reprojection_px", s.value("mean_reprojection_px", 0.0)},
+                {"checks_passed", s.value("checks_passed", false)},
+                {"camera_source", s.value("camera_source", "")},
+                {"scale_reference", sc.value("reference", "")},
+                {"scale_residual_mm", sc.value("residual_mm", 0.0)},
+                {"colmap_s", s.value("colmap_s", 0.0)},
+                {"model_dir", s.value("model_dir", "")}});
+    } else if (pj->contains("bundle_adjustment")) {
+      const json& ba = (*pj)["bundle_adjustment"];
+      e.update({{"ba_refined", ba.value("refined", false)},
+                {"ba_final_rms_px", ba.value("final_rms_px", 0.0)}});
+    }
+    poses_detail.push_back(std::move(e));
+  }
+  // Everything left out or doubtful, with what to do: a figure computed
+  // without some views is still a figure, but the operator must know.
+  json warnings = json::array();
+  for (int side : r.sides) {
+    auto sr = ReadJson(SideResultPath(r.dir, side), "side result");
+    if (!sr) return sr.error();
+    for (const char* k : {"image_problems", "mask_problems"}) {
+      const std::string w = sr->value(k, "");
+      if (!w.empty()) warnings.push_back(layout::SideDirName(side) + ": " + w);
+    }
+  }
+  for (const auto& v : r.surface.value("views_left_out", json::array())) {
+    warnings.push_back(layout::SideDirName(v.value("side", 0)) + " view " +
+                       std::to_string(v.value("view", 0)) +
+                       " left out of the model: " + v.value("reason", ""));
+  }
+  for (const auto& v : r.surface.value("views_disagreeing", json::array())) {
+    warnings.push_back(layout::SideDirName(v.value("side", 0)) + " view " +
+                       std::to_string(v.value("view", 0)) +
+                       " disagrees with the model: " + v.value("reason", ""));
+  }
+  json morphology_3d = MeshPropsJson(p);
+  morphology_3d["watertight"] = watertight.ok();
+  json out = {{"format", "aggscan-morphology-1"},
+              {"sample_id", r.id},
+              {"created_utc", NowUtcString()},
+              {"units",
+               "mm, mm2, mm3, degrees; ratios dimensionless; 2D lengths in px and in mm at the "
+               "rock's depth"},
+              {"methods",
+               {{"calibration", r.cal->method},
+                {"poses", poses_method},
+                {"stitch", r.stitch.value("method", "")},
+                {"surface", r.surface.value("method", "")},
+                {"masks", r.mask_method}}},
+              {"morphology_3d", morphology_3d},
+              {"poses", poses_detail},
+              {"views_2d", views2d},
+              {"stats_2d", stats},
+              {"comparison_2d_3d",
+               {{"fer_3d", p.fer_3d},
+                {"fer_2d_mean", fer2d_mean},
+                {"fer_2d_mean_over_fer_3d", p.fer_3d > 0 ? fer2d_mean / p.fer_3d : 0.0},
+                {"ratio_c_b", p.c_over_b},
+                {"ratio_b_a", p.b_over_a},
+                {"fer_2d_mean_between_c_b_and_b_a", fer2d_mean >= lo && fer2d_mean <= hi},
+                {"sphericity", p.sphericity},
+                {"circularity_mean", circ_mean},
+                {"circularity_mean_minus_sphericity", circ_mean - p.sphericity}}},
+              {"quality", quality},
+              {"warnings", warnings},
+              {"timings_s", r.timings},
+              {"files",
+               {{"mesh_ply", results::kMeshPly},
+                {"mesh_obj", results::kMeshObj},
+                {"mesh_stl", results::kMeshStl},
+                {"stitch", results::kStitch},
+                {"surface", results::kSurface}}}};
+  if (!watertight) out["morphology_3d"]["watertight_problem"] = watertight.error().message;
+  if (Status s = WriteJson(r.morph_path, out); !s) return s;
+  LogLine(LogLevel::kNotice, kCat, r.id,
+          "reconstructed: V " + std::to_string(static_cast<long>(p.volume_mm3)) + " mm3, a/b/c " +
+              std::to_string(p.a_mm) + "/" + std::to_string(p.b_mm) + "/" + std::to_string(p.c_mm) +
+              " mm");
+  return AppendLibraryRow(r.opts.state_dir, out);
+}
+
+// The fingerprints of the stages (pipeline/core/stage_runner.h): each stage's
+// options and inputs, the stages it reads by their own fingerprints.
+struct SampleFingerprints {
+  std::map<int, std::string> masks;  // per side
+  std::string two_d, calibration;
+  std::map<int, std::string> poses;
+  std::string stitch, surface, morphology;
+};
+
+Result<std::string> CalibrationFingerprint(const SampleRun& r) {
+  Fingerprint f;
+  f.Add("stage", std::string_view("calibration"));
+  std::string path = r.dir + "/" + layout::kCalibrationCopy;
+  if (!PathExists(path) && !r.opts.state_dir.empty()) path = CalibrationPath(r.opts.state_dir);
+  f.Add("source", std::string_view(path));
+  if (Status s = f.AddFile("calibration", path); !s) return s.error();
+  return f.Hex();
+}
+
+// `masks`: every side's masks and the 2D figures (AddMasksAndTwoDStages).
+Result<SampleFingerprints> SampleJobFingerprints(const SampleRun& r,
+                                                 const SampleFingerprints& masks) {
+  SampleFingerprints fp;
+  fp.masks = masks.masks;
+  fp.two_d = masks.two_d;
+  Fingerprint config;  // the armed config: labels and markers (poses, stitch), camera
+  if (Status s = config.AddFile("config", r.dir + "/" + layout::kConfigCopy); !s) return s.error();
+  if (!r.use_sfm || HasCalibration(r.dir, r.opts)) {
+    auto c = CalibrationFingerprint(r);
+    if (!c) return c.error();
+    fp.calibration = *c;
+  }
+  Fingerprint stitch;
+  stitch.Add("stage", std::string_view("stitch")).Add("config", std::string_view(config.Hex()));
+  for (int side : r.sides) {
+    Fingerprint f;
+    f.Add("stage", std::string_view("poses"))
+        .Add("side", std::string_view(std::to_string(side)))
+        .Add("masks", std::string_view(fp.masks[side]))
+        .Add("config", std::string_view(config.Hex()))
+        .Add("path", std::string_view(r.use_sfm ? "sfm" : "turntable"));
+    if (r.use_sfm) {
+      f.Add("sfm", OptionsJson(r.opts.sfm));
+      // Without a rig calibration every later side is posed with the first
+      // side's SfM camera.
+      if (fp.calibration.empty() && side != r.sides[0])
+        f.Add("first side", std::string_view(fp.poses[r.sides[0]]));
+    } else {
+      f.Add("bundle_adjust", json(r.opts.bundle_adjust));
+      if (r.opts.bundle_adjust) f.Add("ba", OptionsJson(r.opts.ba));
+    }
+    f.Add("calibration", std::string_view(fp.calibration));
+    fp.poses[side] = f.Hex();
+    stitch.Add("poses", std::string_view(fp.poses[side]));
+  }
+  if (fp.calibration.empty()) {
+    fp.calibration = Fingerprint()
+                         .Add("stage", std::string_view("calibration from sfm"))
+                         .Add("poses", std::string_view(fp.poses[r.sides[0]]))
+                         .Hex();
+    stitch.Add("calibration", std::string_view(fp.calibration));
+  }
+  fp.stitch = stitch.Hex();
+  fp.surface = Fingerprint()
+                   .Add("stage", std::string_view("surface"))
+                   .Add("stitch", std::string_view(fp.stitch))
+                   .Add("hull", OptionsJson(r.opts.hull))
+                   .Add("photo_refine", json(r.opts.photo_refine))
+                   .Add("photo", r.opts.photo_refine ? OptionsJson(r.opts.photo) : json())
+                   .Add("photo_max_width", json(r.opts.photo_max_width))
+                   .Add("surface_smooth_iterations", json(r.opts.surface_smooth_iterations))
+                   .Hex();
+  fp.morphology = Fingerprint()
+                      .Add("stage", std::string_view("morphology"))
+                      .Add("surface", std::string_view(fp.surface))
+                      .Add("2d", std::string_view(fp.two_d))
+                      .Hex();
+  return fp;
+}
+
+// The masks stages of every side and the 2D figures over them ("2d", which
+// then runs `then`, if given); their fingerprints.
+Result<SampleFingerprints> AddMasksAndTwoDStages(const std::string& sample_dir,
+                                                 const std::vector<int>& sides,
+                                                 const WorkerOptions& wo,
+                                                 std::function<Status()> then,
+                                                 std::vector<StageDecl>* stages) {
+  SampleFingerprints fp;
+  Fingerprint two_d;
+  two_d.Add("stage", std::string_view("2d"));
+  for (int side : sides) {
+    auto d = MasksStage(sample_dir, side, wo);
+    if (!d) return d.error();
+    fp.masks[side] = d->fingerprint;
+    two_d.Add("masks", std::string_view(d->fingerprint));
+    stages->push_back(std::move(*d));
+  }
+  fp.two_d = two_d.Hex();
+  stages->push_back({"2d",
+                     "",
+                     fp.two_d,
+                     {"results/morph2d.json"},
+                     {},
+                     [sample_dir, wo, then](StageContext&) -> Status {
+                       if (Status s = ProcessSample(sample_dir, wo); !s) return s;
+                       return then ? then() : OkStatus();
+                     }});
+  return fp;
+}
+
+Status TwoDFiguresStages(const std::string& sample_dir, const WorkerOptions& wo) {
+  auto sides = CapturedSides(sample_dir);
+  if (!sides) return sides.error();
+  std::vector<StageDecl> stages;
+  if (auto fp = AddMasksAndTwoDStages(sample_dir, *sides, wo, nullptr, &stages); !fp) {
+    return fp.error();
+  }
+  StageRunOptions ro;
+  ro.cancel = wo.cancel;
+  auto run = RunStages(sample_dir, stages, ro);
+  return run ? OkStatus() : Status(run.error());
+}
+
+Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructOptions& opts) {
+  SampleRun r(sample_dir, opts);
+  r.id = layout::SampleIdOfDir(sample_dir);
+  r.morph_path = ResultsPath(sample_dir, results::kMorphology);
+  auto sides = CapturedSides(sample_dir);
+  if (!sides) return sides.error();
+  r.sides = *sides;
+  // The config the sample was armed with: its background labels (the SfM
+  // path's scale, the stitch stage's check) and its camera.
+  if (const std::string cfg_path = sample_dir + "/" + layout::kConfigCopy; PathExists(cfg_path)) {
+    std::vector<ConfigProblem> problems;
+    auto c = LoadConfigFile(cfg_path, &problems);
+    if (!c) {
+      return MakeError(ErrorClass::kInvalidConfig,
+                       "sample " + r.id + ": its " + cfg_path + " does not load (" +
+                           c.error().message +
+                           "); it is written at arm time and must not be edited");
+    }
+    r.sample_cfg = std::move(*c);
+    r.rig = r.sample_cfg->rig;
+  }
+  auto use_sfm = ChoosePosesPath(sample_dir, opts);
+  if (!use_sfm) return use_sfm.error();
+  r.use_sfm = *use_sfm;
+  WorkerOptions wo = opts.worker;
+  if (!wo.cancel) wo.cancel = opts.cancel;
+  std::vector<StageDecl> stages;
+  auto masks = AddMasksAndTwoDStages(
+      sample_dir, r.sides, wo, [&] { return ReadImageSize(r); }, &stages);
+  if (!masks) return masks.error();
+  auto fp = SampleJobFingerprints(r, *masks);
+  if (!fp) return fp.error();
+  const bool cal_first = !r.use_sfm || HasCalibration(sample_dir, opts);
+  auto calibration_stage = [&](bool from_sfm) {
+    return StageDecl{"calibration",
+                     "",
+                     fp->calibration,
+                     {std::string("results/") + results::kCalibrationUsed},
+                     {},
+                     [&, from_sfm](StageContext&) -> Status {
+                       if (from_sfm) return CalibrationFromSfm(r);
+                       auto c = CalibrationStage(sample_dir, opts, r.image_size, &r.timings);
+                       if (!c) return c.error();
+                       r.cal = std::move(*c);
+                       if (r.use_sfm) SetUpSfm(r);
+                       return OkStatus();
+                     }};
+  };
+  if (cal_first) stages.push_back(calibration_stage(false));
+  for (int side : r.sides) {
+    stages.push_back({"poses side " + std::to_string(side),
+                      "poses",
+                      fp->poses[side],
+                      {"results/" + results::PosesName(side)},
+                      // COLMAP's workspace (work/side<N>/sfm) stays: each of its
+                      // steps is kept or redone by its own fingerprint.
+                      {"results/" + SfmModelDirName(side)},
+                      [&, side](StageContext&) -> Status {
+                        if (r.use_sfm && !r.cal && side == r.sides[0]) SetUpSfm(r);
+                        return PosesOfSide(r, side);
+                      }});
+  }
+  if (!cal_first) stages.push_back(calibration_stage(true));
+  stages.push_back({"stitch",
+                    "",
+                    fp->stitch,
+                    {std::string("results/") + results::kStitch},
+                    {},
+                    [&](StageContext&) { return StitchSides(r); }});
+  stages.push_back(
+      {"surface",
+       "",
+       fp->surface,
+       {std::string("results/") + results::kSurface, std::string("results/") + results::kMeshPly,
+        std::string("results/") + results::kMeshObj, std::string("results/") + results::kMeshStl},
+       {},
+       [&](StageContext&) { return SurfaceOfSample(r); }});
+  stages.push_back({"morphology",
+                    "",
+                    fp->morphology,
+                    {std::string("results/") + results::kMorphology},
+                    {},
+                    [&](StageContext&) { return MorphologyStage(r); }});
+
+  StageRunOptions ro;
+  ro.from = opts.from_stage;
+  ro.cancel = opts.cancel;
+  // The masks' time for the record: the side jobs' (and this run's) seconds.
+  auto run = RunStages(sample_dir, stages, ro);
+  if (!run) return run.error();
+  auto m = ReadJson(r.morph_path, "results");
+  if (!m) return m.error();
+  return AppendLibraryRow(opts.state_dir, *m);
+}
+
+}  // namespace
+
+Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions& opts) {
+  return RunStage("reconstruction", [&] { return ReconstructSampleStages(sample_dir, opts); });
+}
+
+Status TwoDFigures(const std::string& sample_dir, const WorkerOptions& opts) {
+  return RunStage("2D figures", [&] { return TwoDFiguresStages(sample_dir, opts); });
+}
+
+}  // namespace aggscan

@@ -1,0 +1,618 @@
+#include "pipeline/worker/side_job.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <set>
+#include <vector>
+
+#include "common/clock.h"
+#include "common/fsutil.h"
+#include "common/log.h"
+#include "pipeline/core/image_io.h"
+#include "pipeline/morph/morph2d.h"
+#include "pipeline/worker/options_json.h"
+#include "pipeline/core/stage.h"
+#include "store/empty_turntable.h"
+#include "store/layout.h"
+
+namespace aggscan {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+constexpr const char* kCat = "worker";
+
+// The figures summarised per side and per sample.
+constexpr const char* kStatFields[] = {"fer_2d", "circularity", "l_max_px", "l_min_px"};
+
+std::string ResultsDir(const std::string& sample_dir) {
+  return sample_dir + "/" + layout::kResultsDir;
+}
+std::string MasksDir(const std::string& sample_dir, int side) {
+  return ResultsDir(sample_dir) + "/masks/" + layout::SideDirName(side);
+}
+
+json StatsJson(const Stats& s) {
+  return {{"mean", s.mean}, {"min", s.min}, {"max", s.max},
+          {"std", s.std},   {"cov", s.cov}, {"n", s.n}};
+}
+
+json StatsBlock(const std::map<std::string, std::vector<double>>& values) {
+  json out = json::object();
+  for (const char* f : kStatFields) {
+    auto it = values.find(f);
+    out[f] = StatsJson(ComputeStats(it == values.end() ? std::vector<double>{} : it->second));
+  }
+  return out;
+}
+
+// A plain file name inside the side directory: nothing that could leave it.
+bool IsPlainName(const std::string& n) {
+  return !n.empty() && n[0] != '.' && n.find('/') == std::string::npos &&
+         n.find('\0') == std::string::npos;
+}
+
+struct ManifestView {
+  int view = 0;
+  std::string image;
+  std::string sidecar;
+};
+
+Result<std::vector<ManifestView>> ReadManifest(const std::string& side_dir, int side,
+                                               const std::string& sample_id) {
+  const std::string path = side_dir + "/" + layout::kManifest;
+  if (!PathExists(path))
+    return MakeError(ErrorClass::kNotFound,
+                     "side " + std::to_string(side) + " of sample " + sample_id +
+                         " has no manifest (not captured, or the capture did not finish): " + path);
+  auto text = ReadFile(path);
+  if (!text.ok()) return text.error();
+  json m;
+  try {
+    m = json::parse(*text);
+  } catch (const json::exception& e) {
+    return MakeError(ErrorClass::kCorrupt,
+                     "manifest " + path + " is not valid JSON; re-capture the side", e.what());
+  }
+  auto corrupt = [&](const std::string& what) {
+    return MakeError(ErrorClass::kCorrupt, "manifest " + path + " is inconsistent: " + what);
+  };
+  if (!m.is_object()) return corrupt("not a JSON object");
+  if (!m.contains("side") || !m["side"].is_number_integer() || m["side"].get<int>() != side)
+    return corrupt("\"side\" is missing or is not " + std::to_string(side));
+  if (m.contains("sample_id") &&
+      (!m["sample_id"].is_string() || m["sample_id"].get<std::string>() != sample_id))
+    return corrupt("\"sample_id\" does not match the sample directory " + sample_id);
+  if (!m.contains("views") || !m["views"].is_array() || m["views"].empty())
+    return corrupt("\"views\" is missing or empty");
+  std::vector<ManifestView> views;
+  std::set<int> seen;
+  for (const auto& v : m["views"]) {
+    if (!v.is_object() || !v.contains("view") || !v["view"].is_number_integer() ||
+        !v.contains("image") || !v["image"].is_string())
+      return corrupt("a view entry lacks an integer \"view\" or a string \"image\"");
+    ManifestView mv;
+    mv.view = v["view"].get<int>();
+    mv.image = v["image"].get<std::string>();
+    if (mv.view < 0 || !seen.insert(mv.view).second)
+      return corrupt("view index " + std::to_string(mv.view) + " is negative or repeated");
+    if (!IsPlainName(mv.image))
+      return corrupt("image name \"" + mv.image + "\" is not a plain file name");
+    if (v.contains("sidecar") && v["sidecar"].is_string() &&
+        IsPlainName(v["sidecar"].get<std::string>()))
+      mv.sidecar = v["sidecar"].get<std::string>();
+    const std::string img = side_dir + "/" + mv.image;
+    std::error_code ec;
+    const auto size = fs::file_size(img, ec);
+    if (ec) return corrupt("listed image " + mv.image + " is missing");
+    if (v.contains("bytes")) {
+      if (!v["bytes"].is_number_unsigned() || v["bytes"].get<uint64_t>() != size)
+        return corrupt("image " + mv.image + " has " + std::to_string(size) +
+                       " bytes, the manifest says " + v["bytes"].dump());
+    }
+    views.push_back(std::move(mv));
+  }
+  std::sort(views.begin(), views.end(),
+            [](const auto& a, const auto& b) { return a.view < b.view; });
+  return views;
+}
+
+// Rock pixels on the photo's outermost row or column.
+int FramePixels(const cv::Mat& mask) {
+  if (mask.empty()) return 0;
+  const int r = mask.rows - 1, c = mask.cols - 1;
+  return cv::countNonZero(mask.row(0)) + cv::countNonZero(mask.row(r)) +
+         cv::countNonZero(mask.col(0).rowRange(1, std::max(1, r))) +
+         cv::countNonZero(mask.col(c).rowRange(1, std::max(1, r)));
+}
+
+// Fields of a side result, which is read back from disk: the type asked for,
+// else `fallback` (json::value throws on another type, and a double beyond
+// int's range does not convert).
+bool Flag(const json& j, const char* key) {
+  const auto it = j.find(key);
+  return it != j.end() && it->is_boolean() && it->get<bool>();
+}
+double Number(const json& j, const char* key, double fallback) {
+  const auto it = j.find(key);
+  return it != j.end() && it->is_number() ? it->get<double>() : fallback;
+}
+int Count(const json& j, const char* key, int fallback) {
+  const auto it = j.find(key);
+  if (it == j.end() || !it->is_number_integer()) return fallback;
+  const int64_t v =
+      it->is_number_unsigned() && it->get<uint64_t>() > INT32_MAX ? INT64_MAX : it->get<int64_t>();
+  return v >= INT32_MIN && v <= INT32_MAX ? static_cast<int>(v) : fallback;
+}
+std::string Text(const json& j, const char* key) {
+  const auto it = j.find(key);
+  return it != j.end() && it->is_string() ? it->get<std::string>() : std::string();
+}
+
+std::string ViewList(const std::vector<int>& v) {
+  std::string s;
+  for (size_t i = 0; i < v.size(); ++i) s += (i ? ", " : "") + std::to_string(v[i]);
+  return s;
+}
+
+}  // namespace
+
+std::string CheckSideMasks(json* jviews) {
+  double largest = 0;
+  for (const json& jv : *jviews) {
+    if (Flag(jv, "ok")) largest = std::max(largest, Number(jv, "mask_area_fraction", 0.0));
+  }
+  std::vector<int> cut, small;
+  for (json& jv : *jviews) {
+    if (!Flag(jv, "ok")) continue;
+    const int view = Count(jv, "view", -1);
+    const int frame_px = Count(jv, "mask_frame_px", 0);
+    const double area = Number(jv, "mask_area_fraction", 0.0);
+    if (frame_px >= kMaskFrameMinPx) {
+      cut.push_back(view);
+      jv["ok"] = false;
+      jv["error"] = "the rock reaches the edge of the photo (" + std::to_string(frame_px) +
+                    " px on its border): its silhouette is cut";
+    } else if (area < kMaskMinAreaOfLargest * largest) {
+      small.push_back(view);
+      jv["ok"] = false;
+      jv["error"] = "the mask covers " +
+                    std::to_string(static_cast<int>(std::lround(100 * area / largest))) +
+                    " % of the side's largest: the segmentation lost the rock";
+    }
+  }
+  std::string msg;
+  if (!cut.empty()) {
+    msg = "the rock reaches the edge of the photo in view" +
+          std::string(cut.size() > 1 ? "s " : " ") + ViewList(cut) +
+          " (left out): move the camera back or use a wider lens so the whole rock is in every "
+          "photo, then "
+          "re-capture";
+  }
+  if (!small.empty()) {
+    msg += std::string(msg.empty() ? "" : "; ") + "the rock was lost by the segmentation in view" +
+           (small.size() > 1 ? "s " : " ") + ViewList(small) + " (masks under " +
+           std::to_string(static_cast<int>(100 * kMaskMinAreaOfLargest)) +
+           " % of the side's largest; left out): check those photos (rock leaving the frame, "
+           "background of the "
+           "rock's colour, lighting)";
+  }
+  return msg;
+}
+
+Status SideHasEnoughWholeViews(const json& side_result) {
+  std::string problems = Text(side_result, "mask_problems");
+  const std::string damaged = Text(side_result, "image_problems");
+  if (!damaged.empty()) problems += (problems.empty() ? "" : "; ") + damaged;
+  const int total = Count(side_result, "views_total", 0), ok = Count(side_result, "views_ok", 0);
+  if (problems.empty() || 3 * int64_t{ok} >= 2 * int64_t{total}) return OkStatus();
+  return MakeError(ErrorClass::kCorrupt,
+                   "side " + std::to_string(Count(side_result, "side", 0)) + ": only " +
+                       std::to_string(ok) + " of " + std::to_string(total) +
+                       " views show the whole rock, too few for its model: " + problems);
+}
+
+namespace {
+
+Status WriteJson(const std::string& path, const json& j) {
+  return WriteFileAtomic(path, j.dump(2) + "\n");
+}
+
+}  // namespace
+
+std::string SideResultPath(const std::string& sample_dir, int side) {
+  return ResultsDir(sample_dir) + "/" + layout::SideDirName(side) + "_morph2d.json";
+}
+std::string SampleResultPath(const std::string& sample_dir) {
+  return ResultsDir(sample_dir) + "/morph2d.json";
+}
+std::string ViewMaskPath(const std::string& sample_dir, int side, int view) {
+  return MasksDir(sample_dir, side) + "/" + layout::ViewStem(view) + ".png";
+}
+
+double MeasuredAngle(const std::string& side_dir, const std::string& sidecar) {
+  if (sidecar.empty()) return std::nan("");
+  auto text = ReadFile(side_dir + "/" + sidecar);
+  const json j = text.ok() ? json::parse(*text, nullptr, false) : json();
+  return j.is_object() && j.contains("measured_angle_deg") && j["measured_angle_deg"].is_number()
+             ? j["measured_angle_deg"].get<double>()
+             : std::nan("");
+}
+
+cv::Mat EmptyTurntablePhoto(const std::string& sample_dir, const EmptyTurntableSet& set,
+                            double angle_deg, const cv::Mat& photo, const WorkerOptions& opts,
+                            std::string* why) {
+  if (!std::isfinite(angle_deg)) {
+    *why = "no measured turntable angle to match an empty-turntable photo by";
+    return cv::Mat();
+  }
+  double d = 0;
+  const EmptyTurntableView* v = set.Nearest(angle_deg, &d);
+  if (!v || d > opts.empty_turntable_max_angle_deg) {
+    char buf[200];
+    std::snprintf(buf, sizeof buf,
+                  "the nearest empty-turntable photo was shot %.2f deg away (more than %.2f)", d,
+                  opts.empty_turntable_max_angle_deg);
+    *why = buf;
+    return cv::Mat();
+  }
+  const std::string path = sample_dir + "/" + layout::kEmptyDir + "/" + v->image;
+  auto img = LoadImage(path, ImageMode::kColor, opts.image_limits);
+  if (!img.ok()) {
+    *why = img.error().message;
+    return cv::Mat();
+  }
+  if (img->size() != photo.size()) {
+    *why = "the empty-turntable photo " + v->image + " is " + std::to_string(img->cols) + "x" +
+           std::to_string(img->rows) + ", the view " + std::to_string(photo.cols) + "x" +
+           std::to_string(photo.rows);
+    return cv::Mat();
+  }
+  return std::move(*img);
+}
+
+namespace {
+
+Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOptions& opts) {
+  const std::string sample_id = layout::SampleIdOfDir(sample_dir);
+  if (side < 1)
+    return MakeError(ErrorClass::kInvalidArgument,
+                     "side must be >= 1, got " + std::to_string(side));
+  const std::string result_path = SideResultPath(sample_dir, side);
+  if (PathExists(result_path)) {
+    LogLine(LogLevel::kInfo, kCat, sample_id,
+            "side " + std::to_string(side) + ": already done, skipped");
+    return OkStatus();
+  }
+  const std::string side_dir = sample_dir + "/" + layout::SideDirName(side);
+  auto views = ReadManifest(side_dir, side, sample_id);
+  if (!views.ok()) return views.error();
+
+  const std::string masks_dir = MasksDir(sample_dir, side);
+  if (Status s = MakeDirsDurable(masks_dir); !s.ok()) return s;
+  RemoveTempFiles(masks_dir);
+  RemoveTempFiles(ResultsDir(sample_dir));
+
+  const TimeNs t_start = MonotonicNs();
+  json jviews = json::array();
+  std::map<std::string, std::vector<double>> values;
+  int reused = 0;
+  std::vector<int> image_problems;  // views whose photo cannot be decoded or is of an unusable size
+  std::string image_reasons;
+  // The sample's empty-turntable photos (linked in when it was armed), if any.
+  Result<EmptyTurntableSet> empty_set = LoadEmptyTurntableSet(sample_dir + "/" + layout::kEmptyDir);
+  int empty_used = 0;  // views masked against an empty-turntable photo
+  std::vector<std::string>
+      empty_problems;  // views of a sample with a set masked without one, and why
+  if (!empty_set && empty_set.error().cls != ErrorClass::kNotFound) {
+    empty_problems.push_back(empty_set.error().message);
+  }
+  const int view_count = static_cast<int>(views->size());
+  int views_done = 0;
+  for (const ManifestView& v : *views) {
+    if (opts.cancel && opts.cancel->load())
+      return MakeError(ErrorClass::kCancelled, "interrupted: side " + std::to_string(side) +
+                                                   " of " + sample_id + " will resume from view " +
+                                                   std::to_string(v.view));
+    ReportStageProgress(views_done++, view_count);
+    const StageScope view_stage("masks side " + std::to_string(side) + " view " +
+                                std::to_string(v.view));
+    const TimeNs t0 = MonotonicNs();
+    const std::string mask_path = ViewMaskPath(sample_dir, side, v.view);
+    cv::Mat mask;
+    if (opts.reuse_masks && PathExists(mask_path)) {
+      auto reuse = LoadImage(mask_path, ImageMode::kGray, opts.image_limits);
+      if (reuse) {
+        mask = std::move(*reuse);
+        ++reused;
+      }
+    }
+    cv::Size image_size = mask.size();
+    if (mask.empty()) {
+      auto bytes = ReadFile(side_dir + "/" + v.image);
+      if (!bytes.ok()) return bytes.error();
+      auto img = DecodeImage(*bytes, ImageMode::kColor, layout::SideDirName(side) + "/" + v.image,
+                             opts.image_limits);
+      if (!img.ok()) {
+        // A photo damaged in the camera, on the link or in storage: the view
+        // is left out (a grey, half-decoded photo would carve rock away) and
+        // named with what to do.
+        image_problems.push_back(v.view);
+        image_reasons += (image_reasons.empty() ? "" : "; ") + img.error().message;
+        json jv = {
+            {"view", v.view},
+            {"image", v.image},
+            {"ok", false},
+            {"image_problem", img.error().message},
+            {"error", img.error().message +
+                          ": re-shoot the side (arm the sample again) and check the camera's "
+                          "link and the storage"}};
+        LogLine(LogLevel::kWarning, kCat, sample_id,
+                "side " + std::to_string(side) + " view " + std::to_string(v.view) + ": " +
+                    img.error().ToString());
+        jviews.push_back(std::move(jv));
+        continue;
+      }
+      image_size = img->size();
+      cv::Mat empty;
+      if (empty_set) {
+        std::string why;
+        empty = EmptyTurntablePhoto(sample_dir, *empty_set, MeasuredAngle(side_dir, v.sidecar),
+                                    *img, opts, &why);
+        if (empty.empty()) {
+          empty_problems.push_back(layout::ViewStem(v.view) + ": " + why);
+        } else {
+          ++empty_used;
+        }
+      }
+      if (opts.mask_net) {
+        auto m = opts.mask_net->Mask(*img, opts.mask, empty);
+        if (!m.ok()) return m.error();
+        mask = std::move(*m);
+      } else {
+        mask = ComputeForegroundMask(*img, empty, opts.mask);
+      }
+      std::vector<unsigned char> png;
+      if (!cv::imencode(".png", mask, png))
+        return MakeError(ErrorClass::kInternal,
+                         "PNG encoding of the mask of view " + std::to_string(v.view) + " failed");
+      if (Status s = WriteFileAtomic(mask_path, std::span<const unsigned char>(png)); !s.ok())
+        return s;
+    }
+    const double mask_ms = static_cast<double>(MonotonicNs() - t0) / 1e6;
+
+    json jv = {
+        {"view", v.view},
+        {"image", v.image},
+        {"mask", "masks/" + layout::SideDirName(side) + "/" + layout::ViewStem(v.view) + ".png"}};
+    if (!v.sidecar.empty()) {
+      auto sc = ReadFile(side_dir + "/" + v.sidecar);
+      json js = sc.ok() ? json::parse(*sc, nullptr, false) : json();
+      if (js.is_object()) {
+        for (const char* k : {"commanded_angle_deg", "measured_angle_deg"})
+          if (js.contains(k) && js[k].is_number()) jv[k] = js[k];
+      } else {
+        LogLine(LogLevel::kWarning, kCat, sample_id,
+                "sidecar " + v.sidecar + " is missing or unreadable");
+      }
+    }
+    const double total_px = static_cast<double>(image_size.area());
+    jv["mask_area_fraction"] = total_px > 0 ? cv::countNonZero(mask) / total_px : 0.0;
+    jv["mask_frame_px"] = FramePixels(mask);
+    auto m = ComputeMorph2D(mask);
+    if (m.ok()) {
+      jv["ok"] = true;
+      jv["l_max_px"] = m->l_max_px;
+      jv["l_min_px"] = m->l_min_px;
+      jv["fer_2d"] = m->fer_2d;
+      jv["area_px"] = m->area_px;
+      jv["perimeter_px"] = m->perimeter_px;
+      jv["circularity"] = m->circularity;
+      jv["l_max_angle_deg"] = m->l_max_angle_deg;
+    } else {
+      jv["ok"] = false;
+      jv["error"] = "no rock found in this view";
+      LogLine(LogLevel::kWarning, kCat, sample_id,
+              "side " + std::to_string(side) + " view " + std::to_string(v.view) +
+                  ": no rock found in the mask");
+    }
+    jv["timing_ms"] = mask_ms;
+    jviews.push_back(std::move(jv));
+  }
+  // Masks that cannot be the rock's whole silhouette: cut by the photo's
+  // edge, or a small fraction of the side's largest (the segmentation lost
+  // the rock). Either would make the 2D figures wrong and carve rock away
+  // from the model, so such views are left out, and said so.
+  const std::string lost = CheckSideMasks(&jviews);
+  if (!lost.empty()) {
+    LogLine(LogLevel::kWarning, kCat, sample_id, "side " + std::to_string(side) + ": " + lost);
+  }
+  std::string damaged;
+  if (!image_problems.empty()) {
+    damaged = "the photo of view" + std::string(image_problems.size() > 1 ? "s " : " ") +
+              ViewList(image_problems) + " cannot be used (" + image_reasons +
+              "; left out): re-shoot the side (arm the sample again) and check the camera's link "
+              "and the storage";
+    LogLine(LogLevel::kWarning, kCat, sample_id, "side " + std::to_string(side) + ": " + damaged);
+  }
+  for (const json& jv : jviews) {
+    if (!jv.value("ok", false)) continue;
+    values["fer_2d"].push_back(jv["fer_2d"].get<double>());
+    values["circularity"].push_back(jv["circularity"].get<double>());
+    values["l_max_px"].push_back(jv["l_max_px"].get<double>());
+    values["l_min_px"].push_back(jv["l_min_px"].get<double>());
+  }
+  const int ok_views = static_cast<int>(values["fer_2d"].size());
+  if (ok_views == 0)
+    return MakeError(ErrorClass::kCorrupt,
+                     "side " + std::to_string(side) + " of " + sample_id +
+                         ": no rock found in any view (empty turntable or wrong exposure?)" +
+                         (lost.empty() ? "" : "; " + lost) +
+                         (damaged.empty() ? "" : "; " + damaged));
+  const double total_ms = static_cast<double>(MonotonicNs() - t_start) / 1e6;
+  json out = {{"sample_id", sample_id},
+              {"side", side},
+              {"views", jviews},
+              {"views_total", static_cast<int>(views->size())},
+              {"views_ok", ok_views},
+              {"mask_problems", lost},
+              {"image_problems", damaged},
+              {"stats", StatsBlock(values)},
+              {"std_kind", "sample"},
+              {"mask_method", opts.mask_net ? "onnx" : "classical"},
+              {"mask_empty_turntable", empty_set ? json(empty_set->id) : json(nullptr)},
+              {"mask_empty_turntable_views", empty_used},
+              {"timing_ms", total_ms}};
+  if (!empty_problems.empty()) {
+    out["mask_empty_turntable_problems"] = empty_problems;
+    std::string list;
+    for (const std::string& p : empty_problems) list += (list.empty() ? "" : "; ") + p;
+    LogLine(LogLevel::kWarning, kCat, sample_id,
+            "side " + std::to_string(side) + ": " + std::to_string(empty_problems.size()) +
+                " view(s) masked without an empty-turntable photo (" + list +
+                "); shoot the empty turntable again at the sample's angles and camera settings "
+                "(aggscan empty-turntable)");
+  }
+  if (Status s = WriteJson(result_path, out); !s.ok()) return s;
+  LogLine(LogLevel::kInfo, kCat, sample_id,
+          "side " + std::to_string(side) + ": " + std::to_string(ok_views) + "/" +
+              std::to_string(views->size()) + " views measured (" + std::to_string(reused) +
+              " masks reused) in " + std::to_string(static_cast<long>(total_ms)) + " ms");
+  return OkStatus();
+}
+
+Status ProcessSampleStage(const std::string& sample_dir, const WorkerOptions& opts) {
+  const std::string sample_id = layout::SampleIdOfDir(sample_dir);
+  const std::string result_path = SampleResultPath(sample_dir);
+  if (PathExists(result_path)) {
+    LogLine(LogLevel::kInfo, kCat, sample_id, "sample morphology already done, skipped");
+    return OkStatus();
+  }
+  auto sides = CapturedSides(sample_dir);
+  if (!sides) return sides.error();
+
+  json jsides = json::array();
+  std::map<std::string, std::vector<double>> all;
+  int views_ok = 0;
+  for (int side : *sides) {
+    const std::string side_result = SideResultPath(sample_dir, side);
+    if (!PathExists(side_result)) {
+      if (Status s = ProcessSide(sample_dir, side, opts); !s.ok()) return s;
+    }
+    auto text = ReadFile(side_result);
+    if (!text.ok()) return text.error();
+    const json j = json::parse(*text, nullptr, false);
+    if (!j.is_object() || !j.contains("views") || !j["views"].is_array())
+      return MakeError(ErrorClass::kCorrupt,
+                       "side result " + side_result + " is unreadable; delete it to recompute");
+    std::map<std::string, std::vector<double>> vals;
+    for (const auto& v : j["views"]) {
+      if (!Flag(v, "ok")) continue;
+      for (const char* f : kStatFields)
+        if (v.contains(f) && v[f].is_number()) {
+          vals[f].push_back(v[f].get<double>());
+          all[f].push_back(v[f].get<double>());
+        }
+    }
+    views_ok += static_cast<int>(vals["fer_2d"].size());
+    jsides.push_back(
+        {{"side", side}, {"views_ok", vals["fer_2d"].size()}, {"stats", StatsBlock(vals)}});
+  }
+  json out = {{"sample_id", sample_id},
+              {"sides", jsides},
+              {"overall", {{"views_ok", views_ok}, {"stats", StatsBlock(all)}}},
+              {"std_kind", "sample"}};
+  if (Status s = WriteJson(result_path, out); !s.ok()) return s;
+  LogLine(LogLevel::kInfo, kCat, sample_id,
+          "sample morphology written: " + std::to_string(sides->size()) + " sides, " +
+              std::to_string(views_ok) + " views");
+  return OkStatus();
+}
+
+}  // namespace
+
+Status ProcessSide(const std::string& sample_dir, int side, const WorkerOptions& opts) {
+  return RunStage("masks side " + std::to_string(side),
+                  [&] { return ProcessSideStage(sample_dir, side, opts); });
+}
+
+Status ProcessSample(const std::string& sample_dir, const WorkerOptions& opts) {
+  return RunStage("2D figures", [&] { return ProcessSampleStage(sample_dir, opts); });
+}
+
+Result<std::vector<int>> CapturedSides(const std::string& sample_dir) {
+  std::vector<int> sides;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(sample_dir, ec)) {
+    const std::string n = e.path().filename().string();
+    if (!e.is_directory() || n.size() <= 4 || n.rfind("side", 0) != 0) continue;
+    const std::string num = n.substr(4);
+    if (!std::all_of(num.begin(), num.end(), [](char c) { return c >= '0' && c <= '9'; }) ||
+        num.size() > 4)
+      continue;
+    sides.push_back(std::stoi(num));
+  }
+  if (ec) return ErrnoError("cannot list sample directory " + sample_dir, ec.value());
+  std::sort(sides.begin(), sides.end());
+  if (sides.empty())
+    return MakeError(ErrorClass::kNotFound,
+                     "sample " + layout::SampleIdOfDir(sample_dir) + " has no captured side");
+  return sides;
+}
+
+Result<std::string> MasksFingerprint(const std::string& sample_dir, int side,
+                                     const WorkerOptions& opts) {
+  Fingerprint f;
+  f.Add("stage", std::string_view("masks")).Add("side", json(side));
+  if (Status s = f.AddFile("manifest",
+                           sample_dir + "/" + layout::SideDirName(side) + "/" + layout::kManifest);
+      !s) {
+    return s.error();
+  }
+  f.Add("image_limits", OptionsJson(opts.image_limits));
+  if (opts.mask_net) {
+    // The network and, after it, the refinement with these options.
+    f.Add("net", OptionsJson(opts.mask_net->options()));
+    if (Status s = f.AddFile("model", opts.mask_net->options().model_path); !s) return s.error();
+  }
+  f.Add("mask", OptionsJson(opts.mask));
+  auto set = LoadEmptyTurntableSet(sample_dir + "/" + layout::kEmptyDir);
+  f.Add("empty", set ? set->ToJson() : json(ErrorClassName(set.error().cls)));
+  f.Add("empty_max_angle", json(opts.empty_turntable_max_angle_deg));
+  return f.Hex();
+}
+
+Result<StageDecl> MasksStage(const std::string& sample_dir, int side, const WorkerOptions& opts) {
+  if (side < 1)
+    return MakeError(ErrorClass::kInvalidArgument,
+                     "side must be >= 1, got " + std::to_string(side));
+  auto fp = MasksFingerprint(sample_dir, side, opts);
+  if (!fp) return fp.error();
+  const std::string results = layout::kResultsDir;
+  return StageDecl{
+      "masks side " + std::to_string(side),
+      "masks",
+      *fp,
+      {results + "/masks/" + layout::SideDirName(side),
+       results + "/" + layout::SideDirName(side) + "_morph2d.json"},
+      {},
+      [sample_dir, side, opts](StageContext&) { return ProcessSide(sample_dir, side, opts); }};
+}
+
+Status RunSideJob(const std::string& sample_dir, int side, const WorkerOptions& opts) {
+  auto d = MasksStage(sample_dir, side, opts);
+  if (!d) return d.error();
+  StageRunOptions ro;
+  ro.cancel = opts.cancel;
+  auto r = RunStages(sample_dir, {*d}, ro);
+  return r ? OkStatus() : Status(r.error());
+}
+
+}  // namespace aggscan
