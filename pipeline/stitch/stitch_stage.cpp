@@ -2,15 +2,15 @@
 
 #include <atomic>
 #include <chrono>
+#include <opencv2/imgcodecs.hpp>
 #include <optional>
 #include <thread>
 
-#include <opencv2/imgcodecs.hpp>
-
 #include "common/clock.h"
-#include "pipeline/markers/aruco_scale.h"
 #include "pipeline/core/geometry.h"
 #include "pipeline/core/image_io.h"
+#include "pipeline/core/parallel_for.h"
+#include "pipeline/markers/aruco_scale.h"
 #include "pipeline/markers/markers.h"
 #include "pipeline/stitch/stitch.h"
 
@@ -39,8 +39,8 @@ geom::Rigid3 ToRigid(const Eigen::Isometry3d& T) { return {T.linear(), T.transla
 json Vec(const Eigen::Vector3d& p) { return json::array({p.x(), p.y(), p.z()}); }
 
 json EstimateJson(const StitchEstimate& e) {
-  json j = {{"valid", e.valid},       {"pairs", e.pairs},   {"inliers", e.inliers},
-            {"rms_mm", e.rms_mm},     {"max_mm", e.max_mm}, {"points", e.points},
+  json j = {{"valid", e.valid},   {"pairs", e.pairs},   {"inliers", e.inliers},
+            {"rms_mm", e.rms_mm}, {"max_mm", e.max_mm}, {"points", e.points},
             {"note", e.note}};
   if (e.rotation_sigma_deg > 0) j["rotation_sigma_deg"] = e.rotation_sigma_deg;
   if (e.valid) j["moving_to_reference_4x4"] = IsoJson(ToIso(e.T));
@@ -50,7 +50,9 @@ json EstimateJson(const StitchEstimate& e) {
 json MarkersJson(const SideMarkers& m) {
   json pts = json::array();
   for (const MarkerPoint& p : m.points) {
-    json jp = {{"name", p.Name()}, {"located", p.located}, {"views_seen", p.views_seen},
+    json jp = {{"name", p.Name()},
+               {"located", p.located},
+               {"views_seen", p.views_seen},
                {"views_used", p.views_used}};
     if (p.located) {
       jp["position_mm"] = Vec(p.position);
@@ -68,7 +70,9 @@ json LabelsJson(const Result<LabelScale>& ls) {
   if (!ls) return {{"ok", false}, {"problem", ls.error().message}};
   json labels = json::array();
   for (const LabelPoint& l : ls->labels) {
-    json jl = {{"color", l.color}, {"located", l.located}, {"views_seen", l.views_seen},
+    json jl = {{"color", l.color},
+               {"located", l.located},
+               {"views_seen", l.views_seen},
                {"views_used", l.views_used}};
     if (l.located) {
       jl["position_mm"] = Vec(l.position);
@@ -103,7 +107,9 @@ json ArucoJson(const Result<ArucoScale>& as, const RigConfig& rig, int detect_fa
   }
   json markers = json::array();
   for (const ArucoMarkerPoint& m : as->markers) {
-    json jm = {{"id", m.id}, {"located", m.located}, {"views_seen", m.views_seen},
+    json jm = {{"id", m.id},
+               {"located", m.located},
+               {"views_seen", m.views_seen},
                {"views_used", m.views_used}};
     if (m.located) {
       jm["center_mm"] = Vec(m.center);
@@ -141,8 +147,8 @@ struct SideEvidence {
   json record;
 };
 
-Result<SideEvidence> GatherSide(const StitchStageInput& in, int side, const std::vector<StitchViewInput>& views,
-                                bool want_features) {
+Result<SideEvidence> GatherSide(const StitchStageInput& in, int side,
+                                const std::vector<StitchViewInput>& views, bool want_features) {
   const CameraModel& cam = in.calibration->camera;
   std::vector<std::string> label_colors;
   for (const RigMarker& m : in.rig.markers) label_colors.push_back(m.color);
@@ -169,60 +175,56 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side, const std:
   struct Sums {
     TimeNs decode = 0, markers = 0, features = 0, aruco = 0;
   };
-  auto work = [&](std::atomic<size_t>* next, Sums* t) {
-    for (size_t i = (*next)++; i < views.size(); i = (*next)++) {
-      ViewOut& o = out[i];
-      const TimeNs t_decode = MonotonicNs();
-      auto loaded = LoadImage(views[i].image, ImageMode::kColor);
-      if (!loaded) {
-        o.error = MakeError(ErrorClass::kCorrupt,
-                            "stitch stage: " + loaded.error().message + "; the sample's photos must not change",
-                            loaded.error().detail);
-        continue;
-      }
-      const cv::Mat bgr = std::move(*loaded);
-      auto loaded_mask = LoadImage(views[i].mask, ImageMode::kGray);
-      const cv::Mat mask = loaded_mask ? *loaded_mask : cv::Mat();
-      if (mask.empty() || mask.size() != bgr.size()) {
-        o.error = MakeError(ErrorClass::kCorrupt, "stitch stage: mask " + views[i].mask +
-                                                      " is missing, unreadable or not the photo's size; delete the "
-                                                      "side's results to compute the masks again");
-        continue;
-      }
-      const TimeNs t_markers = MonotonicNs();
-      t->decode += t_markers - t_decode;
-      auto m = DetectViewMarkers(bgr, mask, label_colors, in.object_colors, &cam, mopts);
-      t->markers += MonotonicNs() - t_markers;
-      if (m) {
-        vm[i] = std::move(*m);
+  Sums sums[2];
+  auto work = [&](size_t i, int thread) {
+    Sums* t = &sums[thread];
+    ViewOut& o = out[i];
+    const TimeNs t_decode = MonotonicNs();
+    auto loaded = LoadImage(views[i].image, ImageMode::kColor);
+    if (!loaded) {
+      o.error = MakeError(
+          ErrorClass::kCorrupt,
+          "stitch stage: " + loaded.error().message + "; the sample's photos must not change",
+          loaded.error().detail);
+      return;
+    }
+    const cv::Mat bgr = std::move(*loaded);
+    auto loaded_mask = LoadImage(views[i].mask, ImageMode::kGray);
+    const cv::Mat mask = loaded_mask ? *loaded_mask : cv::Mat();
+    if (mask.empty() || mask.size() != bgr.size()) {
+      o.error = MakeError(ErrorClass::kCorrupt,
+                          "stitch stage: mask " + views[i].mask +
+                              " is missing, unreadable or not the photo's size; delete the "
+                              "side's results to compute the masks again");
+      return;
+    }
+    const TimeNs t_markers = MonotonicNs();
+    t->decode += t_markers - t_decode;
+    auto m = DetectViewMarkers(bgr, mask, label_colors, in.object_colors, &cam, mopts);
+    t->markers += MonotonicNs() - t_markers;
+    if (m) {
+      vm[i] = std::move(*m);
+    } else {
+      o.marker_failure = true;
+    }
+    if (is_distinct[i]) {
+      const TimeNs t_features = MonotonicNs();
+      vf[i] = ExtractRockFeatures(bgr, mask);
+      t->features += MonotonicNs() - t_features;
+      o.mask = mask;
+    }
+    if (want_aruco) {
+      const TimeNs t0 = MonotonicNs();
+      Result<ArucoViewDetections> a = DetectArucoMarkers(bgr, mask, in.rig, &cam);
+      t->aruco += MonotonicNs() - t0;
+      if (a) {
+        va[i] = std::move(*a);
       } else {
-        o.marker_failure = true;
-      }
-      if (is_distinct[i]) {
-        const TimeNs t_features = MonotonicNs();
-        vf[i] = ExtractRockFeatures(bgr, mask);
-        t->features += MonotonicNs() - t_features;
-        o.mask = mask;
-      }
-      if (want_aruco) {
-        const TimeNs t0 = MonotonicNs();
-        Result<ArucoViewDetections> a = DetectArucoMarkers(bgr, mask, in.rig, &cam);
-        t->aruco += MonotonicNs() - t0;
-        if (a) {
-          va[i] = std::move(*a);
-        } else {
-          o.aruco_failure = true;
-        }
+        o.aruco_failure = true;
       }
     }
   };
-  std::atomic<size_t> next{0};
-  Sums sums[2];
-  {
-    std::thread helper(work, &next, &sums[1]);
-    work(&next, &sums[0]);
-    helper.join();
-  }
+  ParallelFor(views.size(), 2, work);
   int aruco_failures = 0, detect_failures = 0;
   SilhouetteSideInput sil;
   for (size_t i = 0; i < views.size(); ++i) {
@@ -234,8 +236,10 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side, const std:
       sil.cam_from_table.push_back(poses[i]);
     }
   }
-  const TimeNs decode_ns = sums[0].decode + sums[1].decode, markers_ns = sums[0].markers + sums[1].markers,
-               features_ns = sums[0].features + sums[1].features, aruco_ns = sums[0].aruco + sums[1].aruco;
+  const TimeNs decode_ns = sums[0].decode + sums[1].decode,
+               markers_ns = sums[0].markers + sums[1].markers,
+               features_ns = sums[0].features + sums[1].features,
+               aruco_ns = sums[0].aruco + sums[1].aruco;
   SideEvidence ev;
   ev.silhouettes = std::move(sil);
   ev.markers = LocateObjectMarkers(vm, poses, cam, in.object_colors);
@@ -249,7 +253,9 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side, const std:
                {"object_markers", MarkersJson(ev.markers)},
                {"background_labels", LabelsJson(labels)}};
   if (want_aruco) {
-    const double ms = views.empty() ? 0.0 : static_cast<double>(aruco_ns) / 1e6 / static_cast<double>(views.size());
+    const double ms = views.empty()
+                          ? 0.0
+                          : static_cast<double>(aruco_ns) / 1e6 / static_cast<double>(views.size());
     ev.record["aruco_scale"] =
         ArucoJson(LocateArucoMarkers(va, poses, cam, in.rig), in.rig, aruco_failures, ms);
   } else {
@@ -273,7 +279,8 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side, const std:
 Result<json> RunStitchStage(const StitchStageInput& in) {
   const auto t0 = std::chrono::steady_clock::now();
   if (in.views.empty()) return MakeError(ErrorClass::kInvalidArgument, "stitch stage: no sides");
-  if (!in.calibration) return MakeError(ErrorClass::kInvalidArgument, "stitch stage: no calibration");
+  if (!in.calibration)
+    return MakeError(ErrorClass::kInvalidArgument, "stitch stage: no calibration");
   const bool several = in.views.size() > 1;
 
   std::map<int, SideEvidence> sides;
@@ -306,11 +313,13 @@ Result<json> RunStitchStage(const StitchStageInput& in) {
     j["scale_reference"] = nullptr;
   } else {
     j["scale_residual_mm"] = *std::max_element(scale_residuals.begin(), scale_residuals.end());
-    j["scale_reference"] = by_labels && by_aruco ? "labels+aruco" : (by_labels ? "labels" : "aruco");
+    j["scale_reference"] =
+        by_labels && by_aruco ? "labels+aruco" : (by_labels ? "labels" : "aruco");
   }
 
   const int ref = in.views.begin()->first;
-  json transforms = json::array({{{"side", ref}, {"table_from_object_4x4", IsoJson(Eigen::Isometry3d::Identity())}}});
+  json transforms = json::array(
+      {{{"side", ref}, {"table_from_object_4x4", IsoJson(Eigen::Isometry3d::Identity())}}});
   if (!several) {
     j["method"] = "single-side";
     j["rms_mm"] = nullptr;
@@ -330,13 +339,16 @@ Result<json> RunStitchStage(const StitchStageInput& in) {
       // checks their estimates, and rescues a stitch each is too weak for.
       const auto ts = std::chrono::steady_clock::now();
       auto sil = SilhouetteStitcher::Create(r.silhouettes, ev.silhouettes, in.calibration->camera);
-      json sil_record = {{"available", sil.ok()},
-                         {"prepare_s", std::chrono::duration<double>(std::chrono::steady_clock::now() - ts).count()}};
+      json sil_record = {
+          {"available", sil.ok()},
+          {"prepare_s",
+           std::chrono::duration<double>(std::chrono::steady_clock::now() - ts).count()}};
       if (!sil) sil_record["problem"] = sil.error().message;
       auto st = StitchSides(r.markers, ev.markers, &r.cloud, &ev.cloud, so, sil ? &*sil : nullptr);
       if (!st) {
-        return MakeError(st.error().cls, "stitch stage: side " + std::to_string(side) + " onto side " +
-                                             std::to_string(ref) + ": " + st.error().message,
+        return MakeError(st.error().cls,
+                         "stitch stage: side " + std::to_string(side) + " onto side " +
+                             std::to_string(ref) + ": " + st.error().message,
                          st.error().detail);
       }
       // The residual of the estimate the chosen motion came from (none for a
@@ -356,10 +368,12 @@ Result<json> RunStitchStage(const StitchStageInput& in) {
       // 0.19 / 0.39 deg; seed 13's long axis -2.7 -> -1.8 %).
       json polish = {{"done", false}};
       if (sil && st->silhouettes.used) {
-        const SilhouettePolish p = PolishSilhouetteStitch(*sil, r.silhouettes, ev.silhouettes, in.calibration->camera, st->T);
-        polish = {{"done", p.done},          {"voxel_mm", p.voxel_mm},       {"deficit_start", p.deficit_start},
-                  {"deficit", p.deficit},    {"moved_deg", p.moved_deg},     {"evaluations", p.evaluations},
-                  {"seconds", p.seconds}};
+        const SilhouettePolish p = PolishSilhouetteStitch(*sil, r.silhouettes, ev.silhouettes,
+                                                          in.calibration->camera, st->T);
+        polish = {
+            {"done", p.done},       {"voxel_mm", p.voxel_mm},   {"deficit_start", p.deficit_start},
+            {"deficit", p.deficit}, {"moved_deg", p.moved_deg}, {"evaluations", p.evaluations},
+            {"seconds", p.seconds}};
         if (!p.problem.empty()) polish["problem"] = p.problem;
         st->T = p.T;
       }
@@ -382,7 +396,8 @@ Result<json> RunStitchStage(const StitchStageInput& in) {
       }
       method = method.empty() ? st->source : (method == st->source ? method : "mixed");
       // T maps the moving side's table frame into side 1's (the object frame).
-      transforms.push_back({{"side", side}, {"table_from_object_4x4", IsoJson(ToIso(st->T.Inverse()))}});
+      transforms.push_back(
+          {{"side", side}, {"table_from_object_4x4", IsoJson(ToIso(st->T.Inverse()))}});
       stitches.push_back({{"side", side},
                           {"onto_side", ref},
                           {"source", st->source},

@@ -1,16 +1,16 @@
 #include "pipeline/surface/photo_refine.h"
 
-#include <algorithm>
-#include <chrono>
-#include <functional>
-#include <cmath>
-#include <limits>
-#include <string>
-#include <thread>
-
 #include <Eigen/Cholesky>
 #include <Eigen/LU>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <functional>
+#include <limits>
 #include <opencv2/imgproc.hpp>
+#include <string>
+
+#include "pipeline/core/parallel_for.h"
 
 namespace aggscan {
 
@@ -18,8 +18,10 @@ std::vector<std::string> PhotoRefineOptions::Check() const {
   std::vector<std::string> p;
   if (!(max_depth_mm > 0)) p.push_back("max_depth_mm must be > 0");
   if (!(step_mm > 0) || step_mm > max_depth_mm) p.push_back("step_mm must be in (0, max_depth_mm]");
-  if (views_per_vertex < 2) p.push_back("views_per_vertex must be >= 2 (a reference and one to compare)");
-  if (!(min_baseline_deg >= 0 && min_baseline_deg < 90)) p.push_back("min_baseline_deg must be in [0, 90)");
+  if (views_per_vertex < 2)
+    p.push_back("views_per_vertex must be >= 2 (a reference and one to compare)");
+  if (!(min_baseline_deg >= 0 && min_baseline_deg < 90))
+    p.push_back("min_baseline_deg must be in [0, 90)");
   if (!(min_cos > 0 && min_cos < 1)) p.push_back("min_cos must be in (0, 1)");
   if (patch_radius < 1 || patch_radius > 10) p.push_back("patch_radius must be in 1..10");
   if (!(patch_spacing_px > 0)) p.push_back("patch_spacing_px must be > 0");
@@ -29,7 +31,8 @@ std::vector<std::string> PhotoRefineOptions::Check() const {
   if (!(depth_tolerance_mm > 0)) p.push_back("depth_tolerance_mm must be > 0");
   if (!(min_ncc > -1 && min_ncc < 1)) p.push_back("min_ncc must be in (-1, 1)");
   if (min_gain < 0) p.push_back("min_gain must be >= 0");
-  if (!(near_hull_mm >= 0 && near_hull_mm <= max_depth_mm)) p.push_back("near_hull_mm must be in [0, max_depth_mm]");
+  if (!(near_hull_mm >= 0 && near_hull_mm <= max_depth_mm))
+    p.push_back("near_hull_mm must be in [0, max_depth_mm]");
   if (!(outside_mm >= 0 && outside_mm <= 5)) p.push_back("outside_mm must be in [0, 5]");
   if (!(move_reach >= 0 && move_reach <= 4)) p.push_back("move_reach must be in [0, 4]");
   if (!(min_on_rock > 0 && min_on_rock <= 1)) p.push_back("min_on_rock must be in (0, 1]");
@@ -38,7 +41,8 @@ std::vector<std::string> PhotoRefineOptions::Check() const {
   if (smooth_iterations < 0) p.push_back("smooth_iterations must be >= 0");
   if (!(smooth_lambda > 0)) p.push_back("smooth_lambda must be > 0");
   if (!(outlier_mm > 0)) p.push_back("outlier_mm must be > 0");
-  if (!(max_face_turn_deg > 0 && max_face_turn_deg < 180)) p.push_back("max_face_turn_deg must be in (0, 180)");
+  if (!(max_face_turn_deg > 0 && max_face_turn_deg < 180))
+    p.push_back("max_face_turn_deg must be in (0, 180)");
   if (surface_smooth_iterations < 0) p.push_back("surface_smooth_iterations must be >= 0");
   if (threads < 1) p.push_back("threads must be >= 1");
   return p;
@@ -55,7 +59,7 @@ struct Prepared {
   CameraModel cam;
   Eigen::Matrix3d R;
   Vec3 t;
-  Vec3 centre;  // camera centre, object frame
+  Vec3 centre;    // camera centre, object frame
   cv::Mat depth;  // CV_32F, +inf where empty, at cam / depth_map_downscale
   CameraModel depth_cam;
   cv::Mat mask;  // CV_8UC1 at cam's size (nonzero: rock), or empty
@@ -86,9 +90,11 @@ inline bool Bilinear(const cv::Mat& img, double u, double v, float* out) {
 
 // Z-buffer of the mesh in one view (camera z, mm), triangles filled at pixel
 // centres; no back-face culling: the nearest surface is what occludes.
-void RasterizeDepth(const std::vector<Vec3>& V, const std::vector<std::array<int, 3>>& F, Prepared* pv) {
+void RasterizeDepth(const std::vector<Vec3>& V, const std::vector<std::array<int, 3>>& F,
+                    Prepared* pv) {
   const CameraModel& c = pv->depth_cam;
-  pv->depth = cv::Mat(c.height, c.width, CV_32F, cv::Scalar(std::numeric_limits<float>::infinity()));
+  pv->depth =
+      cv::Mat(c.height, c.width, CV_32F, cv::Scalar(std::numeric_limits<float>::infinity()));
   std::vector<Eigen::Vector3d> proj(V.size());  // u, v, z; z <= 0 when behind
   for (size_t i = 0; i < V.size(); ++i) {
     const Vec3 pc = pv->R * V[i] + pv->t;
@@ -105,9 +111,11 @@ void RasterizeDepth(const std::vector<Vec3>& V, const std::vector<std::array<int
     const Vec3& d = proj[f[2]];
     if (a.z() <= 0 || b.z() <= 0 || d.z() <= 0) continue;
     const int x0 = std::max(0, static_cast<int>(std::ceil(std::min({a.x(), b.x(), d.x()}))));
-    const int x1 = std::min(c.width - 1, static_cast<int>(std::floor(std::max({a.x(), b.x(), d.x()}))));
+    const int x1 =
+        std::min(c.width - 1, static_cast<int>(std::floor(std::max({a.x(), b.x(), d.x()}))));
     const int y0 = std::max(0, static_cast<int>(std::ceil(std::min({a.y(), b.y(), d.y()}))));
-    const int y1 = std::min(c.height - 1, static_cast<int>(std::floor(std::max({a.y(), b.y(), d.y()}))));
+    const int y1 =
+        std::min(c.height - 1, static_cast<int>(std::floor(std::max({a.y(), b.y(), d.y()}))));
     if (x0 > x1 || y0 > y1) continue;
     const double area = (b.x() - a.x()) * (d.y() - a.y()) - (d.x() - a.x()) * (b.y() - a.y());
     if (std::abs(area) < 1e-12) continue;
@@ -139,8 +147,8 @@ void RasterizeDepth(const std::vector<Vec3>& V, const std::vector<std::array<int
 // Normalised cross-correlation of two equally long sample vectors over the
 // samples whose on-rock flags are both set; false when fewer than min_count
 // are, or either side is flat (no texture to compare).
-inline bool NccOnRock(const float* a, const float* b, const uint8_t* ma, const uint8_t* mb, int n, int min_count,
-                      double min_var, double* out) {
+inline bool NccOnRock(const float* a, const float* b, const uint8_t* ma, const uint8_t* mb, int n,
+                      int min_count, double min_var, double* out) {
   double sa = 0, sb = 0, saa = 0, sbb = 0, sab = 0;
   int c = 0;
   for (int i = 0; i < n; ++i) {
@@ -159,7 +167,8 @@ inline bool NccOnRock(const float* a, const float* b, const uint8_t* ma, const u
   return true;
 }
 
-std::vector<Vec3> VertexNormals(const std::vector<Vec3>& V, const std::vector<std::array<int, 3>>& F) {
+std::vector<Vec3> VertexNormals(const std::vector<Vec3>& V,
+                                const std::vector<std::array<int, 3>>& F) {
   std::vector<Vec3> n(V.size(), Vec3::Zero());
   for (const auto& f : F) {
     const Vec3 fn = (V[f[1]] - V[f[0]]).cross(V[f[2]] - V[f[0]]);  // area-weighted
@@ -187,22 +196,12 @@ std::vector<std::vector<int>> Neighbours(size_t nv, const std::vector<std::array
   return nb;
 }
 
-template <typename Fn>
-void ParallelFor(int threads, size_t n, Fn fn) {
-  std::vector<std::thread> pool;
-  for (int t = 1; t < threads; ++t) {
-    pool.emplace_back([&, t] {
-      for (size_t i = t; i < n; i += threads) fn(i);
-    });
-  }
-  for (size_t i = 0; i < n; i += threads) fn(i);
-  for (auto& th : pool) th.join();
-}
-
 // Data-weighted Laplacian smoothing: x_i <- (w_i d_i + lambda mean_j x_j) /
 // (w_i + lambda); vertices without data (w = 0) take their neighbours' mean.
-std::vector<double> SmoothField(std::vector<double> x, const std::vector<double>& data, const std::vector<double>& w,
-                                const std::vector<std::vector<int>>& nb, int iterations, double lambda) {
+std::vector<double> SmoothField(std::vector<double> x, const std::vector<double>& data,
+                                const std::vector<double>& w,
+                                const std::vector<std::vector<int>>& nb, int iterations,
+                                double lambda) {
   std::vector<double> next(x.size());
   for (int it = 0; it < iterations; ++it) {
     for (size_t i = 0; i < x.size(); ++i) {
@@ -224,8 +223,9 @@ std::vector<double> SmoothField(std::vector<double> x, const std::vector<double>
 // (A, C > 0 where the surface is convex), least squares over the mesh
 // vertices within `reach` of V[i] that are connected to it within that reach.
 // Curvatures are clamped to 1/reach; zero when fewer than 8 vertices fit.
-Eigen::Vector3d LocalQuadric(const std::vector<Vec3>& V, const std::vector<std::vector<int>>& nb, size_t i,
-                             const Vec3& n, const Vec3& t1, const Vec3& t2, double reach) {
+Eigen::Vector3d LocalQuadric(const std::vector<Vec3>& V, const std::vector<std::vector<int>>& nb,
+                             size_t i, const Vec3& n, const Vec3& t1, const Vec3& t2,
+                             double reach) {
   const Vec3& p = V[i];
   std::vector<int> seen{static_cast<int>(i)}, front{static_cast<int>(i)}, next;
   Eigen::Matrix3d M = Eigen::Matrix3d::Zero();
@@ -251,7 +251,8 @@ Eigen::Vector3d LocalQuadric(const std::vector<Vec3>& V, const std::vector<std::
   }
   if (used < 8) return Eigen::Vector3d::Zero();
   Eigen::LDLT<Eigen::Matrix3d> ldlt(M);
-  if (ldlt.info() != Eigen::Success || !(std::abs(M.determinant()) > 1e-12)) return Eigen::Vector3d::Zero();
+  if (ldlt.info() != Eigen::Success || !(std::abs(M.determinant()) > 1e-12))
+    return Eigen::Vector3d::Zero();
   const Eigen::Vector3d k = ldlt.solve(rhs);
   const double lim = 1.0 / reach;
   return k.cwiseMax(-lim).cwiseMin(lim);
@@ -259,7 +260,8 @@ Eigen::Vector3d LocalQuadric(const std::vector<Vec3>& V, const std::vector<std::
 
 }  // namespace
 
-Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::vector<PhotoView>& views,
+Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull,
+                                                   const std::vector<PhotoView>& views,
                                                    const PhotoRefineOptions& opts) {
   const auto t0 = std::chrono::steady_clock::now();
   if (auto problems = opts.Check(); !problems.empty()) {
@@ -268,12 +270,14 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
     return MakeError(ErrorClass::kInvalidArgument, m);
   }
   if (views.size() < 2) {
-    return MakeError(ErrorClass::kInvalidArgument,
-                     "photo refinement needs at least two views, got " + std::to_string(views.size()));
+    return MakeError(
+        ErrorClass::kInvalidArgument,
+        "photo refinement needs at least two views, got " + std::to_string(views.size()));
   }
   const size_t nv = hull.vertices.size();
   std::vector<Vec3> V(nv);
-  for (size_t i = 0; i < nv; ++i) V[i] = Vec3(hull.vertices[i][0], hull.vertices[i][1], hull.vertices[i][2]);
+  for (size_t i = 0; i < nv; ++i)
+    V[i] = Vec3(hull.vertices[i][0], hull.vertices[i][1], hull.vertices[i][2]);
   const auto& F = hull.faces;
 
   // --- views: grey images, lenses, depth maps ---
@@ -283,22 +287,24 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
     if (v.image.empty() || v.image.cols != v.camera.width || v.image.rows != v.camera.height ||
         (v.image.type() != CV_8UC1 && v.image.type() != CV_8UC3)) {
       return MakeError(ErrorClass::kInvalidArgument,
-                       "photo refinement: image of view " + std::to_string(i) + " is " + std::to_string(v.image.cols) +
-                           "x" + std::to_string(v.image.rows) + " (type " + std::to_string(v.image.type()) +
-                           "), the camera is " + std::to_string(v.camera.width) + "x" +
-                           std::to_string(v.camera.height) + "; give an 8-bit grey or BGR image at the camera's size");
+                       "photo refinement: image of view " + std::to_string(i) + " is " +
+                           std::to_string(v.image.cols) + "x" + std::to_string(v.image.rows) +
+                           " (type " + std::to_string(v.image.type()) + "), the camera is " +
+                           std::to_string(v.camera.width) + "x" + std::to_string(v.camera.height) +
+                           "; give an 8-bit grey or BGR image at the camera's size");
     }
-    if (!v.mask.empty() &&
-        (v.mask.type() != CV_8UC1 || v.mask.cols < v.image.cols ||
-         static_cast<int64_t>(v.mask.cols) * v.image.rows != static_cast<int64_t>(v.mask.rows) * v.image.cols)) {
+    if (!v.mask.empty() && (v.mask.type() != CV_8UC1 || v.mask.cols < v.image.cols ||
+                            static_cast<int64_t>(v.mask.cols) * v.image.rows !=
+                                static_cast<int64_t>(v.mask.rows) * v.image.cols)) {
       return MakeError(ErrorClass::kInvalidArgument,
-                       "photo refinement: mask of view " + std::to_string(i) + " is not an 8-bit single-channel image " +
-                           "of the photo's shape (" + std::to_string(v.mask.cols) + "x" + std::to_string(v.mask.rows) +
-                           " for a " + std::to_string(v.image.cols) + "x" + std::to_string(v.image.rows) +
-                           " photo); give the view's rock mask");
+                       "photo refinement: mask of view " + std::to_string(i) +
+                           " is not an 8-bit single-channel image " + "of the photo's shape (" +
+                           std::to_string(v.mask.cols) + "x" + std::to_string(v.mask.rows) +
+                           " for a " + std::to_string(v.image.cols) + "x" +
+                           std::to_string(v.image.rows) + " photo); give the view's rock mask");
     }
   }
-  ParallelFor(opts.threads, views.size(), [&](size_t i) {
+  ParallelFor(views.size(), opts.threads, [&](size_t i) {
     const PhotoView& v = views[i];
     Prepared& p = pv[i];
     cv::Mat g;
@@ -324,7 +330,8 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
       }
     }
     g.convertTo(p.grey, CV_32F);
-    if (opts.blur_sigma_px > 0) cv::GaussianBlur(p.grey, p.grey, cv::Size(0, 0), opts.blur_sigma_px);
+    if (opts.blur_sigma_px > 0)
+      cv::GaussianBlur(p.grey, p.grey, cv::Size(0, 0), opts.blur_sigma_px);
     p.R = v.cam_from_object.linear();
     p.t = v.cam_from_object.translation();
     p.centre = -p.R.transpose() * p.t;
@@ -378,7 +385,7 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
   const double min_var = 1.0;  // grey levels^2: flat patches carry no depth information
   std::vector<double> best_d(nv, 0.0), weight(nv, 0.0);
   std::vector<char> had_views(nv, 0);
-  ParallelFor(opts.threads, nv, [&](size_t i) {
+  ParallelFor(nv, opts.threads, [&](size_t i) {
     if (!scored[i]) return;
     const Vec3& p = V[i];
     const Vec3& n = N[i];
@@ -426,8 +433,9 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
     // patch on a convex tip fits best inside it, and the tips moved inward
     // (sim seed 11: the long axis 2.5 % short, its tips 0.5 and 1.0 mm inside
     // the rock's where the hull's were 0.1 and 0.3 mm; curved, 0.2 and 0.8).
-    const Eigen::Vector3d quad = opts.curved_patches ? LocalQuadric(V, nb, i, n, t1, t2, 1.2 * R * s)
-                                                     : Eigen::Vector3d::Zero();
+    const Eigen::Vector3d quad = opts.curved_patches
+                                     ? LocalQuadric(V, nb, i, n, t1, t2, 1.2 * R * s)
+                                     : Eigen::Vector3d::Zero();
     const int nvw = static_cast<int>(cand.size());
     std::vector<float> samples(static_cast<size_t>(nvw) * ns);
     std::vector<uint8_t> on_rock(static_cast<size_t>(nvw) * ns, 1);
@@ -451,7 +459,8 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
             double u = 0, v = 0;
             const double x = a * s, y = b * s;
             const double h = -0.5 * (quad[0] * x * x + 2 * quad[1] * x * y + quad[2] * y * y);
-            if (!ProjectCam(q.cam, base + a * A + b * B + h * Nq, &u, &v) || !Bilinear(q.grey, u, v, out++)) {
+            if (!ProjectCam(q.cam, base + a * A + b * B + h * Nq, &u, &v) ||
+                !Bilinear(q.grey, u, v, out++)) {
               ok[w] = 0;
               break;
             }
@@ -473,8 +482,9 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
       int cnt = 0;
       for (int w = 1; w < nvw; ++w) {
         double r = 0;
-        if (!ok[w] || !NccOnRock(samples.data(), samples.data() + static_cast<size_t>(w) * ns, on_rock.data(),
-                                 on_rock.data() + static_cast<size_t>(w) * ns, ns, min_on_rock, min_var, &r)) {
+        if (!ok[w] || !NccOnRock(samples.data(), samples.data() + static_cast<size_t>(w) * ns,
+                                 on_rock.data(), on_rock.data() + static_cast<size_t>(w) * ns, ns,
+                                 min_on_rock, min_var, &r)) {
           continue;
         }
         sum += r;
@@ -517,7 +527,8 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::
   }
 
   // --- regularise: smooth, drop data far from the smoothed field, smooth again ---
-  std::vector<double> field = SmoothField(best_d, best_d, weight, nb, opts.smooth_iterations, opts.smooth_lambda);
+  std::vector<double> field =
+      SmoothField(best_d, best_d, weight, nb, opts.smooth_iterations, opts.smooth_lambda);
   for (size_t i = 0; i < nv; ++i) {
     if (weight[i] > 0 && std::abs(best_d[i] - field[i]) > opts.outlier_mm) weight[i] = 0;
   }

@@ -5,10 +5,10 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
-#include <thread>
+#include <opencv2/imgproc.hpp>
 #include <unordered_map>
 
-#include <opencv2/imgproc.hpp>
+#include "pipeline/core/parallel_for.h"
 
 namespace aggscan {
 namespace {
@@ -63,7 +63,9 @@ struct Grid {
   int nx = 0, ny = 0, nz = 0;
   std::vector<float> f;
 
-  int64_t Index(int i, int j, int k) const { return i + static_cast<int64_t>(nx) * (j + static_cast<int64_t>(ny) * k); }
+  int64_t Index(int i, int j, int k) const {
+    return i + static_cast<int64_t>(nx) * (j + static_cast<int64_t>(ny) * k);
+  }
   Eigen::Vector3d Node(int i, int j, int k) const { return origin + h * Eigen::Vector3d(i, j, k); }
   // Trilinear interpolation at p (clamped into the grid).
   double Interp(const Eigen::Vector3d& p) const {
@@ -73,7 +75,9 @@ struct Grid {
     const int k = std::clamp(static_cast<int>(std::floor(g.z())), 0, nz - 2);
     const double ax = std::clamp(g.x() - i, 0.0, 1.0), ay = std::clamp(g.y() - j, 0.0, 1.0),
                  az = std::clamp(g.z() - k, 0.0, 1.0);
-    auto at = [&](int di, int dj, int dk) { return static_cast<double>(f[Index(i + di, j + dj, k + dk)]); };
+    auto at = [&](int di, int dj, int dk) {
+      return static_cast<double>(f[Index(i + di, j + dj, k + dk)]);
+    };
     const double c00 = at(0, 0, 0) * (1 - ax) + at(1, 0, 0) * ax;
     const double c10 = at(0, 1, 0) * (1 - ax) + at(1, 1, 0) * ax;
     const double c01 = at(0, 0, 1) * (1 - ax) + at(1, 0, 1) * ax;
@@ -95,20 +99,6 @@ Grid MakeGrid(const Eigen::AlignedBox3d& box, double h) {
   g.origin = box.center() - span / 2;
   g.f.assign(static_cast<size_t>(g.nx) * g.ny * g.nz, 0.0f);
   return g;
-}
-
-// Runs fn(k) for every z slice on `threads` threads.
-template <typename Fn>
-void ForSlices(int nz, int threads, Fn fn) {
-  threads = std::max(1, std::min(threads, nz));
-  std::vector<std::thread> pool;
-  std::atomic<int> next{0};
-  auto work = [&] {
-    for (int k = next++; k < nz; k = next++) fn(k);
-  };
-  for (int t = 1; t < threads; ++t) pool.emplace_back(work);
-  work();
-  for (auto& th : pool) th.join();
 }
 
 // Marching tetrahedra over the grid at iso 0 (inside: f >= 0). Six tetrahedra
@@ -133,7 +123,8 @@ Mesh Contour(const Grid& g) {
   };
   auto vertex_on = [&](int64_t a, int64_t b) {
     if (a > b) std::swap(a, b);
-    const uint64_t key = static_cast<uint64_t>(a) * 0x9E3779B97F4A7C15ull ^ static_cast<uint64_t>(b);
+    const uint64_t key =
+        static_cast<uint64_t>(a) * 0x9E3779B97F4A7C15ull ^ static_cast<uint64_t>(b);
     // Key collisions are impossible in practice but guard by checking the pair.
     auto [it, inserted] = edge_vertex.try_emplace(key, static_cast<int>(mesh.vertices.size()));
     if (inserted) {
@@ -170,7 +161,10 @@ Mesh Contour(const Grid& g) {
           int ni = 0, no = 0;
           for (int q = 0; q < 4; ++q) {
             const int64_t n = corner[tet[q]];
-            if (value(n) >= 0) in[ni++] = n; else out[no++] = n;
+            if (value(n) >= 0)
+              in[ni++] = n;
+            else
+              out[no++] = n;
           }
           if (ni == 0 || no == 0) continue;
           Eigen::Vector3d ci = Eigen::Vector3d::Zero(), co = Eigen::Vector3d::Zero();
@@ -178,9 +172,11 @@ Mesh Contour(const Grid& g) {
           for (int q = 0; q < no; ++q) co += node_pos(out[q]);
           const Eigen::Vector3d outward = co / no - ci / ni;
           if (ni == 1) {
-            emit(vertex_on(in[0], out[0]), vertex_on(in[0], out[1]), vertex_on(in[0], out[2]), outward);
+            emit(vertex_on(in[0], out[0]), vertex_on(in[0], out[1]), vertex_on(in[0], out[2]),
+                 outward);
           } else if (no == 1) {
-            emit(vertex_on(in[0], out[0]), vertex_on(in[1], out[0]), vertex_on(in[2], out[0]), outward);
+            emit(vertex_on(in[0], out[0]), vertex_on(in[1], out[0]), vertex_on(in[2], out[0]),
+                 outward);
           } else {
             // Quad around the tetrahedron: (i0,o0) (i0,o1) (i1,o1) (i1,o0).
             const int q0 = vertex_on(in[0], out[0]), q1 = vertex_on(in[0], out[1]);
@@ -200,10 +196,22 @@ Mesh Contour(const Grid& g) {
 double SampleSignedDistance(const cv::Mat& sd, double u, double v) {
   const int w = sd.cols, h = sd.rows;
   double extra = 0;
-  if (u < 0) { extra += -u; u = 0; }
-  if (v < 0) { extra += -v; v = 0; }
-  if (u > w - 1) { extra += u - (w - 1); u = w - 1; }
-  if (v > h - 1) { extra += v - (h - 1); v = h - 1; }
+  if (u < 0) {
+    extra += -u;
+    u = 0;
+  }
+  if (v < 0) {
+    extra += -v;
+    v = 0;
+  }
+  if (u > w - 1) {
+    extra += u - (w - 1);
+    u = w - 1;
+  }
+  if (v > h - 1) {
+    extra += v - (h - 1);
+    v = h - 1;
+  }
   const int x0 = std::min(static_cast<int>(u), w - 2), y0 = std::min(static_cast<int>(v), h - 2);
   const double ax = u - x0, ay = v - y0;
   const float* r0 = sd.ptr<float>(y0);
@@ -235,7 +243,8 @@ cv::Mat SilhouetteSignedDistance(const cv::Mat& mask) {
 
 Result<VisualHullResult> CarveVisualHull(const std::vector<SilhouetteView>& views,
                                          const std::vector<HalfSpace>& floors,
-                                         const Eigen::AlignedBox3d& search_box, const VisualHullOptions& opts) {
+                                         const Eigen::AlignedBox3d& search_box,
+                                         const VisualHullOptions& opts) {
   const auto t0 = std::chrono::steady_clock::now();
   if (views.empty()) return MakeError(ErrorClass::kInvalidArgument, "visual hull: no views given");
   if (search_box.isEmpty() || search_box.sizes().minCoeff() <= 0) {
@@ -243,28 +252,21 @@ Result<VisualHullResult> CarveVisualHull(const std::vector<SilhouetteView>& view
   }
   std::vector<PreparedView> prepared(views.size());
   {
-    std::vector<std::thread> pool;
-    std::atomic<size_t> next{0};
     std::atomic<int> bad{-1};
-    auto work = [&] {
-      for (size_t i = next++; i < views.size(); i = next++) {
-        const SilhouetteView& v = views[i];
-        if (v.mask.type() != CV_8UC1 || v.mask.cols != v.camera.width || v.mask.rows != v.camera.height ||
-            v.mask.cols < 2 || v.mask.rows < 2) {
-          bad = static_cast<int>(i);
-          continue;
-        }
-        PreparedView& p = prepared[i];
-        p.sd = SilhouetteSignedDistance(v.mask);
-        p.cam = v.camera;
-        p.R = v.cam_from_object.linear();
-        p.t = v.cam_from_object.translation();
-        p.mm_per_px_per_mm = 1.0 / std::sqrt(v.camera.fx * v.camera.fy);
+    ParallelFor(views.size(), opts.threads, [&](size_t i) {
+      const SilhouetteView& v = views[i];
+      if (v.mask.type() != CV_8UC1 || v.mask.cols != v.camera.width ||
+          v.mask.rows != v.camera.height || v.mask.cols < 2 || v.mask.rows < 2) {
+        bad = static_cast<int>(i);
+        return;
       }
-    };
-    for (int t = 1; t < opts.threads; ++t) pool.emplace_back(work);
-    work();
-    for (auto& th : pool) th.join();
+      PreparedView& p = prepared[i];
+      p.sd = SilhouetteSignedDistance(v.mask);
+      p.cam = v.camera;
+      p.R = v.cam_from_object.linear();
+      p.t = v.cam_from_object.translation();
+      p.mm_per_px_per_mm = 1.0 / std::sqrt(v.camera.fx * v.camera.fy);
+    });
     if (bad >= 0) {
       return MakeError(ErrorClass::kInvalidArgument,
                        "visual hull: mask of view " + std::to_string(bad.load()) +
@@ -273,7 +275,8 @@ Result<VisualHullResult> CarveVisualHull(const std::vector<SilhouetteView>& view
   }
   for (const HalfSpace& h : floors) {
     if (std::abs(h.normal.norm() - 1.0) > 1e-6) {
-      return MakeError(ErrorClass::kInvalidArgument, "visual hull: a floor's normal is not a unit vector");
+      return MakeError(ErrorClass::kInvalidArgument,
+                       "visual hull: a floor's normal is not a unit vector");
     }
   }
   const Field field(std::move(prepared), floors);
@@ -283,7 +286,7 @@ Result<VisualHullResult> CarveVisualHull(const std::vector<SilhouetteView>& view
   // Coarse pass.
   const double hc = opts.coarse_mm;
   Grid coarse = MakeGrid(search_box, hc);
-  ForSlices(coarse.nz, opts.threads, [&](int k) {
+  ParallelFor(coarse.nz, opts.threads, [&](int k) {
     int64_t n = 0;
     for (int j = 0; j < coarse.ny; ++j) {
       for (int i = 0; i < coarse.nx; ++i) {
@@ -300,21 +303,24 @@ Result<VisualHullResult> CarveVisualHull(const std::vector<SilhouetteView>& view
       for (int i = 0; i < coarse.nx; ++i) {
         if (coarse.f[coarse.Index(i, j, k)] < 0) continue;
         occupied.extend(coarse.Node(i, j, k));
-        if (i == 0 || j == 0 || k == 0 || i == coarse.nx - 1 || j == coarse.ny - 1 || k == coarse.nz - 1) {
+        if (i == 0 || j == 0 || k == 0 || i == coarse.nx - 1 || j == coarse.ny - 1 ||
+            k == coarse.nz - 1) {
           touches = true;
         }
       }
     }
   }
   if (occupied.isEmpty()) {
-    return MakeError(ErrorClass::kInvalidArgument,
-                     "visual hull: the silhouettes have no common volume: the view poses or the masks are wrong "
-                     "(check the rig calibration and the masks)");
+    return MakeError(
+        ErrorClass::kInvalidArgument,
+        "visual hull: the silhouettes have no common volume: the view poses or the masks are wrong "
+        "(check the rig calibration and the masks)");
   }
   if (touches) {
-    return MakeError(ErrorClass::kInvalidArgument,
-                     "visual hull: the carved volume reaches the edge of the search region: the rock is not "
-                     "inside it, or the masks/poses are wrong (check masks for background leaks)");
+    return MakeError(
+        ErrorClass::kInvalidArgument,
+        "visual hull: the carved volume reaches the edge of the search region: the rock is not "
+        "inside it, or the masks/poses are wrong (check masks for background leaks)");
   }
   // The fine spacing from the coarse contour: faces scale with 1/h^2.
   double h = opts.voxel_mm;
@@ -328,7 +334,7 @@ Result<VisualHullResult> CarveVisualHull(const std::vector<SilhouetteView>& view
                                occupied.max() + Eigen::Vector3d::Constant(1.5 * hc));
   Grid fine = MakeGrid(fine_box, h);
   const double certain = 1.5 * hc;
-  ForSlices(fine.nz, opts.threads, [&](int k) {
+  ParallelFor(fine.nz, opts.threads, [&](int k) {
     int64_t n = 0;
     for (int j = 0; j < fine.ny; ++j) {
       for (int i = 0; i < fine.nx; ++i) {

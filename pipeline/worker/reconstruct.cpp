@@ -9,7 +9,6 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <optional>
-#include <thread>
 
 #include "common/clock.h"
 #include "common/fsutil.h"
@@ -19,13 +18,14 @@
 #include "common/rig_calibration.h"
 #include "pipeline/core/geometry.h"
 #include "pipeline/core/image_io.h"
-#include "pipeline/masks/mask_dataset.h"
-#include "pipeline/morph/morph2d.h"
-#include "pipeline/worker/options_json.h"
-#include "pipeline/worker/quality.h"
+#include "pipeline/core/parallel_for.h"
 #include "pipeline/core/stage.h"
 #include "pipeline/core/stage_runner.h"
+#include "pipeline/masks/mask_dataset.h"
+#include "pipeline/morph/morph2d.h"
 #include "pipeline/stitch/stitch_stage.h"
+#include "pipeline/worker/options_json.h"
+#include "pipeline/worker/quality.h"
 #include "store/layout.h"
 
 namespace aggscan {
@@ -405,18 +405,13 @@ std::vector<double> SilhouetteAgreement(const Mesh& mesh,
                                         const std::vector<Eigen::Isometry3d>& cam_from_object,
                                         const std::vector<cv::Mat>& masks, const CameraModel& cam) {
   std::vector<double> iou(masks.size(), 0.0);
-  auto work = [&](size_t begin, size_t step) {
-    for (size_t vi = begin; vi < masks.size(); vi += step) {
-      const cv::Mat sil = RenderMeshSilhouette(mesh, cam_from_object[vi], cam);
-      const cv::Mat small_mask = masks[vi] > 127;
-      const double inter = cv::countNonZero(sil & small_mask);
-      const double uni = cv::countNonZero(sil | small_mask);
-      iou[vi] = uni > 0 ? inter / uni : 0.0;
-    }
-  };
-  std::thread t(work, 1, 2);
-  work(0, 2);
-  t.join();
+  ParallelFor(masks.size(), 2, [&](size_t vi) {
+    const cv::Mat sil = RenderMeshSilhouette(mesh, cam_from_object[vi], cam);
+    const cv::Mat small_mask = masks[vi] > 127;
+    const double inter = cv::countNonZero(sil & small_mask);
+    const double uni = cv::countNonZero(sil | small_mask);
+    iou[vi] = uni > 0 ? inter / uni : 0.0;
+  });
   return iou;
 }
 
@@ -469,32 +464,26 @@ SoleCarving SoleCarvingVolumes(const std::vector<SilhouetteView>& sv,
     if (x < 0 || y < 0 || x >= sv[k].mask.cols || y >= sv[k].mask.rows) return false;
     return sv[k].mask.at<uint8_t>(y, x) > 127;
   };
-  auto work = [&](int t) {
-    for (int iz = t; iz < nz; iz += 2) {
-      for (int iy = 0; iy < ny; ++iy) {
-        for (int ix = 0; ix < nx; ++ix) {
-          const Eigen::Vector3d p =
-              box.min() + step * Eigen::Vector3d(ix + 0.5, iy + 0.5, iz + 0.5);
-          bool below = false;
-          for (const HalfSpace& h : floors) below = below || h.normal.dot(p) + h.offset < 0;
-          if (below) continue;
-          int outside = 0;
-          size_t first = 0;
-          for (size_t k = 0; k < sv.size() && outside < 2; ++k) {
-            if (!inside(k, p)) {
-              if (outside == 0) first = k;
-              ++outside;
-            }
+  ParallelFor(nz, 2, [&](int iz, int t) {
+    for (int iy = 0; iy < ny; ++iy) {
+      for (int ix = 0; ix < nx; ++ix) {
+        const Eigen::Vector3d p = box.min() + step * Eigen::Vector3d(ix + 0.5, iy + 0.5, iz + 0.5);
+        bool below = false;
+        for (const HalfSpace& h : floors) below = below || h.normal.dot(p) + h.offset < 0;
+        if (below) continue;
+        int outside = 0;
+        size_t first = 0;
+        for (size_t k = 0; k < sv.size() && outside < 2; ++k) {
+          if (!inside(k, p)) {
+            if (outside == 0) first = k;
+            ++outside;
           }
-          if (outside == 0) ++agreed[t];
-          if (outside == 1) ++veto[t][first];
         }
+        if (outside == 0) ++agreed[t];
+        if (outside == 1) ++veto[t][first];
       }
     }
-  };
-  std::thread th(work, 1);
-  work(0);
-  th.join();
+  });
   const double cell = step * step * step;
   out.agreed_mm3 = static_cast<double>(agreed[0] + agreed[1]) * cell;
   for (size_t k = 0; k < sv.size(); ++k)
@@ -709,23 +698,18 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
     po.image_scale = scale;
     std::vector<PhotoView> pv(used_views.size());
     std::vector<std::string> unreadable(used_views.size());
-    auto load = [&](size_t begin, size_t step) {
-      for (size_t i = begin; i < used_views.size(); i += step) {
-        auto img = LoadImage(used_views[i].image, half ? ImageMode::kGrayHalf : ImageMode::kGray,
-                             opts.worker.image_limits);
-        if (img) {
-          pv[i].image = std::move(*img);
-        } else {
-          unreadable[i] = img.error().message;
-        }
-        pv[i].camera = half ? cal.camera.Resized(pv[i].image.cols, pv[i].image.rows) : cal.camera;
-        pv[i].cam_from_object = cam_from_object[i];
-        pv[i].mask = masks[i];  // full size: the refinement brings it to its working scale
+    ParallelFor(used_views.size(), 2, [&](size_t i) {
+      auto img = LoadImage(used_views[i].image, half ? ImageMode::kGrayHalf : ImageMode::kGray,
+                           opts.worker.image_limits);
+      if (img) {
+        pv[i].image = std::move(*img);
+      } else {
+        unreadable[i] = img.error().message;
       }
-    };
-    std::thread lt(load, 1, 2);
-    load(0, 2);
-    lt.join();
+      pv[i].camera = half ? cal.camera.Resized(pv[i].image.cols, pv[i].image.rows) : cal.camera;
+      pv[i].cam_from_object = cam_from_object[i];
+      pv[i].mask = masks[i];  // full size: the refinement brings it to its working scale
+    });
     if (half) po.image_scale = std::min(1.0, scale * 2);
     for (size_t i = 0; i < used_views.size(); ++i) {
       if (pv[i].image.empty()) {
