@@ -18,8 +18,8 @@
 #include "drivers/sim/board.h"
 #include "drivers/sim/jpeg.h"
 #include "drivers/sim/world.h"
-#include "pipeline/worker/side_job.h"
 #include "pipeline/core/subprocess.h"
+#include "pipeline/worker/side_job.h"
 #include "store/empty_turntable.h"
 #include "store/layout.h"
 

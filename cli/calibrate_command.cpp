@@ -13,8 +13,8 @@
 #include "common/fsutil.h"
 #include "common/rig_calibration.h"
 #include "config/config.h"
-#include "pipeline/markers/aruco_scale.h"
 #include "pipeline/calib/calibrate.h"
+#include "pipeline/markers/aruco_scale.h"
 #include "store/layout.h"
 
 namespace aggscan {

@@ -10,13 +10,13 @@
 #include "cli/client.h"
 #include "cli/empty_turntable_command.h"
 #include "cli/masks_command.h"
+#include "cli/morph2d_command.h"
 #include "cli/morph_command.h"
 #include "cli/reconstruct_command.h"
 #include "cli/selftest_command.h"
 #include "cli/sim_capture.h"
 #include "cli/user_command.h"
 #include "cli/validate_command.h"
-#include "cli/morph2d_command.h"
 
 namespace {
 

@@ -18,11 +18,11 @@
 
 #include "common/fsutil.h"
 #include "pipeline/core/image_io.h"
+#include "pipeline/core/subprocess.h"
 #include "pipeline/masks/mask.h"
 #include "pipeline/masks/mask_dataset.h"
 #include "pipeline/masks/mask_net.h"
 #include "pipeline/worker/side_job.h"
-#include "pipeline/core/subprocess.h"
 #include "store/layout.h"
 
 #ifndef AGGSCAN_SOURCE_DIR

@@ -1,6 +1,7 @@
 // `aggscan masks`: the rig's own salient-object mask network, end to end.
 //   dataset --out DIR SAMPLE_DIR...   training pairs from reconstructed samples
-//                                     (pipeline/masks/mask_dataset.h: the mesh projected into every view)
+//                                     (pipeline/masks/mask_dataset.h: the mesh projected into every
+//                                     view)
 //   train --dataset DIR --out M.onnx  trains scripts/masks/train_masks.py (python3-torch, CPU),
 //                                     exports ONNX, writes the [mask] config lines to use it
 //   eval [--model M.onnx] [--grabcut DIR] SAMPLE_DIR...

@@ -1,11 +1,10 @@
 #include "cli/morph2d_command.h"
 
 #include <cstdio>
-#include <vector>
-
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <vector>
 
 #include "pipeline/core/image_io.h"
 #include "pipeline/masks/mask.h"
@@ -31,7 +30,8 @@ cv::Mat AsBinaryMask(const cv::Mat& img) {
   return gray;
 }
 
-int Morph2d(const std::string& path, bool json, std::ostream& out, std::ostream& err, const ImageLimits& limits);
+int Morph2d(const std::string& path, bool json, std::ostream& out, std::ostream& err,
+            const ImageLimits& limits);
 
 }  // namespace
 
@@ -48,7 +48,8 @@ int RunMorph2dCommand(const std::string& path, bool json, std::ostream& out, std
 
 namespace {
 
-int Morph2d(const std::string& path, bool json, std::ostream& out, std::ostream& err, const ImageLimits& limits) {
+int Morph2d(const std::string& path, bool json, std::ostream& out, std::ostream& err,
+            const ImageLimits& limits) {
   auto loaded = LoadImage(path, ImageMode::kUnchanged, limits);
   if (!loaded) {
     err << "morph2d: " << loaded.error().ToString() << "\n";
@@ -60,9 +61,12 @@ int Morph2d(const std::string& path, bool json, std::ostream& out, std::ostream&
   const bool segmented = mask.empty();
   if (segmented) {
     cv::Mat bgr;
-    if (img.channels() == 1) cv::cvtColor(img, bgr, cv::COLOR_GRAY2BGR);
-    else if (img.channels() == 4) cv::cvtColor(img, bgr, cv::COLOR_BGRA2BGR);
-    else bgr = img;
+    if (img.channels() == 1)
+      cv::cvtColor(img, bgr, cv::COLOR_GRAY2BGR);
+    else if (img.channels() == 4)
+      cv::cvtColor(img, bgr, cv::COLOR_BGRA2BGR);
+    else
+      bgr = img;
     if (bgr.depth() != CV_8U) {
       err << "morph2d: unsupported pixel format in " << path << "\n";
       return 2;
@@ -71,21 +75,28 @@ int Morph2d(const std::string& path, bool json, std::ostream& out, std::ostream&
   }
   auto m = ComputeMorph2D(mask);
   if (!m.ok()) {
-    err << "morph2d: " << path << ": " << (segmented ? "no rock found in the image" : m.error().message) << "\n";
+    err << "morph2d: " << path << ": "
+        << (segmented ? "no rock found in the image" : m.error().message) << "\n";
     return 1;
   }
   if (json) {
-    nlohmann::json j = {{"l_max_px", m->l_max_px}, {"l_min_px", m->l_min_px},   {"fer_2d", m->fer_2d},
-                        {"area_px", m->area_px},   {"perimeter_px", m->perimeter_px}, {"circularity", m->circularity},
+    nlohmann::json j = {{"l_max_px", m->l_max_px},
+                        {"l_min_px", m->l_min_px},
+                        {"fer_2d", m->fer_2d},
+                        {"area_px", m->area_px},
+                        {"perimeter_px", m->perimeter_px},
+                        {"circularity", m->circularity},
                         {"input", segmented ? "image" : "mask"}};
     out << j.dump(2) << "\n";
   } else {
     char buf[512];
     std::snprintf(buf, sizeof buf,
-                  "%s (%s)\n  L_max        %.2f px (at %.1f deg)\n  L_min        %.2f px\n  FER 2D       %.4f\n"
+                  "%s (%s)\n  L_max        %.2f px (at %.1f deg)\n  L_min        %.2f px\n  FER 2D "
+                  "      %.4f\n"
                   "  area         %.0f px\n  perimeter    %.2f px\n  circularity  %.4f\n",
-                  path.c_str(), segmented ? "segmented image" : "binary mask", m->l_max_px, m->l_max_angle_deg,
-                  m->l_min_px, m->fer_2d, m->area_px, m->perimeter_px, m->circularity);
+                  path.c_str(), segmented ? "segmented image" : "binary mask", m->l_max_px,
+                  m->l_max_angle_deg, m->l_min_px, m->fer_2d, m->area_px, m->perimeter_px,
+                  m->circularity);
     out << buf;
   }
   return 0;

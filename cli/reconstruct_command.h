@@ -10,6 +10,7 @@
 namespace aggscan {
 
 /// Returns 0 on success, 1 when a stage fails (the error names it), 2 for usage errors.
-int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err);
+int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& out,
+                          std::ostream& err);
 
 }  // namespace aggscan

@@ -13,8 +13,8 @@
 
 namespace aggscan {
 
-/// `args` are the words after `aggscan` (the word "selftest" among them). Returns 0 when every device is ok,
-/// 4 (kClientExitUnhealthy) when one is not, 2 for a bad command line or config.
+/// `args` are the words after `aggscan` (the word "selftest" among them). Returns 0 when every
+/// device is ok, 4 (kClientExitUnhealthy) when one is not, 2 for a bad command line or config.
 int RunOfflineSelftest(const std::vector<std::string>& args, std::ostream& out, std::ostream& err);
 
 /// True when `args` (the words after `aggscan`) ask for the offline selftest.

@@ -12,8 +12,8 @@
 #include "daemon/event_loop.h"
 #include "drivers/factory.h"
 #include "drivers/sim/truth.h"
-#include "pipeline/markers/aruco_scale.h"
 #include "pipeline/calib/calibrate.h"
+#include "pipeline/markers/aruco_scale.h"
 #include "store/layout.h"
 #include "store/sample_store.h"
 
@@ -31,7 +31,8 @@ int RunSimCapture(const SimCaptureOptions& opt, std::ostream& out, std::ostream&
     return 2;
   }
   if (fs::exists(opt.out)) {
-    err << "aggscan sim capture: " << opt.out << " already exists; refusing to overwrite it (choose a new --out)\n";
+    err << "aggscan sim capture: " << opt.out
+        << " already exists; refusing to overwrite it (choose a new --out)\n";
     return 1;
   }
   std::vector<ConfigProblem> problems;
@@ -124,7 +125,9 @@ int RunSimCapture(const SimCaptureOptions& opt, std::ostream& out, std::ostream&
   }
   std::shared_ptr<sim::SimWorld> world = rig->world;
   sim::TruthRecorder truth(world);
-  truth.Attach(*rig, [&store](const std::string& sid) { return store.SampleDir(sid) + "/" + layout::kTruthDir; });
+  truth.Attach(*rig, [&store](const std::string& sid) {
+    return store.SampleDir(sid) + "/" + layout::kTruthDir;
+  });
 
   CaptureService service(loop, config, effective, std::move(*rig), store, nullptr);
   int rc = 0;
@@ -177,7 +180,8 @@ int RunSimCapture(const SimCaptureOptions& opt, std::ostream& out, std::ostream&
     return 1;
   }
   // Move the finished sample to its place, then drop the staging area.
-  if (Status s = MakeDirsDurable(fs::path(opt.out).parent_path().empty() ? "." : fs::path(opt.out).parent_path().string());
+  if (Status s = MakeDirsDurable(
+          fs::path(opt.out).parent_path().empty() ? "." : fs::path(opt.out).parent_path().string());
       !s) {
     err << "aggscan sim capture: " << s.error().ToString() << "\n";
     return 1;
@@ -196,9 +200,9 @@ int RunSimCapture(const SimCaptureOptions& opt, std::ostream& out, std::ostream&
   std::error_code ec;
   fs::remove_all(staging, ec);
   const double real_s = static_cast<double>(MonotonicNs() - real_start) / 1e9;
-  out << "captured sample " << id << " into " << opt.out << ": " << config.capture.sides << " sides x "
-      << config.capture.views_per_side << " views (" << (static_cast<double>(clock.Now()) / 1e9)
-      << " s simulated, " << real_s << " s real)\n";
+  out << "captured sample " << id << " into " << opt.out << ": " << config.capture.sides
+      << " sides x " << config.capture.views_per_side << " views ("
+      << (static_cast<double>(clock.Now()) / 1e9) << " s simulated, " << real_s << " s real)\n";
   return 0;
 }
 

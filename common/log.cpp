@@ -13,9 +13,11 @@ void SetLogLevel(LogLevel level) { g_level = static_cast<int>(level); }
 LogLevel GetLogLevel() { return static_cast<LogLevel>(g_level.load()); }
 
 bool ParseLogLevel(const std::string& s, LogLevel* out) {
-  static const std::pair<const char*, LogLevel> kNames[] = {
-      {"error", LogLevel::kError}, {"warning", LogLevel::kWarning}, {"notice", LogLevel::kNotice},
-      {"info", LogLevel::kInfo},   {"debug", LogLevel::kDebug}};
+  static const std::pair<const char*, LogLevel> kNames[] = {{"error", LogLevel::kError},
+                                                            {"warning", LogLevel::kWarning},
+                                                            {"notice", LogLevel::kNotice},
+                                                            {"info", LogLevel::kInfo},
+                                                            {"debug", LogLevel::kDebug}};
   for (const auto& [name, lvl] : kNames) {
     if (s == name) {
       *out = lvl;
@@ -25,7 +27,8 @@ bool ParseLogLevel(const std::string& s, LogLevel* out) {
   return false;
 }
 
-void LogLine(LogLevel level, const char* category, const std::string& sample, const std::string& text) {
+void LogLine(LogLevel level, const char* category, const std::string& sample,
+             const std::string& text) {
   if (static_cast<int>(level) > g_level.load()) return;
   // Appended piecewise (also avoids a GCC 12 -Wrestrict false positive on
   // "literal" + std::string at -O2).
@@ -69,7 +72,8 @@ bool RateLimitedLog::Error(const std::string& key, const std::string& text) {
     return false;
   }
   suppressed_[key] = 0;
-  LogLine(LogLevel::kError, category_, {}, text + " (further errors of this kind suppressed until it recovers)");
+  LogLine(LogLevel::kError, category_, {},
+          text + " (further errors of this kind suppressed until it recovers)");
   return true;
 }
 
@@ -86,13 +90,15 @@ void RateLimitedLog::ClearPrefix(const std::string& prefix, const std::string& r
   std::lock_guard<std::mutex> lock(mu_);
   long total = 0;
   bool any = false;
-  for (auto it = suppressed_.lower_bound(prefix); it != suppressed_.end() && it->first.rfind(prefix, 0) == 0;) {
+  for (auto it = suppressed_.lower_bound(prefix);
+       it != suppressed_.end() && it->first.rfind(prefix, 0) == 0;) {
     any = true;
     total += it->second;
     it = suppressed_.erase(it);
   }
   if (!any) return;
-  LogLine(LogLevel::kNotice, category_, {}, recovered_text + " (" + std::to_string(total) + " repeats suppressed)");
+  LogLine(LogLevel::kNotice, category_, {},
+          recovered_text + " (" + std::to_string(total) + " repeats suppressed)");
 }
 
 }  // namespace aggscan

@@ -22,9 +22,11 @@ LogLevel GetLogLevel();
 bool ParseLogLevel(const std::string& s, LogLevel* out);
 
 /// Writes one line. `sample` may be empty.
-void LogLine(LogLevel level, const char* category, const std::string& sample, const std::string& text);
+void LogLine(LogLevel level, const char* category, const std::string& sample,
+             const std::string& text);
 /// printf-style convenience.
-void Logf(LogLevel level, const char* category, const char* fmt, ...) __attribute__((format(printf, 3, 4)));
+void Logf(LogLevel level, const char* category, const char* fmt, ...)
+    __attribute__((format(printf, 3, 4)));
 
 #define AGG_LOGE(cat, ...) ::aggscan::Logf(::aggscan::LogLevel::kError, cat, __VA_ARGS__)
 #define AGG_LOGW(cat, ...) ::aggscan::Logf(::aggscan::LogLevel::kWarning, cat, __VA_ARGS__)

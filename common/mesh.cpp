@@ -253,8 +253,8 @@ uint64_t PlyMinRowBytes(const PlyElement& el, PlyFormat fmt) {
 // for them: a header claiming 2^31 vertices in a small file is corrupt (or
 // hostile), and reserving for it would exhaust memory. Vertex and face counts
 // beyond what an int index addresses are refused too.
-Status CheckPlyCounts(const std::string& path, const std::vector<PlyElement>& elements, PlyFormat fmt,
-                      size_t body_bytes) {
+Status CheckPlyCounts(const std::string& path, const std::vector<PlyElement>& elements,
+                      PlyFormat fmt, size_t body_bytes) {
   uint64_t need = 0;
   // ASCII: the last value needs no separator after it.
   const uint64_t avail = body_bytes + (fmt == PlyFormat::kAscii ? 1 : 0);
@@ -264,16 +264,18 @@ Status CheckPlyCounts(const std::string& path, const std::vector<PlyElement>& el
     const uint64_t count = static_cast<uint64_t>(el.count);
     const uint64_t left = avail > need ? avail - need : 0;
     if (count > left / row) {
-      return Corrupt(path, "header says element " + el.name + " has " + std::to_string(el.count) +
-                               " rows of at least " + std::to_string(row) + " bytes each" +
-                               (fmt == PlyFormat::kAscii ? " (ASCII)" : "") + ", but the file holds only " +
-                               std::to_string(body_bytes) + " bytes after its header (" +
-                               std::to_string(left / row) +
-                               " such rows at most): the header is corrupt or the file is truncated");
+      return Corrupt(
+          path, "header says element " + el.name + " has " + std::to_string(el.count) +
+                    " rows of at least " + std::to_string(row) + " bytes each" +
+                    (fmt == PlyFormat::kAscii ? " (ASCII)" : "") + ", but the file holds only " +
+                    std::to_string(body_bytes) + " bytes after its header (" +
+                    std::to_string(left / row) +
+                    " such rows at most): the header is corrupt or the file is truncated");
     }
     if ((el.name == "vertex" || el.name == "face") && el.count > kMaxMeshElements) {
-      return Corrupt(path, "element " + el.name + " has " + std::to_string(el.count) + " rows, more than the " +
-                               std::to_string(kMaxMeshElements) + " a mesh may have");
+      return Corrupt(path, "element " + el.name + " has " + std::to_string(el.count) +
+                               " rows, more than the " + std::to_string(kMaxMeshElements) +
+                               " a mesh may have");
     }
     need += count * row;
   }
@@ -327,8 +329,9 @@ Result<Mesh> LoadPly(const std::string& path, const std::string& data) {
       int64_t n = 0;
       if (tok.size() != 3) return Corrupt(path, where + ": malformed element line");
       if (!ParseInt64(tok[2], &n) || n < 0)
-        return Corrupt(path, where + ": element " + std::string(tok[1]) + " has count \"" + std::string(tok[2]) +
-                                 "\", not a count from 0 to " + std::to_string(INT64_MAX));
+        return Corrupt(path, where + ": element " + std::string(tok[1]) + " has count \"" +
+                                 std::string(tok[2]) + "\", not a count from 0 to " +
+                                 std::to_string(INT64_MAX));
       elements.push_back({std::string(tok[1]), n, {}});
     } else if (tok[0] == "property") {
       if (elements.empty()) return Corrupt(path, where + ": property before any element");
@@ -471,7 +474,8 @@ Result<Mesh> LoadObj(const std::string& path, const std::string& data) {
           !ParseDouble(tok[3], &v[2]))
         return Corrupt(path, where + ": malformed vertex");
       if (static_cast<int64_t>(m.vertices.size()) >= kMaxMeshElements)
-        return Corrupt(path, where + ": more than " + std::to_string(kMaxMeshElements) + " vertices");
+        return Corrupt(path,
+                       where + ": more than " + std::to_string(kMaxMeshElements) + " vertices");
       m.vertices.push_back(v);
     } else if (line[0] == 'f' && (line[1] == ' ' || line[1] == '\t')) {
       auto tok = Tokens(line);
@@ -538,9 +542,9 @@ Result<Mesh> LoadStlBinary(const std::string& path, const std::string& data) {
   std::memcpy(&n, data.data() + 80, 4);
   if constexpr (std::endian::native == std::endian::big) n = ByteSwap(n);
   if (data.size() < 84 + 50ULL * n)
-    return Corrupt(path, "truncated binary STL: header says " + std::to_string(n) + " triangles of 50 bytes, the " +
-                             std::to_string(data.size()) + "-byte file holds " +
-                             std::to_string((data.size() - 84) / 50));
+    return Corrupt(path, "truncated binary STL: header says " + std::to_string(n) +
+                             " triangles of 50 bytes, the " + std::to_string(data.size()) +
+                             "-byte file holds " + std::to_string((data.size() - 84) / 50));
   if (static_cast<int64_t>(n) > kMaxMeshElements)
     return Corrupt(path, "binary STL has " + std::to_string(n) + " triangles, more than the " +
                              std::to_string(kMaxMeshElements) + " a mesh may have");
@@ -642,9 +646,10 @@ Result<Mesh> LoadMesh(const std::string& path, const std::string& unit) {
     std::error_code ec;
     const auto size = std::filesystem::file_size(path, ec);
     if (!ec && size > kMaxMeshFileBytes) {
-      return Corrupt(path, "is " + std::to_string(size) + " bytes, more than the " +
-                               std::to_string(kMaxMeshFileBytes >> 20) +
-                               " MiB a mesh file may have (a rock's mesh is a few MB): decimate it first");
+      return Corrupt(
+          path, "is " + std::to_string(size) + " bytes, more than the " +
+                    std::to_string(kMaxMeshFileBytes >> 20) +
+                    " MiB a mesh file may have (a rock's mesh is a few MB): decimate it first");
     }
   }
   Result<std::string> data = ReadFile(path);
@@ -666,10 +671,11 @@ Result<Mesh> LoadMesh(const std::string& path, const std::string& unit) {
       if (!std::isfinite(c) || std::abs(c) > kMaxMeshCoordinateMm) {
         char v[64];
         std::snprintf(v, sizeof v, "%g", raw);
-        return Corrupt(path, "vertex " + std::to_string(i) + " has coordinate " + v + " " + unit + ": " +
-                                 (std::isfinite(c) ? "farther than 10 km from the origin"
-                                                   : "not a finite number") +
-                                 "; a rock's mesh must have finite coordinates near the origin");
+        return Corrupt(
+            path,
+            "vertex " + std::to_string(i) + " has coordinate " + v + " " + unit + ": " +
+                (std::isfinite(c) ? "farther than 10 km from the origin" : "not a finite number") +
+                "; a rock's mesh must have finite coordinates near the origin");
       }
     }
   }
@@ -682,14 +688,15 @@ Status CheckForSave(const Mesh& mesh, const std::string& path, const VertexColor
   for (const auto& f : mesh.faces) {
     for (int i : f) {
       if (i < 0 || i >= static_cast<int>(mesh.vertices.size())) {
-        return MakeError(ErrorClass::kInvalidArgument, "cannot save mesh " + path + ": face index out of range");
+        return MakeError(ErrorClass::kInvalidArgument,
+                         "cannot save mesh " + path + ": face index out of range");
       }
     }
   }
   if (colors && colors->size() != mesh.vertices.size()) {
     return MakeError(ErrorClass::kInvalidArgument,
-                     "cannot save mesh " + path + ": " + std::to_string(colors->size()) + " colours for " +
-                         std::to_string(mesh.vertices.size()) + " vertices");
+                     "cannot save mesh " + path + ": " + std::to_string(colors->size()) +
+                         " colours for " + std::to_string(mesh.vertices.size()) + " vertices");
   }
   return OkStatus();
 }
@@ -705,12 +712,13 @@ void PutLe(char*& p, T v) {
 
 Status SaveMeshPly(const Mesh& mesh, const std::string& path, const VertexColors* colors) {
   if (Status s = CheckForSave(mesh, path, colors); !s.ok()) return s;
-  std::string out = "ply\nformat binary_little_endian 1.0\ncomment aggscan, units: mm\nelement vertex " +
-                    std::to_string(mesh.vertices.size()) +
-                    "\nproperty double x\nproperty double y\nproperty double z\n" +
-                    (colors ? "property uchar red\nproperty uchar green\nproperty uchar blue\n" : "") +
-                    "element face " + std::to_string(mesh.faces.size()) +
-                    "\nproperty list uchar int vertex_indices\nend_header\n";
+  std::string out =
+      "ply\nformat binary_little_endian 1.0\ncomment aggscan, units: mm\nelement vertex " +
+      std::to_string(mesh.vertices.size()) +
+      "\nproperty double x\nproperty double y\nproperty double z\n" +
+      (colors ? "property uchar red\nproperty uchar green\nproperty uchar blue\n" : "") +
+      "element face " + std::to_string(mesh.faces.size()) +
+      "\nproperty list uchar int vertex_indices\nend_header\n";
   const size_t header = out.size();
   const size_t vbytes = 24 + (colors ? 3 : 0);
   out.resize(header + mesh.vertices.size() * vbytes + mesh.faces.size() * 13);
@@ -738,8 +746,8 @@ Status SaveMeshObj(const Mesh& mesh, const std::string& path, const VertexColors
     int n;
     if (colors) {
       const auto& c = (*colors)[i];
-      n = std::snprintf(line, sizeof line, "v %.6f %.6f %.6f %.4f %.4f %.4f\n", v[0], v[1], v[2], c[0] / 255.0,
-                        c[1] / 255.0, c[2] / 255.0);
+      n = std::snprintf(line, sizeof line, "v %.6f %.6f %.6f %.4f %.4f %.4f\n", v[0], v[1], v[2],
+                        c[0] / 255.0, c[1] / 255.0, c[2] / 255.0);
     } else {
       n = std::snprintf(line, sizeof line, "v %.6f %.6f %.6f\n", v[0], v[1], v[2]);
     }

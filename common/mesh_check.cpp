@@ -36,7 +36,8 @@ std::string MeshTopology::Defects() const {
   add(boundary_edges, "boundary edge (a hole)", "boundary edges (holes)");
   add(nonmanifold_edges, "non-manifold edge (shared by more than two faces)",
       "non-manifold edges (shared by more than two faces)");
-  add(misoriented_edges, "misoriented edge (flipped neighbouring faces)", "misoriented edges (flipped neighbouring faces)");
+  add(misoriented_edges, "misoriented edge (flipped neighbouring faces)",
+      "misoriented edges (flipped neighbouring faces)");
   add(nonmanifold_vertices, "non-manifold vertex (pinched)", "non-manifold vertices (pinched)");
   add(degenerate_faces, "degenerate face (repeated vertex)", "degenerate faces (repeated vertex)");
   return out;
@@ -54,7 +55,8 @@ MeshTopology AnalyzeTopology(const Mesh& mesh) {
   };
   std::unordered_map<uint64_t, EdgeUse> edges;
   edges.reserve(mesh.faces.size() * 2);
-  std::vector<std::vector<std::pair<int, int>>> fans(mesh.vertices.size());  // per vertex: (next, prev) of each face
+  std::vector<std::vector<std::pair<int, int>>> fans(
+      mesh.vertices.size());  // per vertex: (next, prev) of each face
   Dsu faces_dsu(mesh.faces.size());
   for (size_t f = 0; f < mesh.faces.size(); ++f) {
     const auto& tri = mesh.faces[f];
@@ -64,7 +66,8 @@ MeshTopology AnalyzeTopology(const Mesh& mesh) {
     }
     for (int k = 0; k < 3; ++k) {
       const int a = tri[k], b = tri[(k + 1) % 3];
-      const uint64_t key = (static_cast<uint64_t>(std::min(a, b)) << 32) | static_cast<uint32_t>(std::max(a, b));
+      const uint64_t key =
+          (static_cast<uint64_t>(std::min(a, b)) << 32) | static_cast<uint32_t>(std::max(a, b));
       EdgeUse& e = edges[key];
       ++e.count;
       e.direction_sum += a < b ? 1 : -1;
@@ -96,11 +99,14 @@ MeshTopology AnalyzeTopology(const Mesh& mesh) {
     }
     std::sort(ids.begin(), ids.end());
     ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
-    auto idx = [&](int v) { return static_cast<int>(std::lower_bound(ids.begin(), ids.end(), v) - ids.begin()); };
+    auto idx = [&](int v) {
+      return static_cast<int>(std::lower_bound(ids.begin(), ids.end(), v) - ids.begin());
+    };
     Dsu d(ids.size());
     for (const auto& [a, b] : fan) d.Union(idx(a), idx(b));
     size_t pieces = 0;
-    for (size_t i = 0; i < ids.size(); ++i) pieces += d.Find(static_cast<int>(i)) == static_cast<int>(i);
+    for (size_t i = 0; i < ids.size(); ++i)
+      pieces += d.Find(static_cast<int>(i)) == static_cast<int>(i);
     if (pieces > 1) ++t.nonmanifold_vertices;
   }
   std::vector<char> seen(mesh.faces.size(), 0);
@@ -117,10 +123,12 @@ MeshTopology AnalyzeTopology(const Mesh& mesh) {
 Status CheckClosedManifold(const Mesh& mesh, const std::string& what) {
   const MeshTopology t = AnalyzeTopology(mesh);
   if (t.ClosedManifold()) return OkStatus();
-  return MakeError(ErrorClass::kInvalidArgument,
-                   what + " is not a closed manifold surface, so it has no well-defined volume: " + t.Defects() +
-                       ". Repair the mesh (close holes, split pinched vertices, make face orientation consistent) "
-                       "and try again.");
+  return MakeError(
+      ErrorClass::kInvalidArgument,
+      what + " is not a closed manifold surface, so it has no well-defined volume: " + t.Defects() +
+          ". Repair the mesh (close holes, split pinched vertices, make face orientation "
+          "consistent) "
+          "and try again.");
 }
 
 }  // namespace aggscan

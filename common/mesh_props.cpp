@@ -345,13 +345,15 @@ bool SameBox(const OrientedBox& a, const OrientedBox& b) {
 struct DistinctBoxes {
   std::vector<OrientedBox> boxes;
   bool Has(const OrientedBox& b) const {
-    return std::any_of(boxes.begin(), boxes.end(), [&](const OrientedBox& o) { return SameBox(b, o); });
+    return std::any_of(boxes.begin(), boxes.end(),
+                       [&](const OrientedBox& o) { return SameBox(b, o); });
   }
   void Add(const OrientedBox& b) {
     if (!Has(b)) boxes.push_back(b);
   }
   std::vector<OrientedBox> Sorted() && {
-    std::sort(boxes.begin(), boxes.end(), [](const OrientedBox& a, const OrientedBox& b) { return a.Volume() < b.Volume(); });
+    std::sort(boxes.begin(), boxes.end(),
+              [](const OrientedBox& a, const OrientedBox& b) { return a.Volume() < b.Volume(); });
     return std::move(boxes);
   }
 };
@@ -359,7 +361,8 @@ struct DistinctBoxes {
 // The candidate axes scored on `eval`; the `starts` best distinct boxes are
 // each refined from all three of their axes. Returns the distinct refined
 // boxes, smallest first.
-std::vector<OrientedBox> SearchBoxes(HullEval& eval, const std::vector<Vec3d>& cand, int starts, double step_deg) {
+std::vector<OrientedBox> SearchBoxes(HullEval& eval, const std::vector<Vec3d>& cand, int starts,
+                                     double step_deg) {
   struct Scored {
     double volume;
     Vec3d axis;
@@ -410,7 +413,7 @@ std::vector<Vec3d> FibonacciDirections(int n, bool half) {
   std::vector<Vec3d> dirs;
   dirs.reserve(static_cast<size_t>(std::max(0, n)));
   const double golden = std::numbers::pi * (3.0 - std::sqrt(5.0));  // golden angle
-  const double span = half ? 1.0 : 2.0;                               // z from 1 down to 0 or -1
+  const double span = half ? 1.0 : 2.0;                             // z from 1 down to 0 or -1
   for (int k = 0; k < n; ++k) {
     const double z = 1.0 - span * (k + 0.5) / n, r = std::sqrt(std::max(0.0, 1.0 - z * z));
     dirs.push_back({r * std::cos(golden * k), r * std::sin(golden * k), z});
@@ -427,7 +430,8 @@ bool ConvexHull(const std::vector<Vec3d>& points, Mesh* hull) {
   if (points.size() < 4) return false;
   std::vector<coordT> coords(points.size() * 3);
   for (size_t i = 0; i < points.size(); ++i)
-    for (int k = 0; k < 3; ++k) coords[3 * i + static_cast<size_t>(k)] = points[i][static_cast<size_t>(k)];
+    for (int k = 0; k < 3; ++k)
+      coords[3 * i + static_cast<size_t>(k)] = points[i][static_cast<size_t>(k)];
   // Qhull reports problems (flat or too few distinct points) on a stream:
   // here an in-memory one, discarded, since false already says "degenerate".
   char* err_text = nullptr;
@@ -437,7 +441,8 @@ bool ConvexHull(const std::vector<Vec3d>& points, Mesh* hull) {
   qhT* qh = &qh_storage;
   qh_zero(qh, err);
   char flags[] = "qhull Qt";  // triangulated output
-  const int code = qh_new_qhull(qh, 3, static_cast<int>(points.size()), coords.data(), False, flags, nullptr, err);
+  const int code = qh_new_qhull(qh, 3, static_cast<int>(points.size()), coords.data(), False, flags,
+                                nullptr, err);
   if (code == 0) {
     std::unordered_map<int, int> remap;
     facetT* facet = nullptr;
@@ -458,7 +463,8 @@ bool ConvexHull(const std::vector<Vec3d>& points, Mesh* hull) {
       const Vec3d& a = hull->vertices[static_cast<size_t>(tri[0])];
       const Vec3d n = Cross(Sub(hull->vertices[static_cast<size_t>(tri[1])], a),
                             Sub(hull->vertices[static_cast<size_t>(tri[2])], a));
-      if (n[0] * facet->normal[0] + n[1] * facet->normal[1] + n[2] * facet->normal[2] < 0) std::swap(tri[1], tri[2]);
+      if (n[0] * facet->normal[0] + n[1] * facet->normal[1] + n[2] * facet->normal[2] < 0)
+        std::swap(tri[1], tri[2]);
       hull->faces.push_back(tri);
     }
   }
@@ -543,19 +549,22 @@ std::vector<OrientedBox> MinVolumeBoxes(const std::vector<Vec3d>& points, int st
     // Scored on at most a few thousand extreme points (a rock's whole hull).
     Mesh spread_hull;
     std::optional<HullEval> subset;
-    if (hv.size() > 3000 && ConvexHull(ExtremeSubset(hv, 3000), &spread_hull)) subset.emplace(spread_hull);
+    if (hv.size() > 3000 && ConvexHull(ExtremeSubset(hv, 3000), &spread_hull))
+      subset.emplace(spread_hull);
     HullEval& spread = subset ? *subset : full;
     const std::vector<Vec3d> dirs = FibonacciDirections(kSpread, /*half=*/true);
     std::vector<double> vol(dirs.size());
     for (size_t i = 0; i < dirs.size(); ++i) vol[i] = spread.Box(dirs[i]).Volume();
     const double limit = 1.05 * boxes.front().Volume();  // unrefined lattice boxes run high
-    const double near_cos = std::cos(4.7 * std::numbers::pi / 180);  // the lattice's nearest neighbours
+    const double near_cos =
+        std::cos(4.7 * std::numbers::pi / 180);  // the lattice's nearest neighbours
     std::vector<std::pair<double, size_t>> minima;
     for (size_t i = 0; i < dirs.size(); ++i) {
       if (vol[i] > limit) continue;
       bool minimum = true;
       for (size_t j = 0; j < dirs.size() && minimum; ++j)
-        if (j != i && std::fabs(Dot(dirs[i], dirs[j])) > near_cos && vol[j] < vol[i]) minimum = false;
+        if (j != i && std::fabs(Dot(dirs[i], dirs[j])) > near_cos && vol[j] < vol[i])
+          minimum = false;
       if (minimum) minima.emplace_back(vol[i], i);
     }
     // A sphere is all minima: the 24 smallest are plenty for a rock.
@@ -571,7 +580,9 @@ std::vector<OrientedBox> MinVolumeBoxes(const std::vector<Vec3d>& points, int st
   return boxes;
 }
 
-OrientedBox MinVolumeBox(const std::vector<Vec3d>& points) { return MinVolumeBoxes(points, 4).front(); }
+OrientedBox MinVolumeBox(const std::vector<Vec3d>& points) {
+  return MinVolumeBoxes(points, 4).front();
+}
 
 void TaubinSmooth(Mesh* mesh, int iterations, double lambda, double mu) {
   const size_t nv = mesh->vertices.size();
@@ -654,10 +665,14 @@ MeshProps ComputeMeshProps(const Mesh& mesh) {
 }
 
 nlohmann::json MeshPropsJson(const MeshProps& p) {
-  return {{"volume_mm3", p.volume_mm3}, {"surface_area_mm2", p.surface_area_mm2},
-          {"a_mm", p.a_mm},             {"b_mm", p.b_mm},
-          {"c_mm", p.c_mm},             {"fer_3d", p.fer_3d},
-          {"ratio_c_b", p.c_over_b},    {"ratio_b_a", p.b_over_a},
+  return {{"volume_mm3", p.volume_mm3},
+          {"surface_area_mm2", p.surface_area_mm2},
+          {"a_mm", p.a_mm},
+          {"b_mm", p.b_mm},
+          {"c_mm", p.c_mm},
+          {"fer_3d", p.fer_3d},
+          {"ratio_c_b", p.c_over_b},
+          {"ratio_b_a", p.b_over_a},
           {"sphericity", p.sphericity},
           {"second_box", p.second_box_volume_ratio > 0
                              ? nlohmann::json{{"volume_ratio", p.second_box_volume_ratio},
@@ -669,7 +684,10 @@ nlohmann::json MeshPropsJson(const MeshProps& p) {
           {"near_minimal_boxes", [&] {
              nlohmann::json a = nlohmann::json::array();
              for (const MeshProps::NearBox& b : p.near_boxes)
-               a.push_back({{"a_mm", b.a_mm}, {"b_mm", b.b_mm}, {"c_mm", b.c_mm}, {"volume_ratio", b.volume_ratio}});
+               a.push_back({{"a_mm", b.a_mm},
+                            {"b_mm", b.b_mm},
+                            {"c_mm", b.c_mm},
+                            {"volume_ratio", b.volume_ratio}});
              return a;
            }()}};
 }

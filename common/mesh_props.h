@@ -5,9 +5,8 @@
 // truth.json and for checking the reconstruction's morphology.
 #pragma once
 
-#include <nlohmann/json.hpp>
-
 #include <array>
+#include <nlohmann/json.hpp>
 #include <vector>
 
 #include "common/mesh.h"

@@ -59,7 +59,9 @@ std::array<double, 16> RigCalibration::CamFromTable(double angle_deg) const {
   return m;
 }
 
-std::string CalibrationPath(const std::string& state_dir) { return state_dir + "/calibration.json"; }
+std::string CalibrationPath(const std::string& state_dir) {
+  return state_dir + "/calibration.json";
+}
 
 json CalibrationToJson(const RigCalibration& cal) {
   const CameraModel& c = cal.camera;
@@ -92,8 +94,9 @@ json CalibrationToJson(const RigCalibration& cal) {
 namespace {
 
 Error Bad(const std::string& what, const std::string& why) {
-  return MakeError(ErrorClass::kCorrupt,
-                   what + ": " + why + "; run `aggscan calibrate` again to write a new calibration");
+  return MakeError(
+      ErrorClass::kCorrupt,
+      what + ": " + why + "; run `aggscan calibrate` again to write a new calibration");
 }
 
 bool Finite(double v) { return std::isfinite(v); }
@@ -154,7 +157,8 @@ Result<RigCalibration> CalibrationFromJson(const json& j, const std::string& wha
     for (int b = 0; b < 3; ++b) {
       double d = 0;
       for (int k = 0; k < 3; ++k) d += R[a * 3 + k] * R[b * 3 + k];
-      if (std::abs(d - (a == b ? 1.0 : 0.0)) > 1e-6) return Bad(what, "cam_from_table0.R is not a rotation");
+      if (std::abs(d - (a == b ? 1.0 : 0.0)) > 1e-6)
+        return Bad(what, "cam_from_table0.R is not a rotation");
     }
   }
   const double det = R[0] * (R[4] * R[8] - R[5] * R[7]) - R[1] * (R[3] * R[8] - R[5] * R[6]) +

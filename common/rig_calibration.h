@@ -21,9 +21,8 @@
 
 #include <array>
 #include <cmath>
-#include <string>
-
 #include <nlohmann/json.hpp>
+#include <string>
 
 #include "common/error.h"
 
@@ -49,11 +48,11 @@ struct RigCalibration {
   double reprojection_rms_px = 0;  // RMS over every detected board corner
   int views_used = 0;              // board views that entered the solution
   int corners_used = 0;
-  std::string method;              // "charuco" | "sim-truth"
-  std::string created_utc;         // ISO 8601
-  std::string camera_id;           // the camera the views came from (sidecar camera_id)
-  std::string source;              // where the views came from (sample directory)
-  nlohmann::json board;            // board description used (type, squares, sizes, dictionary)
+  std::string method;       // "charuco" | "sim-truth"
+  std::string created_utc;  // ISO 8601
+  std::string camera_id;    // the camera the views came from (sidecar camera_id)
+  std::string source;       // where the views came from (sample directory)
+  nlohmann::json board;     // board description used (type, squares, sizes, dictionary)
 
   /// Camera centre in the table0 frame (mm).
   std::array<double, 3> CameraCentreTable0() const;

@@ -394,7 +394,7 @@ struct RigConfig {
   bool operator==(const RigConfig&) const = default;
 };
 
-// Foreground masks of the worker (pipeline/mask.h): the classical
+// Foreground masks of the worker (pipeline/masks/mask.h): the classical
 // segmentation, or a salient-object network (ONNX, run by OpenCV DNN) whose
 // output, resized to the photo and thresholded, seeds the same refinement.
 // The network takes one 1x3xHxW float input, RGB, each channel (value/255 -

@@ -11,7 +11,9 @@ nlohmann::json CheckRigCalibration(const std::string& state_dir, int width, int 
   Result<RigCalibration> cal = LoadCalibration(path);
   if (!cal) {
     const bool missing = cal.error().cls == ErrorClass::kNotFound;
-    return {{"state", missing ? "missing" : "invalid"}, {"path", path}, {"message", cal.error().ToString()}};
+    return {{"state", missing ? "missing" : "invalid"},
+            {"path", path},
+            {"message", cal.error().ToString()}};
   }
   if (Status fits = CheckCalibrationFits(*cal, width, height); !fits) {
     return {{"state", "invalid"}, {"path", path}, {"message", path + ": " + fits.error().message}};
@@ -20,7 +22,8 @@ nlohmann::json CheckRigCalibration(const std::string& state_dir, int width, int 
   std::snprintf(rms, sizeof rms, "%.3f", cal->reprojection_rms_px);
   return {{"state", "ok"},
           {"path", path},
-          {"message", "rig calibration of " + cal->created_utc + " (" + cal->method + ", RMS " + rms + " px)"},
+          {"message",
+           "rig calibration of " + cal->created_utc + " (" + cal->method + ", RMS " + rms + " px)"},
           {"reprojection_rms_px", cal->reprojection_rms_px},
           {"created_utc", cal->created_utc},
           {"views_used", cal->views_used},

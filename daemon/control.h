@@ -15,7 +15,7 @@
 
 namespace aggscan {
 
-/// The result files the API serves, as named in results/ (pipeline/reconstruct.h).
+/// The result files the API serves, as named in results/ (pipeline/worker/reconstruct.h).
 inline const std::vector<std::string>& ResultFileNames() {
   static const std::vector<std::string> names = {"morphology.json", "mesh.ply", "mesh.obj",
                                                  "mesh.stl"};

@@ -17,7 +17,8 @@ EventLoop::EventLoop(Clock& clock) : clock_(clock) {
   epfd_ = ::epoll_create1(EPOLL_CLOEXEC);
   eventfd_ = ::eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
   timerfd_ = ::timerfd_create(CLOCK_MONOTONIC, TFD_CLOEXEC | TFD_NONBLOCK);
-  if (epfd_ < 0 || eventfd_ < 0 || timerfd_ < 0) throw std::runtime_error("event loop: cannot create fds");
+  if (epfd_ < 0 || eventfd_ < 0 || timerfd_ < 0)
+    throw std::runtime_error("event loop: cannot create fds");
   for (int fd : {eventfd_, timerfd_}) {
     epoll_event ev{};
     ev.events = EPOLLIN;

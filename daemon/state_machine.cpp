@@ -4,18 +4,28 @@ namespace aggscan::capture {
 
 const char* PhaseName(Phase p) {
   switch (p) {
-    case Phase::kIdle: return "idle";
-    case Phase::kArmed: return "armed";
-    case Phase::kHoming: return "homing";
-    case Phase::kRotating: return "rotating";
-    case Phase::kSettling: return "settling";
-    case Phase::kWaitingDue: return "waiting";
-    case Phase::kCapturing: return "capturing";
-    case Phase::kStoring: return "storing";
+    case Phase::kIdle:
+      return "idle";
+    case Phase::kArmed:
+      return "armed";
+    case Phase::kHoming:
+      return "homing";
+    case Phase::kRotating:
+      return "rotating";
+    case Phase::kSettling:
+      return "settling";
+    case Phase::kWaitingDue:
+      return "waiting";
+    case Phase::kCapturing:
+      return "capturing";
+    case Phase::kStoring:
+      return "storing";
     case Phase::kFinishing:
       return "finishing";
-    case Phase::kAwaitingPose: return "awaiting_pose";
-    case Phase::kFaulted: return "faulted";
+    case Phase::kAwaitingPose:
+      return "awaiting_pose";
+    case Phase::kFaulted:
+      return "faulted";
   }
   return "?";
 }
@@ -32,7 +42,8 @@ StepResult Reject(const State& s, const Event& e, std::string why = {}) {
   StepResult r;
   r.next = s;
   r.accepted = false;
-  r.reason = why.empty() ? std::string(EventName(e)) + " is not allowed while " + PhaseName(s.phase) : why;
+  r.reason =
+      why.empty() ? std::string(EventName(e)) + " is not allowed while " + PhaseName(s.phase) : why;
   return r;
 }
 
@@ -55,7 +66,8 @@ int SideInProgress(const State& s) {
     case Phase::kStoring:
     case Phase::kFinishing:
       return s.side;
-    default: return 0;
+    default:
+      return 0;
   }
 }
 
@@ -91,10 +103,13 @@ StepResult Step(const State& s, const Event& e) {
       Overloaded{
           [&](const Arm& a) -> StepResult {
             if (s.phase != Phase::kIdle) {
-              return Reject(s, e, std::string("cannot arm a sample while ") + PhaseName(s.phase) +
-                                      (s.phase == Phase::kFaulted ? ": reset the fault first" : ": abort it first"));
+              return Reject(s, e,
+                            std::string("cannot arm a sample while ") + PhaseName(s.phase) +
+                                (s.phase == Phase::kFaulted ? ": reset the fault first"
+                                                            : ": abort it first"));
             }
-            if (a.plan.sides < 1 || a.plan.views_per_side < 1 || a.first_side < 1 || a.first_side > a.plan.sides) {
+            if (a.plan.sides < 1 || a.plan.views_per_side < 1 || a.first_side < 1 ||
+                a.first_side > a.plan.sides) {
               return Reject(s, e, "invalid capture plan");
             }
             State n;
@@ -171,13 +186,15 @@ StepResult Step(const State& s, const Event& e) {
             if (!s.Active())
               return Reject(
                   s, e, std::string("device fault while ") + PhaseName(s.phase) + ": " + f.message);
-            return Go(Faulted(s, f.cls, f.message),
-                      {StopMotion{}, MarkInterrupted{SideInProgress(s)}, RecordFault{f.cls, f.message}});
+            return Go(
+                Faulted(s, f.cls, f.message),
+                {StopMotion{}, MarkInterrupted{SideInProgress(s)}, RecordFault{f.cls, f.message}});
           },
           [&](const StoreFailed& f) -> StepResult {
             if (!s.Active()) return Reject(s, e);
-            return Go(Faulted(s, f.cls, f.message),
-                      {StopMotion{}, MarkInterrupted{SideInProgress(s)}, RecordFault{f.cls, f.message}});
+            return Go(
+                Faulted(s, f.cls, f.message),
+                {StopMotion{}, MarkInterrupted{SideInProgress(s)}, RecordFault{f.cls, f.message}});
           },
           [&](const Abort&) -> StepResult {
             if (s.phase == Phase::kIdle)
@@ -188,8 +205,9 @@ StepResult Step(const State& s, const Event& e) {
           [&](const Reset&) -> StepResult {
             if (s.phase == Phase::kIdle) return Go(s, {});
             if (s.phase != Phase::kFaulted) {
-              return Reject(s, e, std::string("reset clears a fault; the rig is ") + PhaseName(s.phase) +
-                                      ": use abort to stop the capture");
+              return Reject(s, e,
+                            std::string("reset clears a fault; the rig is ") + PhaseName(s.phase) +
+                                ": use abort to stop the capture");
             }
             return Go(State{}, {ClearFault{}});
           },

@@ -86,7 +86,11 @@ struct State {
 };
 
 // ---- Events -------------------------------------------------------------
-struct Arm { std::string sample_id; Plan plan; int first_side = 1; };
+struct Arm {
+  std::string sample_id;
+  Plan plan;
+  int first_side = 1;
+};
 struct ButtonPressed {};
 struct HomeDone {};
 struct MoveDone {};
@@ -95,8 +99,14 @@ struct ViewDue {};
 struct FrameReady {};
 struct ViewStored {};
 struct SideFinished {};  // FinishSide's files and jobs are stored
-struct DeviceFault { ErrorClass cls; std::string message; };
-struct StoreFailed { ErrorClass cls; std::string message; };
+struct DeviceFault {
+  ErrorClass cls;
+  std::string message;
+};
+struct StoreFailed {
+  ErrorClass cls;
+  std::string message;
+};
 struct Abort {};
 struct Reset {};
 using Event = std::variant<Arm, ButtonPressed, HomeDone, MoveDone, SettleDone, ViewDue, FrameReady,
@@ -104,14 +114,30 @@ using Event = std::variant<Arm, ButtonPressed, HomeDone, MoveDone, SettleDone, V
 const char* EventName(const Event& e);
 
 // ---- Effects ------------------------------------------------------------
-struct CreateSample { std::string sample_id; };
+struct CreateSample {
+  std::string sample_id;
+};
 struct Home {};
-struct MoveTo { double angle_deg; };
+struct MoveTo {
+  double angle_deg;
+};
 struct StartSettle {};
-struct BeginSide { int side; };              // side dir ready; t0 = end of the first settle
-struct WaitUntilDue { int side; int view; };
-struct TriggerCapture { int side; int view; double commanded_deg; };
-struct StoreView { int side; int view; };
+struct BeginSide {
+  int side;
+};  // side dir ready; t0 = end of the first settle
+struct WaitUntilDue {
+  int side;
+  int view;
+};
+struct TriggerCapture {
+  int side;
+  int view;
+  double commanded_deg;
+};
+struct StoreView {
+  int side;
+  int view;
+};
 // Manifest, record, side job; last_side: also the sample "captured" and its
 // sample job. Answered by SideFinished or StoreFailed.
 struct FinishSide {
@@ -119,9 +145,16 @@ struct FinishSide {
   bool last_side = false;
 };
 struct StopMotion {};
-struct MarkInterrupted { int side; };        // side (0 = none in progress) and sample interrupted
-struct MarkAborted { int side; };
-struct RecordFault { ErrorClass cls; std::string message; };
+struct MarkInterrupted {
+  int side;
+};  // side (0 = none in progress) and sample interrupted
+struct MarkAborted {
+  int side;
+};
+struct RecordFault {
+  ErrorClass cls;
+  std::string message;
+};
 struct ClearFault {};
 using Effect = std::variant<CreateSample, Home, MoveTo, StartSettle, BeginSide, WaitUntilDue,
                             TriggerCapture, StoreView, FinishSide, StopMotion, MarkInterrupted,
@@ -131,8 +164,8 @@ const char* EffectName(const Effect& e);
 struct StepResult {
   State next;
   std::vector<Effect> effects;
-  bool accepted = true;   // false: illegal in this state, nothing changed
-  std::string reason;     // why it was rejected, for the log / API answer
+  bool accepted = true;  // false: illegal in this state, nothing changed
+  std::string reason;    // why it was rejected, for the log / API answer
 };
 
 /// The transition function. Pure and total: every (state, event) pair has an answer.

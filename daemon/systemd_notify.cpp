@@ -10,7 +10,9 @@ void SystemdNotifier::Ready(const std::string& status) {
   sd_notifyf(0, "READY=1\nSTATUS=%s", status.c_str());
 }
 
-void SystemdNotifier::Status(const std::string& status) { sd_notifyf(0, "STATUS=%s", status.c_str()); }
+void SystemdNotifier::Status(const std::string& status) {
+  sd_notifyf(0, "STATUS=%s", status.c_str());
+}
 
 void SystemdNotifier::Stopping() { sd_notify(0, "STOPPING=1\nSTATUS=stopping"); }
 
@@ -18,7 +20,8 @@ void SystemdNotifier::StartWatchdog() {
   uint64_t usec = 0;
   if (sd_watchdog_enabled(0, &usec) <= 0 || usec == 0) return;
   interval_us_ = usec / 2;
-  AGG_LOGI("systemd", "watchdog enabled: pinging every %llu ms", static_cast<unsigned long long>(interval_us_ / 1000));
+  AGG_LOGI("systemd", "watchdog enabled: pinging every %llu ms",
+           static_cast<unsigned long long>(interval_us_ / 1000));
   Ping();
 }
 

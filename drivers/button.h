@@ -17,8 +17,8 @@
 namespace aggscan {
 
 struct ButtonPress {
-  TimeNs time = 0;           // on the daemon's clock
-  std::string source;        // "gpio", "api", "cli", "sim", ...
+  TimeNs time = 0;     // on the daemon's clock
+  std::string source;  // "gpio", "api", "cli", "sim", ...
 };
 using PressCallback = std::function<void(const ButtonPress&)>;
 

@@ -10,10 +10,14 @@ namespace aggscan {
 
 const char* CameraStateName(Camera::State s) {
   switch (s) {
-    case Camera::State::kClosed: return "closed";
-    case Camera::State::kOpened: return "opened";
-    case Camera::State::kReady: return "ready";
-    case Camera::State::kBusy: return "busy";
+    case Camera::State::kClosed:
+      return "closed";
+    case Camera::State::kOpened:
+      return "opened";
+    case Camera::State::kReady:
+      return "ready";
+    case Camera::State::kBusy:
+      return "busy";
   }
   return "?";
 }
@@ -26,7 +30,8 @@ Camera::State Camera::state() const {
 Status Camera::Open() {
   {
     std::lock_guard<std::mutex> l(mu_);
-    if (state_ != State::kClosed) return MakeError(ErrorClass::kInvalidState, "camera is already open");
+    if (state_ != State::kClosed)
+      return MakeError(ErrorClass::kInvalidState, "camera is already open");
   }
   Status s = DoOpen();
   if (!s) return s;
@@ -36,15 +41,18 @@ Status Camera::Open() {
 }
 
 Status Camera::Configure(const CameraSettings& settings) {
-  if (settings.width < 16 || settings.height < 16 || settings.width > 16384 || settings.height > 16384) {
-    return MakeError(ErrorClass::kInvalidArgument, "camera resolution " + std::to_string(settings.width) + "x" +
-                                                       std::to_string(settings.height) + " is out of range 16..16384");
+  if (settings.width < 16 || settings.height < 16 || settings.width > 16384 ||
+      settings.height > 16384) {
+    return MakeError(ErrorClass::kInvalidArgument,
+                     "camera resolution " + std::to_string(settings.width) + "x" +
+                         std::to_string(settings.height) + " is out of range 16..16384");
   }
   if (settings.jpeg_quality < 1 || settings.jpeg_quality > 100) {
     return MakeError(ErrorClass::kInvalidArgument, "jpeg_quality must be 1..100");
   }
   if (settings.manual_exposure && (settings.exposure_us <= 0 || settings.gain <= 0)) {
-    return MakeError(ErrorClass::kInvalidArgument, "manual exposure needs exposure_us > 0 and gain > 0");
+    return MakeError(ErrorClass::kInvalidArgument,
+                     "manual exposure needs exposure_us > 0 and gain > 0");
   }
   {
     std::lock_guard<std::mutex> l(mu_);
@@ -131,7 +139,8 @@ Status Turntable::StartHome() {
 
 Status Turntable::StartMoveTo(double angle_deg) {
   if (!std::isfinite(angle_deg) || std::fabs(angle_deg) > 1e6) {
-    return MakeError(ErrorClass::kInvalidArgument, "turntable target angle is not a finite angle in range");
+    return MakeError(ErrorClass::kInvalidArgument,
+                     "turntable target angle is not a finite angle in range");
   }
   if (!is_open()) return MakeError(ErrorClass::kInvalidState, "turntable is not open");
   Status s = DoStartMoveTo(angle_deg);

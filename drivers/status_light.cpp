@@ -6,11 +6,16 @@ namespace aggscan {
 
 const char* LightPatternName(LightPattern p) {
   switch (p) {
-    case LightPattern::kOff: return "off";
-    case LightPattern::kReady: return "ready";
-    case LightPattern::kCapturing: return "capturing";
-    case LightPattern::kFlip: return "flip";
-    case LightPattern::kFault: return "fault";
+    case LightPattern::kOff:
+      return "off";
+    case LightPattern::kReady:
+      return "ready";
+    case LightPattern::kCapturing:
+      return "capturing";
+    case LightPattern::kFlip:
+      return "flip";
+    case LightPattern::kFault:
+      return "fault";
   }
   return "?";
 }
@@ -18,16 +23,24 @@ const char* LightPatternName(LightPattern p) {
 const std::vector<LightStep>& PatternSteps(LightPattern p) {
   static const std::vector<LightStep> kOff = {{false, kNsPerSec}};
   static const std::vector<LightStep> kReady = {{true, kNsPerSec}};
-  static const std::vector<LightStep> kCapturing = {{true, 500 * kNsPerMs}, {false, 500 * kNsPerMs}};
+  static const std::vector<LightStep> kCapturing = {{true, 500 * kNsPerMs},
+                                                    {false, 500 * kNsPerMs}};
   static const std::vector<LightStep> kFlip = {{true, 150 * kNsPerMs}, {false, 150 * kNsPerMs}};
-  static const std::vector<LightStep> kFault = {
-      {true, 150 * kNsPerMs}, {false, 150 * kNsPerMs}, {true, 150 * kNsPerMs}, {false, 1050 * kNsPerMs}};
+  static const std::vector<LightStep> kFault = {{true, 150 * kNsPerMs},
+                                                {false, 150 * kNsPerMs},
+                                                {true, 150 * kNsPerMs},
+                                                {false, 1050 * kNsPerMs}};
   switch (p) {
-    case LightPattern::kReady: return kReady;
-    case LightPattern::kCapturing: return kCapturing;
-    case LightPattern::kFlip: return kFlip;
-    case LightPattern::kFault: return kFault;
-    case LightPattern::kOff: break;
+    case LightPattern::kReady:
+      return kReady;
+    case LightPattern::kCapturing:
+      return kCapturing;
+    case LightPattern::kFlip:
+      return kFlip;
+    case LightPattern::kFault:
+      return kFault;
+    case LightPattern::kOff:
+      break;
   }
   return kOff;
 }

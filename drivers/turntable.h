@@ -25,7 +25,7 @@ struct TurntableStatus {
   bool alarm = false;
   int alarm_code = 0;
   std::string alarm_text;
-  double angle_deg = 0.0;    // measured (encoder/step count) absolute angle
+  double angle_deg = 0.0;  // measured (encoder/step count) absolute angle
 };
 
 struct TurntableInfo {

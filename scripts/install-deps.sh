@@ -14,6 +14,9 @@ PACKAGES=(
   # fuzzing (scripts/run-fuzzers.sh): clang with libFuzzer's runtime (only
   # recommended by clang, so named here) and llvm-symbolizer for the stacks
   clang-14 libclang-rt-14-dev llvm-14
+  # the C++ format, checked by a test (scripts/check-format.sh: this version
+  # exactly, since another one formats differently), and clang-tidy (.clang-tidy)
+  clang-format-14 clang-tidy-14
   # LLVM's linker: the build links its ~80 programs with it (GNU ld is ~6x slower)
   lld
   # common / config / daemon

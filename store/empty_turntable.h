@@ -1,7 +1,7 @@
 // Photos of the empty turntable: the disc, its labels, the floor and the
 // lights of the place, shot by the rig with nothing on the disc at the
 // angles it shoots rocks at. The masks take them as their background, pixel
-// by pixel (pipeline/mask.h): what differs from the empty disc at the same
+// by pixel (pipeline/masks/mask.h): what differs from the empty disc at the same
 // angle is the rock or its shadow, whatever the disc and floor look like.
 //
 // A set is one captured side of an empty turntable, installed for the rig:

@@ -52,8 +52,9 @@ Status EvdevButton::DoStart() {
   code_ = KeyCode(config_.key);
   if (code_ < 0) {
     return MakeError(ErrorClass::kInvalidConfig,
-                     "'" + config_.key + "' is no key name; set [button.evdev] key to a KEY_* or BTN_* "
-                     "name (evtest shows the device's keys)");
+                     "'" + config_.key +
+                         "' is no key name; set [button.evdev] key to a KEY_* or BTN_* "
+                         "name (evtest shows the device's keys)");
   }
   path_ = ResolveDevice(config_.device);
   fd_ = ::open(path_.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC);
@@ -61,12 +62,16 @@ Status EvdevButton::DoStart() {
     const int err = errno;
     if (err == EACCES || err == EPERM) {
       return MakeError(ErrorClass::kDeviceMissing,
-                       "no permission to read " + path_ + "; add the service user to the input group "
-                       "(or fix the udev rule)", std::strerror(err));
+                       "no permission to read " + path_ +
+                           "; add the service user to the input group "
+                           "(or fix the udev rule)",
+                       std::strerror(err));
     }
     return MakeError(ErrorClass::kDeviceMissing,
-                     "no input device " + path_ + "; check that the pedal is plugged in and "
-                     "[button.evdev] device (ls /dev/input/by-id)", std::strerror(err));
+                     "no input device " + path_ +
+                         "; check that the pedal is plugged in and "
+                         "[button.evdev] device (ls /dev/input/by-id)",
+                     std::strerror(err));
   }
   if (const int rc = libevdev_new_from_fd(fd_, &dev_); rc < 0) {
     CloseDevice();
@@ -86,8 +91,10 @@ Status EvdevButton::DoStart() {
     if (const int rc = libevdev_grab(dev_, LIBEVDEV_GRAB); rc < 0) {
       CloseDevice();
       return MakeError(ErrorClass::kConflict,
-                       "input device " + name_ + " is grabbed by another program; stop it or set "
-                       "[button.evdev] grab = false", std::strerror(-rc));
+                       "input device " + name_ +
+                           " is grabbed by another program; stop it or set "
+                           "[button.evdev] grab = false",
+                       std::strerror(-rc));
     }
   }
   stop_ = false;
@@ -112,7 +119,8 @@ void EvdevButton::Run() {
       if (rc == LIBEVDEV_READ_STATUS_SYNC) {
         // Events were dropped (SYN_DROPPED): resynchronise; a key that went
         // down meanwhile is not taken as a press.
-        while (libevdev_next_event(dev_, LIBEVDEV_READ_FLAG_SYNC, &ev) == LIBEVDEV_READ_STATUS_SYNC) {
+        while (libevdev_next_event(dev_, LIBEVDEV_READ_FLAG_SYNC, &ev) ==
+               LIBEVDEV_READ_STATUS_SYNC) {
         }
       } else if (ev.type == EV_KEY && ev.value == 1) {
         if (ev.code == code_) {
@@ -125,8 +133,9 @@ void EvdevButton::Run() {
     }
     if (rc != -EAGAIN && rc != -EINTR) {
       ReportFault(MakeError(rc == -ENODEV ? ErrorClass::kDisconnected : ErrorClass::kIo,
-                            "input device " + name_ + " went away; check the pedal's cable and "
-                            "[button.evdev] device",
+                            "input device " + name_ +
+                                " went away; check the pedal's cable and "
+                                "[button.evdev] device",
                             std::strerror(-rc)));
       return;
     }

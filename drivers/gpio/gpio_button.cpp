@@ -50,8 +50,9 @@ void GpioButton::Run() {
       if (err == EINTR) continue;
       // ENODEV: the chip went away (an unbound gpio-sim, an unplugged USB GPIO adapter).
       ReportFault(MakeError(ErrorClass::kDisconnected,
-                            "GPIO " + line_->name() + " stopped delivering edges; check the chip "
-                            "and [button.gpio]",
+                            "GPIO " + line_->name() +
+                                " stopped delivering edges; check the chip "
+                                "and [button.gpio]",
                             std::strerror(err)));
       return;
     }

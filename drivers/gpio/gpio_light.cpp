@@ -18,7 +18,8 @@ Status GpioLight::DoOpen() {
 Status GpioLight::DoSet(bool on) {
   if (!line_) return MakeError(ErrorClass::kInvalidState, "GPIO light is not open");
   if (gpiod_line_set_value(line_->line(), on != config_.active_low ? 1 : 0) != 0) {
-    return MakeError(ErrorClass::kDisconnected, "cannot set GPIO " + line_->name() + "; check [light.gpio]",
+    return MakeError(ErrorClass::kDisconnected,
+                     "cannot set GPIO " + line_->name() + "; check [light.gpio]",
                      std::strerror(errno));
   }
   return OkStatus();

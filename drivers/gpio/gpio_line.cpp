@@ -37,8 +37,10 @@ Result<std::unique_ptr<GpioLine>> GpioLine::Open(const GpioLineConfig& config, L
     const int err = errno;
     if (err == EACCES || err == EPERM) {
       return MakeError(ErrorClass::kDeviceMissing,
-                       "GPIO chip '" + config.chip + "' cannot be opened: permission denied; run "
-                       "aggscand in a group that may use /dev/gpiochip* (gpio)", std::strerror(err));
+                       "GPIO chip '" + config.chip +
+                           "' cannot be opened: permission denied; run "
+                           "aggscand in a group that may use /dev/gpiochip* (gpio)",
+                       std::strerror(err));
     }
     return MakeError(ErrorClass::kDeviceMissing,
                      "no GPIO chip '" + config.chip + "' (name, path, number or label); check " +
@@ -59,13 +61,14 @@ Result<std::unique_ptr<GpioLine>> GpioLine::Open(const GpioLineConfig& config, L
   } else {
     g->line_ = gpiod_chip_find_line(g->chip_, config.line.c_str());
     if (!g->line_) {
-      return MakeError(ErrorClass::kDeviceMissing,
-                       "GPIO chip " + chip_desc + " has no line '" + config.line + "'; check " +
-                           section + " line (gpioinfo lists the names)");
+      return MakeError(ErrorClass::kDeviceMissing, "GPIO chip " + chip_desc + " has no line '" +
+                                                       config.line + "'; check " + section +
+                                                       " line (gpioinfo lists the names)");
     }
   }
   if (!g->line_) {
-    return MakeError(ErrorClass::kIo, "cannot read line " + config.line + " of GPIO chip " + chip_desc,
+    return MakeError(ErrorClass::kIo,
+                     "cannot read line " + config.line + " of GPIO chip " + chip_desc,
                      std::strerror(errno));
   }
   const char* line_name = gpiod_line_name(g->line_);
@@ -75,7 +78,8 @@ Result<std::unique_ptr<GpioLine>> GpioLine::Open(const GpioLineConfig& config, L
 
   int rc = 0;
   if (use == LineUse::kBothEdges) {
-    rc = gpiod_line_request_both_edges_events_flags(g->line_, consumer.c_str(), BiasFlag(config.bias));
+    rc = gpiod_line_request_both_edges_events_flags(g->line_, consumer.c_str(),
+                                                    BiasFlag(config.bias));
   } else {
     rc = gpiod_line_request_output(g->line_, consumer.c_str(), config.active_low ? 1 : 0);
   }
@@ -91,11 +95,12 @@ Result<std::unique_ptr<GpioLine>> GpioLine::Open(const GpioLineConfig& config, L
     }
     if (err == EINVAL && BiasFlag(config.bias) != 0) {
       return MakeError(ErrorClass::kInvalidConfig,
-                       "GPIO " + g->name_ + " does not take bias '" + config.bias + "'; set " + section +
-                           " bias = \"as-is\" and fit a resistor",
+                       "GPIO " + g->name_ + " does not take bias '" + config.bias + "'; set " +
+                           section + " bias = \"as-is\" and fit a resistor",
                        std::strerror(err));
     }
-    return MakeError(ErrorClass::kDeviceFault, "cannot request GPIO " + g->name_, std::strerror(err));
+    return MakeError(ErrorClass::kDeviceFault, "cannot request GPIO " + g->name_,
+                     std::strerror(err));
   }
   g->requested_ = true;
   return g;

@@ -80,8 +80,7 @@ Status LibcameraCamera::DoOpen() {
   manager_ = *m;
   std::vector<std::string> ids;
   for (const auto& c : manager_->cameras()) ids.push_back(c->id());
-  Result<std::string> id =
-      PickCamera(ids, config_.libcamera.camera_id, config_.libcamera.index);
+  Result<std::string> id = PickCamera(ids, config_.libcamera.camera_id, config_.libcamera.index);
   if (!id) {
     manager_.reset();
     return id.error();
@@ -175,13 +174,14 @@ Status LibcameraCamera::DoConfigure(const CameraSettings& settings) {
   sc.pixelFormat = *fmt;
   sc.size = libcamera::Size(static_cast<unsigned>(settings.width),
                             static_cast<unsigned>(settings.height));
-  if (config_.libcamera.buffers > 0) sc.bufferCount = static_cast<unsigned>(config_.libcamera.buffers);
+  if (config_.libcamera.buffers > 0)
+    sc.bufferCount = static_cast<unsigned>(config_.libcamera.buffers);
   const libcamera::CameraConfiguration::Status vs = cfg->validate();
   if (vs == libcamera::CameraConfiguration::Invalid) {
     return MakeError(ErrorClass::kInvalidConfig,
                      "camera " + id_ + " refuses " +
-                         SizeText(*fmt, settings.width, settings.height) +
-                         " for a \"" + config_.libcamera.role + "\" stream");
+                         SizeText(*fmt, settings.width, settings.height) + " for a \"" +
+                         config_.libcamera.role + "\" stream");
   }
   if (sc.pixelFormat != *fmt || sc.size.width != static_cast<unsigned>(settings.width) ||
       sc.size.height != static_cast<unsigned>(settings.height)) {
@@ -373,7 +373,7 @@ Status LibcameraCamera::QueueStill(libcamera::Request* request) {
 // requests drain and the pipeline idles; what completed meanwhile is stale.
 Result<FramePtr> LibcameraCamera::Capture(const Job& job) {
   const int64_t deadline = job.requested_mono_ns + config_.libcamera.frame_timeout;
-  std::string unsettled;  // why the last fresh frame was not the still
+  std::string unsettled;   // why the last fresh frame was not the still
   bool cancelled = false;  // the pipeline cancelled a request: queue nothing more
   uint64_t bad = 0;        // frames flagged bad during this still
   for (;;) {
@@ -412,10 +412,9 @@ Result<FramePtr> LibcameraCamera::Capture(const Job& job) {
                                  ": the pipeline cancelled the still's requests — the camera is "
                                  "reconfigured on reset");
           if (!unsettled.empty())
-            return MakeError(ErrorClass::kDeviceFault, "camera " + id_ +
-                                                           " did not apply the locked settings" +
-                                                           within + ": its last frame had " +
-                                                           unsettled);
+            return MakeError(ErrorClass::kDeviceFault,
+                             "camera " + id_ + " did not apply the locked settings" + within +
+                                 ": its last frame had " + unsettled);
           if (bad > 0)
             return MakeError(ErrorClass::kDeviceFault,
                              "camera " + id_ + ": only frames flagged bad (" + std::to_string(bad) +
@@ -426,7 +425,8 @@ Result<FramePtr> LibcameraCamera::Capture(const Job& job) {
         }
         // After a cancellation, look for the vanished node now and then: it
         // goes a moment after the device stops answering.
-        const int64_t slice = cancelled ? std::min<int64_t>(deadline - now, 50'000'000) : deadline - now;
+        const int64_t slice =
+            cancelled ? std::min<int64_t>(deadline - now, 50'000'000) : deadline - now;
         cv_.wait_for(l, std::chrono::nanoseconds(slice));
       }
     }

@@ -34,7 +34,6 @@
 #include <libcamera/framebuffer_allocator.h>
 #include <libcamera/pixel_format.h>
 #include <libcamera/request.h>
-
 #include <sys/types.h>
 
 #include <atomic>
@@ -152,7 +151,7 @@ class LibcameraCamera final : public Camera {
   std::deque<libcamera::Request*> completed_;  // posted by OnRequestCompleted
   std::vector<libcamera::Request*> idle_;      // not queued to the camera
   int in_flight_ = 0;                          // queued, not yet completed
-  StillWorker worker_{mu_, cv_};  // last: stopped before the rest goes
+  StillWorker worker_{mu_, cv_};               // last: stopped before the rest goes
 };
 
 /// The process's CameraManager, started on first use and shared while any

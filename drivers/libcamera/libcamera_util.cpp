@@ -52,10 +52,10 @@ template <typename T>
 Status CheckRange(const libcamera::ControlInfo& ci, double v, const char* what, const char* unit) {
   double lo = 0, hi = 0;
   if (Bounds<T>(ci, &lo, &hi) && (v < lo || v > hi)) {
-    return MakeError(ErrorClass::kInvalidConfig,
-                     std::string(what) + " " + Number(v) + unit +
-                         " is outside the camera's range " + Number(lo) + ".." + Number(hi) +
-                         unit + "; set camera.exposure to a value inside it");
+    return MakeError(ErrorClass::kInvalidConfig, std::string(what) + " " + Number(v) + unit +
+                                                     " is outside the camera's range " +
+                                                     Number(lo) + ".." + Number(hi) + unit +
+                                                     "; set camera.exposure to a value inside it");
   }
   return OkStatus();
 }
@@ -102,8 +102,9 @@ Result<libcamera::PixelFormat> ChoosePixelFormat(const std::vector<libcamera::Pi
       if (has(k.format)) return k.format;
     return MakeError(ErrorClass::kInvalidConfig,
                      "the camera offers no pixel format this backend can encode (it offers " +
-                         list + "); use a stream role with a YUV or RGB format "
-                                "(camera.libcamera.role)");
+                         list +
+                         "); use a stream role with a YUV or RGB format "
+                         "(camera.libcamera.role)");
   }
   std::optional<libcamera::PixelFormat> f = FormatFromName(wanted);
   if (!f)
@@ -111,8 +112,9 @@ Result<libcamera::PixelFormat> ChoosePixelFormat(const std::vector<libcamera::Pi
                      "camera.libcamera.pixel_format \"" + wanted + "\" is not known");
   if (!has(*f))
     return MakeError(ErrorClass::kInvalidConfig,
-                     "the camera does not offer " + f->toString() + " for this stream role; it offers " +
-                         list + ": set camera.libcamera.pixel_format to one of them or \"auto\"");
+                     "the camera does not offer " + f->toString() +
+                         " for this stream role; it offers " + list +
+                         ": set camera.libcamera.pixel_format to one of them or \"auto\"");
   return *f;
 }
 
@@ -201,8 +203,9 @@ Result<std::string> PickCamera(const std::vector<std::string>& ids, const std::s
   }
   std::string found;
   for (const auto& id : ids) found += (found.empty() ? "\"" : ", \"") + id + "\"";
-  const std::string what = wanted_id.empty() ? "no libcamera camera at index " + std::to_string(index)
-                                             : "no libcamera camera \"" + wanted_id + "\"";
+  const std::string what = wanted_id.empty()
+                               ? "no libcamera camera at index " + std::to_string(index)
+                               : "no libcamera camera \"" + wanted_id + "\"";
   return MakeError(ErrorClass::kDeviceMissing,
                    what + "; cameras found: " + (found.empty() ? "none" : found) +
                        " — check the cable, `cam -l`, and camera.libcamera.camera_id / index");

@@ -26,8 +26,8 @@ LinkSettings FromTurntable(const Config& c, const char* section) {
 
 std::string LinkSettings::Describe() const {
   if (tcp) return "unit " + std::to_string(unit_id) + " at " + host + ":" + std::to_string(port);
-  return "unit " + std::to_string(unit_id) + " on " + device + " at " + std::to_string(baud) + " 8" +
-         parity + "1";
+  return "unit " + std::to_string(unit_id) + " on " + device + " at " + std::to_string(baud) +
+         " 8" + parity + "1";
 }
 
 bool LinkSettings::SameLink(const LinkSettings& o) const {
@@ -110,13 +110,14 @@ Error BitLink::Classify(int err, const std::string& what) {
   modbus_close(ctx_);
   connected_ = false;
   if (err == ETIMEDOUT) {
-    return MakeError(ErrorClass::kTimeout,
-                     "no answer from Modbus " + s_.Describe() + "; check the controller and " + s_.section,
-                     detail);
+    return MakeError(
+        ErrorClass::kTimeout,
+        "no answer from Modbus " + s_.Describe() + "; check the controller and " + s_.section,
+        detail);
   }
   return MakeError(ErrorClass::kDisconnected,
-                   "lost the link to Modbus " + s_.Describe() + "; check the cable and " + s_.section +
-                       " (it is reopened on the next request)",
+                   "lost the link to Modbus " + s_.Describe() + "; check the cable and " +
+                       s_.section + " (it is reopened on the next request)",
                    detail);
 }
 
@@ -180,7 +181,8 @@ void ModbusButton::Run(bool last) {
   constexpr int kFailuresForFault = 3;  // a lone lost reply on a noisy line is no fault
   int failures = 0;
   std::unique_lock<std::mutex> l(mu_);
-  while (!cv_.wait_for(l, std::chrono::nanoseconds(config_.poll_interval), [this] { return stop_; })) {
+  while (
+      !cv_.wait_for(l, std::chrono::nanoseconds(config_.poll_interval), [this] { return stop_; })) {
     l.unlock();
     Result<bool> bit = link_->ReadBit(config_.input == "discrete", config_.address);
     if (bit) {
@@ -198,7 +200,8 @@ void ModbusButton::Run(bool last) {
 }
 
 std::string ModbusLight::Describe() const {
-  return "Modbus light, coil " + std::to_string(config_.coil) + " of " + link_->settings().Describe();
+  return "Modbus light, coil " + std::to_string(config_.coil) + " of " +
+         link_->settings().Describe();
 }
 
 }  // namespace aggscan::modbus

@@ -299,8 +299,8 @@ Status ModbusTurntable::Transact(const std::string& what, F&& request,
       Result<bool> again = resend();
       if (!again) return again.error();
       if (!*again) {
-        AGG_LOGI(kLog, "%s: %s, but the controller's state shows it was carried out",
-                 what.c_str(), modbus_strerror(err));
+        AGG_LOGI(kLog, "%s: %s, but the controller's state shows it was carried out", what.c_str(),
+                 modbus_strerror(err));
         return OkStatus();
       }
       AGG_LOGI(kLog, "%s: %s and not carried out (try %d of %d)", what.c_str(),
@@ -517,7 +517,8 @@ Status ModbusTurntable::DoStartHome() {
   Result<Raw> raw = ReadRaw();
   if (!raw) return raw.error();
   if (raw->alarm && profile_.reset_alarm.address >= 0) {
-    Status s = WriteCommand(profile_.reset_alarm, "reset alarm", [](const Raw& r) { return !r.alarm; });
+    Status s =
+        WriteCommand(profile_.reset_alarm, "reset alarm", [](const Raw& r) { return !r.alarm; });
     if (!s) return s;
   }
   Status s = WriteCommand(profile_.home, "home", [&](const Raw& r) {

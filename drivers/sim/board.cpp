@@ -68,7 +68,9 @@ Result<GrayImage> ReadPgm(const std::string& path) {
   img.pixels.assign(s.begin() + static_cast<std::ptrdiff_t>(pos),
                     s.begin() + static_cast<std::ptrdiff_t>(pos + n));
   if (maxval != 255) {
-    for (auto& p : img.pixels) p = static_cast<uint8_t>(std::lround(std::min(p, static_cast<uint8_t>(maxval)) * 255.0 / maxval));
+    for (auto& p : img.pixels)
+      p = static_cast<uint8_t>(
+          std::lround(std::min(p, static_cast<uint8_t>(maxval)) * 255.0 / maxval));
   }
   return img;
 }
@@ -112,9 +114,10 @@ Result<std::vector<SimArucoMarker>> LoadSimArucoMarkers(const Config& config) {
   if (rig.aruco_markers.empty()) return out;
   const std::string& path = config.sim.aruco_image;
   if (path.empty()) {
-    return MakeError(ErrorClass::kInvalidConfig,
-                     "rig.aruco_markers needs sim.aruco_image for the sim camera to draw them; "
-                     "write one with `aggscan calibrate aruco --out FILE.pgm` from the same config");
+    return MakeError(
+        ErrorClass::kInvalidConfig,
+        "rig.aruco_markers needs sim.aruco_image for the sim camera to draw them; "
+        "write one with `aggscan calibrate aruco --out FILE.pgm` from the same config");
   }
   Result<GrayImage> img = ReadPgm(path);
   if (!img) {
@@ -137,7 +140,8 @@ Result<std::vector<SimArucoMarker>> LoadSimArucoMarkers(const Config& config) {
     s.image.height = side;
     s.image.pixels.resize(static_cast<size_t>(side) * side);
     for (int r = 0; r < side; ++r) {
-      const auto* row = &img->pixels[static_cast<size_t>(r) * img->width + static_cast<size_t>(k) * side];
+      const auto* row =
+          &img->pixels[static_cast<size_t>(r) * img->width + static_cast<size_t>(k) * side];
       std::copy(row, row + side, &s.image.pixels[static_cast<size_t>(r) * side]);
     }
     s.size_mm = rig.aruco_size_mm;

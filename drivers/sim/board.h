@@ -34,8 +34,8 @@ struct GrayImage {
 Result<GrayImage> ReadPgm(const std::string& path);
 
 struct SimBoard {
-  GrayImage image;                      // the squares area, no margin
-  double width_mm = 0, height_mm = 0;   // squares_x * square_mm, squares_y * square_mm
+  GrayImage image;                         // the squares area, no margin
+  double width_mm = 0, height_mm = 0;      // squares_x * square_mm, squares_y * square_mm
   double x_mm = 0, y_mm = 0, yaw_deg = 0;  // pose on the disc (turntable frame)
 };
 
@@ -48,7 +48,7 @@ Result<SimBoard> LoadSimBoard(const Config& config);
 /// square (the marker image, x along its columns, y towards its top row) on a
 /// white paper square kArucoPaperMarginFrac * size_mm wider on every side.
 struct SimArucoMarker {
-  GrayImage image;   // the black square only, no margin
+  GrayImage image;  // the black square only, no margin
   double size_mm = 0;
   double x_mm = 0, y_mm = 0, yaw_deg = 0;  // pose on the disc (turntable frame)
 };

@@ -117,9 +117,9 @@ struct Label {
 // square (marker and white margin), prefiltered, and its pose on the platter.
 struct ArucoPaper {
   std::vector<float> tex;
-  int tw = 0;                     // texture side, texels
+  int tw = 0;                         // texture side, texels
   double x = 0, y = 0, c = 1, s = 0;  // centre (turntable frame, mm), cos/sin of the yaw
-  double half = 0;                // half side of the paper, mm
+  double half = 0;                    // half side of the paper, mm
   double tex_per_mm = 0;
 };
 
@@ -142,7 +142,8 @@ void BlurTexture(std::vector<float>* tex, int W, int H, double sigma) {
   const int r = static_cast<int>(std::ceil(3 * sigma));
   std::vector<float> w(2 * r + 1);
   float sum = 0;
-  for (int k = -r; k <= r; ++k) sum += w[k + r] = std::exp(-0.5f * k * k / static_cast<float>(sigma * sigma));
+  for (int k = -r; k <= r; ++k)
+    sum += w[k + r] = std::exp(-0.5f * k * k / static_cast<float>(sigma * sigma));
   for (float& x : w) x /= sum;
   std::vector<float> tmp(tex->size());
   for (int y = 0; y < H; ++y) {
@@ -158,7 +159,8 @@ void BlurTexture(std::vector<float>* tex, int W, int H, double sigma) {
     float* dst = &(*tex)[static_cast<size_t>(y) * W];
     for (int x = 0; x < W; ++x) {
       float acc = 0;
-      for (int k = -r; k <= r; ++k) acc += w[k + r] * tmp[static_cast<size_t>(std::clamp(y + k, 0, H - 1)) * W + x];
+      for (int k = -r; k <= r; ++k)
+        acc += w[k + r] * tmp[static_cast<size_t>(std::clamp(y + k, 0, H - 1)) * W + x];
       dst[x] = acc;
     }
   }
@@ -503,13 +505,15 @@ void Renderer::BuildArucoTexture(const SimArucoMarker& a) {
   for (int r = 0; r < side; ++r) {
     for (int c = 0; c < side; ++c) {
       p.tex[static_cast<size_t>(r + margin) * p.tw + c + margin] =
-          kInkAlbedo + (kPaperAlbedo - kInkAlbedo) * (a.image.pixels[static_cast<size_t>(r) * side + c] / 255.0f);
+          kInkAlbedo + (kPaperAlbedo - kInkAlbedo) *
+                           (a.image.pixels[static_cast<size_t>(r) * side + c] / 255.0f);
     }
   }
   // The lens and sensor blur: half a pixel's footprint on the disc, which is
   // longer along the viewing direction by 1 / sin(elevation).
   const double mm_per_px = Norm(m.cam_to_world.t) / intr_.fx;
-  const double elev = std::clamp(world_.config().sim.camera_elevation_deg, 10.0, 90.0) * M_PI / 180.0;
+  const double elev =
+      std::clamp(world_.config().sim.camera_elevation_deg, 10.0, 90.0) * M_PI / 180.0;
   BlurTexture(&p.tex, p.tw, p.tw, 0.5 * mm_per_px / std::sin(elev) * p.tex_per_mm);
   m.aruco.push_back(std::move(p));
 }
@@ -734,7 +738,8 @@ void Renderer::RenderInto(int side, double platter_deg, const RenderOptions& opt
   }
   for (const ArucoPaper& a : m.aruco) {
     std::array<Vec3, 4> q;
-    const double cx[4] = {-a.half, a.half, a.half, -a.half}, cy[4] = {-a.half, -a.half, a.half, a.half};
+    const double cx[4] = {-a.half, a.half, a.half, -a.half},
+                 cy[4] = {-a.half, -a.half, a.half, a.half};
     for (int i = 0; i < 4; ++i) {
       q[i] = platter.Apply({a.x + a.c * cx[i] - a.s * cy[i], a.y + a.s * cx[i] + a.c * cy[i], 0});
     }

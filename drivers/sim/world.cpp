@@ -180,9 +180,9 @@ std::vector<HullTri> ConvexHull(const std::vector<Vec3>& pts) {
 // within a tolerance of one face plane (a sawn or chipped face of a rock, a
 // cube side split into two triangles).
 struct HullFacet {
-  Vec3 n;                 // outward unit normal of the facet's largest triangle
-  double d;               // its plane offset; every hull point has n . p <= d
-  std::vector<int> verts; // indices into the points, unordered, without repeats
+  Vec3 n;                  // outward unit normal of the facet's largest triangle
+  double d;                // its plane offset; every hull point has n . p <= d
+  std::vector<int> verts;  // indices into the points, unordered, without repeats
 };
 
 // Merges the hull triangles into facets: grown over shared edges from the
@@ -635,7 +635,7 @@ void SimWorld::ComputePoses() {
   for (const HullFacet& f : MergeCoplanar(hull, pts, kContactTolMm)) {
     const double h = f.d - Dot(f.n, com_);
     if (!(h > 0) || Norm(f.n) < 0.5) continue;  // not below the COM, or a degenerate sliver
-    const Vec3 q = com_ + f.n * h;  // COM projected onto the face plane
+    const Vec3 q = com_ + f.n * h;              // COM projected onto the face plane
     corners.clear();
     for (int v : f.verts) corners.push_back(pts[v]);
     const double margin = SupportMargin(q, corners, f.n);

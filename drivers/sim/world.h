@@ -1,8 +1,8 @@
 // The simulated world shared by the sim camera and the sim turntable: the rock
 // (procedural from a seed, or a mesh file), its painted object markers, its
 // stable rest poses per side, the turntable with its four colour labels (and
-// the ArUco scale markers when configured), the white table, the light and the camera. Everything the renderer draws and
-// everything a test needs as ground truth lives here; nothing here changes
+// the ArUco scale markers when configured), the white table, the light and the camera. Everything
+// the renderer draws and everything a test needs as ground truth lives here; nothing here changes
 // after construction, so one world is shared read-only between threads.
 //
 // Frames (all right-handed, millimetres):

@@ -12,16 +12,26 @@ const char* ProductName(uint16_t product_id) {
 
 std::optional<uint8_t> StepModeCode(int microsteps) {
   switch (microsteps) {
-    case 1: return 0;
-    case 2: return 1;
-    case 4: return 2;
-    case 8: return 3;
-    case 16: return 4;
-    case 32: return 5;
-    case 64: return 7;
-    case 128: return 8;
-    case 256: return 9;
-    default: return std::nullopt;
+    case 1:
+      return 0;
+    case 2:
+      return 1;
+    case 4:
+      return 2;
+    case 8:
+      return 3;
+    case 16:
+      return 4;
+    case 32:
+      return 5;
+    case 64:
+      return 7;
+    case 128:
+      return 8;
+    case 256:
+      return 9;
+    default:
+      return std::nullopt;
   }
 }
 
@@ -29,8 +39,8 @@ namespace {
 
 // A platter rate (per degree) in the Tic's units, or kInvalidConfig naming
 // the config key when it is outside [lo, hi].
-Result<uint32_t> TicUnits(double per_deg, double steps_per_rev, double units_per_step,
-                          double lo, double hi, const char* key, const char* range) {
+Result<uint32_t> TicUnits(double per_deg, double steps_per_rev, double units_per_step, double lo,
+                          double hi, const char* key, const char* range) {
   const double v = std::round(per_deg * steps_per_rev / 360.0 * units_per_step);
   if (!(v >= lo && v <= hi)) {
     return MakeError(ErrorClass::kInvalidConfig,
@@ -56,16 +66,20 @@ Result<uint32_t> AccelUnits(double deg_per_s2, double steps_per_rev) {
 
 Result<Variables> ParseVariables(std::span<const uint8_t> b) {
   if (b.size() < static_cast<size_t>(kStatusBlockSize)) {
-    return MakeError(ErrorClass::kDeviceFault,
-                     "the Tic answered the variable read with " + std::to_string(b.size()) +
-                         " bytes, expected " + std::to_string(kStatusBlockSize) +
-                         " — is this a Tic with current firmware?");
+    return MakeError(ErrorClass::kDeviceFault, "the Tic answered the variable read with " +
+                                                   std::to_string(b.size()) + " bytes, expected " +
+                                                   std::to_string(kStatusBlockSize) +
+                                                   " — is this a Tic with current firmware?");
   }
   Variables v;
   v.operation_state = b[kVarOperationState];
   switch (v.operation_state) {
-    case kStateReset: case kStateDeenergized: case kStateSoftError:
-    case kStateWaitingForErrLine: case kStateStartingUp: case kStateNormal:
+    case kStateReset:
+    case kStateDeenergized:
+    case kStateSoftError:
+    case kStateWaitingForErrLine:
+    case kStateStartingUp:
+    case kStateNormal:
       break;
     default:
       return MakeError(ErrorClass::kDeviceFault,
@@ -86,10 +100,15 @@ Result<Variables> ParseVariables(std::span<const uint8_t> b) {
 }
 
 std::string ErrorStatusText(uint16_t error_status) {
-  static const char* const kNames[] = {
-      "intentionally de-energized", "motor driver error", "low VIN",
-      "kill switch active",         "required input invalid", "serial error",
-      "command timeout",            "safe start violation",   "ERR line high"};
+  static const char* const kNames[] = {"intentionally de-energized",
+                                       "motor driver error",
+                                       "low VIN",
+                                       "kill switch active",
+                                       "required input invalid",
+                                       "serial error",
+                                       "command timeout",
+                                       "safe start violation",
+                                       "ERR line high"};
   std::string s;
   for (int bit = 0; bit < 16; ++bit) {
     if (!((error_status >> bit) & 1u)) continue;
@@ -102,13 +121,20 @@ std::string ErrorStatusText(uint16_t error_status) {
 
 const char* OperationStateName(uint8_t state) {
   switch (state) {
-    case kStateReset: return "reset";
-    case kStateDeenergized: return "de-energized";
-    case kStateSoftError: return "soft error";
-    case kStateWaitingForErrLine: return "waiting for ERR line";
-    case kStateStartingUp: return "starting up";
-    case kStateNormal: return "normal";
-    default: return "unknown";
+    case kStateReset:
+      return "reset";
+    case kStateDeenergized:
+      return "de-energized";
+    case kStateSoftError:
+      return "soft error";
+    case kStateWaitingForErrLine:
+      return "waiting for ERR line";
+    case kStateStartingUp:
+      return "starting up";
+    case kStateNormal:
+      return "normal";
+    default:
+      return "unknown";
   }
 }
 

@@ -25,8 +25,8 @@ struct Product {
   const char* name;
 };
 inline constexpr Product kProducts[] = {
-    {0x00B3, "Tic T825"}, {0x00B5, "Tic T834"},  {0x00BD, "Tic T500"},
-    {0x00C3, "Tic N825"}, {0x00C9, "Tic T249"},  {0x00CB, "Tic 36v4"},
+    {0x00B3, "Tic T825"}, {0x00B5, "Tic T834"}, {0x00BD, "Tic T500"},
+    {0x00C3, "Tic N825"}, {0x00C9, "Tic T249"}, {0x00CB, "Tic 36v4"},
 };
 /// The model name for a product ID, or nullptr when it is not a Tic.
 const char* ProductName(uint16_t product_id);
@@ -46,40 +46,41 @@ inline constexpr int kMaxBlockRead = 128;
 
 // Section 8 "Command reference": command bytes (bRequest on USB).
 enum Command : uint8_t {
-  kCmdSetTargetPosition = 0xE0,   // 32-bit write, microsteps
-  kCmdSetTargetVelocity = 0xE3,   // 32-bit write, microsteps / 10000 s
-  kCmdHaltAndSetPosition = 0xEC,  // 32-bit write: abrupt stop, position := value, clears "uncertain"
-  kCmdHaltAndHold = 0x89,         // quick: abrupt stop, sets "position uncertain"
-  kCmdGoHome = 0x97,              // 7-bit write: 0 = reverse, 1 = forward
-  kCmdResetCommandTimeout = 0x8C, // quick
-  kCmdDeenergize = 0x86,          // quick
-  kCmdEnergize = 0x85,            // quick
-  kCmdExitSafeStart = 0x83,       // quick
-  kCmdEnterSafeStart = 0x8F,      // quick
-  kCmdReset = 0xB0,               // quick: forget the current state (as after power-up)
-  kCmdClearDriverError = 0x8A,    // quick
-  kCmdSetMaxSpeed = 0xE6,         // 32-bit write, microsteps / 10000 s
-  kCmdSetStartingSpeed = 0xE5,    // 32-bit write, microsteps / 10000 s
-  kCmdSetMaxAccel = 0xEA,         // 32-bit write, microsteps / 100 s^2
-  kCmdSetMaxDecel = 0xE9,         // 32-bit write, microsteps / 100 s^2
-  kCmdSetStepMode = 0x94,         // 7-bit write
-  kCmdGetVariable = 0xA1,         // block read of the variables
+  kCmdSetTargetPosition = 0xE0,  // 32-bit write, microsteps
+  kCmdSetTargetVelocity = 0xE3,  // 32-bit write, microsteps / 10000 s
+  kCmdHaltAndSetPosition =
+      0xEC,                // 32-bit write: abrupt stop, position := value, clears "uncertain"
+  kCmdHaltAndHold = 0x89,  // quick: abrupt stop, sets "position uncertain"
+  kCmdGoHome = 0x97,       // 7-bit write: 0 = reverse, 1 = forward
+  kCmdResetCommandTimeout = 0x8C,  // quick
+  kCmdDeenergize = 0x86,           // quick
+  kCmdEnergize = 0x85,             // quick
+  kCmdExitSafeStart = 0x83,        // quick
+  kCmdEnterSafeStart = 0x8F,       // quick
+  kCmdReset = 0xB0,                // quick: forget the current state (as after power-up)
+  kCmdClearDriverError = 0x8A,     // quick
+  kCmdSetMaxSpeed = 0xE6,          // 32-bit write, microsteps / 10000 s
+  kCmdSetStartingSpeed = 0xE5,     // 32-bit write, microsteps / 10000 s
+  kCmdSetMaxAccel = 0xEA,          // 32-bit write, microsteps / 100 s^2
+  kCmdSetMaxDecel = 0xE9,          // 32-bit write, microsteps / 100 s^2
+  kCmdSetStepMode = 0x94,          // 7-bit write
+  kCmdGetVariable = 0xA1,          // block read of the variables
 };
 
 // Section 7 "Variable reference": offsets in the variable block (little-endian).
-inline constexpr int kVarOperationState = 0x00;  // u8
-inline constexpr int kVarMiscFlags1 = 0x01;      // u8
-inline constexpr int kVarErrorStatus = 0x02;     // u16: errors stopping the motor now
-inline constexpr int kVarErrorsOccurred = 0x04;  // u32
-inline constexpr int kVarPlanningMode = 0x09;    // u8: 0 off, 1 target position, 2 target velocity
-inline constexpr int kVarTargetPosition = 0x0A;  // i32, microsteps
-inline constexpr int kVarTargetVelocity = 0x0E;  // i32
-inline constexpr int kVarStartingSpeed = 0x12;   // u32
-inline constexpr int kVarMaxSpeed = 0x16;        // u32, microsteps / 10000 s
-inline constexpr int kVarMaxDecel = 0x1A;        // u32, microsteps / 100 s^2
-inline constexpr int kVarMaxAccel = 0x1E;        // u32, microsteps / 100 s^2
-inline constexpr int kVarCurrentPosition = 0x22; // i32, microsteps
-inline constexpr int kVarCurrentVelocity = 0x26; // i32, microsteps / 10000 s
+inline constexpr int kVarOperationState = 0x00;   // u8
+inline constexpr int kVarMiscFlags1 = 0x01;       // u8
+inline constexpr int kVarErrorStatus = 0x02;      // u16: errors stopping the motor now
+inline constexpr int kVarErrorsOccurred = 0x04;   // u32
+inline constexpr int kVarPlanningMode = 0x09;     // u8: 0 off, 1 target position, 2 target velocity
+inline constexpr int kVarTargetPosition = 0x0A;   // i32, microsteps
+inline constexpr int kVarTargetVelocity = 0x0E;   // i32
+inline constexpr int kVarStartingSpeed = 0x12;    // u32
+inline constexpr int kVarMaxSpeed = 0x16;         // u32, microsteps / 10000 s
+inline constexpr int kVarMaxDecel = 0x1A;         // u32, microsteps / 100 s^2
+inline constexpr int kVarMaxAccel = 0x1E;         // u32, microsteps / 100 s^2
+inline constexpr int kVarCurrentPosition = 0x22;  // i32, microsteps
+inline constexpr int kVarCurrentVelocity = 0x26;  // i32, microsteps / 10000 s
 /// The backend reads offsets 0x00 up to (not including) this in one request:
 /// everything through the current velocity.
 inline constexpr int kStatusBlockSize = 0x2A;

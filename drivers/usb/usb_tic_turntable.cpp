@@ -28,9 +28,7 @@ constexpr uint16_t kClearedByPrepare = (1u << tic::kErrIntentionallyDeenergized)
                                        (1u << tic::kErrCommandTimeout) |
                                        (1u << tic::kErrSafeStartViolation);
 
-unsigned TimeoutMs(TimeNs t) {
-  return static_cast<unsigned>(std::max<TimeNs>(1, t / kNsPerMs));
-}
+unsigned TimeoutMs(TimeNs t) { return static_cast<unsigned>(std::max<TimeNs>(1, t / kNsPerMs)); }
 
 }  // namespace
 
@@ -77,9 +75,11 @@ TurntableInfo UsbTicTurntable::Info() const {
   TurntableInfo info;
   info.backend = "usb-tic";
   const std::string serial = serial_.empty() ? usb_.serial_number : serial_;
-  info.id = "usb:" + Hex4(usb_.vendor_id) + ":" + Hex4(product_id_ ? product_id_ : usb_.product_id) +
+  info.id = "usb:" + Hex4(usb_.vendor_id) + ":" +
+            Hex4(product_id_ ? product_id_ : usb_.product_id) +
             (serial.empty() ? std::string() : "/" + serial);
-  const char* name = tic::ProductName(product_id_ ? product_id_ : static_cast<uint16_t>(usb_.product_id));
+  const char* name =
+      tic::ProductName(product_id_ ? product_id_ : static_cast<uint16_t>(usb_.product_id));
   info.model = name ? name : "Pololu Tic";
   return info;
 }
@@ -126,10 +126,10 @@ Status UsbTicTurntable::Connect() {
                        libusb_strerror(rc));
     }
     if (libusb_has_capability(LIBUSB_CAP_HAS_HOTPLUG)) {
-      libusb_hotplug_register_callback(
-          ctx_, LIBUSB_HOTPLUG_EVENT_DEVICE_LEFT,
-          LIBUSB_HOTPLUG_NO_FLAGS, usb_.vendor_id, LIBUSB_HOTPLUG_MATCH_ANY,
-          LIBUSB_HOTPLUG_MATCH_ANY, &HotplugBridge::Callback, this, &hotplug_);
+      libusb_hotplug_register_callback(ctx_, LIBUSB_HOTPLUG_EVENT_DEVICE_LEFT,
+                                       LIBUSB_HOTPLUG_NO_FLAGS, usb_.vendor_id,
+                                       LIBUSB_HOTPLUG_MATCH_ANY, LIBUSB_HOTPLUG_MATCH_ANY,
+                                       &HotplugBridge::Callback, this, &hotplug_);
     }
   }
   libusb_device** list = nullptr;
@@ -154,8 +154,8 @@ Status UsbTicTurntable::Connect() {
                         : (usb_.vendor_id == tic::kVendorId && !tic::ProductName(d.idProduct))) {
       continue;
     }
-    const std::string where = "bus " + std::to_string(libusb_get_bus_number(list[i])) +
-                              " device " + std::to_string(libusb_get_device_address(list[i]));
+    const std::string where = "bus " + std::to_string(libusb_get_bus_number(list[i])) + " device " +
+                              std::to_string(libusb_get_device_address(list[i]));
     libusb_device_handle* h = nullptr;
     const int rc = libusb_open(list[i], &h);
     if (rc == LIBUSB_ERROR_ACCESS) {
@@ -197,7 +197,9 @@ Status UsbTicTurntable::Connect() {
     return MakeError(ErrorClass::kDeviceMissing,
                      SelectionDescription() +
                          " not found — check the USB cable and that the Tic is powered; `lsusb "
-                         "-d " + Hex4(usb_.vendor_id) + ":` should list it (check "
+                         "-d " +
+                         Hex4(usb_.vendor_id) +
+                         ":` should list it (check "
                          "turntable.usb.serial_number / vendor_id / product_id)");
   }
   libusb_device_handle* h = found[0].handle;
@@ -283,10 +285,9 @@ Status UsbTicTurntable::Command(uint8_t cmd, uint32_t value, const std::string& 
   if (!s) return s;
   // Section 11 of the Tic user's guide: 32-bit data split into wValue (low
   // half) and wIndex (high half); quick and 7-bit commands use wValue only.
-  const int rc = libusb_control_transfer(handle_, tic::kRequestTypeOut, cmd,
-                                         static_cast<uint16_t>(value & 0xFFFFu),
-                                         static_cast<uint16_t>(value >> 16), nullptr, 0,
-                                         TimeoutMs(usb_.timeout));
+  const int rc = libusb_control_transfer(
+      handle_, tic::kRequestTypeOut, cmd, static_cast<uint16_t>(value & 0xFFFFu),
+      static_cast<uint16_t>(value >> 16), nullptr, 0, TimeoutMs(usb_.timeout));
   if (rc < 0) return TransferError(rc, what);
   return OkStatus();
 }
@@ -295,9 +296,9 @@ Result<tic::Variables> UsbTicTurntable::ReadVariables() {
   Status s = EnsureConnected();
   if (!s) return s.error();
   std::array<uint8_t, tic::kStatusBlockSize> buf{};
-  const int rc = libusb_control_transfer(handle_, tic::kRequestTypeIn, tic::kCmdGetVariable, 0, 0,
-                                         buf.data(), static_cast<uint16_t>(buf.size()),
-                                         TimeoutMs(usb_.timeout));
+  const int rc =
+      libusb_control_transfer(handle_, tic::kRequestTypeIn, tic::kCmdGetVariable, 0, 0, buf.data(),
+                              static_cast<uint16_t>(buf.size()), TimeoutMs(usb_.timeout));
   if (rc < 0) return TransferError(rc, "reading its variables");
   return tic::ParseVariables(std::span<const uint8_t>(buf.data(), static_cast<size_t>(rc)));
 }
@@ -315,12 +316,11 @@ Status UsbTicTurntable::SetUp() {
                          " is not a Tic step mode (1, 2, 4, 8, 16, 32; 36v4 also 64, 128, 256)");
   }
   if (*mode > 5 && product_id_ != 0x00CB) {
-    return MakeError(ErrorClass::kInvalidConfig,
-                     "turntable.usb.microsteps " + std::to_string(usb_.microsteps) +
-                         " needs a Tic 36v4; this " +
-                         std::string(tic::ProductName(product_id_) ? tic::ProductName(product_id_)
-                                                                   : "Tic") +
-                         " goes to 32");
+    return MakeError(
+        ErrorClass::kInvalidConfig,
+        "turntable.usb.microsteps " + std::to_string(usb_.microsteps) + " needs a Tic 36v4; this " +
+            std::string(tic::ProductName(product_id_) ? tic::ProductName(product_id_) : "Tic") +
+            " goes to 32");
   }
   struct Step {
     uint8_t cmd;
@@ -334,10 +334,9 @@ Status UsbTicTurntable::SetUp() {
       {tic::kCmdSetMaxDecel, *accel, "setting the max deceleration"},
   };
   for (const Step& st : steps) {
-    const int rc = libusb_control_transfer(handle_, tic::kRequestTypeOut, st.cmd,
-                                           static_cast<uint16_t>(st.value & 0xFFFFu),
-                                           static_cast<uint16_t>(st.value >> 16), nullptr, 0,
-                                           TimeoutMs(usb_.timeout));
+    const int rc = libusb_control_transfer(
+        handle_, tic::kRequestTypeOut, st.cmd, static_cast<uint16_t>(st.value & 0xFFFFu),
+        static_cast<uint16_t>(st.value >> 16), nullptr, 0, TimeoutMs(usb_.timeout));
     if (rc < 0) return TransferError(rc, st.what);
   }
   return OkStatus();
@@ -488,8 +487,8 @@ Result<TurntableStatus> UsbTicTurntable::DoReadStatus() {
   // cannot go on because of them.
   const bool in_motion_phase =
       phase_ == Phase::kHoming || phase_ == Phase::kOvershoot || phase_ == Phase::kMoving;
-  const uint16_t alarm = in_motion_phase && !st.moving ? v.error_status
-                                                       : v.error_status & ~kClearedByPrepare;
+  const uint16_t alarm =
+      in_motion_phase && !st.moving ? v.error_status : v.error_status & ~kClearedByPrepare;
   st.alarm = alarm != 0;
   st.alarm_code = alarm;
   if (st.alarm) {

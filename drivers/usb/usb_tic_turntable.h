@@ -97,11 +97,11 @@ class UsbTicTurntable final : public Turntable {
   mutable std::mutex mu_;  // guards everything below (one transfer at a time)
   libusb_context* ctx_ = nullptr;
   libusb_device_handle* handle_ = nullptr;
-  int hotplug_ = 0;                  // libusb hotplug callback handle, 0 = none
+  int hotplug_ = 0;                    // libusb hotplug callback handle, 0 = none
   std::atomic<bool> departed_{false};  // set from the hotplug callback
-  uint16_t product_id_ = 0;          // of the opened device
-  std::string serial_;               // of the opened device
-  bool lost_ = false;                // the device went away while open
+  uint16_t product_id_ = 0;            // of the opened device
+  std::string serial_;                 // of the opened device
+  bool lost_ = false;                  // the device went away while open
   int hotplug_departures_ = 0;
   Phase phase_ = Phase::kNone;
   bool homed_ = false;

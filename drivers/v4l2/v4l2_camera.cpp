@@ -475,10 +475,9 @@ Result<FramePtr> V4l2Camera::Capture(const Job& job) {
 Result<FramePtr> V4l2Camera::MakeFrame(const Job& job, const uint8_t* data, size_t bytes,
                                        int64_t ts_mono_ns, uint64_t sequence) {
   // MJPEG: the camera's own JPEG is the still, no decode and no second compression.
-  Result<std::shared_ptr<Frame>> made =
-      EncodeStillFrame(path_, neg_.fourcc, std::span<const uint8_t>(data, bytes), neg_.width,
-                       neg_.height, neg_.bytes_per_line, active_.jpeg_quality,
-                       job.req.request_id, sequence);
+  Result<std::shared_ptr<Frame>> made = EncodeStillFrame(
+      path_, neg_.fourcc, std::span<const uint8_t>(data, bytes), neg_.width, neg_.height,
+      neg_.bytes_per_line, active_.jpeg_quality, job.req.request_id, sequence);
   if (!made) return made.error();
   std::shared_ptr<Frame> frame = std::move(*made);
   StampExposure(frame.get(), clock_, ts_mono_ns);

@@ -133,7 +133,8 @@ Result<std::shared_ptr<Frame>> EncodeStillFrame(const std::string& who, uint32_t
                                                 std::span<const uint8_t> data, int width,
                                                 int height, int stride, int quality,
                                                 uint64_t request_id, uint64_t sequence) {
-  Result<std::vector<unsigned char>> still = EncodeStill(fourcc, data, width, height, stride, quality);
+  Result<std::vector<unsigned char>> still =
+      EncodeStill(fourcc, data, width, height, stride, quality);
   if (!still) {
     Error e = still.error();
     e.message = "camera " + who + ": " + e.message;

@@ -19,8 +19,8 @@
 #include "common/clock.h"
 #include "common/fsutil.h"
 #include "config/config.h"
-#include "pipeline/markers/aruco_scale.h"
 #include "pipeline/core/image_io.h"
+#include "pipeline/markers/aruco_scale.h"
 #include "store/layout.h"
 
 namespace aggscan {

@@ -1,12 +1,11 @@
 #include "pipeline/core/geometry.h"
 
+#include <Eigen/Eigenvalues>
+#include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
 #include <limits>
 #include <string>
-
-#include <Eigen/Eigenvalues>
-#include <Eigen/SVD>
 
 namespace aggscan::geom {
 
@@ -64,7 +63,7 @@ std::optional<Eigen::Vector3d> Dlt(const std::vector<Sighting>& s, const std::ve
   }
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix4d> es(AtA);
   const Eigen::Vector4d x = es.eigenvectors().col(0);  // smallest eigenvalue first
-  if (std::abs(x(3)) < 1e-12) return std::nullopt;  // point at infinity
+  if (std::abs(x(3)) < 1e-12) return std::nullopt;     // point at infinity
   return Eigen::Vector3d(x.head<3>() / x(3));
 }
 
@@ -186,9 +185,9 @@ Result<TriangulatedPoint> TriangulatePoint(const std::vector<Sighting>& s,
   }
   const int n = static_cast<int>(s.size());
   if (n < opts.min_views) {
-    return MakeError(ErrorClass::kInvalidArgument,
-                     "seen in " + std::to_string(n) + " views, need " +
-                         std::to_string(opts.min_views));
+    return MakeError(
+        ErrorClass::kInvalidArgument,
+        "seen in " + std::to_string(n) + " views, need " + std::to_string(opts.min_views));
   }
   std::vector<Eigen::Vector3d> dirs(n);
   for (int i = 0; i < n; ++i) dirs[i] = MakeRayFrame(s[i].P).Direction(s[i].uv);
@@ -247,13 +246,15 @@ Result<TriangulatedPoint> TriangulatePoint(const std::vector<Sighting>& s,
   for (int i : inliers) {
     ss += out.residual_px[i] * out.residual_px[i];
     out.max_px = std::max(out.max_px, out.residual_px[i]);
-    for (int j : inliers) out.max_angle_deg = std::max(out.max_angle_deg, AngleDeg(dirs[i], dirs[j]));
+    for (int j : inliers)
+      out.max_angle_deg = std::max(out.max_angle_deg, AngleDeg(dirs[i], dirs[j]));
   }
   out.rms_px = std::sqrt(ss / static_cast<double>(inliers.size()));
   if (out.max_angle_deg < opts.min_angle_deg) {
-    return MakeError(ErrorClass::kInvalidArgument,
-                     "rays of the agreeing views meet at only " + std::to_string(out.max_angle_deg) +
-                         " deg (need " + std::to_string(opts.min_angle_deg) + ")");
+    return MakeError(ErrorClass::kInvalidArgument, "rays of the agreeing views meet at only " +
+                                                       std::to_string(out.max_angle_deg) +
+                                                       " deg (need " +
+                                                       std::to_string(opts.min_angle_deg) + ")");
   }
   return out;
 }

@@ -9,14 +9,13 @@
 // the distorted ones to within the distortion's local stretch (< 5 % on the rig).
 #pragma once
 
+#include <Eigen/Core>
+#include <Eigen/Geometry>
 #include <array>
 #include <cstdint>
 #include <optional>
 #include <utility>
 #include <vector>
-
-#include <Eigen/Core>
-#include <Eigen/Geometry>
 
 #include "common/error.h"
 #include "common/rig_calibration.h"
@@ -86,11 +85,11 @@ Sighting MakeSighting(const CameraModel& cam, const Rigid3& cam_from_frame,
                       const Eigen::Vector2d& pixel, int view);
 
 struct TriangulationOptions {
-  double inlier_px = 2.0;         // a sighting farther than this from the solution is an outlier
-  int min_views = 2;              // fewer inliers: no point
-  double min_angle_deg = 3.0;     // smallest ray angle among the inliers (baseline check)
-  bool robust = true;             // pick the two-view seed with most inliers (all pairs); else all views
-  int refine_iterations = 10;     // Gauss-Newton steps on the pixel reprojection error
+  double inlier_px = 2.0;      // a sighting farther than this from the solution is an outlier
+  int min_views = 2;           // fewer inliers: no point
+  double min_angle_deg = 3.0;  // smallest ray angle among the inliers (baseline check)
+  bool robust = true;  // pick the two-view seed with most inliers (all pairs); else all views
+  int refine_iterations = 10;  // Gauss-Newton steps on the pixel reprojection error
 
   /// Empty when valid, else what is wrong.
   std::string Check() const;
@@ -121,8 +120,8 @@ std::optional<Similarity3> AlignPoints(const std::vector<Eigen::Vector3d>& src,
 using LengthPair = std::pair<double, double>;
 
 struct LengthScaleFit {
-  double scale = 1.0;            // s minimising sum (s * reconstructed - configured)^2
-  double rms_mm = 0, max_mm = 0; // of s * reconstructed - configured
+  double scale = 1.0;             // s minimising sum (s * reconstructed - configured)^2
+  double rms_mm = 0, max_mm = 0;  // of s * reconstructed - configured
 };
 
 /// Least-squares scale of reconstructed onto configured lengths (1 when there

@@ -1,16 +1,15 @@
 #include "pipeline/markers/aruco_scale.h"
 
+#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <map>
-#include <optional>
-#include <span>
-
-#include <Eigen/Eigenvalues>
 #include <opencv2/aruco.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <optional>
+#include <span>
 
 #include "common/fsutil.h"
 

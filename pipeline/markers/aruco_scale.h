@@ -22,13 +22,12 @@
 // (from the configured positions) against the reconstructed ones.
 #pragma once
 
-#include <array>
-#include <string>
-#include <vector>
-
 #include <Eigen/Core>
+#include <array>
 #include <opencv2/aruco/dictionary.hpp>
 #include <opencv2/core.hpp>
+#include <string>
+#include <vector>
 
 #include "common/error.h"
 #include "common/rig_calibration.h"

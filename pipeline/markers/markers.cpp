@@ -1,11 +1,10 @@
 #include "pipeline/markers/markers.h"
 
+#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
 #include <map>
 #include <numeric>
-
-#include <Eigen/Eigenvalues>
 #include <opencv2/imgproc.hpp>
 
 namespace aggscan {
@@ -46,7 +45,8 @@ std::optional<Vector2d> Intersect(const cv::Vec4f& a, const cv::Vec4f& b) {
 std::optional<Vector2d> IntersectSegments(const Vector2d& p0, const Vector2d& p1,
                                           const Vector2d& q0, const Vector2d& q1) {
   const Vector2d d1 = p1 - p0, d2 = q1 - q0;
-  return Intersect(cv::Vec4f(d1.x(), d1.y(), p0.x(), p0.y()), cv::Vec4f(d2.x(), d2.y(), q0.x(), q0.y()));
+  return Intersect(cv::Vec4f(d1.x(), d1.y(), p0.x(), p0.y()),
+                   cv::Vec4f(d2.x(), d2.y(), q0.x(), q0.y()));
 }
 
 // Label centre with sub-pixel accuracy: the blob's outline (undistorted) is
@@ -78,7 +78,8 @@ std::optional<LabelSighting> FitLabel(const std::vector<cv::Point>& contour,
       if (d < best_d) best_d = d, best = k, best_t = t;
     }
     if (best_t < 0.15 || best_t > 0.85 || best_d > 3.0) best = -1;
-    if (best >= 0) side_pts[best].emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()));
+    if (best >= 0)
+      side_pts[best].emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()));
   }
   std::array<cv::Vec4f, 4> lines;
   for (int k = 0; k < 4; ++k) {
@@ -167,7 +168,8 @@ std::string MarkerDetectOptions::Check() const {
   if (colors.empty() || colors.size() > 250) return "colors: 1..250 classes";
   for (const ColorClass& c : colors) {
     if (!(c.hue_deg >= 0 && c.hue_deg < 360)) return "colors." + c.name + ": hue_deg in [0, 360)";
-    if (!(c.hue_tol_deg > 0 && c.hue_tol_deg <= 90)) return "colors." + c.name + ": hue_tol_deg in (0, 90]";
+    if (!(c.hue_tol_deg > 0 && c.hue_tol_deg <= 90))
+      return "colors." + c.name + ": hue_tol_deg in (0, 90]";
   }
   if (!(min_saturation > 0 && min_saturation < 1)) return "min_saturation in (0, 1)";
   if (!(min_chroma >= 0 && min_chroma < 1)) return "min_chroma in [0, 1)";
@@ -234,8 +236,9 @@ Result<ViewMarkers> DetectViewMarkers(const cv::Mat& bgr, const cv::Mat& rock_ma
       int idx = 0;
       if (!FindClass(opts, name, &idx)) {
         return MakeError(ErrorClass::kInvalidArgument,
-                         "markers: no colour class '" + name + "' (known: red, green, blue, "
-                         "yellow, purple, or MarkerDetectOptions::colors)");
+                         "markers: no colour class '" + name +
+                             "' (known: red, green, blue, "
+                             "yellow, purple, or MarkerDetectOptions::colors)");
       }
     }
   }
@@ -247,9 +250,10 @@ Result<ViewMarkers> DetectViewMarkers(const cv::Mat& bgr, const cv::Mat& rock_ma
 
   // --- background labels ---
   cv::Mat near_rock;
-  cv::dilate(rock, near_rock,
-             cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * opts.rock_clearance_px + 1,
-                                                                   2 * opts.rock_clearance_px + 1)));
+  cv::dilate(
+      rock, near_rock,
+      cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * opts.rock_clearance_px + 1,
+                                                            2 * opts.rock_clearance_px + 1)));
   const double min_side = opts.label_min_side_frac * W, max_side = opts.label_max_side_frac * W;
   const cv::Mat k3 = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(3, 3));
   for (const std::string& color : label_colors) {
@@ -265,8 +269,8 @@ Result<ViewMarkers> DetectViewMarkers(const cv::Mat& bgr, const cv::Mat& rock_ma
       const int area = stats.at<int>(i, cv::CC_STAT_AREA);
       const double side = std::sqrt(static_cast<double>(area));
       if (side < min_side || side > max_side) continue;
-      if (opts.expected_label_side_px > 0 && (side < 0.4 * opts.expected_label_side_px ||
-                                              side > 2.5 * opts.expected_label_side_px)) {
+      if (opts.expected_label_side_px > 0 &&
+          (side < 0.4 * opts.expected_label_side_px || side > 2.5 * opts.expected_label_side_px)) {
         continue;
       }
       const cv::Rect r(stats.at<int>(i, cv::CC_STAT_LEFT), stats.at<int>(i, cv::CC_STAT_TOP),
@@ -277,9 +281,9 @@ Result<ViewMarkers> DetectViewMarkers(const cv::Mat& bgr, const cv::Mat& rock_ma
       std::vector<std::vector<cv::Point>> contours;
       cv::findContours(blob.clone(), contours, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_NONE);
       if (contours.empty()) continue;
-      const auto& contour = *std::max_element(
-          contours.begin(), contours.end(),
-          [](const auto& a, const auto& b) { return a.size() < b.size(); });
+      const auto& contour =
+          *std::max_element(contours.begin(), contours.end(),
+                            [](const auto& a, const auto& b) { return a.size() < b.size(); });
       std::vector<cv::Point> hull;
       cv::convexHull(contour, hull);
       const double hull_area = cv::contourArea(hull);
@@ -365,9 +369,9 @@ Result<LabelScale> LocateLabels(const std::vector<ViewMarkers>& views,
                                 const CameraModel& camera, const RigConfig& rig,
                                 const LabelLocateOptions& opts) {
   if (views.size() != cam_from_frame.size()) {
-    return MakeError(ErrorClass::kInvalidArgument, "labels: " + std::to_string(views.size()) +
-                                                       " views but " +
-                                                       std::to_string(cam_from_frame.size()) + " poses");
+    return MakeError(ErrorClass::kInvalidArgument,
+                     "labels: " + std::to_string(views.size()) + " views but " +
+                         std::to_string(cam_from_frame.size()) + " poses");
   }
   LabelScale out;
   for (const RigMarker& m : rig.markers) {
@@ -378,7 +382,8 @@ Result<LabelScale> LocateLabels(const std::vector<ViewMarkers>& views,
     for (size_t v = 0; v < views.size(); ++v) {
       for (const LabelSighting& l : views[v].labels) {
         if (l.color == m.color) {
-          s.push_back(geom::MakeSighting(camera, cam_from_frame[v], l.center_px, static_cast<int>(v)));
+          s.push_back(
+              geom::MakeSighting(camera, cam_from_frame[v], l.center_px, static_cast<int>(v)));
         }
       }
     }
@@ -411,8 +416,7 @@ Result<LabelScale> LocateLabels(const std::vector<ViewMarkers>& views,
     return MakeError(ErrorClass::kInvalidArgument,
                      "background labels: only " + std::to_string(out.labels_used) + " of " +
                          std::to_string(rig.markers.size()) + " located, need " +
-                         std::to_string(opts.min_labels) +
-                         " for the scale. Missing: " + missing +
+                         std::to_string(opts.min_labels) + " for the scale. Missing: " + missing +
                          ". Check that the labels are on the disc, uncovered by the rock or "
                          "anything else, lit, and that rig.markers lists their colours and "
                          "positions");
@@ -507,7 +511,8 @@ std::vector<int> Support(const Eigen::Vector3d& X, const std::vector<Obs>& obs,
     const double d = (*p - obs[i].blob.center_px).norm();
     if (d > tol_px) continue;
     auto it = per_view.find(obs[i].view);
-    if (it == per_view.end() || d < it->second.second) per_view[obs[i].view] = {static_cast<int>(i), d};
+    if (it == per_view.end() || d < it->second.second)
+      per_view[obs[i].view] = {static_cast<int>(i), d};
   }
   std::vector<int> out;
   *score = 0;
@@ -525,7 +530,8 @@ std::optional<Eigen::Vector3d> BestSeed(const std::vector<Obs>& obs, const std::
                                         const CameraModel& cam, const MarkerLocateOptions& opts,
                                         const Eigen::Vector3d* other) {
   std::vector<geom::Sighting> s;
-  for (const Obs& o : obs) s.push_back(geom::MakeSighting(cam, poses[o.view], o.blob.center_px, o.view));
+  for (const Obs& o : obs)
+    s.push_back(geom::MakeSighting(cam, poses[o.view], o.blob.center_px, o.view));
   geom::TriangulationOptions two = opts.triangulation;
   two.robust = false;
   two.refine_iterations = 3;
@@ -597,8 +603,8 @@ SideMarkers LocateObjectMarkers(const std::vector<ViewMarkers>& views,
         break;
       }
       double score = 0;
-      const std::vector<int> sup = Support(*seed, obs, taken, cam_from_frame, camera,
-                                           opts.triangulation.inlier_px, &score);
+      const std::vector<int> sup =
+          Support(*seed, obs, taken, cam_from_frame, camera, opts.triangulation.inlier_px, &score);
       std::vector<Obs> so;
       for (int i : sup) so.push_back(obs[i]);
       Result<geom::TriangulatedPoint> tp = TriangulateSegment(so, cam_from_frame, camera, opts);
@@ -653,8 +659,10 @@ SideMarkers LocateObjectMarkers(const std::vector<ViewMarkers>& views,
       // found index holding this segment
       int k = -1;
       if (tail_index >= 0) {
-        if (found[0] && found[1]) k = seg == 1 ? tail_index : 1 - tail_index;
-        else if (found[0]) k = (seg == 1) == (tail_index == 0) ? 0 : -1;
+        if (found[0] && found[1])
+          k = seg == 1 ? tail_index : 1 - tail_index;
+        else if (found[0])
+          k = (seg == 1) == (tail_index == 0) ? 0 : -1;
       }
       if (k >= 0 && found[k]) {
         const geom::TriangulatedPoint& tp = *found[k];
@@ -665,8 +673,8 @@ SideMarkers LocateObjectMarkers(const std::vector<ViewMarkers>& views,
         p.views_seen = static_cast<int>(found_obs[k].size());
         p.views_used = static_cast<int>(tp.inliers.size());
       } else if (with_marker == 0) {
-        p.problem = "the " + color + " marker was not seen in any of the " + std::to_string(nv) +
-                    " views";
+        p.problem =
+            "the " + color + " marker was not seen in any of the " + std::to_string(nv) + " views";
       } else if (found[0] && tail_index < 0) {
         p.problem = "the " + color + " marker (seen in " + std::to_string(with_marker) +
                     " views) gave " + (found[1] ? "two points" : "one point") +

@@ -26,12 +26,11 @@
 // Colour names are the config's: red, green, blue, yellow, purple.
 #pragma once
 
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
 #include <optional>
 #include <string>
 #include <vector>
-
-#include <Eigen/Core>
-#include <opencv2/core.hpp>
 
 #include "common/error.h"
 #include "common/rig_calibration.h"
@@ -53,15 +52,15 @@ std::vector<ColorClass> DefaultColorClasses();
 
 struct MarkerDetectOptions {
   std::vector<ColorClass> colors = DefaultColorClasses();
-  double min_saturation = 0.35;   // HSV S below this is not paint (the rock stays below ~0.3)
-  double min_chroma = 0.08;       // (max - min) of RGB in [0,1]: drops noisy dark pixels
+  double min_saturation = 0.35;  // HSV S below this is not paint (the rock stays below ~0.3)
+  double min_chroma = 0.08;      // (max - min) of RGB in [0,1]: drops noisy dark pixels
   // Background labels:
   double label_min_side_frac = 0.012;  // sqrt(area) of a label blob, fraction of the image width
   double label_max_side_frac = 0.12;
-  double expected_label_side_px = 0;   // > 0: also require sqrt(area) within x0.4..x2.5 of this
-  double label_min_solidity = 0.90;    // blob area / its convex hull area
-  double label_min_fill = 0.85;        // blob area / area of the fitted quadrilateral
-  int rock_clearance_px = 3;           // a label blob this close to the rock mask is partly hidden
+  double expected_label_side_px = 0;  // > 0: also require sqrt(area) within x0.4..x2.5 of this
+  double label_min_solidity = 0.90;   // blob area / its convex hull area
+  double label_min_fill = 0.85;       // blob area / area of the fitted quadrilateral
+  int rock_clearance_px = 3;          // a label blob this close to the rock mask is partly hidden
   // Object markers:
   double segment_min_area_frac = 1e-5;  // segment area, fraction of width^2 (40 px at 2016 x 1512)
   int marker_mask_dilate_px = 2;        // marker pixels may lie this far outside the rock mask
@@ -126,21 +125,21 @@ double ExpectedLabelSidePx(const RigCalibration& cal, const RigConfig& rig);
 // --- background labels: 3D and scale ---
 
 struct LabelLocateOptions {
-  geom::TriangulationOptions triangulation{.inlier_px = 1.5, .min_views = 2,
-                                           .min_angle_deg = 5.0};
+  geom::TriangulationOptions triangulation{.inlier_px = 1.5, .min_views = 2, .min_angle_deg = 5.0};
   int min_labels = 3;  // fewer located labels: no scale
 };
 
 /// One label's 3D centre.
 struct LabelPoint {
   std::string color;
-  Eigen::Vector3d configured = Eigen::Vector3d::Zero();  // rig.markers position (table frame, z = 0)
+  Eigen::Vector3d configured =
+      Eigen::Vector3d::Zero();  // rig.markers position (table frame, z = 0)
   bool located = false;
-  Eigen::Vector3d position = Eigen::Vector3d::Zero();    // triangulated, in the poses' frame
-  double rms_px = 0, max_px = 0;                         // reprojection over the views used
-  int views_seen = 0;                                    // views where it was detected
-  int views_used = 0;                                    // of those, inliers of the triangulation
-  std::string problem;                                   // why not located
+  Eigen::Vector3d position = Eigen::Vector3d::Zero();  // triangulated, in the poses' frame
+  double rms_px = 0, max_px = 0;                       // reprojection over the views used
+  int views_seen = 0;                                  // views where it was detected
+  int views_used = 0;                                  // of those, inliers of the triangulation
+  std::string problem;                                 // why not located
 };
 
 /// The labels located and the scale they give.
@@ -170,14 +169,13 @@ Result<LabelScale> LocateLabels(const std::vector<ViewMarkers>& views,
 // --- object markers: 3D head and tail per side ---
 
 struct MarkerLocateOptions {
-  geom::TriangulationOptions triangulation{.inlier_px = 2.0, .min_views = 2,
-                                           .min_angle_deg = 5.0};
+  geom::TriangulationOptions triangulation{.inlier_px = 2.0, .min_views = 2, .min_angle_deg = 5.0};
   double assign_px = 6.0;           // a lone segment within this of a projected head/tail is it
   double assign_length_frac = 0.3;  // plus this fraction of its own length
   double min_head_tail_mm = 6.0;    // plausible 3D head-tail distances (14-21 mm on the sim)
   double max_head_tail_mm = 40.0;
-  int min_clean_views = 3;          // use the other segments only when fewer clean views
-  double min_area_frac = 0.4;       // clean: area at least this fraction of the segment's largest view
+  int min_clean_views = 3;     // use the other segments only when fewer clean views
+  double min_area_frac = 0.4;  // clean: area at least this fraction of the segment's largest view
 };
 
 /// One triangulated segment centre.
@@ -185,7 +183,8 @@ struct MarkerPoint {
   std::string color;    // purple | red
   std::string segment;  // head | tail
   bool located = false;
-  Eigen::Vector3d position = Eigen::Vector3d::Zero();  // in the poses' frame (table frame of the side)
+  Eigen::Vector3d position =
+      Eigen::Vector3d::Zero();  // in the poses' frame (table frame of the side)
   double rms_px = 0, max_px = 0;
   int views_seen = 0;   // views where this segment was identified
   int views_used = 0;   // inliers of the triangulation
@@ -195,8 +194,8 @@ struct MarkerPoint {
 
 /// Head and tail of every object marker of one side.
 struct SideMarkers {
-  std::vector<MarkerPoint> points;  // per colour: head, tail
-  int views = 0;                    // views of the side
+  std::vector<MarkerPoint> points;     // per colour: head, tail
+  int views = 0;                       // views of the side
   std::vector<int> views_with_marker;  // per colour: views where any of its paint was seen
   int located() const;
   const MarkerPoint* Find(const std::string& color, const std::string& segment) const;

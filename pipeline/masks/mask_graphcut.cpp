@@ -4,10 +4,9 @@
 #include <array>
 #include <cmath>
 #include <numbers>
-#include <vector>
-
 #include <opencv2/imgproc.hpp>
 #include <opencv2/imgproc/detail/gcgraph.hpp>
+#include <vector>
 
 namespace aggscan::mask_detail {
 namespace {
@@ -23,11 +22,13 @@ class ColorMixture {
     k = std::min<int>(k, static_cast<int>(samples.size()));
     g_.clear();
     if (k <= 0) return;
-    const cv::Mat data(static_cast<int>(samples.size()), 3, CV_32F, const_cast<cv::Vec3f*>(samples.data()));
+    const cv::Mat data(static_cast<int>(samples.size()), 3, CV_32F,
+                       const_cast<cv::Vec3f*>(samples.data()));
     cv::Mat labels, centers;
     const uint64_t saved = cv::theRNG().state;
     cv::theRNG().state = 0x6d697874757265ULL;
-    cv::kmeans(data, k, labels, cv::TermCriteria(cv::TermCriteria::COUNT, 10, 0), 1, cv::KMEANS_PP_CENTERS, centers);
+    cv::kmeans(data, k, labels, cv::TermCriteria(cv::TermCriteria::COUNT, 10, 0), 1,
+               cv::KMEANS_PP_CENTERS, centers);
     cv::theRNG().state = saved;
     std::vector<int> assign(samples.size());
     for (size_t i = 0; i < samples.size(); ++i) assign[i] = labels.at<int>(static_cast<int>(i));
@@ -103,7 +104,8 @@ class ColorMixture {
       for (int a = 0; a < 3; ++a) cov(a, a) += 4.0;
       const double det = cv::determinant(cov);
       g.inv_cov = cov.inv();
-      g.log_coef = std::log(count[j] / total) - 0.5 * std::log(det) - 1.5 * std::log(2 * std::numbers::pi);
+      g.log_coef =
+          std::log(count[j] / total) - 0.5 * std::log(det) - 1.5 * std::log(2 * std::numbers::pi);
       g_.push_back(g);
     }
   }
@@ -129,7 +131,8 @@ class TextureHistogram {
     }
     double total = 0;
     for (double c : smooth) total += c;
-    for (int b = 0; b < kBins; ++b) nll_[static_cast<size_t>(b)] = -std::log(smooth[static_cast<size_t>(b)] / total);
+    for (int b = 0; b < kBins; ++b)
+      nll_[static_cast<size_t>(b)] = -std::log(smooth[static_cast<size_t>(b)] / total);
   }
 
   double NegLogLikelihood(float v) const { return nll_[static_cast<size_t>(Bin(v))]; }
@@ -144,9 +147,10 @@ class TextureHistogram {
 };
 
 // Samples of one side: every `step`-th pixel with (fg != 0) == want_fg, neutral pixels left out.
-void Collect(const cv::Mat& bgr, const cv::Mat& texture, const cv::Mat& fg, const cv::Mat& neutral, bool want_fg,
-             std::vector<cv::Vec3f>* colors, std::vector<float>* tex) {
-  const int n = want_fg ? cv::countNonZero(fg) : static_cast<int>(fg.total()) - cv::countNonZero(fg);
+void Collect(const cv::Mat& bgr, const cv::Mat& texture, const cv::Mat& fg, const cv::Mat& neutral,
+             bool want_fg, std::vector<cv::Vec3f>* colors, std::vector<float>* tex) {
+  const int n =
+      want_fg ? cv::countNonZero(fg) : static_cast<int>(fg.total()) - cv::countNonZero(fg);
   const size_t step = std::max<size_t>(1, static_cast<size_t>(n) / kMaxSamples);
   colors->clear();
   tex->clear();
@@ -166,8 +170,8 @@ void Collect(const cv::Mat& bgr, const cv::Mat& texture, const cv::Mat& fg, cons
 
 }  // namespace
 
-cv::Mat SegmentGraphCut(const cv::Mat& bgr, const cv::Mat& texture, const cv::Mat& trimap, const cv::Mat& neutral,
-                        const GraphCutOptions& o) {
+cv::Mat SegmentGraphCut(const cv::Mat& bgr, const cv::Mat& texture, const cv::Mat& trimap,
+                        const cv::Mat& neutral, const GraphCutOptions& o) {
   CV_Assert(bgr.type() == CV_8UC3 && trimap.type() == CV_8UC1 && trimap.size() == bgr.size());
   CV_Assert(neutral.empty() || (neutral.type() == CV_8UC1 && neutral.size() == bgr.size()));
   CV_Assert(texture.empty() || (texture.type() == CV_32F && texture.size() == bgr.size()));
@@ -194,15 +198,16 @@ cv::Mat SegmentGraphCut(const cv::Mat& bgr, const cv::Mat& texture, const cv::Ma
     }
   const double beta = sum > 0 ? 1.0 / (2.0 * sum / static_cast<double>(count)) : 0.0;
   // Pairwise weights (left, up, up-left, up-right), computed once.
-  cv::Mat wl(h, w, CV_64F, cv::Scalar(0)), wu(h, w, CV_64F, cv::Scalar(0)), wul(h, w, CV_64F, cv::Scalar(0)),
-      wur(h, w, CV_64F, cv::Scalar(0));
+  cv::Mat wl(h, w, CV_64F, cv::Scalar(0)), wu(h, w, CV_64F, cv::Scalar(0)),
+      wul(h, w, CV_64F, cv::Scalar(0)), wur(h, w, CV_64F, cv::Scalar(0));
   const double diag = o.gamma / std::numbers::sqrt2;
   for (int y = 0; y < h; ++y)
     for (int x = 0; x < w; ++x) {
       if (x > 0) wl.at<double>(y, x) = o.gamma * std::exp(-beta * diff2(y, x, y, x - 1));
       if (y > 0) wu.at<double>(y, x) = o.gamma * std::exp(-beta * diff2(y, x, y - 1, x));
       if (y > 0 && x > 0) wul.at<double>(y, x) = diag * std::exp(-beta * diff2(y, x, y - 1, x - 1));
-      if (y > 0 && x + 1 < w) wur.at<double>(y, x) = diag * std::exp(-beta * diff2(y, x, y - 1, x + 1));
+      if (y > 0 && x + 1 < w)
+        wur.at<double>(y, x) = diag * std::exp(-beta * diff2(y, x, y - 1, x + 1));
     }
   const double hard = 8.0 * o.gamma + 1.0;  // more than any pixel's pairwise weights together
 
@@ -212,14 +217,21 @@ cv::Mat SegmentGraphCut(const cv::Mat& bgr, const cv::Mat& texture, const cv::Ma
   std::vector<float> ts;
   for (int it = 0; it < std::max(1, o.iterations); ++it) {
     Collect(bgr, texture, fg, neutral, true, &cs, &ts);
-    if (it == 0) col_fg.Init(cs, o.components); else col_fg.Refit(cs);
+    if (it == 0)
+      col_fg.Init(cs, o.components);
+    else
+      col_fg.Refit(cs);
     if (use_texture) tex_fg.Fit(ts);
     Collect(bgr, texture, fg, neutral, false, &cs, &ts);
-    if (it == 0) col_bg.Init(cs, o.components); else col_bg.Refit(cs);
+    if (it == 0)
+      col_bg.Init(cs, o.components);
+    else
+      col_bg.Refit(cs);
     if (use_texture) tex_bg.Fit(ts);
     if (col_fg.empty() || col_bg.empty()) break;
 
-    cv::detail::GCGraph<double> graph(static_cast<unsigned>(w * h), static_cast<unsigned>(2 * 4 * w * h));
+    cv::detail::GCGraph<double> graph(static_cast<unsigned>(w * h),
+                                      static_cast<unsigned>(2 * 4 * w * h));
     for (int y = 0; y < h; ++y) {
       const cv::Vec3b* p = bgr.ptr<cv::Vec3b>(y);
       const uchar* t = trimap.ptr<uchar>(y);
@@ -246,8 +258,10 @@ cv::Mat SegmentGraphCut(const cv::Mat& bgr, const cv::Mat& texture, const cv::Ma
         graph.addTermWeights(v, from_source, to_sink);
         if (x > 0) graph.addEdges(v, v - 1, wl.at<double>(y, x), wl.at<double>(y, x));
         if (y > 0) graph.addEdges(v, v - w, wu.at<double>(y, x), wu.at<double>(y, x));
-        if (y > 0 && x > 0) graph.addEdges(v, v - w - 1, wul.at<double>(y, x), wul.at<double>(y, x));
-        if (y > 0 && x + 1 < w) graph.addEdges(v, v - w + 1, wur.at<double>(y, x), wur.at<double>(y, x));
+        if (y > 0 && x > 0)
+          graph.addEdges(v, v - w - 1, wul.at<double>(y, x), wul.at<double>(y, x));
+        if (y > 0 && x + 1 < w)
+          graph.addEdges(v, v - w + 1, wur.at<double>(y, x), wur.at<double>(y, x));
       }
     }
     graph.maxFlow();

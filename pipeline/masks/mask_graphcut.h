@@ -24,7 +24,8 @@ struct GraphCutOptions {
   double gamma = 50.0;          // smoothness weight (GrabCut's value)
   double texture_weight = 1.0;  // weight of the texture log-likelihood against colour's
   int components = 5;           // Gaussians per colour mixture
-  double neutral_rock_cost = 1.0;  // data cost of calling a neutral pixel rock (a slight lean to background)
+  double neutral_rock_cost =
+      1.0;  // data cost of calling a neutral pixel rock (a slight lean to background)
 };
 
 /// `bgr` CV_8UC3, `texture` CV_32F (same size; empty = colour only), `trimap`
@@ -34,7 +35,7 @@ struct GraphCutOptions {
 /// whose colour says nothing about rock or background). Returns the 0/255 rock
 /// mask. Deterministic. Returns the trimap's FGD|PR_FGD when one side has no
 /// pixels.
-cv::Mat SegmentGraphCut(const cv::Mat& bgr, const cv::Mat& texture, const cv::Mat& trimap, const cv::Mat& neutral,
-                        const GraphCutOptions& opts);
+cv::Mat SegmentGraphCut(const cv::Mat& bgr, const cv::Mat& texture, const cv::Mat& trimap,
+                        const cv::Mat& neutral, const GraphCutOptions& opts);
 
 }  // namespace aggscan::mask_detail

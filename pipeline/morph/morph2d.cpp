@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cmath>
 #include <numbers>
-
 #include <opencv2/imgproc.hpp>
 
 namespace aggscan {
@@ -34,16 +33,29 @@ SubpixelContour TraceIsoLine(const cv::Mat& field, cv::Point offset) {
     const float* r1 = field.ptr<float>(y + 1);
     for (int x = 0; x + 1 < field.cols; ++x) {
       const float v0 = r0[x], v1 = r0[x + 1], v2 = r1[x + 1], v3 = r1[x];  // TL, TR, BR, BL
-      const int code = (v0 >= 0.5f) | ((v1 >= 0.5f) << 1) | ((v2 >= 0.5f) << 2) | ((v3 >= 0.5f) << 3);
+      const int code =
+          (v0 >= 0.5f) | ((v1 >= 0.5f) << 1) | ((v2 >= 0.5f) << 2) | ((v3 >= 0.5f) << 3);
       if (code == 0 || code == 15) continue;
       const float fx = static_cast<float>(x) + ox, fy = static_cast<float>(y) + oy;
       // Crossing points on the four cell edges: top, right, bottom, left.
       cv::Point2f e[4];
       bool has[4] = {false, false, false, false};
-      if ((v0 >= 0.5f) != (v1 >= 0.5f)) { e[0] = Lerp(fx, fy, fx + 1, fy, v0, v1); has[0] = true; }
-      if ((v1 >= 0.5f) != (v2 >= 0.5f)) { e[1] = Lerp(fx + 1, fy, fx + 1, fy + 1, v1, v2); has[1] = true; }
-      if ((v3 >= 0.5f) != (v2 >= 0.5f)) { e[2] = Lerp(fx, fy + 1, fx + 1, fy + 1, v3, v2); has[2] = true; }
-      if ((v0 >= 0.5f) != (v3 >= 0.5f)) { e[3] = Lerp(fx, fy, fx, fy + 1, v0, v3); has[3] = true; }
+      if ((v0 >= 0.5f) != (v1 >= 0.5f)) {
+        e[0] = Lerp(fx, fy, fx + 1, fy, v0, v1);
+        has[0] = true;
+      }
+      if ((v1 >= 0.5f) != (v2 >= 0.5f)) {
+        e[1] = Lerp(fx + 1, fy, fx + 1, fy + 1, v1, v2);
+        has[1] = true;
+      }
+      if ((v3 >= 0.5f) != (v2 >= 0.5f)) {
+        e[2] = Lerp(fx, fy + 1, fx + 1, fy + 1, v3, v2);
+        has[2] = true;
+      }
+      if ((v0 >= 0.5f) != (v3 >= 0.5f)) {
+        e[3] = Lerp(fx, fy, fx, fy + 1, v0, v3);
+        has[3] = true;
+      }
       auto add = [&](int a, int b) {
         out.points.push_back(e[a]);
         out.points.push_back(e[b]);
@@ -85,7 +97,8 @@ cv::Mat LargestComponentFilled(const cv::Mat& mask) {
   out = (labels == best);
   // Fill holes: background reachable from outside the bounding box stays background.
   const cv::Rect box(stats.at<int>(best, cv::CC_STAT_LEFT), stats.at<int>(best, cv::CC_STAT_TOP),
-                     stats.at<int>(best, cv::CC_STAT_WIDTH), stats.at<int>(best, cv::CC_STAT_HEIGHT));
+                     stats.at<int>(best, cv::CC_STAT_WIDTH),
+                     stats.at<int>(best, cv::CC_STAT_HEIGHT));
   cv::Mat padded;
   cv::copyMakeBorder(out(box), padded, 1, 1, 1, 1, cv::BORDER_CONSTANT, cv::Scalar(0));
   cv::floodFill(padded, cv::Point(0, 0), cv::Scalar(128), nullptr, cv::Scalar(0), cv::Scalar(0), 4);
@@ -96,11 +109,13 @@ cv::Mat LargestComponentFilled(const cv::Mat& mask) {
 
 Result<Morph2D> ComputeMorph2D(const cv::Mat& binary_mask) {
   if (binary_mask.empty() || binary_mask.type() != CV_8UC1)
-    return MakeError(ErrorClass::kInvalidArgument, "morph2d: mask must be a non-empty 8-bit single-channel image");
+    return MakeError(ErrorClass::kInvalidArgument,
+                     "morph2d: mask must be a non-empty 8-bit single-channel image");
   const cv::Mat sil = LargestComponentFilled(binary_mask != 0);
   const cv::Rect box = cv::boundingRect(sil);
   if (box.area() == 0)
-    return MakeError(ErrorClass::kInvalidArgument, "morph2d: the mask has no foreground pixel (no silhouette)");
+    return MakeError(ErrorClass::kInvalidArgument,
+                     "morph2d: the mask has no foreground pixel (no silhouette)");
 
   Morph2D m;
   m.area_px = cv::countNonZero(sil(box));
@@ -111,7 +126,8 @@ Result<Morph2D> ComputeMorph2D(const cv::Mat& binary_mask) {
   cv::copyMakeBorder(sil(box), crop, pad, pad, pad, pad, cv::BORDER_CONSTANT, cv::Scalar(0));
   cv::Mat field;
   crop.convertTo(field, CV_32F, 1.0 / 255.0);
-  cv::GaussianBlur(field, field, cv::Size(0, 0), kContourSigmaPx, kContourSigmaPx, cv::BORDER_CONSTANT);
+  cv::GaussianBlur(field, field, cv::Size(0, 0), kContourSigmaPx, kContourSigmaPx,
+                   cv::BORDER_CONSTANT);
   SubpixelContour contour = TraceIsoLine(field, cv::Point(box.x - pad, box.y - pad));
 
   std::vector<cv::Point2f> hull_src;
@@ -128,7 +144,8 @@ Result<Morph2D> ComputeMorph2D(const cv::Mat& binary_mask) {
       for (int x = box.x; x < box.x + box.width; ++x)
         if (sil.at<uchar>(y, x))
           for (float dy : {-0.5f, 0.5f})
-            for (float dx : {-0.5f, 0.5f}) hull_src.emplace_back(static_cast<float>(x) + dx, static_cast<float>(y) + dy);
+            for (float dx : {-0.5f, 0.5f})
+              hull_src.emplace_back(static_cast<float>(x) + dx, static_cast<float>(y) + dy);
     if (m.perimeter_px <= 0) m.perimeter_px = 4;  // a single pixel
   }
 
@@ -142,7 +159,11 @@ Result<Morph2D> ComputeMorph2D(const cv::Mat& binary_mask) {
     for (size_t j = i + 1; j < hull.size(); ++j) {
       const double dx = hull[i].x - hull[j].x, dy = hull[i].y - hull[j].y;
       const double d2 = dx * dx + dy * dy;
-      if (d2 > best) { best = d2; bi = i; bj = j; }
+      if (d2 > best) {
+        best = d2;
+        bi = i;
+        bj = j;
+      }
     }
   m.l_max_px = std::sqrt(std::max(best, 0.0));
   m.l_max_p1 = hull[bi];
@@ -163,7 +184,9 @@ Result<Morph2D> ComputeMorph2D(const cv::Mat& binary_mask) {
     m.l_max_angle_deg = ang;
   }
   m.fer_2d = m.l_min_px > 0 ? m.l_max_px / m.l_min_px : 0.0;
-  m.circularity = m.perimeter_px > 0 ? 4.0 * std::numbers::pi * m.area_px / (m.perimeter_px * m.perimeter_px) : 0.0;
+  m.circularity = m.perimeter_px > 0
+                      ? 4.0 * std::numbers::pi * m.area_px / (m.perimeter_px * m.perimeter_px)
+                      : 0.0;
   return m;
 }
 

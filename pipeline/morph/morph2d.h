@@ -12,23 +12,22 @@
 // border, so both describe the same boundary).
 #pragma once
 
-#include <vector>
-
 #include <opencv2/core.hpp>
+#include <vector>
 
 #include "common/error.h"
 
 namespace aggscan {
 
 struct Morph2D {
-  double l_max_px = 0;       // longest Feret diameter
-  double l_min_px = 0;       // extent perpendicular to the L_max direction
-  double fer_2d = 0;         // l_max_px / l_min_px
-  double area_px = 0;        // pixel count of the largest component, holes filled
-  double perimeter_px = 0;   // length of the sub-pixel outer contour
-  double circularity = 0;    // 4*pi*area / perimeter^2
+  double l_max_px = 0;         // longest Feret diameter
+  double l_min_px = 0;         // extent perpendicular to the L_max direction
+  double fer_2d = 0;           // l_max_px / l_min_px
+  double area_px = 0;          // pixel count of the largest component, holes filled
+  double perimeter_px = 0;     // length of the sub-pixel outer contour
+  double circularity = 0;      // 4*pi*area / perimeter^2
   double l_max_angle_deg = 0;  // direction of L_max from the image x axis (y down), in [0, 180)
-  cv::Point2d l_max_p1;      // L_max end points, image pixel coordinates (pixel centres at integers)
+  cv::Point2d l_max_p1;  // L_max end points, image pixel coordinates (pixel centres at integers)
   cv::Point2d l_max_p2;
 };
 

@@ -1119,7 +1119,9 @@ Status SfmRun::PrepareWorkspace() {
 
 Status SfmRun::ResolveCamera() {
   auto loaded = LoadImage(o_.images[0], ImageMode::kUnchanged);
-  if (!loaded) return MakeError(ErrorClass::kCorrupt, "cannot read image " + o_.images[0] + ": " + loaded.error().message);
+  if (!loaded)
+    return MakeError(ErrorClass::kCorrupt,
+                     "cannot read image " + o_.images[0] + ": " + loaded.error().message);
   const cv::Mat first = std::move(*loaded);
   const int w = first.cols, h = first.rows;
   if (o_.fixed_camera) {

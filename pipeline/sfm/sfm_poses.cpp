@@ -5,11 +5,11 @@
 #include <cstdio>
 #include <opencv2/imgcodecs.hpp>
 
-#include "pipeline/markers/aruco_scale.h"
-#include "pipeline/sfm/colmap_sfm.h"
 #include "pipeline/core/geometry.h"
 #include "pipeline/core/image_io.h"
+#include "pipeline/markers/aruco_scale.h"
 #include "pipeline/markers/markers.h"
+#include "pipeline/sfm/colmap_sfm.h"
 #include "store/layout.h"
 
 namespace aggscan {

@@ -26,11 +26,10 @@
 #pragma once
 
 #include <atomic>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
 #include <vector>
-
-#include <nlohmann/json.hpp>
 
 #include "common/error.h"
 #include "common/rig_calibration.h"
@@ -46,7 +45,8 @@ struct SfmPosesOptions {
   /// 1008 px, too few for COLMAP's initial pair); a 12 MP photo is reduced
   /// (the notes: ~1-2 s and ~1.5 GB a photo at 1600-2000 px on 2 cores).
   int max_image_size = 2016;
-  int circular_neighbours = 3;  // pairs per view in the ring's pair list (~4x cheaper than exhaustive)
+  int circular_neighbours =
+      3;  // pairs per view in the ring's pair list (~4x cheaper than exhaustive)
   /// COLMAP camera model when the intrinsics are not known: k1 and k2 like
   /// the rig calibration's lens.
   std::string free_camera_model = "RADIAL";
@@ -67,9 +67,9 @@ struct SfmPosesOptions {
 /// One view taking part (a view with a rock mask).
 struct SfmPosesView {
   int view = 0;
-  double angle_deg = 0;  // measured turntable angle (sidecar)
-  std::string image;     // photo, path
-  std::string mask;      // rock mask PNG, path
+  double angle_deg = 0;   // measured turntable angle (sidecar)
+  std::string image;      // photo, path
+  std::string mask;       // rock mask PNG, path
   std::string image_rel;  // as recorded in the poses record (relative to the side dir)
   std::string mask_rel;   // ... (relative to results/)
 };
@@ -97,7 +97,8 @@ struct SfmPosesInput {
 /// sim.hfov_deg). nullopt when the config names no lens.
 struct FocalHint {
   double focal_px = 0;
-  std::string source;  // recorded with it, e.g. "camera.lens_focal_mm 6 / camera.sensor_width_mm 6.287"
+  std::string
+      source;  // recorded with it, e.g. "camera.lens_focal_mm 6 / camera.sensor_width_mm 6.287"
 };
 std::optional<FocalHint> FocalHintFromConfig(const Config& cfg, int image_width);
 

@@ -4,7 +4,6 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
-
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core/optim.hpp>
 #include <opencv2/imgproc.hpp>
@@ -45,7 +44,8 @@ struct Pose {
     }
   }
   void Apply(const double* p, double* out) const {
-    for (int r = 0; r < 3; ++r) out[r] = m[4 * r] * p[0] + m[4 * r + 1] * p[1] + m[4 * r + 2] * p[2] + m[4 * r + 3];
+    for (int r = 0; r < 3; ++r)
+      out[r] = m[4 * r] * p[0] + m[4 * r + 1] * p[1] + m[4 * r + 2] * p[2] + m[4 * r + 3];
   }
 };
 
@@ -66,12 +66,17 @@ struct Grid {
   }
   Vector3d Node(int i, int j, int k) const { return origin + h * Vector3d(i, j, k); }
   double Interp(const double* p) const {
-    const double gx = (p[0] - origin.x()) / h, gy = (p[1] - origin.y()) / h, gz = (p[2] - origin.z()) / h;
-    if (!(gx >= 0 && gy >= 0 && gz >= 0 && gx <= nx - 1 && gy <= ny - 1 && gz <= nz - 1)) return kOutside;
-    const int i = std::min(static_cast<int>(gx), nx - 2), j = std::min(static_cast<int>(gy), ny - 2),
+    const double gx = (p[0] - origin.x()) / h, gy = (p[1] - origin.y()) / h,
+                 gz = (p[2] - origin.z()) / h;
+    if (!(gx >= 0 && gy >= 0 && gz >= 0 && gx <= nx - 1 && gy <= ny - 1 && gz <= nz - 1))
+      return kOutside;
+    const int i = std::min(static_cast<int>(gx), nx - 2),
+              j = std::min(static_cast<int>(gy), ny - 2),
               k = std::min(static_cast<int>(gz), nz - 2);
     const double ax = gx - i, ay = gy - j, az = gz - k;
-    auto at = [&](int di, int dj, int dk) { return static_cast<double>(f[Index(i + di, j + dj, k + dk)]); };
+    auto at = [&](int di, int dj, int dk) {
+      return static_cast<double>(f[Index(i + di, j + dj, k + dk)]);
+    };
     const double c00 = at(0, 0, 0) * (1 - ax) + at(1, 0, 0) * ax;
     const double c10 = at(0, 1, 0) * (1 - ax) + at(1, 1, 0) * ax;
     const double c01 = at(0, 0, 1) * (1 - ax) + at(1, 0, 1) * ax;
@@ -112,8 +117,9 @@ std::vector<WorkView> PrepareViews(const SilhouetteSideInput& in, const std::vec
     w.mask.convertTo(m255, CV_8U, 255);
     w.sd = SilhouetteSignedDistance(m255);
     const int margin = 4;
-    w.roi = (cv::boundingRect(w.mask) + cv::Size(2 * margin, 2 * margin) - cv::Point(margin, margin)) &
-            cv::Rect(0, 0, pc.width, pc.height);
+    w.roi =
+        (cv::boundingRect(w.mask) + cv::Size(2 * margin, 2 * margin) - cv::Point(margin, margin)) &
+        cv::Rect(0, 0, pc.width, pc.height);
     w.pose = in.cam_from_table[i];
     out.push_back(std::move(w));
   }
@@ -122,7 +128,8 @@ std::vector<WorkView> PrepareViews(const SilhouetteSideInput& in, const std::vec
 
 // The side's hull field at p (mm, positive inside): the floor z >= 0 and every
 // view's silhouette distance at the point's depth. Stops early below stop_below.
-double Field(const std::vector<WorkView>& views, const Pinhole& pc, const Vector3d& p, double stop_below) {
+double Field(const std::vector<WorkView>& views, const Pinhole& pc, const Vector3d& p,
+             double stop_below) {
   double f = p.z();
   if (f < stop_below) return f;
   const double q[3] = {p.x(), p.y(), p.z()};
@@ -137,8 +144,8 @@ double Field(const std::vector<WorkView>& views, const Pinhole& pc, const Vector
   return f;
 }
 
-Grid SampleGrid(const std::vector<WorkView>& views, const Pinhole& pc, const Eigen::AlignedBox3d& box, double h,
-                double stop_below) {
+Grid SampleGrid(const std::vector<WorkView>& views, const Pinhole& pc,
+                const Eigen::AlignedBox3d& box, double h, double stop_below) {
   Grid g;
   g.origin = box.min();
   g.h = h;
@@ -150,7 +157,8 @@ Grid SampleGrid(const std::vector<WorkView>& views, const Pinhole& pc, const Eig
   for (int k = 0; k < g.nz; ++k) {
     for (int j = 0; j < g.ny; ++j) {
       for (int i = 0; i < g.nx; ++i) {
-        g.f[g.Index(i, j, k)] = static_cast<float>(std::max(Field(views, pc, g.Node(i, j, k), stop_below), -1e6));
+        g.f[g.Index(i, j, k)] =
+            static_cast<float>(std::max(Field(views, pc, g.Node(i, j, k), stop_below), -1e6));
       }
     }
   }
@@ -207,17 +215,20 @@ struct SilhouetteStitcher::Impl {
 };
 
 Result<SilhouetteStitcher> SilhouetteStitcher::Create(const SilhouetteSideInput& reference,
-                                                      const SilhouetteSideInput& moving, const CameraModel& camera,
+                                                      const SilhouetteSideInput& moving,
+                                                      const CameraModel& camera,
                                                       const SilhouetteStitchOptions& opts) {
   for (const SilhouetteSideInput* s : {&reference, &moving}) {
     if (s->masks.size() != s->cam_from_table.size() || s->masks.empty()) {
-      return MakeError(ErrorClass::kInvalidArgument, "silhouette stitch: a side has no views or masks and poses "
-                                                     "that do not pair up");
+      return MakeError(ErrorClass::kInvalidArgument,
+                       "silhouette stitch: a side has no views or masks and poses "
+                       "that do not pair up");
     }
     for (const cv::Mat& m : s->masks) {
       if (m.type() != CV_8UC1 || m.cols != camera.width || m.rows != camera.height) {
-        return MakeError(ErrorClass::kInvalidArgument, "silhouette stitch: a mask is not an 8-bit image at the "
-                                                       "calibrated resolution");
+        return MakeError(ErrorClass::kInvalidArgument,
+                         "silhouette stitch: a mask is not an 8-bit image at the "
+                         "calibrated resolution");
       }
     }
   }
@@ -235,13 +246,15 @@ Result<SilhouetteStitcher> SilhouetteStitcher::Create(const SilhouetteSideInput&
     const SilhouetteSideInput& in = si == 0 ? reference : moving;
     const std::vector<WorkView> views = PrepareViews(in, si == 0 ? use_ref : use_mov, camera, p0);
     if (views.size() < 3) {
-      return MakeError(ErrorClass::kInvalidArgument, "silhouette stitch: side " + std::string(si == 0 ? "1" : "2") +
-                                                         " has fewer than 3 views with a rock mask");
+      return MakeError(ErrorClass::kInvalidArgument,
+                       "silhouette stitch: side " + std::string(si == 0 ? "1" : "2") +
+                           " has fewer than 3 views with a rock mask");
     }
     occ[si] = OccupiedRegion(SampleGrid(views, p0, search, coarse, -2 * coarse));
     if (occ[si].volume <= 0) {
       return MakeError(ErrorClass::kInvalidArgument,
-                       "silhouette stitch: the silhouettes of side " + std::string(si == 0 ? "1" : "2") +
+                       "silhouette stitch: the silhouettes of side " +
+                           std::string(si == 0 ? "1" : "2") +
                            " do not intersect (masks or poses are wrong)");
     }
   }
@@ -321,7 +334,8 @@ double SilhouetteStitcher::Deficit(const geom::Rigid3& T) const {
       const float o = occ[i];
       for (int y = std::max(0, v - r); y <= std::min(H - 1, v + r); ++y) {
         float* row = cov.ptr<float>(y);
-        for (int x = std::max(0, u - r); x <= std::min(W - 1, u + r); ++x) row[x] = std::max(row[x], o);
+        for (int x = std::max(0, u - r); x <= std::min(W - 1, u + r); ++x)
+          row[x] = std::max(row[x], o);
       }
     }
     double miss = 0;
@@ -356,7 +370,8 @@ geom::Rigid3 Perturbed(const geom::Rigid3& T0, const Vector3d& c, const double* 
 
 class DeficitFunction : public cv::MinProblemSolver::Function {
  public:
-  DeficitFunction(const SilhouetteStitcher& s, const geom::Rigid3& T0, const Vector3d& c, int* evals)
+  DeficitFunction(const SilhouetteStitcher& s, const geom::Rigid3& T0, const Vector3d& c,
+                  int* evals)
       : s_(s), T0_(T0), c_(c), evals_(evals) {}
   int getDims() const override { return 6; }
   double calc(const double* x) const override {
@@ -373,7 +388,8 @@ class DeficitFunction : public cv::MinProblemSolver::Function {
 
 }  // namespace
 
-SilhouetteFit SilhouetteStitcher::Refine(const geom::Rigid3& start, double step_deg, double step_mm) const {
+SilhouetteFit SilhouetteStitcher::Refine(const geom::Rigid3& start, double step_deg,
+                                         double step_mm) const {
   const auto t0 = std::chrono::steady_clock::now();
   SilhouetteFit fit;
   fit.T = start;
@@ -386,11 +402,11 @@ SilhouetteFit SilhouetteStitcher::Refine(const geom::Rigid3& start, double step_
   for (double f : {1.0, 0.4, 0.15}) {
     int evals = 0;
     cv::Ptr<DeficitFunction> fn = cv::makePtr<DeficitFunction>(*this, fit.T, impl_->centre, &evals);
-    cv::Mat step = (cv::Mat_<double>(1, 6) << step_deg * f, step_deg * f, step_deg * f, step_mm * f, step_mm * f,
-                    step_mm * f);
-    cv::Ptr<cv::DownhillSolver> solver =
-        cv::DownhillSolver::create(fn, step, cv::TermCriteria(cv::TermCriteria::MAX_ITER + cv::TermCriteria::EPS,
-                                                              budget / 3, 1e-5));
+    cv::Mat step = (cv::Mat_<double>(1, 6) << step_deg * f, step_deg * f, step_deg * f, step_mm * f,
+                    step_mm * f, step_mm * f);
+    cv::Ptr<cv::DownhillSolver> solver = cv::DownhillSolver::create(
+        fn, step,
+        cv::TermCriteria(cv::TermCriteria::MAX_ITER + cv::TermCriteria::EPS, budget / 3, 1e-5));
     cv::Mat x = cv::Mat::zeros(1, 6, CV_64F);
     const double val = solver->minimize(x);
     fit.evaluations += evals;
@@ -408,9 +424,11 @@ Eigen::Vector3d SilhouetteStitcher::reference_centre() const { return impl_->cen
 int SilhouetteStitcher::views_used() const { return static_cast<int>(impl_->ref.views.size()); }
 double SilhouetteStitcher::image_scale() const { return impl_->scale; }
 
-SilhouettePolish PolishSilhouetteStitch(const SilhouetteStitcher& coarse, const SilhouetteSideInput& reference,
-                                        const SilhouetteSideInput& moving, const CameraModel& camera,
-                                        const geom::Rigid3& start, const SilhouetteStitchOptions& coarse_opts) {
+SilhouettePolish PolishSilhouetteStitch(const SilhouetteStitcher& coarse,
+                                        const SilhouetteSideInput& reference,
+                                        const SilhouetteSideInput& moving,
+                                        const CameraModel& camera, const geom::Rigid3& start,
+                                        const SilhouetteStitchOptions& coarse_opts) {
   const auto t0 = std::chrono::steady_clock::now();
   SilhouettePolish out;
   out.T = start;
@@ -419,7 +437,8 @@ SilhouettePolish PolishSilhouetteStitch(const SilhouetteStitcher& coarse, const 
   // it (sim seed 6 at 1008x756: 0.61 -> 0.69 deg).
   if (2 * coarse.image_scale() >= 1.0) {
     out.voxel_mm = coarse.voxel_mm() / 2;
-    out.problem = "the photos do not resolve a grid of " + std::to_string(out.voxel_mm) + " mm; not polished";
+    out.problem =
+        "the photos do not resolve a grid of " + std::to_string(out.voxel_mm) + " mm; not polished";
     out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     return out;
   }

@@ -21,12 +21,11 @@
 // with few inliers) is refined and accepted when its deficit is small.
 #pragma once
 
+#include <Eigen/Core>
 #include <memory>
+#include <opencv2/core.hpp>
 #include <string>
 #include <vector>
-
-#include <Eigen/Core>
-#include <opencv2/core.hpp>
 
 #include "common/error.h"
 #include "common/rig_calibration.h"
@@ -40,16 +39,16 @@ struct SilhouetteSideInput {
 };
 
 struct SilhouetteStitchOptions {
-  int max_views = 12;          // per side, spread over the distinct viewpoints
-  int target_points = 30000;   // voxels inside side 1's hull: sets the voxel size
-  double voxel_px = 2.0;       // a voxel's size in the working images: sets their scale
-  int max_evaluations = 400;   // per refinement (Nelder-Mead)
+  int max_views = 12;         // per side, spread over the distinct viewpoints
+  int target_points = 30000;  // voxels inside side 1's hull: sets the voxel size
+  double voxel_px = 2.0;      // a voxel's size in the working images: sets their scale
+  int max_evaluations = 400;  // per refinement (Nelder-Mead)
 };
 
 struct SilhouetteFit {
-  geom::Rigid3 T;              // moving -> reference, refined
-  double deficit_start = 1;    // deficit of the starting motion
-  double deficit = 1;          // after refinement
+  geom::Rigid3 T;            // moving -> reference, refined
+  double deficit_start = 1;  // deficit of the starting motion
+  double deficit = 1;        // after refinement
   int evaluations = 0;
   double seconds = 0;
 };
@@ -60,7 +59,8 @@ class SilhouetteStitcher {
   /// side has no usable mask or the hull of a side is empty (masks or poses
   /// wrong).
   static Result<SilhouetteStitcher> Create(const SilhouetteSideInput& reference,
-                                           const SilhouetteSideInput& moving, const CameraModel& camera,
+                                           const SilhouetteSideInput& moving,
+                                           const CameraModel& camera,
                                            const SilhouetteStitchOptions& opts = {});
 
   /// Mean fraction of the views' rock pixels left uncovered by the two hulls'
@@ -70,7 +70,8 @@ class SilhouetteStitcher {
 
   /// Nelder-Mead over rotation (about side 1's hull centre) and translation
   /// from `start`, initial steps step_deg and step_mm, then a finer pass.
-  SilhouetteFit Refine(const geom::Rigid3& start, double step_deg = 2.0, double step_mm = 2.0) const;
+  SilhouetteFit Refine(const geom::Rigid3& start, double step_deg = 2.0,
+                       double step_mm = 2.0) const;
 
   double voxel_mm() const;
   /// Centre of side 1's hull (table frame of side 1, mm).
@@ -105,8 +106,10 @@ struct SilhouettePolish {
 /// `coarse` is the stitcher that chose the motion (built with `coarse_opts`):
 /// its working image scale tells, before the fine grid is built, whether the
 /// photos resolve half its voxel.
-SilhouettePolish PolishSilhouetteStitch(const SilhouetteStitcher& coarse, const SilhouetteSideInput& reference,
-                                        const SilhouetteSideInput& moving, const CameraModel& camera,
-                                        const geom::Rigid3& start, const SilhouetteStitchOptions& coarse_opts = {});
+SilhouettePolish PolishSilhouetteStitch(const SilhouetteStitcher& coarse,
+                                        const SilhouetteSideInput& reference,
+                                        const SilhouetteSideInput& moving,
+                                        const CameraModel& camera, const geom::Rigid3& start,
+                                        const SilhouetteStitchOptions& coarse_opts = {});
 
 }  // namespace aggscan

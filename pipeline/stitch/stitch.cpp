@@ -1,15 +1,14 @@
 #include "pipeline/stitch/stitch.h"
 
+#include <Eigen/Eigenvalues>
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 #include <map>
 #include <numeric>
-#include <unordered_map>
-
-#include <Eigen/Eigenvalues>
-#include <Eigen/Geometry>
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
+#include <unordered_map>
 
 namespace aggscan {
 
@@ -31,7 +30,8 @@ Eigen::Matrix3d Skew(const Vector3d& v) {
 }
 
 // Fundamental matrix between undistorted pixels of view a and view b.
-Eigen::Matrix3d Fundamental(const geom::Rigid3& a, const geom::Rigid3& b, const Eigen::Matrix3d& K) {
+Eigen::Matrix3d Fundamental(const geom::Rigid3& a, const geom::Rigid3& b,
+                            const Eigen::Matrix3d& K) {
   const geom::Rigid3 ba = b * a.Inverse();  // camera a -> camera b
   const Eigen::Matrix3d E = Skew(ba.t) * ba.R;
   const Eigen::Matrix3d Ki = K.inverse();
@@ -57,7 +57,8 @@ std::vector<std::vector<cv::DMatch>> KnnL2(const cv::Mat& query, const cv::Mat& 
   matcher.knnMatch(query, train, knn, std::min(k, train.rows));
   for (auto& ms : knn) {
     for (cv::DMatch& m : ms) {
-      m.distance = static_cast<float>(cv::norm(query.row(m.queryIdx), train.row(m.trainIdx), cv::NORM_L2));
+      m.distance =
+          static_cast<float>(cv::norm(query.row(m.queryIdx), train.row(m.trainIdx), cv::NORM_L2));
     }
     std::sort(ms.begin(), ms.end(),
               [](const cv::DMatch& a, const cv::DMatch& b) { return a.distance < b.distance; });
@@ -76,7 +77,8 @@ struct UnionFind {
 };
 
 // Displacement difference of two motions over points of the moving side (RMS).
-double DisplacementRms(const geom::Rigid3& a, const geom::Rigid3& b, const std::vector<Vector3d>& pts) {
+double DisplacementRms(const geom::Rigid3& a, const geom::Rigid3& b,
+                       const std::vector<Vector3d>& pts) {
   if (pts.empty()) return (a.t - b.t).norm();
   double ss = 0;
   for (const Vector3d& p : pts) ss += (a.Apply(p) - b.Apply(p)).squaredNorm();
@@ -146,7 +148,8 @@ std::vector<int> DistinctViewpoints(const std::vector<geom::Rigid3>& poses) {
     bool dup = false;
     for (int r : reps) {
       const Vector3d cr = -(poses[r].R.transpose() * poses[r].t);
-      if (geom::RotationAngleDeg(poses[i].R * poses[r].R.transpose()) < 1.0 && (ci - cr).norm() < 2.0) {
+      if (geom::RotationAngleDeg(poses[i].R * poses[r].R.transpose()) < 1.0 &&
+          (ci - cr).norm() < 2.0) {
         dup = true;
         break;
       }
@@ -191,7 +194,8 @@ FeatureCloud BuildFeatureCloud(const std::vector<ViewFeatures>& views,
       if (ang < opts.min_pair_deg || ang > opts.max_pair_deg) continue;
       ++out.view_pairs;
       const Eigen::Matrix3d F = Fundamental(poses[i], poses[j], K);
-      const std::vector<std::vector<cv::DMatch>> knn = KnnL2(views[i].descriptors, views[j].descriptors, 2);
+      const std::vector<std::vector<cv::DMatch>> knn =
+          KnnL2(views[i].descriptors, views[j].descriptors, 2);
       for (const auto& m : knn) {
         if (m.size() < 2 || m[0].distance >= opts.ratio * m[1].distance) continue;
         const int qi = m[0].queryIdx, ti = m[0].trainIdx;
@@ -213,7 +217,8 @@ FeatureCloud BuildFeatureCloud(const std::vector<ViewFeatures>& views,
     std::sort(members.begin(), members.end());
     // Two keypoints of one view in a track: a bad merge; drop the track.
     bool dup = false;
-    for (size_t m = 1; m < members.size(); ++m) dup = dup || members[m].first == members[m - 1].first;
+    for (size_t m = 1; m < members.size(); ++m)
+      dup = dup || members[m].first == members[m - 1].first;
     if (dup) continue;
     std::vector<geom::Sighting> s;
     for (const auto& [v, k] : members) {
@@ -270,7 +275,9 @@ StitchEstimate StitchFromMarkers(const SideMarkers& ref, const SideMarkers& mov,
     geom::AlignmentResidual(*T, sa, sb, rms, mx);
     return true;
   };
-  auto ok = [&](double rms, double mx) { return rms <= opts.marker_max_rms_mm && mx <= opts.marker_max_mm; };
+  auto ok = [&](double rms, double mx) {
+    return rms <= opts.marker_max_rms_mm && mx <= opts.marker_max_mm;
+  };
   std::vector<int> all(a.size());
   std::iota(all.begin(), all.end(), 0);
   geom::Similarity3 T;
@@ -293,7 +300,8 @@ StitchEstimate StitchFromMarkers(const SideMarkers& ref, const SideMarkers& mov,
       }
       geom::Similarity3 t;
       double r = 0, m = 0;
-      if (fit(idx, &t, &r, &m) && ok(r, m) && r < best) best = r, drop = static_cast<int>(d), Tb = t, rb = r, mb = m;
+      if (fit(idx, &t, &r, &m) && ok(r, m) && r < best)
+        best = r, drop = static_cast<int>(d), Tb = t, rb = r, mb = m;
     }
     if (drop >= 0) {
       e.note = "dropped " + names[drop] + " (" + Mm((T.Apply(a[drop]) - b[drop]).norm()) +
@@ -320,7 +328,8 @@ StitchEstimate StitchFromMarkers(const SideMarkers& ref, const SideMarkers& mov,
     return e;
   }
   e.valid = true;
-  if (chosen.size() == 3 && e.note.empty()) e.note = "3 points: no redundancy beyond their distances";
+  if (chosen.size() == 3 && e.note.empty())
+    e.note = "3 points: no redundancy beyond their distances";
   return e;
 }
 
@@ -360,7 +369,8 @@ StitchEstimate StitchFromFeatures(const FeatureCloud& ref, const FeatureCloud& m
   std::map<int, std::pair<int, float>> best_of_ref;
   for (const auto& [p_mov, rd] : best_of_mov) {
     auto it = best_of_ref.find(rd.first);
-    if (it == best_of_ref.end() || rd.second < it->second.second) best_of_ref[rd.first] = {p_mov, rd.second};
+    if (it == best_of_ref.end() || rd.second < it->second.second)
+      best_of_ref[rd.first] = {p_mov, rd.second};
   }
   std::vector<Vector3d> a, b;
   for (const auto& [p_ref, md] : best_of_ref) {
@@ -403,7 +413,8 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
   for (const MarkerPoint& p : mov.points) {
     if (p.located) rock.push_back(p.position);
   }
-  if (mov_features) rock.insert(rock.end(), mov_features->points.begin(), mov_features->points.end());
+  if (mov_features)
+    rock.insert(rock.end(), mov_features->points.begin(), mov_features->points.end());
   if (m.valid && f.valid) {
     out.cross_checked = true;
     out.disagreement_deg = geom::RotationAngleDeg(m.T.R * f.T.R.transpose());
@@ -417,8 +428,7 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
     // the check. When they disagree, 4 marker points that fit are trusted
     // over a feature fit, 3 only against a weak feature fit.
     const bool markers_win =
-        !out.consistent &&
-        (m.inliers >= 4 || f.inliers < 2 * opts.min_feature_inliers);
+        !out.consistent && (m.inliers >= 4 || f.inliers < 2 * opts.min_feature_inliers);
     out.T = markers_win ? m.T : f.T;
     out.source = markers_win ? "markers" : "features";
   } else if (m.valid) {
@@ -453,8 +463,8 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
         out.T = fit.T;
         out.source = "markers+silhouettes";
       } else {
-        sr.note = "the silhouettes do not confirm the marker estimate (deficit " + std::to_string(fit.deficit) +
-                  " after refinement); the marker estimate is kept";
+        sr.note = "the silhouettes do not confirm the marker estimate (deficit " +
+                  std::to_string(fit.deficit) + " after refinement); the marker estimate is kept";
       }
     } else if (out.source == "features") {
       // The feature fit is the more precise when its inliers are many and
@@ -477,7 +487,8 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
           out.source = "features+silhouettes";
         } else if (contradicted) {
           sr.note = "the feature estimate leaves " + std::to_string(d0) +
-                    " of the silhouettes uncovered (more than " + std::to_string(opts.silhouette_accept) +
+                    " of the silhouettes uncovered (more than " +
+                    std::to_string(opts.silhouette_accept) +
                     ") and its refinement is no better; the feature estimate is kept";
         }
       } else {
@@ -495,7 +506,8 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
       std::vector<Start> starts;
       if (m.inliers >= 3) starts.push_back({"markers (" + m.note + ")", m.T, 3.0});
       if (f.inliers >= 3) {
-        starts.push_back({"features (" + std::to_string(f.inliers) + " consistent matches)", f.T, 3.0});
+        starts.push_back(
+            {"features (" + std::to_string(f.inliers) + " consistent matches)", f.T, 3.0});
       }
       // Two marker points fix the motion but for a rotation about the line
       // through them: try rotations about it, keep the most coherent two.
@@ -503,7 +515,8 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
       std::vector<std::string> pn;
       for (const MarkerPoint& p : mov.points) {
         const MarkerPoint* q = ref.Find(p.color, p.segment);
-        if (p.located && q && q->located) pa.push_back(p.position), pb.push_back(q->position), pn.push_back(p.Name());
+        if (p.located && q && q->located)
+          pa.push_back(p.position), pb.push_back(q->position), pn.push_back(p.Name());
       }
       if (pa.size() == 2 && (pa[1] - pa[0]).norm() > 5.0) {
         const Vector3d da = (pa[1] - pa[0]).normalized(), db = (pb[1] - pb[0]).normalized();
@@ -517,7 +530,8 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
           trials.push_back({silhouettes->Deficit(T), T});
           ++sr.evaluations;
         }
-        std::sort(trials.begin(), trials.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
+        std::sort(trials.begin(), trials.end(),
+                  [](const auto& x, const auto& y) { return x.first < y.first; });
         for (size_t i = 0; i < std::min<size_t>(2, trials.size()); ++i) {
           starts.push_back({pn[0] + " and " + pn[1] + ", swept about their axis", trials[i].second,
                             opts.sweep_deg / 2});
@@ -539,11 +553,14 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
         sr.used = true;
         out.source = "silhouettes";
       } else if (sr.tried) {
-        sr.note = "best silhouette-refined start (" + sr.start + ") leaves " + std::to_string(sr.deficit) +
-                  " of the silhouettes uncovered (accepted up to " + std::to_string(opts.silhouette_accept) + ")";
+        sr.note = "best silhouette-refined start (" + sr.start + ") leaves " +
+                  std::to_string(sr.deficit) + " of the silhouettes uncovered (accepted up to " +
+                  std::to_string(opts.silhouette_accept) + ")";
       } else {
-        sr.note = "no partial estimate to start from (fewer than 2 marker points on both sides and fewer than 3 "
-                  "consistent feature matches)";
+        sr.note =
+            "no partial estimate to start from (fewer than 2 marker points on both sides and fewer "
+            "than 3 "
+            "consistent feature matches)";
       }
     }
   }

@@ -24,11 +24,10 @@
 // saying what was seen and what to do when neither is enough.
 #pragma once
 
-#include <string>
-#include <vector>
-
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
+#include <string>
+#include <vector>
 
 #include "common/error.h"
 #include "common/rig_calibration.h"
@@ -41,15 +40,15 @@ namespace aggscan {
 // --- per-side feature cloud ---
 
 struct FeatureCloudOptions {
-  int max_features = 4000;       // SIFT keypoints kept per view (strongest)
-  double image_scale = 1.0;      // SIFT runs on the photo resized by this (0.5: ~4x faster)
-  int mask_erode_px = 4;         // keypoints this close to the silhouette are dropped (mixed pixels)
-  double ratio = 0.8;            // Lowe's ratio test within a side
-  double min_pair_deg = 15;      // view pairs whose turntable angles differ by this ...
-  double max_pair_deg = 65;      // ... up to this are matched (views at the same angle mod 360 are one viewpoint)
-  double epipolar_px = 2.0;      // Sampson distance allowed for a match, undistorted px
-  geom::TriangulationOptions triangulation{.inlier_px = 1.5, .min_views = 2,
-                                           .min_angle_deg = 8.0};
+  int max_features = 4000;   // SIFT keypoints kept per view (strongest)
+  double image_scale = 1.0;  // SIFT runs on the photo resized by this (0.5: ~4x faster)
+  int mask_erode_px = 4;     // keypoints this close to the silhouette are dropped (mixed pixels)
+  double ratio = 0.8;        // Lowe's ratio test within a side
+  double min_pair_deg = 15;  // view pairs whose turntable angles differ by this ...
+  double max_pair_deg =
+      65;  // ... up to this are matched (views at the same angle mod 360 are one viewpoint)
+  double epipolar_px = 2.0;  // Sampson distance allowed for a match, undistorted px
+  geom::TriangulationOptions triangulation{.inlier_px = 1.5, .min_views = 2, .min_angle_deg = 8.0};
   /// Only the first view of each viewpoint takes part (DistinctViewpoints);
   /// false: every view with keypoints does (bundle adjustment of every view's
   /// angle needs each view's own observations).
@@ -76,7 +75,7 @@ struct FeatureCloud {
   /// Per point, its inlier sightings as (view index, keypoint index into that
   /// view's ViewFeatures): the tracks bundle adjustment refines.
   std::vector<std::vector<std::pair<int, int>>> tracks;
-  int views = 0, view_pairs = 0;        // viewpoints used and pairs matched
+  int views = 0, view_pairs = 0;  // viewpoints used and pairs matched
 };
 
 /// Indices of the views that are distinct viewpoints: a view taken from the
@@ -96,17 +95,20 @@ FeatureCloud BuildFeatureCloud(const std::vector<ViewFeatures>& views,
 // --- stitching ---
 
 struct StitchOptions {
-  int reference_side = 1;          // for messages only
+  int reference_side = 1;  // for messages only
   int moving_side = 2;
-  double marker_max_rms_mm = 0.8;  // a marker fit worse than this is inconsistent (sim: 0.2-0.7 when right)
-  double marker_max_mm = 1.5;      // and so is one with any residual above this
-  double feature_ratio = 0.85;     // Lowe's ratio across the sides (points of different ids)
-  geom::RansacRigidOptions ransac{.inlier_mm = 2.0, .iterations = 4000, .seed = 1,
-                                  .min_spread_mm = 10};
-  int min_feature_inliers = 12;        // fewer consistent matches: no feature estimate
-  double marker_sigma_mm = 0.5;        // typical marker point error (sim: 0.05-1.4 mm), for the rotation uncertainty
-  double agree_deg = 2.0;              // estimates closer than this in rotation (plus 3 sigma of the markers') ...
-  double agree_mm = 3.0;               // ... and this in displacement over the rock agree
+  double marker_max_rms_mm =
+      0.8;  // a marker fit worse than this is inconsistent (sim: 0.2-0.7 when right)
+  double marker_max_mm = 1.5;   // and so is one with any residual above this
+  double feature_ratio = 0.85;  // Lowe's ratio across the sides (points of different ids)
+  geom::RansacRigidOptions ransac{
+      .inlier_mm = 2.0, .iterations = 4000, .seed = 1, .min_spread_mm = 10};
+  int min_feature_inliers = 12;  // fewer consistent matches: no feature estimate
+  double marker_sigma_mm =
+      0.5;  // typical marker point error (sim: 0.05-1.4 mm), for the rotation uncertainty
+  double agree_deg =
+      2.0;  // estimates closer than this in rotation (plus 3 sigma of the markers') ...
+  double agree_mm = 3.0;  // ... and this in displacement over the rock agree
   /// Silhouette coherence (silhouette_stitch.h): a stitch refined by the
   /// silhouettes is accepted when the mean fraction of rock pixels its model
   /// leaves uncovered is at most this, and a feature fit leaving more is
@@ -115,7 +117,7 @@ struct StitchOptions {
   /// x 1512 a right feature fit left 0.0045-0.011 (83 inliers: 0.0109, its
   /// refinement 0.0102) and a wrong one 0.0156 (12 inliers, volume -5.2 %).
   double silhouette_accept = 0.0125;
-  double sweep_deg = 15;               // 2 marker points: trial rotations about their axis this far apart
+  double sweep_deg = 15;  // 2 marker points: trial rotations about their axis this far apart
   /// A feature estimate refined by the silhouettes when clearly more coherent.
   /// Off: on the sim at 2016 x 1512 (seed 1) it moved a 0.3 deg feature fit by
   /// 1.4 deg and the volume error grew (-0.49 -> -0.70 %); the features are
@@ -126,27 +128,27 @@ struct StitchOptions {
 /// One estimate of the motion moving side -> reference side.
 struct StitchEstimate {
   bool valid = false;
-  geom::Rigid3 T;          // p_ref = T.Apply(p_moving)
-  int pairs = 0;           // correspondences offered (marker points, putative feature matches)
-  int inliers = 0;         // used in the fit
-  double rms_mm = 0, max_mm = 0;  // residual over the inliers
+  geom::Rigid3 T;   // p_ref = T.Apply(p_moving)
+  int pairs = 0;    // correspondences offered (marker points, putative feature matches)
+  int inliers = 0;  // used in the fit
+  double rms_mm = 0, max_mm = 0;    // residual over the inliers
   std::vector<std::string> points;  // markers: names of the points used
   /// Markers: 1-sigma rotation uncertainty about the worst-determined axis for
   /// marker_sigma_mm point errors. Head and tail of each marker are only ~20
   /// mm apart and the two markers' axes are parallel, so the rotation about
   /// the line joining the markers is weak: 1-3 deg on the sim.
   double rotation_sigma_deg = 0;
-  std::string note;        // why not valid, or what was dropped
+  std::string note;  // why not valid, or what was dropped
 };
 
 /// What the silhouettes did to the stitch.
 struct SilhouetteRefinement {
-  bool tried = false;       // a silhouette stitcher was given and there was a start
-  bool used = false;        // the refined motion was taken
-  std::string start;        // what the refinement started from
-  double deficit_start = 0; // silhouette deficit of the start, and after refinement
+  bool tried = false;        // a silhouette stitcher was given and there was a start
+  bool used = false;         // the refined motion was taken
+  std::string start;         // what the refinement started from
+  double deficit_start = 0;  // silhouette deficit of the start, and after refinement
   double deficit = 0;
-  double moved_deg = 0;     // refined vs start: rotation, and displacement RMS over the rock
+  double moved_deg = 0;  // refined vs start: rotation, and displacement RMS over the rock
   double moved_mm = 0;
   int evaluations = 0;
   double seconds = 0;
@@ -154,7 +156,7 @@ struct SilhouetteRefinement {
 };
 
 struct StitchResult {
-  geom::Rigid3 T;          // the chosen moving -> reference motion
+  geom::Rigid3 T;  // the chosen moving -> reference motion
   /// "features" when both estimates exist and agree (the more precise one;
   /// the markers are its check) or the markers are insufficient; "markers"
   /// without a feature estimate, or when 4 fitting marker points contradict
@@ -166,11 +168,12 @@ struct StitchResult {
   SilhouetteRefinement silhouettes;
   StitchEstimate markers, features;
 
-  bool cross_checked = false;      // both estimates exist
-  double disagreement_deg = 0;     // rotation between the two estimates
-  double disagreement_mm = 0;      // their displacement difference at the rock (RMS over the moving side's points)
-  bool consistent = true;          // within agree_deg / agree_mm (true when not cross-checked)
-  std::string warning;             // set when the estimates disagree
+  bool cross_checked = false;   // both estimates exist
+  double disagreement_deg = 0;  // rotation between the two estimates
+  double disagreement_mm =
+      0;  // their displacement difference at the rock (RMS over the moving side's points)
+  bool consistent = true;  // within agree_deg / agree_mm (true when not cross-checked)
+  std::string warning;     // set when the estimates disagree
 };
 
 /// Rigid fit of the marker points located on both sides (3 needs agreeing

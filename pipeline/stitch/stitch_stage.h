@@ -16,12 +16,11 @@
 // of both sides refining, checking or rescuing them: silhouette_stitch.h).
 #pragma once
 
+#include <Eigen/Geometry>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
-
-#include <Eigen/Geometry>
-#include <nlohmann/json.hpp>
 
 #include "common/error.h"
 #include "common/rig_calibration.h"
@@ -42,7 +41,7 @@ struct StitchStageInput {
   const RigCalibration* calibration = nullptr;
   RigConfig rig;  // background labels and ArUco scale markers (the sample's config)
   std::vector<std::string> object_colors = {"purple", "red"};  // the study's object markers
-  std::map<int, std::vector<StitchViewInput>> views;  // per side (1-based)
+  std::map<int, std::vector<StitchViewInput>> views;           // per side (1-based)
 };
 
 /// The stitch record: {"method", "sides": [{"side", "table_from_object_4x4"}],

@@ -43,12 +43,11 @@
 //     manifold.
 #pragma once
 
-#include <cstdint>
-#include <vector>
-
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <cstdint>
 #include <opencv2/core.hpp>
+#include <vector>
 
 #include "common/error.h"
 #include "common/mesh.h"
@@ -57,8 +56,8 @@
 namespace aggscan {
 
 struct PhotoView {
-  cv::Mat image;          // CV_8UC1 grey or CV_8UC3 BGR, at camera.width x camera.height
-  CameraModel camera;     // lens for that resolution
+  cv::Mat image;       // CV_8UC1 grey or CV_8UC3 BGR, at camera.width x camera.height
+  CameraModel camera;  // lens for that resolution
   Eigen::Isometry3d cam_from_object = Eigen::Isometry3d::Identity();  // mm
   // Optional CV_8UC1 rock mask (255 rock, 0 background) of the image's
   // aspect, at its size or the full resolution it was reduced from; it is
@@ -74,21 +73,21 @@ struct PhotoRefineOptions {
   // +5.20 / +1.75 / +7.26 % volume; at 15 mm +0.86 / +1.47 / +0.33 / +2.84 %,
   // while convex sim rocks (seeds 1, 5, 9, 17) moved by 0.00 to -0.06 %.
   double max_depth_mm = 15.0;
-  double step_mm = 0.2;             // spacing of the depth hypotheses
-  int views_per_vertex = 4;         // reference + up to 3 others, most frontal first
-  double min_baseline_deg = 5.0;    // chosen views at least this far apart as seen from the vertex
-  double min_cos = 0.35;            // a view must see the vertex at most ~70 deg off its normal
-  int patch_radius = 4;             // patch is (2r+1)^2 samples
-  bool curved_patches = true;       // patches follow the hull's local quadric (false: its tangent plane)
+  double step_mm = 0.2;           // spacing of the depth hypotheses
+  int views_per_vertex = 4;       // reference + up to 3 others, most frontal first
+  double min_baseline_deg = 5.0;  // chosen views at least this far apart as seen from the vertex
+  double min_cos = 0.35;          // a view must see the vertex at most ~70 deg off its normal
+  int patch_radius = 4;           // patch is (2r+1)^2 samples
+  bool curved_patches = true;  // patches follow the hull's local quadric (false: its tangent plane)
   // With the views' masks, the NCC of a pair of views covers only the patch's
   // samples on the rock in both (at least min_on_rock of them): a patch
   // straddling the silhouette compares the backdrop, which does not turn
   // with the rock, and so scored best once pushed inside, off the rim.
   bool masked_patches = true;
   double min_on_rock = 0.6;
-  double patch_spacing_px = 1.0;    // sample spacing in reference pixels
-  double image_scale = 1.0;         // images are resized by this first (0.5 halves 2016x1512 for speed)
-  double blur_sigma_px = 0.8;       // Gaussian pre-blur against sensor noise and JPEG blocks (scaled px)
+  double patch_spacing_px = 1.0;  // sample spacing in reference pixels
+  double image_scale = 1.0;    // images are resized by this first (0.5 halves 2016x1512 for speed)
+  double blur_sigma_px = 0.8;  // Gaussian pre-blur against sensor noise and JPEG blocks (scaled px)
   int depth_map_downscale = 4;      // depth maps at image size / this
   double depth_tolerance_mm = 1.5;  // a vertex within this of a depth map's surface is visible
   // near_hull_mm, outside_mm, untangle_passes and smooth_lambda were set
@@ -102,24 +101,27 @@ struct PhotoRefineOptions {
   // Masked patches and move_reach then (new captures, 20 + 8): dims within
   // 2 % on 20 (18) and 8 (8), worst 1.49 % (2.03); V MPE +0.01 % (-0.02) and
   // +0.65 % (+0.64); E34's a -0.17 % (+1.81: the collapsed faces' ridge).
-  double min_ncc = 0.6;             // confident: best mean NCC at least this
-  double min_gain = 0.1;            // ... and at least this above the NCC at the hull,
-  double near_hull_mm = 0.5;        // ... for a peak deeper than this (shallower: the peak alone)
-  double outside_mm = 0.6;          // hypotheses start this far outside the hull (0: at the hull)
-  int sample_rings = 1;            // score one vertex per this many rings (0: every vertex); the rest are filled in
-  double outlier_mm = 1.5;          // data this far from the smoothed field are dropped before the second pass
-  int smooth_iterations = 100;      // Laplacian smoothing passes of the displacement field
-  double smooth_lambda = 3.0;       // neighbour weight relative to a confident vertex's data weight
-  double max_face_turn_deg = 150.0; // a face turning more than this is inverted and undone
-                                    // (not less: the hull's sliver faces turn a lot and are harmless)
+  double min_ncc = 0.6;       // confident: best mean NCC at least this
+  double min_gain = 0.1;      // ... and at least this above the NCC at the hull,
+  double near_hull_mm = 0.5;  // ... for a peak deeper than this (shallower: the peak alone)
+  double outside_mm = 0.6;    // hypotheses start this far outside the hull (0: at the hull)
+  int sample_rings =
+      1;  // score one vertex per this many rings (0: every vertex); the rest are filled in
+  double outlier_mm =
+      1.5;  // data this far from the smoothed field are dropped before the second pass
+  int smooth_iterations = 100;  // Laplacian smoothing passes of the displacement field
+  double smooth_lambda = 3.0;   // neighbour weight relative to a confident vertex's data weight
+  double max_face_turn_deg =
+      150.0;  // a face turning more than this is inverted and undone
+              // (not less: the hull's sliver faces turn a lot and are harmless)
   // Vertices move along the hull's normals smoothed over about their move's
   // depth (reach = move_reach x depth), not over 3 rings: behind a convex
   // edge the 3-ring normals converge, and a move deeper than the edge's
   // radius collapses the faces there (an inward offset past the edge). 0:
   // every vertex moves along the 3-ring normal it was scored along.
   double move_reach = 1.0;
-  int untangle_passes = 20;         // centroid passes over folding vertices before pulling them back
-  int surface_smooth_iterations = 30; // Taubin passes over the moved vertices' positions (0: none)
+  int untangle_passes = 20;  // centroid passes over folding vertices before pulling them back
+  int surface_smooth_iterations = 30;  // Taubin passes over the moved vertices' positions (0: none)
   int threads = 2;
 
   /// Empty when usable; otherwise every problem found.
@@ -128,23 +130,24 @@ struct PhotoRefineOptions {
 
 struct PhotoRefineResult {
   Mesh mesh;
-  int64_t vertices = 0;        // of the mesh
-  int64_t vertices_scored = 0; // with at least two views to compare
+  int64_t vertices = 0;         // of the mesh
+  int64_t vertices_scored = 0;  // with at least two views to compare
   int64_t vertices_confident = 0;
-  int64_t vertices_moved = 0;  // final displacement > 0.05 mm
+  int64_t vertices_moved = 0;       // final displacement > 0.05 mm
   double mean_displacement_mm = 0;  // over moved vertices
   double max_displacement_mm = 0;
   int max_direction_passes = 0;  // most smoothing passes a move direction took (move_reach)
-  int64_t faces_folded = 0;   // faces that turned too far with the smoothed moves, before undoing
-  int fold_passes = 0;         // passes pulling folding vertices back towards the hull
-  int untangle_passes = 0;     // centroid passes over folding vertices
+  int64_t faces_folded = 0;  // faces that turned too far with the smoothed moves, before undoing
+  int fold_passes = 0;       // passes pulling folding vertices back towards the hull
+  int untangle_passes = 0;   // centroid passes over folding vertices
   double seconds = 0;
 };
 
 /// Refines `hull` (closed, consistently oriented, counter-clockwise from
 /// outside) against the photos. Errors: bad options, no views, an image of the
 /// wrong size or type.
-Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull, const std::vector<PhotoView>& views,
+Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull,
+                                                   const std::vector<PhotoView>& views,
                                                    const PhotoRefineOptions& opts = {});
 
 }  // namespace aggscan

@@ -20,13 +20,12 @@
 //  the mesh has about `target_faces` faces.
 #pragma once
 
-#include <array>
-#include <cstdint>
-#include <vector>
-
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <array>
+#include <cstdint>
 #include <opencv2/core.hpp>
+#include <vector>
 
 #include "common/error.h"
 #include "common/mesh.h"
@@ -35,8 +34,8 @@
 namespace aggscan {
 
 struct SilhouetteView {
-  cv::Mat mask;                  // CV_8UC1, 0 background / 255 rock, at camera.width x camera.height
-  CameraModel camera;            // lens for that resolution
+  cv::Mat mask;        // CV_8UC1, 0 background / 255 rock, at camera.width x camera.height
+  CameraModel camera;  // lens for that resolution
   Eigen::Isometry3d cam_from_object = Eigen::Isometry3d::Identity();  // mm
 };
 
@@ -47,18 +46,18 @@ struct HalfSpace {
 };
 
 struct VisualHullOptions {
-  double coarse_mm = 4.0;     // coarse grid spacing
-  double voxel_mm = 0.0;      // fine grid spacing; 0 = chosen for target_faces
-  int target_faces = 100000;  // about this many faces when voxel_mm is 0
-  double min_voxel_mm = 0.35; // lower bound of the chosen spacing
+  double coarse_mm = 4.0;      // coarse grid spacing
+  double voxel_mm = 0.0;       // fine grid spacing; 0 = chosen for target_faces
+  int target_faces = 100000;   // about this many faces when voxel_mm is 0
+  double min_voxel_mm = 0.35;  // lower bound of the chosen spacing
   int threads = 2;
 };
 
 struct VisualHullResult {
   Mesh mesh;
   double voxel_mm = 0;
-  Eigen::AlignedBox3d box;          // bounds of the occupied region (object frame, mm)
-  int64_t field_evaluations = 0;    // exact field evaluations (both grids)
+  Eigen::AlignedBox3d box;        // bounds of the occupied region (object frame, mm)
+  int64_t field_evaluations = 0;  // exact field evaluations (both grids)
   double seconds = 0;
 };
 

@@ -10,13 +10,13 @@
 
 #include <nlohmann/json.hpp>
 
-#include "pipeline/poses/bundle_adjust.h"
 #include "pipeline/core/image_io.h"
 #include "pipeline/masks/mask.h"
 #include "pipeline/masks/mask_net.h"
-#include "pipeline/surface/photo_refine.h"
+#include "pipeline/poses/bundle_adjust.h"
 #include "pipeline/sfm/sfm_poses.h"
 #include "pipeline/stitch/stitch.h"
+#include "pipeline/surface/photo_refine.h"
 #include "pipeline/surface/visual_hull.h"
 
 namespace aggscan {

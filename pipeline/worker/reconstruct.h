@@ -30,10 +30,10 @@
 
 #include "common/error.h"
 #include "pipeline/poses/bundle_adjust.h"
-#include "pipeline/surface/photo_refine.h"
 #include "pipeline/sfm/sfm_poses.h"
-#include "pipeline/worker/side_job.h"
+#include "pipeline/surface/photo_refine.h"
 #include "pipeline/surface/visual_hull.h"
+#include "pipeline/worker/side_job.h"
 
 namespace aggscan {
 

@@ -15,9 +15,9 @@
 #include "common/fsutil.h"
 #include "common/log.h"
 #include "pipeline/core/image_io.h"
+#include "pipeline/core/stage.h"
 #include "pipeline/morph/morph2d.h"
 #include "pipeline/worker/options_json.h"
-#include "pipeline/core/stage.h"
 #include "store/empty_turntable.h"
 #include "store/layout.h"
 

@@ -21,9 +21,9 @@
 
 #include "common/error.h"
 #include "pipeline/core/image_io.h"
+#include "pipeline/core/stage_runner.h"
 #include "pipeline/masks/mask.h"
 #include "pipeline/masks/mask_net.h"
-#include "pipeline/core/stage_runner.h"
 #include "store/empty_turntable.h"
 
 namespace aggscan {

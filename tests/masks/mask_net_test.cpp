@@ -20,8 +20,8 @@
 
 #include "config/config.h"
 #include "pipeline/worker/side_job.h"
-#include "tests/masks/sim_photos.h"
 #include "store/layout.h"
+#include "tests/masks/sim_photos.h"
 #include "tests/util/synth_scene.h"
 
 namespace aggscan {
