@@ -1,7 +1,8 @@
 // What aggscand knows about the rig calibration (state_dir/calibration.json,
 // written by `aggscan calibrate`): checked at start-up and at every arm, shown
 // in the status API. Never fatal: a capture without a calibration is still a
-// capture (the worker then takes the full-SfM path).
+// capture (the worker then gives it its 2D figures, or poses it by full SfM
+// when [worker] poses is "sfm" or "auto").
 #pragma once
 
 #include <nlohmann/json.hpp>
