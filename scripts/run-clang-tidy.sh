@@ -10,7 +10,7 @@ BUILD_DIR=${1:-build}
 REGEX=${2:-'/(common|config|store|drivers|daemon|pipeline|cli)/'}
 [ -f "$BUILD_DIR/compile_commands.json" ] || { echo "no $BUILD_DIR/compile_commands.json: configure with cmake first"; exit 1; }
 out=$(run-clang-tidy-14 -p "$BUILD_DIR" -j "${JOBS:-2}" -quiet "$REGEX" 2>&1) || true
-findings=$(printf '%s\n' "$out" | grep -E '^/.*: (warning|error):' | sort -u || true)
+findings=$(printf '%s\n' "$out" | sed 's/\x1b\[[0-9;]*m//g' | grep -E '^/.*: (warning|error):' | sort -u || true)
 if [ -n "$findings" ]; then
   printf '%s\n' "$findings"
   echo "clang-tidy: $(printf '%s\n' "$findings" | wc -l) findings"

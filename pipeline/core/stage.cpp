@@ -82,7 +82,7 @@ StageScope::~StageScope() {
   Notify(s);
 }
 
-Error StageExceptionError(const std::string& stage, std::exception_ptr e) {
+Error StageExceptionError(const std::string& stage, const std::exception_ptr& e) {
   std::string where = stage;
   {
     StageState& s = State();

@@ -48,7 +48,7 @@ class StageScope {
 
 /// The error for the exception `e` caught at the boundary of `stage` (or of
 /// the innermost stage it unwound through).
-Error StageExceptionError(const std::string& stage, std::exception_ptr e);
+Error StageExceptionError(const std::string& stage, const std::exception_ptr& e);
 
 /// Runs fn() (returning Status or Result<T>) as the stage `name`; an
 /// exception from it becomes its error value.
