@@ -270,6 +270,7 @@ Result<CalibrationResult> SolveRigCalibration(const std::vector<BoardView>& all_
             " squares); then capture the side again");
   }
   std::vector<double> angles;
+  angles.reserve(views.size());
   for (const BoardView* v : views) angles.push_back(v->angle_deg);
   const double span = AngleSpanDeg(angles);
   if (span < opt.min_rotation_deg) {
@@ -401,7 +402,7 @@ Result<CalibrationResult> SolveRigCalibration(const std::vector<BoardView>& all_
     const std::vector<std::pair<const double*, const double*>> blocks = {{intr, intr}};
     double C[9];
     if (!cov.Compute(blocks, &problem) || !cov.GetCovarianceBlock(intr, intr, C)) return;
-    for (int i = 0; i < 3; ++i) out[i] = std::sqrt(std::max(0.0, C[i * 4]) * var);
+    for (size_t i = 0; i < 3; ++i) out[i] = std::sqrt(std::max(0.0, C[i * 4]) * var);
   };
   ceres::Solver::Summary summary;
   if (opt.k2 == CalibrateOptions::K2::kZero) {

@@ -154,7 +154,7 @@ bool RefineByEdges(const cv::Mat& lin, const CameraModel* cam, int cells,
         if (!v)
           inside = false;
         else
-          prof[static_cast<size_t>(i + steps)] = *v;
+          prof[i + steps] = *v;
       }
       if (!inside) continue;
       // Dark and light levels from the profile's ends; the edge where it

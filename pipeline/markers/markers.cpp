@@ -530,6 +530,7 @@ std::optional<Eigen::Vector3d> BestSeed(const std::vector<Obs>& obs, const std::
                                         const CameraModel& cam, const MarkerLocateOptions& opts,
                                         const Eigen::Vector3d* other) {
   std::vector<geom::Sighting> s;
+  s.reserve(obs.size());
   for (const Obs& o : obs)
     s.push_back(geom::MakeSighting(cam, poses[o.view], o.blob.center_px, o.view));
   geom::TriangulationOptions two = opts.triangulation;
@@ -606,6 +607,7 @@ SideMarkers LocateObjectMarkers(const std::vector<ViewMarkers>& views,
       const std::vector<int> sup =
           Support(*seed, obs, taken, cam_from_frame, camera, opts.triangulation.inlier_px, &score);
       std::vector<Obs> so;
+      so.reserve(sup.size());
       for (int i : sup) so.push_back(obs[i]);
       Result<geom::TriangulatedPoint> tp = TriangulateSegment(so, cam_from_frame, camera, opts);
       if (!tp.ok()) {

@@ -141,6 +141,7 @@ BundleAdjustResult BundleAdjustSide(const std::vector<ViewFeatures>& views,
   // Tracks and their initial points from the measured poses.
   const auto t_match = std::chrono::steady_clock::now();
   std::vector<geom::Rigid3> poses;
+  poses.reserve(measured_deg.size());
   for (double a : measured_deg) poses.push_back(geom::CamFromTable(cal, a));
   const FeatureCloud cloud = BuildFeatureCloud(views, poses, cal.camera, opts.features);
   res.matching_s = Seconds(t_match);
@@ -351,6 +352,7 @@ BundleAdjustResult BundleAdjustSideImages(int views, const BundleAdjustViewLoade
   std::iota(take.begin(), take.end(), 0);
   if (opts.features.distinct_viewpoints_only && static_cast<int>(measured_deg.size()) == views) {
     std::vector<geom::Rigid3> poses;
+    poses.reserve(measured_deg.size());
     for (double a : measured_deg) poses.push_back(geom::CamFromTable(cal, a));
     take = DistinctViewpoints(poses);
   }
