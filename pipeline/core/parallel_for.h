@@ -17,6 +17,12 @@
 
 namespace aggscan {
 
+/// Threads of the worker's loops that have no thread option of their own:
+/// the rig computer's two cores (the worker runs below the capture daemon's
+/// priority, so using both does not delay a capture). Per-thread slots are
+/// sized by it.
+inline constexpr int kWorkerThreads = 2;
+
 /// Runs fn(i) for every i in [0, n), each exactly once, on up to `threads`
 /// threads (the calling thread among them; threads <= 1 or n <= 1: in order,
 /// on the calling thread). fn may instead take (i, t), t in [0, threads) the

@@ -175,7 +175,7 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side,
   struct Sums {
     TimeNs decode = 0, markers = 0, features = 0, aruco = 0;
   };
-  Sums sums[2];
+  Sums sums[kWorkerThreads];
   auto work = [&](size_t i, int thread) {
     Sums* t = &sums[thread];
     ViewOut& o = out[i];
@@ -224,7 +224,7 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side,
       }
     }
   };
-  ParallelFor(views.size(), 2, work);
+  ParallelFor(views.size(), kWorkerThreads, work);
   int aruco_failures = 0, detect_failures = 0;
   SilhouetteSideInput sil;
   for (size_t i = 0; i < views.size(); ++i) {
@@ -236,10 +236,13 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side,
       sil.cam_from_table.push_back(poses[i]);
     }
   }
-  const TimeNs decode_ns = sums[0].decode + sums[1].decode,
-               markers_ns = sums[0].markers + sums[1].markers,
-               features_ns = sums[0].features + sums[1].features,
-               aruco_ns = sums[0].aruco + sums[1].aruco;
+  TimeNs decode_ns = 0, markers_ns = 0, features_ns = 0, aruco_ns = 0;
+  for (const Sums& t : sums) {
+    decode_ns += t.decode;
+    markers_ns += t.markers;
+    features_ns += t.features;
+    aruco_ns += t.aruco;
+  }
   SideEvidence ev;
   ev.silhouettes = std::move(sil);
   ev.markers = LocateObjectMarkers(vm, poses, cam, in.object_colors);

@@ -405,7 +405,7 @@ std::vector<double> SilhouetteAgreement(const Mesh& mesh,
                                         const std::vector<Eigen::Isometry3d>& cam_from_object,
                                         const std::vector<cv::Mat>& masks, const CameraModel& cam) {
   std::vector<double> iou(masks.size(), 0.0);
-  ParallelFor(masks.size(), 2, [&](size_t vi) {
+  ParallelFor(masks.size(), kWorkerThreads, [&](size_t vi) {
     const cv::Mat sil = RenderMeshSilhouette(mesh, cam_from_object[vi], cam);
     const cv::Mat small_mask = masks[vi] > 127;
     const double inter = cv::countNonZero(sil & small_mask);
@@ -454,8 +454,8 @@ SoleCarving SoleCarvingVolumes(const std::vector<SilhouetteView>& sv,
   const int nx = static_cast<int>(box.sizes().x() / step) + 1,
             ny = static_cast<int>(box.sizes().y() / step) + 1,
             nz = static_cast<int>(box.sizes().z() / step) + 1;
-  std::vector<std::vector<int64_t>> veto(2, std::vector<int64_t>(sv.size(), 0));
-  int64_t agreed[2] = {0, 0};
+  std::vector<std::vector<int64_t>> veto(kWorkerThreads, std::vector<int64_t>(sv.size(), 0));
+  std::vector<int64_t> agreed(kWorkerThreads, 0);
   auto inside = [&](size_t k, const Eigen::Vector3d& p) {
     const Eigen::Vector3d pc = sv[k].cam_from_object * p;
     double u = 0, v = 0;
@@ -464,7 +464,7 @@ SoleCarving SoleCarvingVolumes(const std::vector<SilhouetteView>& sv,
     if (x < 0 || y < 0 || x >= sv[k].mask.cols || y >= sv[k].mask.rows) return false;
     return sv[k].mask.at<uint8_t>(y, x) > 127;
   };
-  ParallelFor(nz, 2, [&](int iz, int t) {
+  ParallelFor(nz, kWorkerThreads, [&](int iz, int t) {
     for (int iy = 0; iy < ny; ++iy) {
       for (int ix = 0; ix < nx; ++ix) {
         const Eigen::Vector3d p = box.min() + step * Eigen::Vector3d(ix + 0.5, iy + 0.5, iz + 0.5);
@@ -485,9 +485,14 @@ SoleCarving SoleCarvingVolumes(const std::vector<SilhouetteView>& sv,
     }
   });
   const double cell = step * step * step;
-  out.agreed_mm3 = static_cast<double>(agreed[0] + agreed[1]) * cell;
-  for (size_t k = 0; k < sv.size(); ++k)
-    out.volume_mm3[k] = static_cast<double>(veto[0][k] + veto[1][k]) * cell;
+  int64_t agreed_cells = 0;
+  for (int64_t a : agreed) agreed_cells += a;
+  out.agreed_mm3 = static_cast<double>(agreed_cells) * cell;
+  for (size_t k = 0; k < sv.size(); ++k) {
+    int64_t cells = 0;
+    for (const auto& per_thread : veto) cells += per_thread[k];
+    out.volume_mm3[k] = static_cast<double>(cells) * cell;
+  }
   return out;
 }
 
@@ -698,7 +703,7 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
     po.image_scale = scale;
     std::vector<PhotoView> pv(used_views.size());
     std::vector<std::string> unreadable(used_views.size());
-    ParallelFor(used_views.size(), 2, [&](size_t i) {
+    ParallelFor(used_views.size(), kWorkerThreads, [&](size_t i) {
       auto img = LoadImage(used_views[i].image, half ? ImageMode::kGrayHalf : ImageMode::kGray,
                            opts.worker.image_limits);
       if (img) {
