@@ -5,6 +5,7 @@
 #include <new>
 #include <opencv2/core.hpp>
 #include <stdexcept>
+#include <thread>
 #include <vector>
 
 namespace aggscan {
@@ -12,6 +13,8 @@ namespace {
 
 struct Frame {
   std::string name;
+  std::thread::id thread;
+  bool concurrent = false;
   int done = 0;
   int total = 0;  // 0: this stage reported no progress
 };
@@ -28,6 +31,18 @@ StageState& State() {
   return *s;
 }
 
+// The innermost stage: the last frame, or the run of concurrent frames at
+// the top of the stack.
+std::string Innermost(const StageState& s) {
+  if (s.stack.empty()) return {};
+  auto first = s.stack.end() - 1;
+  if (first->concurrent)
+    while (first != s.stack.begin() && (first - 1)->concurrent) --first;
+  std::string name;
+  for (auto f = first; f != s.stack.end(); ++f) name += (name.empty() ? "" : " & ") + f->name;
+  return name;
+}
+
 void Notify(StageState& s) {
   if (!s.observer) return;
   int done = 0, total = 0;
@@ -38,7 +53,7 @@ void Notify(StageState& s) {
       break;
     }
   }
-  s.observer(s.stack.empty() ? "" : s.stack.back().name.c_str(), done, total);
+  s.observer(Innermost(s).c_str(), done, total);
 }
 
 }  // namespace
@@ -52,33 +67,39 @@ void SetStageObserver(StageObserver observer) {
 std::string CurrentStage() {
   StageState& s = State();
   std::lock_guard<std::mutex> lock(s.mu);
-  return s.stack.empty() ? std::string() : s.stack.back().name;
+  return Innermost(s);
 }
 
 void ReportStageProgress(int done, int total) {
   StageState& s = State();
   std::lock_guard<std::mutex> lock(s.mu);
-  if (s.stack.empty()) return;
-  s.stack.back().done = std::max(0, std::min(done, total));
-  s.stack.back().total = std::max(0, total);
+  auto f =
+      std::find_if(s.stack.rbegin(), s.stack.rend(), [](const Frame& x) { return !x.concurrent; });
+  if (f == s.stack.rend()) return;
+  f->done = std::max(0, std::min(done, total));
+  f->total = std::max(0, total);
   Notify(s);
 }
 
-StageScope::StageScope(std::string name) : uncaught_(std::uncaught_exceptions()) {
+StageScope::StageScope(std::string name, bool concurrent) : uncaught_(std::uncaught_exceptions()) {
   StageState& s = State();
   std::lock_guard<std::mutex> lock(s.mu);
-  s.threw_in.clear();  // a stage starting means nothing is unwinding
-  s.stack.push_back(Frame{std::move(name)});
+  if (!concurrent) s.threw_in.clear();  // a stage starting means nothing is unwinding
+  s.stack.push_back(Frame{std::move(name), std::this_thread::get_id(), concurrent});
   Notify(s);
 }
 
 StageScope::~StageScope() {
   StageState& s = State();
   std::lock_guard<std::mutex> lock(s.mu);
-  if (s.stack.empty()) return;
-  if (std::uncaught_exceptions() > uncaught_ && s.threw_in.empty())
-    s.threw_in = s.stack.back().name;
-  s.stack.pop_back();
+  // This thread's innermost frame: with concurrent stages it need not be the
+  // last one.
+  const auto me = std::this_thread::get_id();
+  auto f = std::find_if(s.stack.rbegin(), s.stack.rend(),
+                        [&](const Frame& x) { return x.thread == me; });
+  if (f == s.stack.rend()) return;
+  if (std::uncaught_exceptions() > uncaught_ && s.threw_in.empty()) s.threw_in = f->name;
+  s.stack.erase(std::next(f).base());
   Notify(s);
 }
 

@@ -24,10 +24,12 @@ namespace aggscan {
 using StageObserver = void (*)(const char* stage, int done, int total);
 void SetStageObserver(StageObserver observer);
 
-/// The innermost running stage ("" outside any), e.g. "masks side 1 view 7".
+/// The innermost running stage ("" outside any), e.g. "masks side 1 view 7"
+/// (concurrent stages: all of them, see StageScope).
 std::string CurrentStage();
 
-/// The innermost running stage has done `done` of its `total` units (views,
+/// The innermost running stage that is not one of several concurrent ones
+/// has done `done` of its `total` units (views,
 /// sub-stages). Kept by that stage until it ends, so the stages nested in it
 /// show its progress ("masks side 1 view 7" shows 6 of 30 views done).
 void ReportStageProgress(int done, int total);
@@ -35,9 +37,15 @@ void ReportStageProgress(int done, int total);
 /// Marks a stage for its lifetime (nested stages name the innermost). When an
 /// exception unwinds through it, it remembers itself as the stage that threw
 /// (RunStage reports that one, not the outermost).
+///
+/// Stages that run side by side on several threads (the views of a side) are
+/// `concurrent`: while more than one runs, the innermost stage is all of them,
+/// joined by " & " in the order they started ("masks side 1 view 6 & masks
+/// side 1 view 7"), so a crash names every view that was in flight, never a
+/// guess. Progress reported inside them goes to the stage around them.
 class StageScope {
  public:
-  explicit StageScope(std::string name);
+  explicit StageScope(std::string name, bool concurrent = false);
   ~StageScope();
   StageScope(const StageScope&) = delete;
   StageScope& operator=(const StageScope&) = delete;

@@ -1,6 +1,7 @@
 #include "pipeline/worker/side_job.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -8,6 +9,7 @@
 #include <map>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <optional>
 #include <set>
 #include <vector>
 
@@ -15,6 +17,7 @@
 #include "common/fsutil.h"
 #include "common/log.h"
 #include "pipeline/core/image_io.h"
+#include "pipeline/core/parallel_for.h"
 #include "pipeline/core/stage.h"
 #include "pipeline/morph/morph2d.h"
 #include "pipeline/worker/options_json.h"
@@ -314,16 +317,32 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
   if (!empty_set && empty_set.error().cls != ErrorClass::kNotFound) {
     empty_problems.push_back(empty_set.error().message);
   }
-  const int view_count = static_cast<int>(views->size());
-  int views_done = 0;
-  for (const ManifestView& v : *views) {
-    if (opts.cancel && opts.cancel->load())
-      return MakeError(ErrorClass::kCancelled, "interrupted: side " + std::to_string(side) +
-                                                   " of " + sample_id + " will resume from view " +
-                                                   std::to_string(v.view));
-    ReportStageProgress(views_done++, view_count);
-    const StageScope view_stage("masks side " + std::to_string(side) + " view " +
-                                std::to_string(v.view));
+  // Views are independent: the rig's cores take them in turn (a view is
+  // ~0.1 s of mask work on one core). Each view's outcome goes to its own
+  // slot and is gathered in view order afterwards, so the side result and
+  // its log read the same whatever the threads did.
+  struct ViewOutcome {
+    bool started = false;
+    json jv;
+    std::optional<Error> fatal;
+    bool reused = false, image_problem = false, empty_used = false;
+    std::string image_reason, empty_problem, warning;
+  };
+  const size_t view_count = views->size();
+  std::vector<ViewOutcome> outcomes(view_count);
+  std::atomic<int> views_done{0};
+  std::atomic<bool> stop{false};
+  auto do_view = [&](size_t i) {
+    const ManifestView& v = (*views)[i];
+    ViewOutcome& o = outcomes[i];
+    if (stop.load() || (opts.cancel && opts.cancel->load())) {
+      stop = true;
+      return;
+    }
+    o.started = true;
+    const StageScope view_stage(
+        "masks side " + std::to_string(side) + " view " + std::to_string(v.view),
+        /*concurrent=*/true);
     const TimeNs t0 = MonotonicNs();
     const std::string mask_path = ViewMaskPath(sample_dir, side, v.view);
     cv::Mat mask;
@@ -331,34 +350,36 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
       auto reuse = LoadImage(mask_path, ImageMode::kGray, opts.image_limits);
       if (reuse) {
         mask = std::move(*reuse);
-        ++reused;
+        o.reused = true;
       }
     }
     cv::Size image_size = mask.size();
     if (mask.empty()) {
       auto bytes = ReadFile(side_dir + "/" + v.image);
-      if (!bytes.ok()) return bytes.error();
+      if (!bytes.ok()) {
+        o.fatal = bytes.error();
+        stop = true;
+        return;
+      }
       auto img = DecodeImage(*bytes, ImageMode::kColor, layout::SideDirName(side) + "/" + v.image,
                              opts.image_limits);
       if (!img.ok()) {
         // A photo damaged in the camera, on the link or in storage: the view
         // is left out (a grey, half-decoded photo would carve rock away) and
         // named with what to do.
-        image_problems.push_back(v.view);
-        image_reasons += (image_reasons.empty() ? "" : "; ") + img.error().message;
-        json jv = {
-            {"view", v.view},
-            {"image", v.image},
-            {"ok", false},
-            {"image_problem", img.error().message},
-            {"error", img.error().message +
-                          ": re-shoot the side (arm the sample again) and check the camera's "
-                          "link and the storage"}};
-        LogLine(LogLevel::kWarning, kCat, sample_id,
-                "side " + std::to_string(side) + " view " + std::to_string(v.view) + ": " +
-                    img.error().ToString());
-        jviews.push_back(std::move(jv));
-        continue;
+        o.image_problem = true;
+        o.image_reason = img.error().message;
+        o.jv = {{"view", v.view},
+                {"image", v.image},
+                {"ok", false},
+                {"image_problem", img.error().message},
+                {"error", img.error().message +
+                              ": re-shoot the side (arm the sample again) and check the camera's "
+                              "link and the storage"}};
+        o.warning = "side " + std::to_string(side) + " view " + std::to_string(v.view) + ": " +
+                    img.error().ToString();
+        views_done++;
+        return;
       }
       image_size = img->size();
       cv::Mat empty;
@@ -367,24 +388,34 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
         empty = EmptyTurntablePhoto(sample_dir, *empty_set, MeasuredAngle(side_dir, v.sidecar),
                                     *img, opts, &why);
         if (empty.empty()) {
-          empty_problems.push_back(layout::ViewStem(v.view) + ": " + why);
+          o.empty_problem = layout::ViewStem(v.view) + ": " + why;
         } else {
-          ++empty_used;
+          o.empty_used = true;
         }
       }
       if (opts.mask_net) {
         auto m = opts.mask_net->Mask(*img, opts.mask, empty);
-        if (!m.ok()) return m.error();
+        if (!m.ok()) {
+          o.fatal = m.error();
+          stop = true;
+          return;
+        }
         mask = std::move(*m);
       } else {
         mask = ComputeForegroundMask(*img, empty, opts.mask);
       }
       std::vector<unsigned char> png;
-      if (!cv::imencode(".png", mask, png))
-        return MakeError(ErrorClass::kInternal,
-                         "PNG encoding of the mask of view " + std::to_string(v.view) + " failed");
-      if (Status s = WriteFileAtomic(mask_path, std::span<const unsigned char>(png)); !s.ok())
-        return s;
+      if (!cv::imencode(".png", mask, png)) {
+        o.fatal = MakeError(ErrorClass::kInternal, "PNG encoding of the mask of view " +
+                                                       std::to_string(v.view) + " failed");
+        stop = true;
+        return;
+      }
+      if (Status st = WriteFileAtomic(mask_path, std::span<const unsigned char>(png)); !st.ok()) {
+        o.fatal = st.error();
+        stop = true;
+        return;
+      }
     }
     const double mask_ms = static_cast<double>(MonotonicNs() - t0) / 1e6;
 
@@ -399,8 +430,7 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
         for (const char* k : {"commanded_angle_deg", "measured_angle_deg"})
           if (js.contains(k) && js[k].is_number()) jv[k] = js[k];
       } else {
-        LogLine(LogLevel::kWarning, kCat, sample_id,
-                "sidecar " + v.sidecar + " is missing or unreadable");
+        o.warning = "sidecar " + v.sidecar + " is missing or unreadable";
       }
     }
     const double total_px = static_cast<double>(image_size.area());
@@ -419,12 +449,35 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
     } else {
       jv["ok"] = false;
       jv["error"] = "no rock found in this view";
-      LogLine(LogLevel::kWarning, kCat, sample_id,
-              "side " + std::to_string(side) + " view " + std::to_string(v.view) +
-                  ": no rock found in the mask");
+      o.warning = "side " + std::to_string(side) + " view " + std::to_string(v.view) +
+                  ": no rock found in the mask";
     }
     jv["timing_ms"] = mask_ms;
-    jviews.push_back(std::move(jv));
+    o.jv = std::move(jv);
+    ReportStageProgress(++views_done, static_cast<int>(view_count));
+  };
+  ReportStageProgress(0, static_cast<int>(view_count));
+  ParallelFor(view_count, opts.threads, do_view);
+  for (size_t i = 0; i < view_count; ++i) {
+    ViewOutcome& o = outcomes[i];
+    if (o.fatal) return *o.fatal;
+    if (!o.started) {
+      // Views already finished keep their masks; the rerun takes them up.
+      return MakeError(ErrorClass::kCancelled, "interrupted: side " + std::to_string(side) +
+                                                   " of " + sample_id + " will resume from view " +
+                                                   std::to_string((*views)[i].view));
+    }
+  }
+  for (ViewOutcome& o : outcomes) {
+    if (!o.warning.empty()) LogLine(LogLevel::kWarning, kCat, sample_id, o.warning);
+    if (o.reused) ++reused;
+    if (o.image_problem) {
+      image_problems.push_back(o.jv.value("view", -1));
+      image_reasons += (image_reasons.empty() ? "" : "; ") + o.image_reason;
+    }
+    if (o.empty_used) ++empty_used;
+    if (!o.empty_problem.empty()) empty_problems.push_back(o.empty_problem);
+    jviews.push_back(std::move(o.jv));
   }
   // Masks that cannot be the rock's whole silhouette: cut by the photo's
   // edge, or a small fraction of the side's largest (the segmentation lost

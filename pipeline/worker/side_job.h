@@ -21,6 +21,7 @@
 
 #include "common/error.h"
 #include "pipeline/core/image_io.h"
+#include "pipeline/core/parallel_for.h"
 #include "pipeline/core/stage_runner.h"
 #include "pipeline/masks/mask.h"
 #include "pipeline/masks/mask_net.h"
@@ -36,7 +37,8 @@ struct WorkerOptions {
   double empty_turntable_max_angle_deg =
       0.5;  // [mask]: the empty-turntable photo's angle within this of the view's
   const std::atomic<bool>* cancel =
-      nullptr;  // checked between views; set -> kCancelled "interrupted"
+      nullptr;                   // checked between views; set -> kCancelled "interrupted"
+  int threads = kWorkerThreads;  // views masked side by side
 };
 
 /// Masks and 2D morphology of side `side` (>= 1) of the sample at `sample_dir`.

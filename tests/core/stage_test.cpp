@@ -2,11 +2,14 @@
 
 #include <gtest/gtest.h>
 
+#include <condition_variable>
+#include <mutex>
 #include <new>
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 #include <stdexcept>
 #include <string>
+#include <thread>
 #include <vector>
 
 namespace aggscan {
@@ -96,6 +99,52 @@ TEST(RunStage, InnermostStageIsNamedAndObserved) {
   EXPECT_EQ(CurrentStage(), "");
   EXPECT_EQ(g_seen, (std::vector<std::string>{"job", "masks side 1", "masks side 1 view 4",
                                               "masks side 1", "job", ""}));
+}
+
+// Views masked side by side on two threads: while both run, the innermost
+// stage is both of them (a crash names every view in flight); each ends its
+// own frame whatever the order; progress goes to the stage around them.
+TEST(RunStage, ConcurrentStagesAreNamedTogetherAndEndInAnyOrder) {
+  const StageScope side("masks side 1");
+  ReportStageProgress(0, 4);
+  std::mutex mu;
+  std::condition_variable cv;
+  int step = 0;
+  auto wait_for = [&](int s) {
+    std::unique_lock<std::mutex> lock(mu);
+    cv.wait(lock, [&] { return step >= s; });
+  };
+  auto advance = [&] {
+    std::lock_guard<std::mutex> lock(mu);
+    ++step;
+    cv.notify_all();
+  };
+  std::string both, after_first_ended;
+  std::thread a([&] {
+    const StageScope view("masks side 1 view 6", /*concurrent=*/true);
+    advance();  // 1: view 6 runs
+    wait_for(2);
+    both = CurrentStage();
+    ReportStageProgress(1, 4);
+    advance();  // 3: view 6 ends first though it started first
+  });
+  std::thread b([&] {
+    wait_for(1);
+    {
+      const StageScope view("masks side 1 view 7", /*concurrent=*/true);
+      advance();  // 2: view 7 runs beside it
+      wait_for(3);
+    }
+  });
+  wait_for(3);
+  a.join();
+  // view 6 has ended while view 7 may still be running.
+  after_first_ended = CurrentStage();
+  b.join();
+  EXPECT_EQ(both, "masks side 1 view 6 & masks side 1 view 7");
+  EXPECT_TRUE(after_first_ended == "masks side 1 view 7" || after_first_ended == "masks side 1")
+      << after_first_ended;
+  EXPECT_EQ(CurrentStage(), "masks side 1");
 }
 
 // A stage's progress shows in the stages nested in it and ends with it; the
