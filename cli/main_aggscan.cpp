@@ -17,6 +17,7 @@
 #include "cli/sim_capture.h"
 #include "cli/user_command.h"
 #include "cli/validate_command.h"
+#include "pipeline/core/image_io.h"
 
 namespace {
 
@@ -131,6 +132,7 @@ int SimCommand(const std::vector<std::string>& a) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  aggscan::KeepFreedImageMemory();  // reconstruct, validate, masks: photo after photo
   std::vector<std::string> args(argv + 1, argv + argc);
   // Global client options may precede the command word.
   std::string cmd;

@@ -47,6 +47,7 @@
 #include "common/log.h"
 #include "config/config.h"
 #include "pipeline/calib/calibrate.h"
+#include "pipeline/core/image_io.h"
 #include "pipeline/core/stage.h"
 #include "pipeline/worker/reconstruct.h"
 #include "pipeline/worker/side_job.h"
@@ -433,6 +434,7 @@ int ChildRunJob(const std::string& state_dir, const Job& job, const Config& cfg)
 }  // namespace
 
 int main(int argc, char** argv) {
+  aggscan::KeepFreedImageMemory();
   Args args;
   if (!ParseArgs(argc, argv, &args)) {
     Usage(stderr);
