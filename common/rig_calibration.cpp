@@ -34,6 +34,15 @@ CameraModel CameraModel::Resized(int new_width, int new_height) const {
   return m;
 }
 
+CameraModel CameraModel::Cropped(int x, int y, int new_width, int new_height) const {
+  CameraModel m = *this;
+  m.width = new_width;
+  m.height = new_height;
+  m.cx = cx - x;
+  m.cy = cy - y;
+  return m;
+}
+
 std::array<double, 3> RigCalibration::CameraCentreTable0() const {
   const auto& R = R_cam_table0;
   const auto& t = t_cam_table0;

@@ -39,6 +39,11 @@ struct CameraModel {
   /// The same lens at another resolution with the same aspect ratio (focal
   /// lengths and centre scale with the width).
   CameraModel Resized(int new_width, int new_height) const;
+  /// The same lens seen through the window of `width` x `height` pixels whose
+  /// top-left pixel is (x, y) of the full frame: only the centre moves, so a
+  /// crop of a photo projects exactly as the photo did (distortion is applied
+  /// before the centre is added).
+  CameraModel Cropped(int x, int y, int new_width, int new_height) const;
 };
 
 struct RigCalibration {

@@ -128,5 +128,32 @@ TEST(RigCalibration, FitsSameResolutionOrSameAspect) {
   EXPECT_NEAR(half.cy, truth_half.camera.cy, 1e-9);
 }
 
+// A window of the frame projects every point where the full frame does,
+// shifted by the window's corner (distortion included), and halving an
+// even-cornered window gives the lens of the halved frame's window.
+TEST(CameraModel, CroppedProjectsAsTheFullFrameShifted) {
+  CameraModel c;
+  c.width = 2016, c.height = 1512;
+  c.fx = 2600, c.fy = 2610, c.cx = 1011.3, c.cy = 749.8;
+  c.k1 = -0.12, c.k2 = 0.05, c.p1 = 0.001, c.p2 = -0.0007, c.k3 = 0.01;
+  const CameraModel w = c.Cropped(600, 402, 800, 640);
+  EXPECT_EQ(w.width, 800);
+  EXPECT_EQ(w.height, 640);
+  for (const std::array<double, 3>& p :
+       {std::array<double, 3>{10, -20, 600}, std::array<double, 3>{-150, 90, 640},
+        std::array<double, 3>{0, 0, 500}}) {
+    double u = 0, v = 0, uw = 0, vw = 0;
+    ASSERT_TRUE(c.Project(p, &u, &v));
+    ASSERT_TRUE(w.Project(p, &uw, &vw));
+    EXPECT_NEAR(uw, u - 600, 1e-9);
+    EXPECT_NEAR(vw, v - 402, 1e-9);
+    double uh = 0, vh = 0, uwh = 0, vwh = 0;
+    ASSERT_TRUE(c.Resized(1008, 756).Project(p, &uh, &vh));
+    ASSERT_TRUE(w.Resized(400, 320).Project(p, &uwh, &vwh));
+    EXPECT_NEAR(uwh, uh - 300, 1e-9);
+    EXPECT_NEAR(vwh, vh - 201, 1e-9);
+  }
+}
+
 }  // namespace
 }  // namespace aggscan
