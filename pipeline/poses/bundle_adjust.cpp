@@ -109,7 +109,8 @@ std::string BundleAdjustOptions::Check() const {
   bad(!(huber_px > 0), "huber_px must be > 0");
   bad(!(outlier_px > huber_px), "outlier_px must exceed huber_px");
   bad(min_tracks < 1 || min_views < 2, "min_tracks must be >= 1 and min_views >= 2");
-  bad(max_iterations < 1 || num_threads < 1, "max_iterations and num_threads must be >= 1");
+  bad(max_iterations < 1 || num_threads < 1 || threads < 1,
+      "max_iterations, num_threads and threads must be >= 1");
   bad(!(features.image_scale > 0 && features.image_scale <= 1),
       "features.image_scale must be in (0, 1]");
   bad(sift_max_width < 64, "sift_max_width must be >= 64 px");
@@ -356,13 +357,16 @@ BundleAdjustResult BundleAdjustSideImages(int views, const BundleAdjustViewLoade
     for (double a : measured_deg) poses.push_back(geom::CamFromTable(cal, a));
     take = DistinctViewpoints(poses);
   }
-  for (int i : take) {
+  // One photo per thread at a time: the loader decodes it, SIFT runs on the
+  // rock's box, and the photo is dropped before the next.
+  ParallelFor(take.size(), opts.threads, [&](size_t k) {
+    const int i = take[k];
     cv::Mat bgr, mask;
-    if (!load(i, &bgr, &mask) || bgr.empty() || mask.empty()) continue;
+    if (!load(i, &bgr, &mask) || bgr.empty() || mask.empty()) return;
     FeatureCloudOptions fo = opts.features;
     fo.image_scale = std::min(1.0, static_cast<double>(opts.sift_max_width) / bgr.cols);
-    vf[i] = ExtractRockFeatures(bgr, mask, fo);
-  }
+    vf[static_cast<size_t>(i)] = ExtractRockFeatures(bgr, mask, fo);
+  });
   const double features_s = Seconds(t0);
   BundleAdjustResult r = BundleAdjustSide(vf, measured_deg, cal, opts);
   r.features_s = features_s;

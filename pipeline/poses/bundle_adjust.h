@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "common/rig_calibration.h"
+#include "pipeline/core/parallel_for.h"
 #include "pipeline/stitch/stitch.h"
 
 namespace aggscan {
@@ -53,10 +54,11 @@ struct BundleAdjustOptions {
   double outlier_px = 3.0;
   /// A larger correction (deg) means a wrong model: rejected, measured angles kept.
   double max_correction_deg = 2.0;
-  int min_tracks = 40;       // fewer tracks (after outliers): no adjustment
-  int min_views = 3;         // fewer views with observations: no adjustment
-  int max_iterations = 200;  // Levenberg-Marquardt iterations per solve
-  int num_threads = 1;       // the rig's 2 cores are shared with the capture daemon
+  int min_tracks = 40;           // fewer tracks (after outliers): no adjustment
+  int min_views = 3;             // fewer views with observations: no adjustment
+  int max_iterations = 200;      // Levenberg-Marquardt iterations per solve
+  int num_threads = 1;           // Ceres threads (a side's problem is small: ~0.4 s on one core)
+  int threads = kWorkerThreads;  // photos decoded and their features extracted side by side
 
   /// Empty when valid, else what is wrong.
   std::string Check() const;

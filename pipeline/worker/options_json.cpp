@@ -5,13 +5,13 @@ namespace aggscan {
 using json = nlohmann::json;
 
 // A field added to a struct changes its size: add the field below, then the
-// size here.
+// size here. Thread counts are left out: they do not change a result.
 static_assert(sizeof(MaskOptions) == 208, "MaskOptions changed: add the new field to OptionsJson");
 static_assert(sizeof(PhotoRefineOptions) == 192,
               "PhotoRefineOptions changed: add the new field to OptionsJson");
 static_assert(sizeof(VisualHullOptions) == 40,
               "VisualHullOptions changed: add the new field to OptionsJson");
-static_assert(sizeof(BundleAdjustOptions) == 184,
+static_assert(sizeof(BundleAdjustOptions) == 192,
               "BundleAdjustOptions changed: add the new field to OptionsJson");
 static_assert(sizeof(SfmPosesOptions) == 104,
               "SfmPosesOptions changed: add the new field to OptionsJson");
