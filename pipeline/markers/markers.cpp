@@ -125,18 +125,23 @@ std::vector<cv::Point> QuadOf(const std::vector<cv::Point>& hull) {
   return {};
 }
 
-// Pixel statistics of one connected segment (labels image == id inside rect).
-SegmentBlob BlobOf(const cv::Mat& labels, int id, const cv::Rect& rect, const cv::Mat& inner_mask) {
+// Pixel statistics of one connected segment (labels image == id inside rect;
+// `labels` and `inner_mask` are a window whose top-left is `origin` in the
+// photo, and the statistics are in the photo's pixels).
+SegmentBlob BlobOf(const cv::Mat& labels, int id, const cv::Rect& rect, const cv::Mat& inner_mask,
+                   cv::Point origin) {
   double sx = 0, sy = 0, sxx = 0, syy = 0, sxy = 0;
   int n = 0, edge = 0;
-  for (int y = rect.y; y < rect.y + rect.height; ++y) {
-    const int* row = labels.ptr<int>(y);
-    const uint8_t* inner = inner_mask.ptr<uint8_t>(y);
-    for (int x = rect.x; x < rect.x + rect.width; ++x) {
-      if (row[x] != id) continue;
-      sx += x, sy += y, sxx += double(x) * x, syy += double(y) * y, sxy += double(x) * y;
+  for (int wy = rect.y; wy < rect.y + rect.height; ++wy) {
+    const int* row = labels.ptr<int>(wy);
+    const uint8_t* inner = inner_mask.ptr<uint8_t>(wy);
+    const double y = wy + origin.y;
+    for (int wx = rect.x; wx < rect.x + rect.width; ++wx) {
+      if (row[wx] != id) continue;
+      const double x = wx + origin.x;
+      sx += x, sy += y, sxx += x * x, syy += y * y, sxy += x * y;
       ++n;
-      edge += inner[x] == 0;
+      edge += inner[wx] == 0;
     }
   }
   SegmentBlob b;
@@ -183,32 +188,91 @@ std::string MarkerDetectOptions::Check() const {
   return {};
 }
 
-cv::Mat ClassifyColors(const cv::Mat& bgr, const MarkerDetectOptions& opts) {
-  // 8-bit HSV with the full hue range: H in 0..255 for 0..360 deg.
-  cv::Mat hsv;
-  cv::cvtColor(bgr, hsv, cv::COLOR_BGR2HSV_FULL);
-  std::vector<cv::Mat> ch;
-  cv::split(hsv, ch);
+namespace {
+
+// The colour class rule below as two tables, made by the very OpenCV
+// operations that define it (so a lookup gives what they give, to the bit):
+// per hue the class (a later class wins where two overlap), per
+// (saturation, value) whether the pixel is paint at all.
+struct ClassTables {
+  std::array<uint8_t, 256> hue_class{};
+  cv::Mat paint;  // 256 x 256 CV_8U, row = saturation, column = value; 0/255
+};
+
+ClassTables MakeClassTables(const MarkerDetectOptions& opts) {
+  ClassTables t;
+  cv::Mat sat(256, 256, CV_8UC1), val(256, 256, CV_8UC1);
+  for (int y = 0; y < 256; ++y) {
+    for (int x = 0; x < 256; ++x) {
+      sat.at<uint8_t>(y, x) = static_cast<uint8_t>(y);
+      val.at<uint8_t>(y, x) = static_cast<uint8_t>(x);
+    }
+  }
   // Chroma (max - min) = S * V / 255: low on noisy dark pixels whatever S says.
   cv::Mat chroma;
-  cv::multiply(ch[1], ch[2], chroma, 1.0 / 255.0, CV_8U);
-  cv::Mat paint = (ch[1] >= opts.min_saturation * 255.0) & (chroma >= opts.min_chroma * 255.0);
-  cv::Mat cls(bgr.size(), CV_8UC1, cv::Scalar(0));
+  cv::multiply(sat, val, chroma, 1.0 / 255.0, CV_8U);
+  t.paint = (sat >= opts.min_saturation * 255.0) & (chroma >= opts.min_chroma * 255.0);
+  cv::Mat hue(1, 256, CV_8UC1), cls(1, 256, CV_8UC1, cv::Scalar(0));
+  for (int h = 0; h < 256; ++h) hue.at<uint8_t>(0, h) = static_cast<uint8_t>(h);
   for (size_t i = 0; i < opts.colors.size(); ++i) {
     const ColorClass& c = opts.colors[i];
     const double lo = (c.hue_deg - c.hue_tol_deg) * 256.0 / 360.0;
     const double hi = (c.hue_deg + c.hue_tol_deg) * 256.0 / 360.0;
     cv::Mat in;
     if (lo < 0) {
-      in = (ch[0] >= lo + 256.0) | (ch[0] <= hi);
+      in = (hue >= lo + 256.0) | (hue <= hi);
     } else if (hi >= 256.0) {
-      in = (ch[0] >= lo) | (ch[0] <= hi - 256.0);
+      in = (hue >= lo) | (hue <= hi - 256.0);
     } else {
-      in = (ch[0] >= lo) & (ch[0] <= hi);
+      in = (hue >= lo) & (hue <= hi);
     }
-    cls.setTo(cv::Scalar(static_cast<double>(i + 1)), in & paint);
+    cls.setTo(cv::Scalar(static_cast<double>(i + 1)), in);
+  }
+  for (int h = 0; h < 256; ++h) t.hue_class[static_cast<size_t>(h)] = cls.at<uint8_t>(0, h);
+  return t;
+}
+
+// ClassifyColors, and the box of each class's pixels (index = class value;
+// empty where a class has none): the steps after it look only there.
+cv::Mat ClassifyColorsBoxed(const cv::Mat& bgr, const MarkerDetectOptions& opts,
+                            std::vector<cv::Rect>* boxes) {
+  // 8-bit HSV with the full hue range: H in 0..255 for 0..360 deg.
+  cv::Mat hsv;
+  cv::cvtColor(bgr, hsv, cv::COLOR_BGR2HSV_FULL);
+  const ClassTables t = MakeClassTables(opts);
+  const size_t n = opts.colors.size() + 1;
+  std::vector<int> x0(n, bgr.cols), y0(n, bgr.rows), x1(n, -1), y1(n, -1);
+  cv::Mat cls(bgr.size(), CV_8UC1);
+  for (int y = 0; y < hsv.rows; ++y) {
+    const uint8_t* p = hsv.ptr<uint8_t>(y);
+    uint8_t* c = cls.ptr<uint8_t>(y);
+    for (int x = 0; x < hsv.cols; ++x, p += 3) {
+      const uint8_t k = t.paint.at<uint8_t>(p[1], p[2]) ? t.hue_class[p[0]] : 0;
+      c[x] = k;
+      if (k) {
+        x0[k] = std::min(x0[k], x), x1[k] = std::max(x1[k], x);
+        y0[k] = std::min(y0[k], y), y1[k] = std::max(y1[k], y);
+      }
+    }
+  }
+  if (boxes) {
+    boxes->assign(n, cv::Rect());
+    for (size_t k = 1; k < n; ++k)
+      if (x1[k] >= 0) (*boxes)[k] = cv::Rect(x0[k], y0[k], x1[k] - x0[k] + 1, y1[k] - y0[k] + 1);
   }
   return cls;
+}
+
+// `r` grown by `margin` on every side, within `frame`.
+cv::Rect Grown(const cv::Rect& r, int margin, const cv::Size& frame) {
+  return cv::Rect(r.x - margin, r.y - margin, r.width + 2 * margin, r.height + 2 * margin) &
+         cv::Rect(0, 0, frame.width, frame.height);
+}
+
+}  // namespace
+
+cv::Mat ClassifyColors(const cv::Mat& bgr, const MarkerDetectOptions& opts) {
+  return ClassifyColorsBoxed(bgr, opts, nullptr);
 }
 
 double ExpectedLabelSidePx(const RigCalibration& cal, const RigConfig& rig) {
@@ -242,24 +306,36 @@ Result<ViewMarkers> DetectViewMarkers(const cv::Mat& bgr, const cv::Mat& rock_ma
       }
     }
   }
-  const cv::Mat cls = ClassifyColors(bgr, opts);
+  // Every step below works on the box of the pixels it can concern (a
+  // class's paint, the rock and its surroundings): the rock and its labels
+  // cover a few per cent of the frame.
+  std::vector<cv::Rect> class_box;
+  const cv::Mat cls = ClassifyColorsBoxed(bgr, opts, &class_box);
   const int W = bgr.cols, H = bgr.rows;
   cv::Mat rock;
   cv::compare(rock_mask, 0, rock, cv::CMP_GT);
+  const cv::Rect rock_box = cv::boundingRect(rock);
   ViewMarkers out;
 
   // --- background labels ---
-  cv::Mat near_rock;
-  cv::dilate(
-      rock, near_rock,
-      cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * opts.rock_clearance_px + 1,
-                                                            2 * opts.rock_clearance_px + 1)));
+  cv::Mat near_rock = cv::Mat::zeros(rock.size(), CV_8UC1);
+  if (rock_box.area() > 0) {
+    const cv::Rect r = Grown(rock_box, opts.rock_clearance_px + 1, rock.size());
+    cv::Mat grown;
+    cv::dilate(
+        rock(r), grown,
+        cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * opts.rock_clearance_px + 1,
+                                                              2 * opts.rock_clearance_px + 1)));
+    grown.copyTo(near_rock(r));
+  }
   const double min_side = opts.label_min_side_frac * W, max_side = opts.label_max_side_frac * W;
   const cv::Mat k3 = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(3, 3));
   for (const std::string& color : label_colors) {
     int idx = 0;
     FindClass(opts, color, &idx);
-    cv::Mat bin = cls == idx;
+    const cv::Rect box = Grown(class_box[static_cast<size_t>(idx)], 2, cls.size());
+    if (box.area() == 0) continue;
+    cv::Mat bin = cls(box) == idx;
     cv::morphologyEx(bin, bin, cv::MORPH_OPEN, k3);
     cv::Mat lab, stats, cents;
     const int n = cv::connectedComponentsWithStats(bin, lab, stats, cents, 8, CV_32S);
@@ -273,10 +349,12 @@ Result<ViewMarkers> DetectViewMarkers(const cv::Mat& bgr, const cv::Mat& rock_ma
           (side < 0.4 * opts.expected_label_side_px || side > 2.5 * opts.expected_label_side_px)) {
         continue;
       }
-      const cv::Rect r(stats.at<int>(i, cv::CC_STAT_LEFT), stats.at<int>(i, cv::CC_STAT_TOP),
-                       stats.at<int>(i, cv::CC_STAT_WIDTH), stats.at<int>(i, cv::CC_STAT_HEIGHT));
+      const cv::Rect in_box(stats.at<int>(i, cv::CC_STAT_LEFT), stats.at<int>(i, cv::CC_STAT_TOP),
+                            stats.at<int>(i, cv::CC_STAT_WIDTH),
+                            stats.at<int>(i, cv::CC_STAT_HEIGHT));
+      const cv::Rect r = in_box + box.tl();
       if (r.x <= 1 || r.y <= 1 || r.x + r.width >= W - 1 || r.y + r.height >= H - 1) continue;
-      const cv::Mat blob = lab(r) == i;
+      const cv::Mat blob = lab(in_box) == i;
       if (cv::countNonZero(blob & near_rock(r)) > 0) continue;  // partly hidden by the rock
       std::vector<std::vector<cv::Point>> contours;
       cv::findContours(blob.clone(), contours, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_NONE);
@@ -305,20 +383,28 @@ Result<ViewMarkers> DetectViewMarkers(const cv::Mat& bgr, const cv::Mat& rock_ma
   }
 
   // --- object markers ---
-  cv::Mat near_mask, inner;
+  // On the rock's box grown by the dilation: nothing of these reaches past it.
   const int d = opts.marker_mask_dilate_px;
-  cv::dilate(rock, near_mask,
-             cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * d + 1, 2 * d + 1)));
-  // Pixels of the rock at least 2 px from the background: a segment reaching
-  // outside this touches the silhouette.
-  cv::erode(rock, inner, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(5, 5)));
+  const cv::Rect near_box = rock_box.area() > 0 ? Grown(rock_box, d + 3, rock.size()) : cv::Rect();
+  cv::Mat near_mask, inner;
+  if (near_box.area() > 0) {
+    cv::dilate(rock(near_box), near_mask,
+               cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * d + 1, 2 * d + 1)));
+    // Pixels of the rock at least 2 px from the background: a segment
+    // reaching outside this touches the silhouette.
+    cv::erode(rock(near_box), inner, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(5, 5)));
+  }
   const double min_area = opts.segment_min_area_frac * W * W;
   for (const std::string& color : object_colors) {
     int idx = 0;
     FindClass(opts, color, &idx);
     ObjectMarkerSighting sight;
     sight.color = color;
-    const cv::Mat bin = (cls == idx) & near_mask;
+    if (near_box.area() == 0) {
+      out.objects.push_back(std::move(sight));
+      continue;
+    }
+    const cv::Mat bin = (cls(near_box) == idx) & near_mask;
     cv::Mat lab, stats, cents;
     const int n = cv::connectedComponentsWithStats(bin, lab, stats, cents, 8, CV_32S);
     std::vector<SegmentBlob> blobs;
@@ -328,8 +414,8 @@ Result<ViewMarkers> DetectViewMarkers(const cv::Mat& bgr, const cv::Mat& rock_ma
       const cv::Rect r(stats.at<int>(i, cv::CC_STAT_LEFT), stats.at<int>(i, cv::CC_STAT_TOP),
                        stats.at<int>(i, cv::CC_STAT_WIDTH), stats.at<int>(i, cv::CC_STAT_HEIGHT));
       // Mostly outside the mask: paint of the background (a label), not the rock.
-      if (cv::countNonZero((lab(r) == i) & rock(r)) * 2 < area) continue;
-      blobs.push_back(BlobOf(lab, i, r, inner));
+      if (cv::countNonZero((lab(r) == i) & rock(r + near_box.tl())) * 2 < area) continue;
+      blobs.push_back(BlobOf(lab, i, r, inner, near_box.tl()));
     }
     std::sort(blobs.begin(), blobs.end(),
               [](const SegmentBlob& a, const SegmentBlob& b) { return a.area_px > b.area_px; });

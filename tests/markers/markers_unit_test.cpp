@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <opencv2/imgproc.hpp>
 #include <random>
 
 #include "pipeline/core/geometry.h"
@@ -222,6 +223,48 @@ TEST(MarkersUnit, OptionsAreChecked) {
   EXPECT_TRUE(vm->labels.empty());
   ASSERT_EQ(vm->objects.size(), 1u);
   EXPECT_FALSE(vm->objects[0].seen());
+}
+
+// The colour classes follow the rule stated on OpenCV's HSV planes (paint:
+// saturation and chroma over their floors; class: the hue's interval, a later
+// class winning an overlap) on every pixel of a photo of random colours, with
+// the default classes and with overlapping, wrapping ones.
+TEST(MarkersUnit, ColourClassesFollowTheRuleOnEveryPixel) {
+  std::mt19937 rng(7);
+  std::uniform_int_distribution<int> byte(0, 255);
+  cv::Mat img(300, 400, CV_8UC3);
+  for (int y = 0; y < img.rows; ++y)
+    for (int x = 0; x < img.cols; ++x)
+      img.at<cv::Vec3b>(y, x) =
+          cv::Vec3b(static_cast<uchar>(byte(rng)), static_cast<uchar>(byte(rng)),
+                    static_cast<uchar>(byte(rng)));
+  MarkerDetectOptions overlapping;
+  overlapping.colors = {{"a", 350.0, 30.0}, {"b", 10.0, 20.0}, {"c", 180.0, 90.0}};
+  overlapping.min_saturation = 0.2;
+  overlapping.min_chroma = 0.05;
+  for (const MarkerDetectOptions& o : {MarkerDetectOptions{}, overlapping}) {
+    cv::Mat hsv;
+    cv::cvtColor(img, hsv, cv::COLOR_BGR2HSV_FULL);
+    std::vector<cv::Mat> ch;
+    cv::split(hsv, ch);
+    cv::Mat chroma;
+    cv::multiply(ch[1], ch[2], chroma, 1.0 / 255.0, CV_8U);
+    const cv::Mat paint = (ch[1] >= o.min_saturation * 255.0) & (chroma >= o.min_chroma * 255.0);
+    cv::Mat expected(img.size(), CV_8UC1, cv::Scalar(0));
+    for (size_t i = 0; i < o.colors.size(); ++i) {
+      const double lo = (o.colors[i].hue_deg - o.colors[i].hue_tol_deg) * 256.0 / 360.0;
+      const double hi = (o.colors[i].hue_deg + o.colors[i].hue_tol_deg) * 256.0 / 360.0;
+      cv::Mat in = lo < 0        ? (ch[0] >= lo + 256.0) | (ch[0] <= hi)
+                   : hi >= 256.0 ? (ch[0] >= lo) | (ch[0] <= hi - 256.0)
+                                 : (ch[0] >= lo) & (ch[0] <= hi);
+      expected.setTo(cv::Scalar(static_cast<double>(i + 1)), in & paint);
+    }
+    const cv::Mat got = ClassifyColors(img, o);
+    EXPECT_EQ(cv::countNonZero(got != expected), 0);
+    EXPECT_GT(cv::countNonZero(got), 1000);  // the photo holds paint of every class
+    for (int k = 1; k <= static_cast<int>(o.colors.size()); ++k)
+      EXPECT_GT(cv::countNonZero(got == k), 0) << k;
+  }
 }
 
 }  // namespace
