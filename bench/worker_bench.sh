@@ -7,7 +7,8 @@
 #   2. the same 60 photos through COLMAP's own sparse pipeline
 #      (feature_extractor with the masks, exhaustive_matcher, mapper), CPU,
 #      timed side by side.
-# Targets: <= 60 s per rock on the fast path (never over 120 s), peak RSS <= 2 GB.
+# Targets: <= 15 s per rock on the fast path and peak RSS <= 512 MB (a two-minute
+# capture stays ahead of its reconstruction on an ARM board several times slower).
 #   bench/worker_bench.sh [BUILD_DIR] [SEED]   (a Release build; default build-release, seed 1)
 # CORES (default "0,1") pins both runs to two cores with taskset; COLMAP=0 skips the comparison.
 set -euo pipefail
@@ -47,7 +48,7 @@ for k in ("calibration_s", "poses_side1_s", "poses_side2_s", "stitch_s", "surfac
 if "surface_detail_s" in t: print("  surface detail:", json.dumps(t["surface_detail_s"]))
 d3 = m["morphology_3d"]
 print("  result: V %.0f mm3, a/b/c %.1f/%.1f/%.1f mm, methods %s" % (d3["volume_mm3"], d3["a_mm"], d3["b_mm"], d3["c_mm"], json.dumps(m["methods"])))
-print("  targets: <= 60 s per rock: %s; peak RSS <= 2 GB: %s" % ("PASS" if wall <= 60 else "FAIL", "PASS" if rss <= 2 * 1024 * 1024 else "FAIL"))
+print("  targets: <= 15 s per rock: %s; peak RSS <= 512 MB: %s" % ("PASS" if wall <= 15 else "FAIL", "PASS" if rss <= 512 * 1024 else "FAIL"))
 PY
 
 # COLMAP's own sparse pipeline on the same photos (CPU), for comparison.
