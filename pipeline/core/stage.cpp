@@ -70,6 +70,24 @@ std::string CurrentStage() {
   return Innermost(s);
 }
 
+std::string ThreadStage() {
+  StageState& s = State();
+  std::lock_guard<std::mutex> lock(s.mu);
+  const auto me = std::this_thread::get_id();
+  auto own = std::find_if(s.stack.rbegin(), s.stack.rend(),
+                          [&](const Frame& x) { return x.thread == me; });
+  if (own != s.stack.rend()) return own->name;
+  auto outer =
+      std::find_if(s.stack.rbegin(), s.stack.rend(), [](const Frame& x) { return !x.concurrent; });
+  return outer != s.stack.rend() ? outer->name : std::string();
+}
+
+void StageLog(LogLevel level, const char* category, const std::string& sample_id,
+              const std::string& text) {
+  const std::string stage = ThreadStage();
+  LogLine(level, category, sample_id, stage.empty() ? text : stage + ": " + text);
+}
+
 void ReportStageProgress(int done, int total) {
   StageState& s = State();
   std::lock_guard<std::mutex> lock(s.mu);

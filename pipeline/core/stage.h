@@ -13,6 +13,7 @@
 #include <utility>
 
 #include "common/error.h"
+#include "common/log.h"
 
 namespace aggscan {
 
@@ -27,6 +28,16 @@ void SetStageObserver(StageObserver observer);
 /// The innermost running stage ("" outside any), e.g. "masks side 1 view 7"
 /// (concurrent stages: all of them, see StageScope).
 std::string CurrentStage();
+
+/// The stage the calling thread is in: the innermost it opened itself, or, on
+/// a thread that opened none (a parallel loop's helper), the innermost that
+/// is not one of several concurrent ones; "" outside any.
+std::string ThreadStage();
+
+/// LogLine with the calling thread's stage before the text ("[S-1] stitch:
+/// ..."): the lines a stage writes itself say which stage wrote them.
+void StageLog(LogLevel level, const char* category, const std::string& sample_id,
+              const std::string& text);
 
 /// The innermost running stage that is not one of several concurrent ones
 /// has done `done` of its `total` units (views,

@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <map>
+#include <mutex>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <optional>
@@ -290,8 +291,8 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
                      "side must be >= 1, got " + std::to_string(side));
   const std::string result_path = SideResultPath(sample_dir, side);
   if (PathExists(result_path)) {
-    LogLine(LogLevel::kInfo, kCat, sample_id,
-            "side " + std::to_string(side) + ": already done, skipped");
+    StageLog(LogLevel::kInfo, kCat, sample_id,
+             "side " + std::to_string(side) + ": already done, skipped");
     return OkStatus();
   }
   const std::string side_dir = sample_dir + "/" + layout::SideDirName(side);
@@ -326,11 +327,16 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
     json jv;
     std::optional<Error> fatal;
     bool reused = false, image_problem = false, empty_used = false;
-    std::string image_reason, empty_problem, warning;
+    std::string image_reason, empty_problem;
+    std::vector<std::string> warnings;
   };
   const size_t view_count = views->size();
   std::vector<ViewOutcome> outcomes(view_count);
-  std::atomic<int> views_done{0};
+  // Views finished, shown as the side's progress when a view starts (so the
+  // last shown is N-1 of N until the side's result is written), under one
+  // lock so that the figure never goes back.
+  int views_done = 0;
+  std::mutex progress_mu;
   std::atomic<bool> stop{false};
   auto do_view = [&](size_t i) {
     const ManifestView& v = (*views)[i];
@@ -340,6 +346,10 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
       return;
     }
     o.started = true;
+    {
+      const std::lock_guard<std::mutex> lock(progress_mu);
+      ReportStageProgress(views_done, static_cast<int>(view_count));
+    }
     const StageScope view_stage(
         "masks side " + std::to_string(side) + " view " + std::to_string(v.view),
         /*concurrent=*/true);
@@ -376,9 +386,10 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
                 {"error", img.error().message +
                               ": re-shoot the side (arm the sample again) and check the camera's "
                               "link and the storage"}};
-        o.warning = "side " + std::to_string(side) + " view " + std::to_string(v.view) + ": " +
-                    img.error().ToString();
-        views_done++;
+        o.warnings.push_back("side " + std::to_string(side) + " view " + std::to_string(v.view) +
+                             ": " + img.error().ToString());
+        const std::lock_guard<std::mutex> lock(progress_mu);
+        ++views_done;
         return;
       }
       image_size = img->size();
@@ -430,7 +441,7 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
         for (const char* k : {"commanded_angle_deg", "measured_angle_deg"})
           if (js.contains(k) && js[k].is_number()) jv[k] = js[k];
       } else {
-        o.warning = "sidecar " + v.sidecar + " is missing or unreadable";
+        o.warnings.push_back("sidecar " + v.sidecar + " is missing or unreadable");
       }
     }
     const double total_px = static_cast<double>(image_size.area());
@@ -449,19 +460,25 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
     } else {
       jv["ok"] = false;
       jv["error"] = "no rock found in this view";
-      o.warning = "side " + std::to_string(side) + " view " + std::to_string(v.view) +
-                  ": no rock found in the mask";
+      o.warnings.push_back("side " + std::to_string(side) + " view " + std::to_string(v.view) +
+                           ": no rock found in the mask");
     }
     jv["timing_ms"] = mask_ms;
     o.jv = std::move(jv);
-    ReportStageProgress(++views_done, static_cast<int>(view_count));
+    const std::lock_guard<std::mutex> lock(progress_mu);
+    ++views_done;
   };
   ReportStageProgress(0, static_cast<int>(view_count));
   ParallelFor(view_count, opts.threads, do_view);
-  for (size_t i = 0; i < view_count; ++i) {
-    ViewOutcome& o = outcomes[i];
+  // What the views said is logged even when the side stops here.
+  for (const ViewOutcome& o : outcomes)
+    for (const std::string& w : o.warnings) StageLog(LogLevel::kWarning, kCat, sample_id, w);
+  // A view's failure stops the others from starting: it is the error, not
+  // the views it left unstarted.
+  for (const ViewOutcome& o : outcomes)
     if (o.fatal) return *o.fatal;
-    if (!o.started) {
+  for (size_t i = 0; i < view_count; ++i) {
+    if (!outcomes[i].started) {
       // Views already finished keep their masks; the rerun takes them up.
       return MakeError(ErrorClass::kCancelled, "interrupted: side " + std::to_string(side) +
                                                    " of " + sample_id + " will resume from view " +
@@ -469,7 +486,6 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
     }
   }
   for (ViewOutcome& o : outcomes) {
-    if (!o.warning.empty()) LogLine(LogLevel::kWarning, kCat, sample_id, o.warning);
     if (o.reused) ++reused;
     if (o.image_problem) {
       image_problems.push_back(o.jv.value("view", -1));
@@ -485,7 +501,7 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
   // from the model, so such views are left out, and said so.
   const std::string lost = CheckSideMasks(&jviews);
   if (!lost.empty()) {
-    LogLine(LogLevel::kWarning, kCat, sample_id, "side " + std::to_string(side) + ": " + lost);
+    StageLog(LogLevel::kWarning, kCat, sample_id, "side " + std::to_string(side) + ": " + lost);
   }
   std::string damaged;
   if (!image_problems.empty()) {
@@ -493,7 +509,7 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
               ViewList(image_problems) + " cannot be used (" + image_reasons +
               "; left out): re-shoot the side (arm the sample again) and check the camera's link "
               "and the storage";
-    LogLine(LogLevel::kWarning, kCat, sample_id, "side " + std::to_string(side) + ": " + damaged);
+    StageLog(LogLevel::kWarning, kCat, sample_id, "side " + std::to_string(side) + ": " + damaged);
   }
   for (const json& jv : jviews) {
     if (!jv.value("ok", false)) continue;
@@ -527,17 +543,17 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
     out["mask_empty_turntable_problems"] = empty_problems;
     std::string list;
     for (const std::string& p : empty_problems) list += (list.empty() ? "" : "; ") + p;
-    LogLine(LogLevel::kWarning, kCat, sample_id,
-            "side " + std::to_string(side) + ": " + std::to_string(empty_problems.size()) +
-                " view(s) masked without an empty-turntable photo (" + list +
-                "); shoot the empty turntable again at the sample's angles and camera settings "
-                "(aggscan empty-turntable)");
+    StageLog(LogLevel::kWarning, kCat, sample_id,
+             "side " + std::to_string(side) + ": " + std::to_string(empty_problems.size()) +
+                 " view(s) masked without an empty-turntable photo (" + list +
+                 "); shoot the empty turntable again at the sample's angles and camera settings "
+                 "(aggscan empty-turntable)");
   }
   if (Status s = WriteJson(result_path, out); !s.ok()) return s;
-  LogLine(LogLevel::kInfo, kCat, sample_id,
-          "side " + std::to_string(side) + ": " + std::to_string(ok_views) + "/" +
-              std::to_string(views->size()) + " views measured (" + std::to_string(reused) +
-              " masks reused) in " + std::to_string(static_cast<long>(total_ms)) + " ms");
+  StageLog(LogLevel::kInfo, kCat, sample_id,
+           "side " + std::to_string(side) + ": " + std::to_string(ok_views) + "/" +
+               std::to_string(views->size()) + " views measured (" + std::to_string(reused) +
+               " masks reused) in " + std::to_string(static_cast<long>(total_ms)) + " ms");
   return OkStatus();
 }
 
@@ -545,7 +561,7 @@ Status ProcessSampleStage(const std::string& sample_dir, const WorkerOptions& op
   const std::string sample_id = layout::SampleIdOfDir(sample_dir);
   const std::string result_path = SampleResultPath(sample_dir);
   if (PathExists(result_path)) {
-    LogLine(LogLevel::kInfo, kCat, sample_id, "sample morphology already done, skipped");
+    StageLog(LogLevel::kInfo, kCat, sample_id, "sample morphology already done, skipped");
     return OkStatus();
   }
   auto sides = CapturedSides(sample_dir);
@@ -583,9 +599,9 @@ Status ProcessSampleStage(const std::string& sample_dir, const WorkerOptions& op
               {"overall", {{"views_ok", views_ok}, {"stats", StatsBlock(all)}}},
               {"std_kind", "sample"}};
   if (Status s = WriteJson(result_path, out); !s.ok()) return s;
-  LogLine(LogLevel::kInfo, kCat, sample_id,
-          "sample morphology written: " + std::to_string(sides->size()) + " sides, " +
-              std::to_string(views_ok) + " views");
+  StageLog(LogLevel::kInfo, kCat, sample_id,
+           "sample morphology written: " + std::to_string(sides->size()) + " sides, " +
+               std::to_string(views_ok) + " views");
   return OkStatus();
 }
 

@@ -147,6 +147,31 @@ TEST(RunStage, ConcurrentStagesAreNamedTogetherAndEndInAnyOrder) {
   EXPECT_EQ(CurrentStage(), "masks side 1");
 }
 
+// A stage's own log lines carry the sample and the stage they were written
+// in: on a view's thread its view, on a loop's helper thread that opened no
+// stage the stage around the loop, outside any stage nothing.
+TEST(RunStage, StageLogNamesTheStageOfTheWritingThread) {
+  ::testing::internal::CaptureStderr();
+  StageLog(LogLevel::kWarning, "worker", "S-7", "before");
+  Status st = RunStage("stitch", []() -> Status {
+    StageLog(LogLevel::kWarning, "worker", "S-7", "markers located");
+    std::thread helper([] { StageLog(LogLevel::kWarning, "worker", "S-7", "on a helper"); });
+    helper.join();
+    std::thread view([] {
+      const StageScope v("stitch view 3", /*concurrent=*/true);
+      StageLog(LogLevel::kWarning, "worker", "S-7", "view done");
+    });
+    view.join();
+    return OkStatus();
+  });
+  const std::string err = ::testing::internal::GetCapturedStderr();
+  ASSERT_TRUE(st.ok());
+  EXPECT_NE(err.find("worker: [S-7] before\n"), std::string::npos) << err;
+  EXPECT_NE(err.find("worker: [S-7] stitch: markers located\n"), std::string::npos) << err;
+  EXPECT_NE(err.find("worker: [S-7] stitch: on a helper\n"), std::string::npos) << err;
+  EXPECT_NE(err.find("worker: [S-7] stitch view 3: view done\n"), std::string::npos) << err;
+}
+
 // A stage's progress shows in the stages nested in it and ends with it; the
 // figures are clamped to 0..total.
 TEST(RunStage, ProgressIsTheInnermostReportingStages) {
