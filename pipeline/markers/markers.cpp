@@ -333,8 +333,8 @@ Result<ViewMarkers> DetectViewMarkers(const cv::Mat& bgr, const cv::Mat& rock_ma
   for (const std::string& color : label_colors) {
     int idx = 0;
     FindClass(opts, color, &idx);
+    if (class_box[static_cast<size_t>(idx)].empty()) continue;  // no pixel of this colour
     const cv::Rect box = Grown(class_box[static_cast<size_t>(idx)], 2, cls.size());
-    if (box.area() == 0) continue;
     cv::Mat bin = cls(box) == idx;
     cv::morphologyEx(bin, bin, cv::MORPH_OPEN, k3);
     cv::Mat lab, stats, cents;

@@ -241,11 +241,11 @@ Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int sid
     if (!j) return j.error();
     (*j)["stage_seconds"] = Seconds(t0);
     if (Status s = WriteJson(out, *j); !s) return s.error();
-    LogLine(LogLevel::kInfo, kCat, layout::SampleIdOfDir(sample_dir),
-            layout::SideDirName(side) + ": SfM registered " +
-                std::to_string((*j)["sfm"].value("registered_views", 0)) +
-                " views, scale residual " +
-                std::to_string((*j)["scale"].value("residual_mm", 0.0)) + " mm");
+    StageLog(LogLevel::kInfo, kCat, layout::SampleIdOfDir(sample_dir),
+             layout::SideDirName(side) + ": SfM registered " +
+                 std::to_string((*j)["sfm"].value("registered_views", 0)) +
+                 " views, scale residual " +
+                 std::to_string((*j)["scale"].value("residual_mm", 0.0)) + " mm");
   } else if (!PathExists(out)) {
     if (!cal)
       return MakeError(ErrorClass::kInternal, "poses stage: no calibration for the turntable path");
@@ -310,8 +310,8 @@ Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int sid
               IsoToJson(geom::IsoFromRowMajor(ba.calibration.CamFromTable(ba.angle_deg[i])));
         }
       } else {
-        LogLine(LogLevel::kWarning, kCat, layout::SampleIdOfDir(sample_dir),
-                layout::SideDirName(side) + ": poses not refined: " + ba.reason);
+        StageLog(LogLevel::kWarning, kCat, layout::SampleIdOfDir(sample_dir),
+                 layout::SideDirName(side) + ": poses not refined: " + ba.reason);
       }
     } else {
       j["bundle_adjustment"] = {{"refined", false}, {"reason", "bundle adjustment is turned off"}};
@@ -364,10 +364,21 @@ int WindowMarginPx(const RigCalibration& cal) {
   return 2 * static_cast<int>(std::ceil(12.0 * px_per_mm)) + 16;
 }
 
+// `m` inside `roi`, zero where `roi` reaches past m's edge (by at most one
+// pixel: a window's even side over a frame of odd size).
+cv::Mat CropPadded(const cv::Mat& m, const cv::Rect& roi) {
+  const cv::Rect in = roi & cv::Rect(0, 0, m.cols, m.rows);
+  if (in == roi) return m(roi).clone();
+  cv::Mat out = cv::Mat::zeros(roi.size(), m.type());
+  if (in.area() > 0) m(in).copyTo(out(in - roi.tl()));
+  return out;
+}
+
 ViewWindow WindowOf(const cv::Mat& full_mask, const CameraModel& cam, int margin) {
   ViewWindow w;
   const cv::Rect box = cv::boundingRect(full_mask);
-  const int fw = full_mask.cols & ~1, fh = full_mask.rows & ~1;
+  // Rounded up to even: an odd frame's window may end one pixel past it.
+  const int fw = (full_mask.cols + 1) & ~1, fh = (full_mask.rows + 1) & ~1;
   if (box.area() == 0) {
     w.roi = cv::Rect(0, 0, fw, fh);
   } else {
@@ -377,7 +388,7 @@ ViewWindow WindowOf(const cv::Mat& full_mask, const CameraModel& cam, int margin
     w.roi = cv::Rect(x0, y0, x1 - x0, y1 - y0);
   }
   w.camera = cam.Cropped(w.roi.x, w.roi.y, w.roi.width, w.roi.height);
-  w.mask = full_mask(w.roi).clone();
+  w.mask = CropPadded(full_mask, w.roi);
   return w;
 }
 
@@ -385,7 +396,7 @@ ViewWindow WindowOf(const cv::Mat& full_mask, const CameraModel& cam, int margin
 // those where it lies well inside the silhouette.
 Result<VertexColors> ColourVertices(const Mesh& mesh, const std::vector<ViewInput>& views,
                                     const std::vector<Eigen::Isometry3d>& cam_from_object,
-                                    const std::vector<ViewWindow>& windows,
+                                    const std::vector<ViewWindow>& windows, cv::Size full_size,
                                     const ImageLimits& limits) {
   const size_t nv = mesh.vertices.size();
   std::vector<Eigen::Vector3d> normals(nv, Eigen::Vector3d::Zero());
@@ -427,11 +438,11 @@ Result<VertexColors> ColourVertices(const Mesh& mesh, const std::vector<ViewInpu
     if (!loaded)
       return MakeError(loaded.error().cls, "surface stage: " + loaded.error().message,
                        loaded.error().detail);
-    if (loaded->cols < windows[vi].roi.br().x || loaded->rows < windows[vi].roi.br().y)
+    if (loaded->size() != full_size)
       return MakeError(ErrorClass::kCorrupt, "surface stage: the photo " + views[vi].image +
-                                                 " is smaller than its mask; the sample's photos "
-                                                 "must not change");
-    const cv::Mat img = (*loaded)(windows[vi].roi);
+                                                 " is not the size of its mask; the sample's "
+                                                 "photos must not change");
+    const cv::Mat img = CropPadded(*loaded, windows[vi].roi);
     for (size_t i = 0; i < nv; ++i) {
       if (best[i] != static_cast<int>(vi)) continue;
       cv::Mat patch;
@@ -711,9 +722,9 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
                   "): too many to leave out; check the photos and masks and re-shoot the side");
         }
       }
-      LogLine(LogLevel::kWarning, kCat, sample_id,
-              "surface: left out " + names +
-                  ": each carves away rock every other view sees; carving again");
+      StageLog(LogLevel::kWarning, kCat, sample_id,
+               "surface: left out " + names +
+                   ": each carves away rock every other view sees; carving again");
       std::vector<SilhouetteView> sv2;
       std::vector<ViewWindow> windows2;
       std::vector<Eigen::Isometry3d> cfo2;
@@ -765,12 +776,16 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
       // The window at the decoded scale (its corners and sides are even).
       const cv::Rect roi =
           half ? cv::Rect(w.roi.x / 2, w.roi.y / 2, w.roi.width / 2, w.roi.height / 2) : w.roi;
+      // A half-size decode is (W + 1) / 2 wide.
+      const cv::Size expected =
+          half ? cv::Size((cal.camera.width + 1) / 2, (cal.camera.height + 1) / 2)
+               : cv::Size(cal.camera.width, cal.camera.height);
       if (!img) {
         unreadable[i] = img.error().message;
-      } else if ((cv::Rect(0, 0, img->cols, img->rows) & roi) != roi) {
-        unreadable[i] = used_views[i].image + " is smaller than its mask";
+      } else if (img->size() != expected) {
+        unreadable[i] = used_views[i].image + " is not the size of its mask";
       } else {
-        pv[i].image = (*img)(roi).clone();
+        pv[i].image = CropPadded(*img, roi);
       }
       pv[i].camera = half ? w.camera.Resized(roi.width, roi.height) : w.camera;
       pv[i].cam_from_object = cam_from_object[i];
@@ -812,7 +827,8 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
   if (opts.surface_smooth_iterations > 0) TaubinSmooth(&hull->mesh, opts.surface_smooth_iterations);
   const auto tc = std::chrono::steady_clock::now();
   auto colors =
-      ColourVertices(hull->mesh, used_views, cam_from_object, windows, opts.worker.image_limits);
+      ColourVertices(hull->mesh, used_views, cam_from_object, windows,
+                     cv::Size(cal.camera.width, cal.camera.height), opts.worker.image_limits);
   if (!colors) return colors.error();
   const double colour_s = Seconds(tc);
   const auto ti = std::chrono::steady_clock::now();
@@ -880,9 +896,9 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
         {"export", Seconds(te)}}},
       {"stage_seconds", Seconds(t0)}};
   if (Status s = WriteJson(out, j); !s) return s.error();
-  LogLine(LogLevel::kInfo, kCat, sample_id,
-          "surface: " + std::to_string(hull->mesh.faces.size()) + " faces at " +
-              std::to_string(hull->voxel_mm) + " mm in " + std::to_string(Seconds(t0)) + " s");
+  StageLog(LogLevel::kInfo, kCat, sample_id,
+           "surface: " + std::to_string(hull->mesh.faces.size()) + " faces at " +
+               std::to_string(hull->voxel_mm) + " mm in " + std::to_string(Seconds(t0)) + " s");
   return j;
 }
 
@@ -918,8 +934,8 @@ Status AppendLibraryRow(const std::string& state_dir, const json& morphology) {
       // new name, and a new library begins, so no row is mixed or lost.
       const std::string kept = state_dir + "/library-" + NowUtcString() + ".csv";
       if (Status s = RenameDurable(path, kept); !s) return s;
-      LogLine(LogLevel::kNotice, kCat, id,
-              "library.csv had other columns; kept as " + kept + ", a new one begun");
+      StageLog(LogLevel::kNotice, kCat, id,
+               "library.csv had other columns; kept as " + kept + ", a new one begun");
       text = LibraryCsvHeader();
     }
   } else {
@@ -1256,7 +1272,7 @@ Status MorphologyStage(SampleRun& r) {
       QualityFlags(quality, r.stitch, r.surface.value("silhouette_iou", json::array()));
   quality["confident"] = quality["flags"].empty();
   for (const json& f : quality["flags"]) {
-    LogLine(LogLevel::kWarning, kCat, r.id, "not confident: " + f.value("reason", ""));
+    StageLog(LogLevel::kWarning, kCat, r.id, "not confident: " + f.value("reason", ""));
   }
   r.timings["masks_and_2d_s"] = r.masks_s;
   r.timings["morphology_s"] = Seconds(t_m);
@@ -1366,10 +1382,10 @@ Status MorphologyStage(SampleRun& r) {
                 {"surface", results::kSurface}}}};
   if (!watertight) out["morphology_3d"]["watertight_problem"] = watertight.error().message;
   if (Status s = WriteJson(r.morph_path, out); !s) return s;
-  LogLine(LogLevel::kNotice, kCat, r.id,
-          "reconstructed: V " + std::to_string(static_cast<long>(p.volume_mm3)) + " mm3, a/b/c " +
-              std::to_string(p.a_mm) + "/" + std::to_string(p.b_mm) + "/" + std::to_string(p.c_mm) +
-              " mm");
+  StageLog(LogLevel::kNotice, kCat, r.id,
+           "reconstructed: V " + std::to_string(static_cast<long>(p.volume_mm3)) + " mm3, a/b/c " +
+               std::to_string(p.a_mm) + "/" + std::to_string(p.b_mm) + "/" +
+               std::to_string(p.c_mm) + " mm");
   return AppendLibraryRow(r.opts.state_dir, out);
 }
 
