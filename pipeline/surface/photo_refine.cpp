@@ -18,6 +18,7 @@ std::vector<std::string> PhotoRefineOptions::Check() const {
   std::vector<std::string> p;
   if (!(max_depth_mm > 0)) p.push_back("max_depth_mm must be > 0");
   if (!(step_mm > 0) || step_mm > max_depth_mm) p.push_back("step_mm must be in (0, max_depth_mm]");
+  if (depth_search_stride < 1) p.push_back("depth_search_stride must be >= 1");
   if (views_per_vertex < 2)
     p.push_back("views_per_vertex must be >= 2 (a reference and one to compare)");
   if (!(min_baseline_deg >= 0 && min_baseline_deg < 90))
@@ -443,8 +444,12 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull,
     // Hypothesis k lies at depth (k - kOut) * step: kOut steps outside the
     // hull too, so that a peak at the hull itself gets its sub-step position.
     const int kOut = static_cast<int>(std::lround(opts.outside_mm / opts.step_mm));
-    std::vector<double> score(nd + kOut, -2.0);
-    for (int k = 0; k < nd + kOut; ++k) {
+    const int nk = nd + kOut;
+    std::vector<double> score(nk, -2.0);
+    std::vector<char> scored(nk, 0);
+    auto score_at = [&](int k) {
+      if (k < 0 || k >= nk || scored[k]) return;
+      scored[k] = 1;
       const Vec3 c = p - ((k - kOut) * opts.step_mm) * n;
       bool ok_ref = true;
       std::vector<char> ok(nvw, 1);
@@ -477,7 +482,7 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull,
           break;
         }
       }
-      if (!ok_ref) continue;
+      if (!ok_ref) return;
       double sum = 0;
       int cnt = 0;
       for (int w = 1; w < nvw; ++w) {
@@ -491,8 +496,21 @@ Result<PhotoRefineResult> RefineByPhotoConsistency(const Mesh& hull,
         ++cnt;
       }
       if (cnt > 0) score[k] = sum / cnt;
+    };
+    // The NCC along the normal changes over several steps (a step moves the
+    // patch ~0.2 px in the other views), so every depth_search_stride-th
+    // hypothesis (the hull's among them) finds the peak's neighbourhood and
+    // the steps around the best one then find the peak and its neighbours.
+    const int stride = std::max(1, opts.depth_search_stride);
+    for (int k = kOut % stride; k < nk; k += stride) score_at(k);
+    for (int best = -1; stride > 1;) {
+      int bk = 0;
+      for (int k = 1; k < nk; ++k)
+        if (score[k] > score[bk]) bk = k;
+      if (bk == best) break;
+      best = bk;
+      for (int k = bk - stride + 1; k < bk + stride; ++k) score_at(k);
     }
-    const int nk = nd + kOut;
     int bi = 0;
     for (int k = 1; k < nk; ++k) {
       if (score[k] > score[bi]) bi = k;

@@ -73,7 +73,10 @@ struct PhotoRefineOptions {
   // +5.20 / +1.75 / +7.26 % volume; at 15 mm +0.86 / +1.47 / +0.33 / +2.84 %,
   // while convex sim rocks (seeds 1, 5, 9, 17) moved by 0.00 to -0.06 %.
   double max_depth_mm = 15.0;
-  double step_mm = 0.2;           // spacing of the depth hypotheses
+  double step_mm = 0.2;  // spacing of the depth hypotheses
+  // Hypotheses scored first (every this many steps, the hull's among them),
+  // then every step around the best until the best stays put; 1: every step.
+  int depth_search_stride = 2;
   int views_per_vertex = 4;       // reference + up to 3 others, most frontal first
   double min_baseline_deg = 5.0;  // chosen views at least this far apart as seen from the vertex
   double min_cos = 0.35;          // a view must see the vertex at most ~70 deg off its normal

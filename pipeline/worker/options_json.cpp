@@ -58,6 +58,7 @@ json OptionsJson(const MaskOptions& o) {
 json OptionsJson(const PhotoRefineOptions& o) {
   return {{"max_depth_mm", o.max_depth_mm},
           {"step_mm", o.step_mm},
+          {"depth_search_stride", o.depth_search_stride},
           {"views_per_vertex", o.views_per_vertex},
           {"min_baseline_deg", o.min_baseline_deg},
           {"min_cos", o.min_cos},
