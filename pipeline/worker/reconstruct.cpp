@@ -430,18 +430,24 @@ Result<VertexColors> ColourVertices(const Mesh& mesh, const std::vector<ViewInpu
     }
   }
   VertexColors colors(nv, {128, 128, 128});
-  for (size_t vi = 0; vi < views.size(); ++vi) {
+  // Photos read two at a time; each vertex takes its colour from its one best view.
+  std::vector<std::optional<Error>> failed(views.size());
+  ParallelFor(views.size(), kWorkerThreads, [&](size_t vi) {
     bool any = false;
     for (size_t i = 0; i < nv && !any; ++i) any = best[i] == static_cast<int>(vi);
-    if (!any) continue;
+    if (!any) return;
     auto loaded = LoadImage(views[vi].image, ImageMode::kColor, limits);
-    if (!loaded)
-      return MakeError(loaded.error().cls, "surface stage: " + loaded.error().message,
-                       loaded.error().detail);
-    if (loaded->size() != full_size)
-      return MakeError(ErrorClass::kCorrupt, "surface stage: the photo " + views[vi].image +
-                                                 " is not the size of its mask; the sample's "
-                                                 "photos must not change");
+    if (!loaded) {
+      failed[vi] = MakeError(loaded.error().cls, "surface stage: " + loaded.error().message,
+                             loaded.error().detail);
+      return;
+    }
+    if (loaded->size() != full_size) {
+      failed[vi] = MakeError(ErrorClass::kCorrupt, "surface stage: the photo " + views[vi].image +
+                                                       " is not the size of its mask; the "
+                                                       "sample's photos must not change");
+      return;
+    }
     const cv::Mat img = CropPadded(*loaded, windows[vi].roi);
     for (size_t i = 0; i < nv; ++i) {
       if (best[i] != static_cast<int>(vi)) continue;
@@ -450,7 +456,9 @@ Result<VertexColors> ColourVertices(const Mesh& mesh, const std::vector<ViewInpu
       const cv::Vec3b bgr = patch.at<cv::Vec3b>(0, 0);
       colors[i] = {bgr[2], bgr[1], bgr[0]};
     }
-  }
+  });
+  for (const auto& e : failed)
+    if (e) return *e;
   return colors;
 }
 
