@@ -275,10 +275,14 @@ cv::Mat ClassifyColors(const cv::Mat& bgr, const MarkerDetectOptions& opts) {
   return ClassifyColorsBoxed(bgr, opts, nullptr);
 }
 
-double ExpectedLabelSidePx(const RigCalibration& cal, const RigConfig& rig) {
+double PxPerMmAtDisc(const RigCalibration& cal) {
   const std::array<double, 3> c = cal.CameraCentreTable0();
   const double dist = std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
-  return dist > 0 ? 0.5 * (cal.camera.fx + cal.camera.fy) * rig.marker_size_mm / dist : 0;
+  return dist > 0 ? 0.5 * (cal.camera.fx + cal.camera.fy) / dist : 0;
+}
+
+double ExpectedLabelSidePx(const RigCalibration& cal, const RigConfig& rig) {
+  return PxPerMmAtDisc(cal) * rig.marker_size_mm;
 }
 
 Result<ViewMarkers> DetectViewMarkers(const cv::Mat& bgr, const cv::Mat& rock_mask,

@@ -122,6 +122,10 @@ cv::Mat ClassifyColors(const cv::Mat& bgr, const MarkerDetectOptions& opts);
 /// length x size / distance to the disc centre), for expected_label_side_px.
 double ExpectedLabelSidePx(const RigCalibration& cal, const RigConfig& rig);
 
+/// Pixels per mm of something at the disc centre, seen from the calibrated
+/// camera (focal length / distance); 0 for a camera at the centre.
+double PxPerMmAtDisc(const RigCalibration& cal);
+
 // --- background labels: 3D and scale ---
 
 struct LabelLocateOptions {

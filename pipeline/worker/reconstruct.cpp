@@ -21,6 +21,7 @@
 #include "pipeline/core/parallel_for.h"
 #include "pipeline/core/stage.h"
 #include "pipeline/core/stage_runner.h"
+#include "pipeline/markers/markers.h"
 #include "pipeline/masks/mask_dataset.h"
 #include "pipeline/morph/morph2d.h"
 #include "pipeline/stitch/stitch_stage.h"
@@ -358,9 +359,8 @@ struct ViewWindow {
 // 3 coarse cells (12 mm) outside the surface exactly, the photo refinement's
 // patches reach a few mm past it. 24 mm at the disc, in pixels.
 int WindowMarginPx(const RigCalibration& cal) {
-  const std::array<double, 3> c = cal.CameraCentreTable0();
-  const double dist = std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
-  const double px_per_mm = dist > 0 ? 0.5 * (cal.camera.fx + cal.camera.fy) / dist : 1.0;
+  const double at_disc = PxPerMmAtDisc(cal);
+  const double px_per_mm = at_disc > 0 ? at_disc : 1.0;
   return 2 * static_cast<int>(std::ceil(12.0 * px_per_mm)) + 16;
 }
 
