@@ -748,151 +748,167 @@ void CaptureService::Fault(ErrorClass cls, const std::string& message) {
 }
 
 void CaptureService::Execute(const cs::Effect& eff) {
-  const std::string& id = state_.sample_id;
+  // One Run() overload per effect: an effect without a step does not compile.
+  std::visit([this](const auto& e) { Run(e); }, eff);
+}
+
+void CaptureService::Run(const cs::CreateSample& e) {
+  Status s =
+      StoreOf(e.sample_id).CreateOrResume(e.sample_id, CurrentPlan(), config_toml_, arm_meta_);
+  if (!s) {
+    pending_events_.push_back(
+        cs::StoreFailed{s.error().cls, "cannot create sample: " + s.error().ToString()});
+    return;
+  }
+  LogLine(LogLevel::kInfo, "capture", e.sample_id,
+          calibration_capture_
+              ? "armed for calibration: lay the board flat on the disc (no rock) and "
+                "press the start button"
+              : "armed: place the rock and press the start button");
+}
+
+void CaptureService::Run(const cs::Home& /*e*/) {
   Clock& clock = loop_.clock();
-  std::visit(
-      [&](const auto& e) {
-        using T = std::decay_t<decltype(e)>;
-        if constexpr (std::is_same_v<T, cs::CreateSample>) {
-          Status s = StoreOf(e.sample_id)
-                         .CreateOrResume(e.sample_id, CurrentPlan(), config_toml_, arm_meta_);
-          if (!s) {
-            pending_events_.push_back(
-                cs::StoreFailed{s.error().cls, "cannot create sample: " + s.error().ToString()});
-          } else {
-            LogLine(LogLevel::kInfo, "capture", e.sample_id,
-                    calibration_capture_
-                        ? "armed for calibration: lay the board flat on the disc (no rock) and "
-                          "press the start button"
-                        : "armed: place the rock and press the start button");
-          }
-        } else if constexpr (std::is_same_v<T, cs::Home>) {
-          Status s = dev_.turntable->StartHome();
-          if (!s) {
-            pending_events_.push_back(cs::DeviceFault{
-                s.error().cls, "turntable: cannot start homing: " + s.error().ToString()});
-            return;
-          }
-          motion_ = MotionWatch{true, true,        0.0, clock.Now() + config_.capture.home_timeout,
-                                0.0,  clock.Now(), 0,   {}};
-          AddEpochTimer(clock.Now() + config_.capture.poll_interval,
-                        [this, ep = epoch_] { PollMotion(ep); });
-        } else if constexpr (std::is_same_v<T, cs::MoveTo>) {
-          Status s = dev_.turntable->StartMoveTo(e.angle_deg);
-          if (!s) {
-            pending_events_.push_back(cs::DeviceFault{
-                s.error().cls, "turntable: cannot start move to " + Deg(e.angle_deg) +
-                                   " deg: " + s.error().ToString()});
-            return;
-          }
-          motion_ = MotionWatch{true,
-                                false,
-                                e.angle_deg,
-                                clock.Now() + config_.capture.move_timeout,
-                                motion_.last_angle,
-                                clock.Now(),
-                                0,
-                                {}};
-          AddEpochTimer(clock.Now() + config_.capture.poll_interval,
-                        [this, ep = epoch_] { PollMotion(ep); });
-        } else if constexpr (std::is_same_v<T, cs::BeginSide>) {
-          Status s = StoreOf(id).BeginSide(id, e.side);
-          if (!s) {
-            pending_events_.push_back(
-                cs::StoreFailed{s.error().cls, "cannot start side: " + s.error().ToString()});
-            return;
-          }
-          side_t0_ = clock.Now() + config_.capture.settle;
-          LogLine(LogLevel::kInfo, "capture", id, "side " + std::to_string(e.side) + " started");
-        } else if constexpr (std::is_same_v<T, cs::StartSettle>) {
-          AddEpochTimer(clock.Now() + config_.capture.settle,
-                        [this] { Dispatch(cs::SettleDone{}); });
-        } else if constexpr (std::is_same_v<T, cs::WaitUntilDue>) {
-          const TimeNs due = side_t0_ + static_cast<TimeNs>(e.view) * config_.capture.interval;
-          pending_.due = due;
-          if (due <= clock.Now()) {
-            pending_events_.push_back(cs::ViewDue{});
-          } else {
-            AddEpochTimer(due, [this] { Dispatch(cs::ViewDue{}); });
-          }
-        } else if constexpr (std::is_same_v<T, cs::TriggerCapture>) {
-          Result<TurntableStatus> st = dev_.turntable->ReadStatus();
-          if (!st) {
-            pending_events_.push_back(
-                cs::DeviceFault{st.error().cls, "turntable: " + st.error().ToString()});
-            return;
-          }
-          pending_.side = e.side;
-          pending_.view = e.view;
-          pending_.commanded_deg = e.commanded_deg;
-          pending_.measured_deg = st->angle_deg;
-          pending_.trigger = clock.Now();
-          pending_.frame.reset();
-          pending_.request_id = next_request_id_++;
-          const uint64_t rid = pending_.request_id;
-          loop_.Hold();
-          holding_ = true;
-          if (preview_in_flight_) {
-            // The camera is finishing a live-view still: this view's is
-            // requested the moment that one arrives (OnPreviewFrame).
-            shot_waits_for_preview_ = true;
-            ++preview_delayed_views_;
-          } else if (Status s = ShootView(); !s) {
-            pending_events_.push_back(
-                cs::DeviceFault{s.error().cls, "camera: " + s.error().ToString()});
-            return;
-          }
-          AddEpochTimer(clock.Now() + config_.capture.frame_timeout, [this, rid] {
-            if (state_.phase == cs::Phase::kCapturing && pending_.request_id == rid) {
-              if (holding_) {
-                holding_ = false;
-                loop_.Release();
-              }
-              Fault(ErrorClass::kTimeout, "camera: no still within " +
-                                              FormatDuration(config_.capture.frame_timeout) +
-                                              " of the trigger; check the camera connection");
-            }
-          });
-        } else if constexpr (std::is_same_v<T, cs::StoreView>) {
-          const FramePtr& f = pending_.frame;
-          const double err_ms = static_cast<double>(f->exposure_start - pending_.due) / 1e6;
-          const bool overrun = f->exposure_start - pending_.due > kOverrunTolerance;
-          json car = {{"sample_id", id},
-                      {"side", e.side},
-                      {"view", e.view},
-                      {"image", layout::ViewImageName(e.view)},
-                      {"commanded_angle_deg", pending_.commanded_deg},
-                      {"measured_angle_deg", pending_.measured_deg},
-                      {"due_monotonic_ns", pending_.due},
-                      {"trigger_monotonic_ns", pending_.trigger},
-                      {"capture_monotonic_ns", f->exposure_start},
-                      {"capture_utc", FormatUtc(f->utc_ns)},
-                      {"schedule_error_ms", err_ms},
-                      {"schedule_overrun", overrun},
-                      {"exposure_us", f->exposure_us},
-                      {"gain", f->gain},
-                      {"wb_red", f->wb_red},
-                      {"wb_blue", f->wb_blue},
-                      {"camera_id", dev_.camera->Info().id},
-                      {"camera_backend", dev_.camera->Info().backend},
-                      {"width", f->width},
-                      {"height", f->height},
-                      {"frame_sequence", f->sequence},
-                      {"time_scale", clock.Scale()}};
-          // A real camera without a control for a locked setting (V4L2
-          // strict_controls = false): say so rather than let its value pass as measured.
-          if (!f->missing_controls.empty()) car["missing_controls"] = f->missing_controls;
-          Status s = StoreOf(id).WriteView(id, e.side, e.view, f->data, car);
-          if (!s) {
-            pending_events_.push_back(
-                cs::StoreFailed{s.error().cls, "cannot store view: " + s.error().ToString()});
-            return;
-          }
-          ++views_captured_;
-          // Screens watching the live view see each view as it is stored.
-          if (preview_ != nullptr && preview_->viewers() > 0) preview_->Submit(f, "view");
-          Publish("view",
-                  {{"sample_id", id},
+  Status s = dev_.turntable->StartHome();
+  if (!s) {
+    pending_events_.push_back(
+        cs::DeviceFault{s.error().cls, "turntable: cannot start homing: " + s.error().ToString()});
+    return;
+  }
+  motion_ = MotionWatch{true, true,        0.0, clock.Now() + config_.capture.home_timeout,
+                        0.0,  clock.Now(), 0,   {}};
+  AddEpochTimer(clock.Now() + config_.capture.poll_interval,
+                [this, ep = epoch_] { PollMotion(ep); });
+}
+
+void CaptureService::Run(const cs::MoveTo& e) {
+  Clock& clock = loop_.clock();
+  Status s = dev_.turntable->StartMoveTo(e.angle_deg);
+  if (!s) {
+    pending_events_.push_back(cs::DeviceFault{
+        s.error().cls,
+        "turntable: cannot start move to " + Deg(e.angle_deg) + " deg: " + s.error().ToString()});
+    return;
+  }
+  motion_ = MotionWatch{true,
+                        false,
+                        e.angle_deg,
+                        clock.Now() + config_.capture.move_timeout,
+                        motion_.last_angle,
+                        clock.Now(),
+                        0,
+                        {}};
+  AddEpochTimer(clock.Now() + config_.capture.poll_interval,
+                [this, ep = epoch_] { PollMotion(ep); });
+}
+
+void CaptureService::Run(const cs::BeginSide& e) {
+  const std::string& id = state_.sample_id;
+  Status s = StoreOf(id).BeginSide(id, e.side);
+  if (!s) {
+    pending_events_.push_back(
+        cs::StoreFailed{s.error().cls, "cannot start side: " + s.error().ToString()});
+    return;
+  }
+  side_t0_ = loop_.clock().Now() + config_.capture.settle;
+  LogLine(LogLevel::kInfo, "capture", id, "side " + std::to_string(e.side) + " started");
+}
+
+void CaptureService::Run(const cs::StartSettle& /*e*/) {
+  AddEpochTimer(loop_.clock().Now() + config_.capture.settle,
+                [this] { Dispatch(cs::SettleDone{}); });
+}
+
+void CaptureService::Run(const cs::WaitUntilDue& e) {
+  const TimeNs due = side_t0_ + static_cast<TimeNs>(e.view) * config_.capture.interval;
+  pending_.due = due;
+  if (due <= loop_.clock().Now()) {
+    pending_events_.push_back(cs::ViewDue{});
+  } else {
+    AddEpochTimer(due, [this] { Dispatch(cs::ViewDue{}); });
+  }
+}
+
+void CaptureService::Run(const cs::TriggerCapture& e) {
+  Clock& clock = loop_.clock();
+  Result<TurntableStatus> st = dev_.turntable->ReadStatus();
+  if (!st) {
+    pending_events_.push_back(
+        cs::DeviceFault{st.error().cls, "turntable: " + st.error().ToString()});
+    return;
+  }
+  pending_.side = e.side;
+  pending_.view = e.view;
+  pending_.commanded_deg = e.commanded_deg;
+  pending_.measured_deg = st->angle_deg;
+  pending_.trigger = clock.Now();
+  pending_.frame.reset();
+  pending_.request_id = next_request_id_++;
+  const uint64_t rid = pending_.request_id;
+  loop_.Hold();
+  holding_ = true;
+  if (preview_in_flight_) {
+    // The camera is finishing a live-view still: this view's is
+    // requested the moment that one arrives (OnPreviewFrame).
+    shot_waits_for_preview_ = true;
+    ++preview_delayed_views_;
+  } else if (Status s = ShootView(); !s) {
+    pending_events_.push_back(cs::DeviceFault{s.error().cls, "camera: " + s.error().ToString()});
+    return;
+  }
+  AddEpochTimer(clock.Now() + config_.capture.frame_timeout, [this, rid] {
+    if (state_.phase == cs::Phase::kCapturing && pending_.request_id == rid) {
+      if (holding_) {
+        holding_ = false;
+        loop_.Release();
+      }
+      Fault(ErrorClass::kTimeout, "camera: no still within " +
+                                      FormatDuration(config_.capture.frame_timeout) +
+                                      " of the trigger; check the camera connection");
+    }
+  });
+}
+
+void CaptureService::Run(const cs::StoreView& e) {
+  const std::string& id = state_.sample_id;
+  const FramePtr& f = pending_.frame;
+  const double err_ms = static_cast<double>(f->exposure_start - pending_.due) / 1e6;
+  const bool overrun = f->exposure_start - pending_.due > kOverrunTolerance;
+  json car = {{"sample_id", id},
+              {"side", e.side},
+              {"view", e.view},
+              {"image", layout::ViewImageName(e.view)},
+              {"commanded_angle_deg", pending_.commanded_deg},
+              {"measured_angle_deg", pending_.measured_deg},
+              {"due_monotonic_ns", pending_.due},
+              {"trigger_monotonic_ns", pending_.trigger},
+              {"capture_monotonic_ns", f->exposure_start},
+              {"capture_utc", FormatUtc(f->utc_ns)},
+              {"schedule_error_ms", err_ms},
+              {"schedule_overrun", overrun},
+              {"exposure_us", f->exposure_us},
+              {"gain", f->gain},
+              {"wb_red", f->wb_red},
+              {"wb_blue", f->wb_blue},
+              {"camera_id", dev_.camera->Info().id},
+              {"camera_backend", dev_.camera->Info().backend},
+              {"width", f->width},
+              {"height", f->height},
+              {"frame_sequence", f->sequence},
+              {"time_scale", loop_.clock().Scale()}};
+  // A real camera without a control for a locked setting (V4L2
+  // strict_controls = false): say so rather than let its value pass as measured.
+  if (!f->missing_controls.empty()) car["missing_controls"] = f->missing_controls;
+  Status s = StoreOf(id).WriteView(id, e.side, e.view, f->data, car);
+  if (!s) {
+    pending_events_.push_back(
+        cs::StoreFailed{s.error().cls, "cannot store view: " + s.error().ToString()});
+    return;
+  }
+  ++views_captured_;
+  // Screens watching the live view see each view as it is stored.
+  if (preview_ != nullptr && preview_->viewers() > 0) preview_->Submit(f, "view");
+  Publish("view", {{"sample_id", id},
                    {"side", e.side},
                    {"view", e.view},
                    {"number", e.view + 1},
@@ -904,113 +920,123 @@ void CaptureService::Execute(const cs::Effect& eff) {
                    {"stored_utc_ms", std::chrono::duration_cast<std::chrono::milliseconds>(
                                          std::chrono::system_clock::now().time_since_epoch())
                                          .count()}});
-          {
-            // A stored view proves both devices work: the health API's last_ok.
-            const int64_t now_utc = std::chrono::duration_cast<std::chrono::nanoseconds>(
-                                        std::chrono::system_clock::now().time_since_epoch())
-                                        .count();
-            for (const char* name : {"camera", "turntable"}) {
-              if (health_[name].healthy) health_[name].last_ok_utc_ns = now_utc;
-            }
-          }
-          if (overrun) {
-            ++overruns_;
-            LogLine(LogLevel::kWarning, "capture", id,
-                    "view " + std::to_string(e.view) + " taken " + Deg(err_ms) +
-                        " ms after its due time");
-          }
-          last_schedule_error_ms_ = err_ms;
-          max_schedule_error_ms_ = std::max(max_schedule_error_ms_, std::fabs(err_ms));
-          pending_.frame.reset();  // hand the buffer back
-          pending_events_.push_back(cs::ViewStored{});
-        } else if constexpr (std::is_same_v<T, cs::FinishSide>) {
-          // Every step that stores something must succeed before the side
-          // counts as finished: a failure is a named fault (SideFinished is
-          // never posted), and what is already stored is completed by arming
-          // the sample again or by the next start-up.
-          const std::string side = "side " + std::to_string(e.side);
-          const std::string again = ": free space or fix the state directory, reset, then arm " +
-                                    id + " again to complete it (its views are stored)";
-          auto fail = [&](const std::string& what, const Error& err) {
-            pending_events_.push_back(
-                cs::StoreFailed{err.cls, what + ": " + err.ToString() + again});
-          };
-          if (Status s = StoreOf(id).FinishSide(id, e.side); !s)
-            return fail("cannot store " + side + "'s manifest and record", s.error());
-          if (queue_) {
-            auto q = queue_->Enqueue(id, e.side, calibration_capture_ ? kJobCalibration : kJobRock);
-            if (!q) return fail("cannot queue " + side + " for the worker", q.error());
-          }
-          ++sides_completed_;
-          if (!e.last_side) {
-            if (Status s = StoreOf(id).SetSampleState(id, "awaiting_pose"); !s) {
-              return fail("cannot record " + side + " as done", s.error());
-            }
-            LogLine(LogLevel::kInfo, "capture", id,
-                    side + " done and queued: flip the rock and press the start button");
-          } else {
-            LogLine(LogLevel::kInfo, "capture", id, side + " done and queued");
-            if (Status s = StoreOf(id).SetSampleState(id, "captured"); !s) {
-              return fail("cannot mark the sample captured", s.error());
-            }
-            if (queue_ && !calibration_capture_) {
-              auto q = queue_->Enqueue(id, 0);
-              if (!q) return fail("cannot queue the sample job", q.error());
-            }
-            if (calibration_capture_) {
-              LogLine(LogLevel::kInfo, "capture", id,
-                      "calibration board captured: the worker solves the rig calibration");
-            } else {
-              ++samples_completed_;
-              LogLine(LogLevel::kInfo, "capture", id, "sample captured");
-            }
-          }
-          pending_events_.push_back(cs::SideFinished{});
-        } else if constexpr (std::is_same_v<T, cs::StopMotion>) {
-          ++epoch_;  // cancels every pending timer and late callback of this capture
-          shot_waits_for_preview_ = false;
-          motion_.active = false;
-          if (holding_) {
-            holding_ = false;
-            loop_.Release();
-          }
-          if (dev_.turntable && dev_.turntable->is_open()) (void)dev_.turntable->Stop();
-        } else if constexpr (std::is_same_v<T, cs::MarkInterrupted>) {
-          if (!id.empty()) {
-            Status s = StoreOf(id).SetSampleState(id, "interrupted", e.side, "interrupted");
-            if (!s)
-              LogLine(LogLevel::kError, "capture", id,
-                      "cannot record interruption: " + s.error().ToString());
-          }
-        } else if constexpr (std::is_same_v<T, cs::MarkAborted>) {
-          if (!id.empty()) {
-            Status s = StoreOf(id).SetSampleState(id, "aborted", e.side, "interrupted");
-            if (!s)
-              LogLine(LogLevel::kError, "capture", id,
-                      "cannot record abort: " + s.error().ToString());
-          }
-          LogLine(LogLevel::kNotice, "capture", id, "capture aborted by the operator");
-        } else if constexpr (std::is_same_v<T, cs::RecordFault>) {
-          ++faults_by_class_[ErrorClassName(e.cls)];
-          LogLine(LogLevel::kError, "capture", id,
-                  std::string("FAULT (") + ErrorClassName(e.cls) + "): " + e.message);
-          if (e.cls == ErrorClass::kDisconnected || e.cls == ErrorClass::kDeviceMissing ||
-              e.cls == ErrorClass::kTimeout) {
-            // The device that failed is re-opened on reset.
-            // Retried in the background too, so health shows when it is back.
-            for (const char* name : {"turntable", "camera"}) {
-              if (e.message.rfind(name, 0) != 0) continue;
-              MarkUnhealthy(name, e.cls, e.message);
-              ScheduleReopen(name);
-            }
-          }
-        } else if constexpr (std::is_same_v<T, cs::ClearFault>) {
-          LogLine(LogLevel::kNotice, "capture", id, "fault cleared");
-          store_fault_.reset();
-          OpenDevices();
-        }
-      },
-      eff);
+  {
+    // A stored view proves both devices work: the health API's last_ok.
+    const int64_t now_utc = std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                std::chrono::system_clock::now().time_since_epoch())
+                                .count();
+    for (const char* name : {"camera", "turntable"}) {
+      if (health_[name].healthy) health_[name].last_ok_utc_ns = now_utc;
+    }
+  }
+  if (overrun) {
+    ++overruns_;
+    LogLine(LogLevel::kWarning, "capture", id,
+            "view " + std::to_string(e.view) + " taken " + Deg(err_ms) + " ms after its due time");
+  }
+  last_schedule_error_ms_ = err_ms;
+  max_schedule_error_ms_ = std::max(max_schedule_error_ms_, std::fabs(err_ms));
+  pending_.frame.reset();  // hand the buffer back
+  pending_events_.push_back(cs::ViewStored{});
+}
+
+void CaptureService::Run(const cs::FinishSide& e) {
+  // Every step that stores something must succeed before the side
+  // counts as finished: a failure is a named fault (SideFinished is
+  // never posted), and what is already stored is completed by arming
+  // the sample again or by the next start-up.
+  const std::string& id = state_.sample_id;
+  const std::string side = "side " + std::to_string(e.side);
+  const std::string again = ": free space or fix the state directory, reset, then arm " + id +
+                            " again to complete it (its views are stored)";
+  auto fail = [&](const std::string& what, const Error& err) {
+    pending_events_.push_back(cs::StoreFailed{err.cls, what + ": " + err.ToString() + again});
+  };
+  if (Status s = StoreOf(id).FinishSide(id, e.side); !s)
+    return fail("cannot store " + side + "'s manifest and record", s.error());
+  if (queue_) {
+    auto q = queue_->Enqueue(id, e.side, calibration_capture_ ? kJobCalibration : kJobRock);
+    if (!q) return fail("cannot queue " + side + " for the worker", q.error());
+  }
+  ++sides_completed_;
+  if (!e.last_side) {
+    if (Status s = StoreOf(id).SetSampleState(id, "awaiting_pose"); !s) {
+      return fail("cannot record " + side + " as done", s.error());
+    }
+    LogLine(LogLevel::kInfo, "capture", id,
+            side + " done and queued: flip the rock and press the start button");
+  } else {
+    LogLine(LogLevel::kInfo, "capture", id, side + " done and queued");
+    if (Status s = StoreOf(id).SetSampleState(id, "captured"); !s) {
+      return fail("cannot mark the sample captured", s.error());
+    }
+    if (queue_ && !calibration_capture_) {
+      auto q = queue_->Enqueue(id, 0);
+      if (!q) return fail("cannot queue the sample job", q.error());
+    }
+    if (calibration_capture_) {
+      LogLine(LogLevel::kInfo, "capture", id,
+              "calibration board captured: the worker solves the rig calibration");
+    } else {
+      ++samples_completed_;
+      LogLine(LogLevel::kInfo, "capture", id, "sample captured");
+    }
+  }
+  pending_events_.push_back(cs::SideFinished{});
+}
+
+void CaptureService::Run(const cs::StopMotion& /*e*/) {
+  ++epoch_;  // cancels every pending timer and late callback of this capture
+  shot_waits_for_preview_ = false;
+  motion_.active = false;
+  if (holding_) {
+    holding_ = false;
+    loop_.Release();
+  }
+  if (dev_.turntable && dev_.turntable->is_open()) (void)dev_.turntable->Stop();
+}
+
+void CaptureService::Run(const cs::MarkInterrupted& e) {
+  const std::string& id = state_.sample_id;
+  if (id.empty()) return;
+  Status s = StoreOf(id).SetSampleState(id, "interrupted", e.side, "interrupted");
+  if (!s) {
+    LogLine(LogLevel::kError, "capture", id, "cannot record interruption: " + s.error().ToString());
+  }
+}
+
+void CaptureService::Run(const cs::MarkAborted& e) {
+  const std::string& id = state_.sample_id;
+  if (!id.empty()) {
+    Status s = StoreOf(id).SetSampleState(id, "aborted", e.side, "interrupted");
+    if (!s) {
+      LogLine(LogLevel::kError, "capture", id, "cannot record abort: " + s.error().ToString());
+    }
+  }
+  LogLine(LogLevel::kNotice, "capture", id, "capture aborted by the operator");
+}
+
+void CaptureService::Run(const cs::RecordFault& e) {
+  const std::string& id = state_.sample_id;
+  ++faults_by_class_[ErrorClassName(e.cls)];
+  LogLine(LogLevel::kError, "capture", id,
+          std::string("FAULT (") + ErrorClassName(e.cls) + "): " + e.message);
+  if (e.cls == ErrorClass::kDisconnected || e.cls == ErrorClass::kDeviceMissing ||
+      e.cls == ErrorClass::kTimeout) {
+    // The device that failed is re-opened on reset.
+    // Retried in the background too, so health shows when it is back.
+    for (const char* name : {"turntable", "camera"}) {
+      if (e.message.rfind(name, 0) != 0) continue;
+      MarkUnhealthy(name, e.cls, e.message);
+      ScheduleReopen(name);
+    }
+  }
+}
+
+void CaptureService::Run(const cs::ClearFault& /*e*/) {
+  LogLine(LogLevel::kNotice, "capture", state_.sample_id, "fault cleared");
+  store_fault_.reset();
+  OpenDevices();
 }
 
 void CaptureService::PollMotion(uint64_t epoch) {

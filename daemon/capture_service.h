@@ -157,6 +157,36 @@ class CaptureService final : public DaemonControl {
   auto OnLoop(F fn, const CallContext& ctx = {}) -> decltype(fn());
   void Dispatch(capture::Event e);
   void Execute(const capture::Effect& eff);
+  // The steps of Execute(), one per effect. A step that fails queues a fault
+  // event on pending_events_: it is handled once the transition's effects ran.
+  /// Creates the sample's directory or resumes the stored one.
+  void Run(const capture::CreateSample& e);
+  /// Starts homing; PollMotion() watches it until home or capture.home_timeout.
+  void Run(const capture::Home& e);
+  /// Starts the move to the view's angle; PollMotion() watches for arrival, stall and time-out.
+  void Run(const capture::MoveTo& e);
+  /// SettleDone after capture.settle, so the platter is still when the view is shot.
+  void Run(const capture::StartSettle& e);
+  /// Creates the side's directory; its schedule starts (t0) at the end of the first settle.
+  void Run(const capture::BeginSide& e);
+  /// ViewDue at t0 + view * interval (at once when already late): the schedule never drifts.
+  void Run(const capture::WaitUntilDue& e);
+  /// Reads the angle, holds the loop and requests the still; faults after frame_timeout.
+  void Run(const capture::TriggerCapture& e);
+  /// Writes the still and its record, publishes the view and its schedule error; ViewStored.
+  void Run(const capture::StoreView& e);
+  /// Stores the side's manifest, queues its jobs (last side: the sample's too); SideFinished.
+  void Run(const capture::FinishSide& e);
+  /// Cancels the capture's timers and late callbacks, releases the loop and stops the turntable.
+  void Run(const capture::StopMotion& e);
+  /// Records the sample and the side in progress as interrupted.
+  void Run(const capture::MarkInterrupted& e);
+  /// Records the sample as aborted by the operator.
+  void Run(const capture::MarkAborted& e);
+  /// Counts and logs the fault; a lost device is marked unhealthy and reopened in the background.
+  void Run(const capture::RecordFault& e);
+  /// Forgets the store fault and reopens the devices that are not healthy (reset).
+  void Run(const capture::ClearFault& e);
   void PollMotion(uint64_t epoch);
   void Fault(ErrorClass cls, const std::string& message);
   /// Opens every device that is not healthy (the healthy ones are left alone).
