@@ -107,7 +107,7 @@ double RotationSigmaDeg(const std::vector<Vector3d>& pts, double sigma) {
 // --- features ---
 
 ViewFeatures ExtractRockFeatures(const cv::Mat& bgr, const cv::Mat& rock_mask,
-                                 const FeatureCloudOptions& opts) {
+                                 const FeatureCloudOptions& opts, cv::Point origin) {
   ViewFeatures out;
   if (bgr.empty() || rock_mask.size() != bgr.size()) return out;
   cv::Mat mask;
@@ -134,8 +134,8 @@ ViewFeatures ExtractRockFeatures(const cv::Mat& bgr, const cv::Mat& rock_mask,
   sift->detectAndCompute(gray, m, out.keypoints, out.descriptors);
   for (cv::KeyPoint& k : out.keypoints) {
     // Back to full-resolution pixel centres.
-    k.pt.x = static_cast<float>((k.pt.x + 0.5) / s - 0.5 + roi.x);
-    k.pt.y = static_cast<float>((k.pt.y + 0.5) / s - 0.5 + roi.y);
+    k.pt.x = static_cast<float>((k.pt.x + 0.5) / s - 0.5 + (roi.x + origin.x));
+    k.pt.y = static_cast<float>((k.pt.y + 0.5) / s - 0.5 + (roi.y + origin.y));
     k.size = static_cast<float>(k.size / s);
   }
   return out;

@@ -62,9 +62,11 @@ struct ViewFeatures {
   cv::Mat descriptors;  // CV_32F, one row per keypoint
 };
 
-/// Features of a BGR photo inside the rock mask (0/255, same size).
+/// Features of a BGR photo inside the rock mask (0/255, same size). `origin`:
+/// where the photo's top-left pixel lies in the full frame when it is a
+/// window of it (the keypoints come out in full-frame pixels).
 ViewFeatures ExtractRockFeatures(const cv::Mat& bgr, const cv::Mat& rock_mask,
-                                 const FeatureCloudOptions& opts = {});
+                                 const FeatureCloudOptions& opts = {}, cv::Point origin = {});
 
 /// Triangulated feature points of one side with every descriptor they were seen with.
 struct FeatureCloud {

@@ -150,85 +150,111 @@ struct SideEvidence {
 Result<SideEvidence> GatherSide(const StitchStageInput& in, int side,
                                 const std::vector<StitchViewInput>& views, bool want_features) {
   const CameraModel& cam = in.calibration->camera;
-  std::vector<std::string> label_colors;
-  for (const RigMarker& m : in.rig.markers) label_colors.push_back(m.color);
   std::vector<geom::Rigid3> poses;
   for (const StitchViewInput& v : views) poses.push_back(ToRigid(v.cam_from_table));
   const std::vector<int> distinct = want_features ? DistinctViewpoints(poses) : std::vector<int>{};
   std::vector<bool> is_distinct(views.size(), false);
   for (int i : distinct) is_distinct[static_cast<size_t>(i)] = true;
 
-  MarkerDetectOptions mopts;
-  mopts.expected_label_side_px = ExpectedLabelSidePx(*in.calibration, in.rig);
+  const EvidenceOptions eo = StitchEvidenceOptions(in, 0);
+  // The cache's evidence is used when it was found with this stage's
+  // parameters (its window margin is the surface stage's business).
+  ViewEvidenceCache* cache = nullptr;
+  if (in.evidence) {
+    EvidenceOptions same = eo;
+    same.window_margin = in.evidence->options().window_margin;
+    if (same.Key() == in.evidence->options().Key()) cache = in.evidence;
+  }
   std::vector<ViewMarkers> vm(views.size());
   std::vector<ViewFeatures> vf(views.size());
-  const bool want_aruco = !in.rig.aruco_markers.empty();
+  const bool want_aruco = eo.want_aruco();
   std::vector<ArucoViewDetections> va(views.size());
   // Views are independent: two threads (the rig's two cores) share them.
   // Each view's outputs go to its own slot; sums are per thread.
   struct ViewOut {
     cv::Mat mask;  // kept for the silhouettes when the view is a distinct viewpoint
     bool marker_failure = false, aruco_failure = false;
+    bool decoded = false;  // false: everything came from the evidence cache
     std::optional<Error> error;
   };
   std::vector<ViewOut> out(views.size());
   struct Sums {
-    TimeNs decode = 0, markers = 0, features = 0, aruco = 0;
+    TimeNs decode = 0, features = 0;
+    double markers_s = 0, aruco_s = 0;
   };
   Sums sums[kWorkerThreads];
   auto work = [&](size_t i, int thread) {
     Sums* t = &sums[thread];
     ViewOut& o = out[i];
     const TimeNs t_decode = MonotonicNs();
-    auto loaded = LoadImage(views[i].image, ImageMode::kColor);
-    if (!loaded) {
-      o.error = MakeError(
-          ErrorClass::kCorrupt,
-          "stitch stage: " + loaded.error().message + "; the sample's photos must not change",
-          loaded.error().detail);
-      return;
+    std::shared_ptr<const ViewEvidence> e = cache ? cache->Find(views[i].image) : nullptr;
+    // The photo is decoded unless the cache holds its markers and, for a
+    // distinct viewpoint, the rock's window of it for the features.
+    cv::Mat bgr, mask;
+    if (!e || (is_distinct[i] && e->bgr.empty())) {
+      o.decoded = true;
+      auto loaded = LoadImage(views[i].image, ImageMode::kColor);
+      if (!loaded) {
+        o.error = MakeError(
+            ErrorClass::kCorrupt,
+            "stitch stage: " + loaded.error().message + "; the sample's photos must not change",
+            loaded.error().detail);
+        return;
+      }
+      bgr = std::move(*loaded);
+      auto loaded_mask = LoadImage(views[i].mask, ImageMode::kGray);
+      if (loaded_mask) mask = std::move(*loaded_mask);
+      if (mask.empty() || mask.size() != bgr.size()) {
+        o.error = MakeError(ErrorClass::kCorrupt,
+                            "stitch stage: mask " + views[i].mask +
+                                " is missing, unreadable or not the photo's size; delete the "
+                                "side's results to compute the masks again");
+        return;
+      }
     }
-    const cv::Mat bgr = std::move(*loaded);
-    auto loaded_mask = LoadImage(views[i].mask, ImageMode::kGray);
-    const cv::Mat mask = loaded_mask ? *loaded_mask : cv::Mat();
-    if (mask.empty() || mask.size() != bgr.size()) {
-      o.error = MakeError(ErrorClass::kCorrupt,
-                          "stitch stage: mask " + views[i].mask +
-                              " is missing, unreadable or not the photo's size; delete the "
-                              "side's results to compute the masks again");
-      return;
+    t->decode += MonotonicNs() - t_decode;
+    if (!e) {
+      if (cache) {
+        cache->Add(views[i].image, bgr, mask);
+        e = cache->Find(views[i].image);
+      } else {
+        e = std::make_shared<const ViewEvidence>(GatherViewEvidence(bgr, mask, eo, false));
+      }
     }
-    const TimeNs t_markers = MonotonicNs();
-    t->decode += t_markers - t_decode;
-    auto m = DetectViewMarkers(bgr, mask, label_colors, in.object_colors, &cam, mopts);
-    t->markers += MonotonicNs() - t_markers;
-    if (m) {
-      vm[i] = std::move(*m);
+    t->markers_s += e->markers_s;
+    t->aruco_s += e->aruco_s;
+    if (e->markers_found) {
+      vm[i] = e->markers;
     } else {
       o.marker_failure = true;
     }
     if (is_distinct[i]) {
       const TimeNs t_features = MonotonicNs();
-      vf[i] = ExtractRockFeatures(bgr, mask);
+      if (!bgr.empty()) {
+        vf[i] = ExtractRockFeatures(bgr, mask);
+        o.mask = mask;
+      } else {
+        // The window holds the rock and a margin wider than SIFT's: the same
+        // keypoints as from the whole frame.
+        vf[i] = ExtractRockFeatures(e->bgr, e->mask, {}, e->window.tl());
+        o.mask = e->FullMask();
+      }
       t->features += MonotonicNs() - t_features;
-      o.mask = mask;
     }
     if (want_aruco) {
-      const TimeNs t0 = MonotonicNs();
-      Result<ArucoViewDetections> a = DetectArucoMarkers(bgr, mask, in.rig, &cam);
-      t->aruco += MonotonicNs() - t0;
-      if (a) {
-        va[i] = std::move(*a);
+      if (e->aruco_found) {
+        va[i] = e->aruco;
       } else {
         o.aruco_failure = true;
       }
     }
   };
   ParallelFor(views.size(), kWorkerThreads, work);
-  int aruco_failures = 0, detect_failures = 0;
+  int aruco_failures = 0, detect_failures = 0, decoded = 0;
   SilhouetteSideInput sil;
   for (size_t i = 0; i < views.size(); ++i) {
     if (out[i].error) return *out[i].error;
+    decoded += out[i].decoded ? 1 : 0;
     detect_failures += out[i].marker_failure ? 1 : 0;
     aruco_failures += out[i].aruco_failure ? 1 : 0;
     if (is_distinct[i]) {
@@ -236,12 +262,13 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side,
       sil.cam_from_table.push_back(poses[i]);
     }
   }
-  TimeNs decode_ns = 0, markers_ns = 0, features_ns = 0, aruco_ns = 0;
+  TimeNs decode_ns = 0, features_ns = 0;
+  double markers_s = 0, aruco_s = 0;
   for (const Sums& t : sums) {
     decode_ns += t.decode;
-    markers_ns += t.markers;
+    markers_s += t.markers_s;
     features_ns += t.features;
-    aruco_ns += t.aruco;
+    aruco_s += t.aruco_s;
   }
   SideEvidence ev;
   ev.silhouettes = std::move(sil);
@@ -253,22 +280,23 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side,
   ev.record = {{"side", side},
                {"views", views.size()},
                {"marker_detection_failures", detect_failures},
+               {"photos_decoded", decoded},
                {"object_markers", MarkersJson(ev.markers)},
                {"background_labels", LabelsJson(labels)}};
   if (want_aruco) {
-    const double ms = views.empty()
-                          ? 0.0
-                          : static_cast<double>(aruco_ns) / 1e6 / static_cast<double>(views.size());
+    const double ms = views.empty() ? 0.0 : aruco_s * 1e3 / static_cast<double>(views.size());
     ev.record["aruco_scale"] =
         ArucoJson(LocateArucoMarkers(va, poses, cam, in.rig), in.rig, aruco_failures, ms);
   } else {
     ev.record["aruco_scale"] = {{"configured", false}, {"ok", false}};
   }
+  // decode: this stage's own; markers and aruco: the detections' cost,
+  // wherever they ran (an earlier stage may have found them: evidence_cached).
   ev.record["timings_s"] = {{"decode", static_cast<double>(decode_ns) / 1e9},
-                            {"markers", static_cast<double>(markers_ns) / 1e9},
+                            {"markers", markers_s},
                             {"features", static_cast<double>(features_ns) / 1e9},
                             {"feature_matching", static_cast<double>(cloud_ns) / 1e9},
-                            {"aruco", static_cast<double>(aruco_ns) / 1e9}};
+                            {"aruco", aruco_s}};
   if (want_features) {
     ev.record["feature_cloud"] = {{"viewpoints", ev.cloud.views},
                                   {"view_pairs", ev.cloud.view_pairs},
@@ -278,6 +306,17 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side,
 }
 
 }  // namespace
+
+EvidenceOptions StitchEvidenceOptions(const StitchStageInput& in, int window_margin) {
+  EvidenceOptions o;
+  o.camera = in.calibration->camera;
+  for (const RigMarker& m : in.rig.markers) o.label_colors.push_back(m.color);
+  o.object_colors = in.object_colors;
+  o.markers.expected_label_side_px = ExpectedLabelSidePx(*in.calibration, in.rig);
+  o.rig = in.rig;
+  o.window_margin = window_margin;
+  return o;
+}
 
 Result<json> RunStitchStage(const StitchStageInput& in) {
   const auto t0 = std::chrono::steady_clock::now();

@@ -25,6 +25,7 @@
 #include "common/error.h"
 #include "common/rig_calibration.h"
 #include "config/config.h"
+#include "pipeline/markers/view_evidence.h"
 
 namespace aggscan {
 
@@ -42,7 +43,16 @@ struct StitchStageInput {
   RigConfig rig;  // background labels and ArUco scale markers (the sample's config)
   std::vector<std::string> object_colors = {"purple", "red"};  // the study's object markers
   std::map<int, std::vector<StitchViewInput>> views;           // per side (1-based)
+  /// What earlier stages found in the views (photo path -> evidence), when
+  /// its options are StitchEvidenceOptions of this input: a view found there
+  /// is not decoded for its markers, and a view decoded here is added to it.
+  ViewEvidenceCache* evidence = nullptr;
 };
+
+/// What the stitch stage detects in each view of `in` (its lens, labels,
+/// object markers and ArUco markers), for a ViewEvidenceCache that stages
+/// before it fill; `window_margin` is the surface stage's (RockWindow).
+EvidenceOptions StitchEvidenceOptions(const StitchStageInput& in, int window_margin);
 
 /// The stitch record: {"method", "sides": [{"side", "table_from_object_4x4"}],
 /// "rms_mm", "max_mm", "scale_residual_mm", "scale_reference" ("labels" |

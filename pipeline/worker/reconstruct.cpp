@@ -22,6 +22,7 @@
 #include "pipeline/core/stage.h"
 #include "pipeline/core/stage_runner.h"
 #include "pipeline/markers/markers.h"
+#include "pipeline/markers/view_evidence.h"
 #include "pipeline/masks/mask_dataset.h"
 #include "pipeline/morph/morph2d.h"
 #include "pipeline/stitch/stitch_stage.h"
@@ -230,7 +231,7 @@ Result<json> SfmPosesRecord(const std::string& sample_dir, int side, const json&
 Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int side,
                                           const RigCalibration* cal, const SfmPosesInput* sfm,
                                           const ReconstructOptions& opts, json* timings,
-                                          std::string* method) {
+                                          std::string* method, ViewEvidenceCache* evidence) {
   const std::string out = ResultsPath(sample_dir, results::PosesName(side));
   const std::string side_dir = sample_dir + "/" + layout::SideDirName(side);
   std::vector<ViewInput> views;
@@ -283,15 +284,19 @@ Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int sid
       // poses; the photos are read one at a time.
       std::vector<double> measured;
       for (const auto& v : jviews) measured.push_back(v["angle_deg"].get<double>());
+      // What the stitch and the surface need of each photo is kept while it
+      // is decoded here (view_evidence.h).
       auto load = [&](int i, cv::Mat* bgr, cv::Mat* mask) {
-        auto img = LoadImage(side_dir + "/" + jviews[i].value("image", ""), ImageMode::kColor,
-                             opts.worker.image_limits);
+        const std::string image = side_dir + "/" + jviews[i].value("image", "");
+        auto img = LoadImage(image, ImageMode::kColor, opts.worker.image_limits);
         auto m = LoadImage(ResultsPath(sample_dir, jviews[i].value("mask", "")), ImageMode::kGray,
                            opts.worker.image_limits);
         if (!img || !m) return false;
         *bgr = std::move(*img);
         *mask = std::move(*m);
-        return bgr->size() == mask->size();
+        if (bgr->size() != mask->size()) return false;
+        if (evidence) evidence->Add(image, *bgr, *mask);
+        return true;
       };
       const BundleAdjustResult ba =
           BundleAdjustSideImages(static_cast<int>(jviews.size()), load, measured, *cal, opts.ba);
@@ -364,32 +369,43 @@ int WindowMarginPx(const RigCalibration& cal) {
   return 2 * static_cast<int>(std::ceil(12.0 * px_per_mm)) + 16;
 }
 
-// `m` inside `roi`, zero where `roi` reaches past m's edge (by at most one
-// pixel: a window's even side over a frame of odd size).
-cv::Mat CropPadded(const cv::Mat& m, const cv::Rect& roi) {
-  const cv::Rect in = roi & cv::Rect(0, 0, m.cols, m.rows);
-  if (in == roi) return m(roi).clone();
-  cv::Mat out = cv::Mat::zeros(roi.size(), m.type());
-  if (in.area() > 0) m(in).copyTo(out(in - roi.tl()));
-  return out;
-}
-
 ViewWindow WindowOf(const cv::Mat& full_mask, const CameraModel& cam, int margin) {
   ViewWindow w;
-  const cv::Rect box = cv::boundingRect(full_mask);
-  // Rounded up to even: an odd frame's window may end one pixel past it.
-  const int fw = (full_mask.cols + 1) & ~1, fh = (full_mask.rows + 1) & ~1;
-  if (box.area() == 0) {
-    w.roi = cv::Rect(0, 0, fw, fh);
-  } else {
-    const int x0 = std::max(0, (box.x - margin) & ~1), y0 = std::max(0, (box.y - margin) & ~1);
-    const int x1 = std::min(fw, (box.x + box.width + margin + 1) & ~1);
-    const int y1 = std::min(fh, (box.y + box.height + margin + 1) & ~1);
-    w.roi = cv::Rect(x0, y0, x1 - x0, y1 - y0);
-  }
+  w.roi = RockWindow(full_mask, margin);
   w.camera = cam.Cropped(w.roi.x, w.roi.y, w.roi.width, w.roi.height);
   w.mask = CropPadded(full_mask, w.roi);
   return w;
+}
+
+// The same from what an earlier stage kept of the view, when it kept it with
+// this margin.
+std::optional<ViewWindow> CachedWindow(const ViewEvidenceCache* evidence, const std::string& image,
+                                       const CameraModel& cam, int margin) {
+  if (!evidence || evidence->options().window_margin != margin) return std::nullopt;
+  const std::shared_ptr<const ViewEvidence> e = evidence->Find(image);
+  if (!e || e->frame != cv::Size(cam.width, cam.height)) return std::nullopt;
+  ViewWindow w;
+  w.roi = e->window;
+  w.camera = cam.Cropped(w.roi.x, w.roi.y, w.roi.width, w.roi.height);
+  w.mask = e->mask;
+  return w;
+}
+
+// The photo `image` inside `roi`.
+Status ReadColourWindow(const std::string& image, const cv::Rect& roi, cv::Size full_size,
+                        const ImageLimits& limits, cv::Mat* out) {
+  auto loaded = LoadImage(image, ImageMode::kColor, limits);
+  if (!loaded) {
+    return MakeError(loaded.error().cls, "surface stage: " + loaded.error().message,
+                     loaded.error().detail);
+  }
+  if (loaded->size() != full_size) {
+    return MakeError(ErrorClass::kCorrupt, "surface stage: the photo " + image +
+                                               " is not the size of its mask; the sample's photos "
+                                               "must not change");
+  }
+  *out = CropPadded(*loaded, roi);
+  return OkStatus();
 }
 
 // Per-vertex colour from the view that sees the vertex most head-on among
@@ -397,7 +413,7 @@ ViewWindow WindowOf(const cv::Mat& full_mask, const CameraModel& cam, int margin
 Result<VertexColors> ColourVertices(const Mesh& mesh, const std::vector<ViewInput>& views,
                                     const std::vector<Eigen::Isometry3d>& cam_from_object,
                                     const std::vector<ViewWindow>& windows, cv::Size full_size,
-                                    const ImageLimits& limits) {
+                                    const ImageLimits& limits, const ViewEvidenceCache* evidence) {
   const size_t nv = mesh.vertices.size();
   std::vector<Eigen::Vector3d> normals(nv, Eigen::Vector3d::Zero());
   for (const auto& f : mesh.faces) {
@@ -436,19 +452,16 @@ Result<VertexColors> ColourVertices(const Mesh& mesh, const std::vector<ViewInpu
     bool any = false;
     for (size_t i = 0; i < nv && !any; ++i) any = best[i] == static_cast<int>(vi);
     if (!any) return;
-    auto loaded = LoadImage(views[vi].image, ImageMode::kColor, limits);
-    if (!loaded) {
-      failed[vi] = MakeError(loaded.error().cls, "surface stage: " + loaded.error().message,
-                             loaded.error().detail);
+    cv::Mat img;
+    if (const auto e = evidence ? evidence->Find(views[vi].image) : nullptr;
+        e && !e->bgr.empty() && e->window == windows[vi].roi) {
+      img = e->bgr;
+    } else if (Status s =
+                   ReadColourWindow(views[vi].image, windows[vi].roi, full_size, limits, &img);
+               !s) {
+      failed[vi] = s.error();
       return;
     }
-    if (loaded->size() != full_size) {
-      failed[vi] = MakeError(ErrorClass::kCorrupt, "surface stage: the photo " + views[vi].image +
-                                                       " is not the size of its mask; the "
-                                                       "sample's photos must not change");
-      return;
-    }
-    const cv::Mat img = CropPadded(*loaded, windows[vi].roi);
     for (size_t i = 0; i < nv; ++i) {
       if (best[i] != static_cast<int>(vi)) continue;
       cv::Mat patch;
@@ -617,16 +630,21 @@ std::string SuspectMasks(const std::vector<ViewInput>& views,
 Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewInput>& views,
                           const std::map<int, Eigen::Isometry3d>& table_from_object,
                           const RigCalibration& cal, const ReconstructOptions& opts,
-                          const std::string& sample_id) {
+                          const std::string& sample_id, const ViewEvidenceCache* evidence) {
   const std::string out = ResultsPath(sample_dir, results::kSurface);
   if (PathExists(out)) return ReadJson(out, "surface record");
   const auto t0 = std::chrono::steady_clock::now();
-  // The masks, read side by side, each kept as its window.
+  // The masks, each kept as its window: from the evidence of an earlier
+  // stage, or read (side by side).
   const int margin = WindowMarginPx(cal);
   std::vector<ViewWindow> windows(views.size());
   std::vector<std::optional<Error>> load_error(views.size());
   ParallelFor(views.size(), kWorkerThreads, [&](size_t i) {
     const ViewInput& v = views[i];
+    if (auto w = CachedWindow(evidence, v.image, cal.camera, margin)) {
+      windows[i] = std::move(*w);
+      return;
+    }
     auto loaded = LoadImage(v.mask, ImageMode::kGray, opts.worker.image_limits);
     if (!loaded || loaded->empty()) {
       load_error[i] = MakeError(ErrorClass::kCorrupt,
@@ -834,9 +852,9 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
   // search's noise) inflate the area: a few Taubin passes remove them.
   if (opts.surface_smooth_iterations > 0) TaubinSmooth(&hull->mesh, opts.surface_smooth_iterations);
   const auto tc = std::chrono::steady_clock::now();
-  auto colors =
-      ColourVertices(hull->mesh, used_views, cam_from_object, windows,
-                     cv::Size(cal.camera.width, cal.camera.height), opts.worker.image_limits);
+  auto colors = ColourVertices(hull->mesh, used_views, cam_from_object, windows,
+                               cv::Size(cal.camera.width, cal.camera.height),
+                               opts.worker.image_limits, evidence);
   if (!colors) return colors.error();
   const double colour_s = Seconds(tc);
   const auto ti = std::chrono::steady_clock::now();
@@ -1053,7 +1071,21 @@ struct SampleRun {
   json stitch;
   std::map<int, Eigen::Isometry3d> table_from_object;
   json surface;
+  std::optional<ViewEvidenceCache> evidence;  // once the calibration is known
 };
+
+// The sample's view evidence, kept from the first decode of each photo for
+// the stages after it; null until the calibration is known.
+ViewEvidenceCache* EvidenceOf(SampleRun& r) {
+  if (!r.cal) return nullptr;
+  if (!r.evidence) {
+    StitchStageInput sin;
+    sin.calibration = &*r.cal;
+    sin.rig = r.rig;
+    r.evidence.emplace(StitchEvidenceOptions(sin, WindowMarginPx(*r.cal)));
+  }
+  return &*r.evidence;
+}
 
 // The image size of the sample's photos, from the first readable mask.
 Status ReadImageSize(SampleRun& r) {
@@ -1107,7 +1139,7 @@ Status PosesOfSide(SampleRun& r, int side) {
   }
   std::string method;
   auto v = PosesStage(r.dir, side, r.cal ? &*r.cal : nullptr, r.use_sfm ? &r.sfm_setup : nullptr,
-                      r.opts, &r.timings, &method);
+                      r.opts, &r.timings, &method, EvidenceOf(r));
   r.poses_methods[side] = method;
   if (!v) return v.error();
   r.side_views[side] = *v;
@@ -1141,6 +1173,7 @@ Status StitchSides(SampleRun& r) {
   sin.calibration = &*r.cal;
   // The background labels are the ones configured when the sample was armed.
   sin.rig = r.rig;
+  sin.evidence = EvidenceOf(r);
   for (const auto& [side, vs] : r.side_views) {
     for (const ViewInput& v : vs) {
       sin.views[side].push_back({v.view, v.angle_deg, v.image, v.mask, v.cam_from_table});
@@ -1173,7 +1206,8 @@ Status StitchSides(SampleRun& r) {
 }
 
 Status SurfaceOfSample(SampleRun& r) {
-  auto surface = SurfaceStage(r.dir, r.all_views, r.table_from_object, *r.cal, r.opts, r.id);
+  auto surface =
+      SurfaceStage(r.dir, r.all_views, r.table_from_object, *r.cal, r.opts, r.id, EvidenceOf(r));
   if (!surface) return surface.error();
   r.surface = std::move(*surface);
   r.timings["surface_s"] = r.surface.value("stage_seconds", 0.0);

@@ -11,6 +11,8 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <cstdlib>
+#include <map>
 #include <vector>
 
 #include "pipeline/masks/mask.h"
@@ -416,6 +418,105 @@ TEST(ArucoScale, StitchStageRecordsTheArucoReference) {
       << missing.dump();
   EXPECT_TRUE((*j)["scale_residual_mm"].is_null());
   EXPECT_TRUE((*j)["scale_reference"].is_null());
+}
+
+// The stitch record without its timings and the count of photos it decoded.
+nlohmann::json WithoutTimings(nlohmann::json j) {
+  if (j.is_object()) {
+    nlohmann::json out = nlohmann::json::object();
+    for (auto& [k, v] : j.items()) {
+      const bool timing = k == "timings_s" || k == "stage_seconds" || k == "seconds" ||
+                          k == "photos_decoded" || k == "detect_ms_per_view" ||
+                          (k.size() > 2 && k.compare(k.size() - 2, 2, "_s") == 0);
+      if (!timing) out[k] = WithoutTimings(v);
+    }
+    return out;
+  }
+  if (j.is_array()) {
+    for (auto& v : j) v = WithoutTimings(v);
+  }
+  return j;
+}
+
+// Two sides whose photos an earlier stage decoded: the stitch takes their
+// labels, object markers, ArUco markers and rock windows from the evidence
+// cache and comes to the very same record, decoding nothing (or, when the
+// cache had no room for the colour windows, only the photos its features need).
+TEST(ArucoScale, StitchStageFromTheEvidenceCacheIsTheSame) {
+  test::TempDir tmp;
+  const std::string& dir = tmp.path();
+  const Config cfg = ArucoConfig(dir, FourMarkers(), 8, 100.0);
+  auto world = sim::SimWorld::Create(cfg);
+  ASSERT_TRUE(world.ok()) << world.error().ToString();
+  sim::Renderer r(**world, 1008, 756);
+  const RigCalibration cal = (*world)->TruthCalibration(1008, 756);
+  StitchStageInput in;
+  in.sample_dir = dir;
+  in.calibration = &cal;
+  in.rig = cfg.rig;
+  std::map<std::string, std::pair<cv::Mat, cv::Mat>> decoded;  // what an earlier stage held
+  for (int side = 1; side <= 2; ++side) {
+    const std::vector<SimView> views = RenderSide(r, side, 8, 8);
+    for (size_t i = 0; i < views.size(); ++i) {
+      StitchViewInput v;
+      v.view = static_cast<int>(i);
+      v.angle_deg = views[i].measured_deg;
+      const std::string name = std::to_string(side) + "_" + std::to_string(i);
+      v.image = dir + "/view" + name + ".png";
+      v.mask = dir + "/mask" + name + ".png";
+      ASSERT_TRUE(cv::imwrite(v.image, views[i].bgr));
+      ASSERT_TRUE(cv::imwrite(v.mask, views[i].truth_mask));
+      decoded[v.image] = {views[i].bgr, views[i].truth_mask};
+      const geom::Rigid3 p = geom::CamFromTable(cal, v.angle_deg);
+      v.cam_from_table.linear() = p.R;
+      v.cam_from_table.translation() = p.t;
+      in.views[side].push_back(v);
+    }
+  }
+  // The feature matching (FLANN's trees) and the silhouettes draw random
+  // numbers: each run starts from the state a fresh worker process has.
+  std::srand(1);
+  cv::theRNG() = cv::RNG();
+  Result<nlohmann::json> plain = RunStitchStage(in);
+  ASSERT_TRUE(plain.ok()) << plain.error().ToString();
+  for (const auto& side : (*plain)["per_side"]) EXPECT_EQ(side["photos_decoded"], 8);
+  ASSERT_TRUE((*plain)["per_side"][0]["aruco_scale"]["ok"].get<bool>());
+  ASSERT_TRUE((*plain)["per_side"][0]["background_labels"]["ok"].get<bool>());
+
+  for (const size_t budget : {size_t{160} << 20, size_t{0}}) {
+    SCOPED_TRACE("colour budget " + std::to_string(budget));
+    ViewEvidenceCache cache(StitchEvidenceOptions(in, 40), budget);
+    for (const auto& [image, pm] : decoded) cache.Add(image, pm.first, pm.second);
+    ASSERT_EQ(cache.views(), decoded.size());
+    in.evidence = &cache;
+    std::srand(1);
+    cv::theRNG() = cv::RNG();
+    Result<nlohmann::json> cached = RunStitchStage(in);
+    in.evidence = nullptr;
+    ASSERT_TRUE(cached.ok()) << cached.error().ToString();
+    EXPECT_EQ(WithoutTimings(*cached), WithoutTimings(*plain));
+    for (const auto& side : (*cached)["per_side"]) {
+      EXPECT_EQ(side["photos_decoded"].get<int>(),
+                budget > 0 ? 0 : side["feature_cloud"]["viewpoints"].get<int>())
+          << side.dump();
+      EXPECT_GT(side["timings_s"]["markers"].get<double>(), 0.0);
+    }
+  }
+
+  // Evidence gathered for another lens is not taken.
+  RigCalibration other = cal;
+  other.camera.fx *= 1.01;
+  StitchStageInput other_in = in;
+  other_in.calibration = &other;
+  ViewEvidenceCache foreign(StitchEvidenceOptions(other_in, 40));
+  for (const auto& [image, pm] : decoded) foreign.Add(image, pm.first, pm.second);
+  in.evidence = &foreign;
+  std::srand(1);
+  cv::theRNG() = cv::RNG();
+  Result<nlohmann::json> not_taken = RunStitchStage(in);
+  ASSERT_TRUE(not_taken.ok()) << not_taken.error().ToString();
+  for (const auto& side : (*not_taken)["per_side"]) EXPECT_EQ(side["photos_decoded"], 8);
+  EXPECT_EQ(WithoutTimings(*not_taken), WithoutTimings(*plain));
 }
 
 // Black-and-white markers on the disc are not rock: the classical masks,

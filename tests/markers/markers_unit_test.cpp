@@ -7,6 +7,7 @@
 
 #include "pipeline/core/geometry.h"
 #include "pipeline/markers/markers.h"
+#include "pipeline/markers/view_evidence.h"
 #include "pipeline/stitch/stitch.h"
 
 namespace aggscan {
@@ -265,6 +266,90 @@ TEST(MarkersUnit, ColourClassesFollowTheRuleOnEveryPixel) {
     for (int k = 1; k <= static_cast<int>(o.colors.size()); ++k)
       EXPECT_GT(cv::countNonZero(got == k), 0) << k;
   }
+}
+
+// --- view evidence ---
+
+TEST(ViewEvidence, RockWindowHoldsTheRockAndItsMarginWithEvenCorners) {
+  cv::Mat mask = cv::Mat::zeros(151, 201, CV_8U);  // odd frame
+  cv::circle(mask, {101, 73}, 20, cv::Scalar(255), cv::FILLED);
+  const cv::Rect box = cv::boundingRect(mask);
+  const cv::Rect w = RockWindow(mask, 9);
+  EXPECT_EQ(w.x % 2, 0);
+  EXPECT_EQ(w.y % 2, 0);
+  EXPECT_EQ(w.width % 2, 0);
+  EXPECT_EQ(w.height % 2, 0);
+  EXPECT_LE(w.x, box.x - 9);
+  EXPECT_LE(w.y, box.y - 9);
+  EXPECT_GE(w.x + w.width, box.x + box.width + 9);
+  EXPECT_GE(w.y + w.height, box.y + box.height + 9);
+  EXPECT_LE(w.x + w.width, box.x + box.width + 9 + 2);  // at most the rounding more
+  // Near the edge of an odd frame: clipped to the frame rounded up to even.
+  cv::Mat edge = cv::Mat::zeros(151, 201, CV_8U);
+  cv::rectangle(edge, cv::Rect(180, 130, 21, 21), cv::Scalar(255), cv::FILLED);
+  const cv::Rect we = RockWindow(edge, 9);
+  EXPECT_EQ(we.x + we.width, 202);
+  EXPECT_EQ(we.y + we.height, 152);
+  const cv::Mat crop = CropPadded(edge, we);
+  EXPECT_EQ(crop.size(), we.size());
+  EXPECT_EQ(cv::countNonZero(crop), cv::countNonZero(edge));  // the padding is zero
+  // No rock: the whole frame.
+  EXPECT_EQ(RockWindow(cv::Mat::zeros(151, 201, CV_8U), 9), cv::Rect(0, 0, 202, 152));
+}
+
+TEST(ViewEvidence, CacheKeepsTheWindowsAndGivesTheMaskBackWhole) {
+  cv::Mat mask = cv::Mat::zeros(300, 400, CV_8U);
+  cv::ellipse(mask, {210, 140}, {50, 30}, 20, 0, 360, cv::Scalar(255), cv::FILLED);
+  cv::Mat bgr(300, 400, CV_8UC3);
+  cv::randu(bgr, cv::Scalar::all(0), cv::Scalar::all(255));
+  EvidenceOptions o;
+  o.camera = {400, 300, 380, 380, 200, 150};
+  o.label_colors = {"red", "green"};
+  o.object_colors = {"purple", "red"};
+  o.window_margin = 12;
+  // Room for one colour window only.
+  const size_t one = static_cast<size_t>(RockWindow(mask, 12).area()) * 3;
+  ViewEvidenceCache cache(o, one);
+  EXPECT_EQ(cache.Find("a.jpg"), nullptr);
+  cache.Add("a.jpg", bgr, mask);
+  cache.Add("b.jpg", bgr, mask);
+  cache.Add("c.jpg", bgr, cv::Mat::zeros(10, 10, CV_8U));  // not the photo's size: not kept
+  EXPECT_EQ(cache.views(), 2u);
+  EXPECT_EQ(cache.Find("c.jpg"), nullptr);
+  const auto a = cache.Find("a.jpg"), b = cache.Find("b.jpg");
+  ASSERT_TRUE(a && b);
+  EXPECT_EQ(a->frame, mask.size());
+  EXPECT_EQ(a->window, RockWindow(mask, 12));
+  EXPECT_EQ(cv::norm(a->FullMask(), mask, cv::NORM_INF), 0.0);
+  ASSERT_FALSE(a->bgr.empty());
+  EXPECT_EQ(cv::norm(a->bgr, bgr(a->window), cv::NORM_INF), 0.0);
+  EXPECT_TRUE(b->bgr.empty()) << "over the colour budget";
+  EXPECT_EQ(cv::norm(b->FullMask(), mask, cv::NORM_INF), 0.0);
+  EXPECT_EQ(cache.bytes(), a->bytes() + b->bytes());
+  // A view already kept is not replaced.
+  cache.Add("a.jpg", bgr, cv::Mat::zeros(300, 400, CV_8U));
+  EXPECT_EQ(cache.Find("a.jpg"), a);
+  // Random pixels hold no labels; the detection ran and found none.
+  EXPECT_TRUE(a->markers_found);
+  EXPECT_TRUE(a->markers.labels.empty());
+  EXPECT_FALSE(a->aruco_found);  // no ArUco markers configured: not searched
+}
+
+TEST(ViewEvidence, KeysDifferWhenWhatIsFoundDiffers) {
+  EvidenceOptions o;
+  o.camera = {400, 300, 380, 380, 200, 150};
+  o.label_colors = {"red"};
+  const std::string k = o.Key();
+  EXPECT_EQ(k, EvidenceOptions(o).Key());
+  EvidenceOptions lens = o;
+  lens.camera.k1 = 1e-9;
+  EvidenceOptions labels = o;
+  labels.label_colors.push_back("blue");
+  EvidenceOptions size = o;
+  size.markers.expected_label_side_px = 30;
+  EvidenceOptions aruco = o;
+  aruco.rig.aruco_markers = {{3, 10.0, 20.0, 0.0}};
+  for (const EvidenceOptions* d : {&lens, &labels, &size, &aruco}) EXPECT_NE(d->Key(), k);
 }
 
 }  // namespace
