@@ -369,12 +369,13 @@ int WindowMarginPx(const RigCalibration& cal) {
   return 2 * static_cast<int>(std::ceil(12.0 * px_per_mm)) + 16;
 }
 
+ViewWindow WindowIn(const CameraModel& cam, const cv::Rect& roi, cv::Mat mask) {
+  return {roi, cam.Cropped(roi.x, roi.y, roi.width, roi.height), std::move(mask)};
+}
+
 ViewWindow WindowOf(const cv::Mat& full_mask, const CameraModel& cam, int margin) {
-  ViewWindow w;
-  w.roi = RockWindow(full_mask, margin);
-  w.camera = cam.Cropped(w.roi.x, w.roi.y, w.roi.width, w.roi.height);
-  w.mask = CropPadded(full_mask, w.roi);
-  return w;
+  const cv::Rect roi = RockWindow(full_mask, margin);
+  return WindowIn(cam, roi, CropPadded(full_mask, roi));
 }
 
 // The same from what an earlier stage kept of the view, when it kept it with
@@ -384,11 +385,7 @@ std::optional<ViewWindow> CachedWindow(const ViewEvidenceCache* evidence, const 
   if (!evidence || evidence->options().window_margin != margin) return std::nullopt;
   const std::shared_ptr<const ViewEvidence> e = evidence->Find(image);
   if (!e || e->frame != cv::Size(cam.width, cam.height)) return std::nullopt;
-  ViewWindow w;
-  w.roi = e->window;
-  w.camera = cam.Cropped(w.roi.x, w.roi.y, w.roi.width, w.roi.height);
-  w.mask = e->mask;
-  return w;
+  return WindowIn(cam, e->window, e->mask);
 }
 
 // The photo `image` inside `roi`.
