@@ -15,7 +15,7 @@ namespace {
 std::string ResolveDevice(const std::string& device) {
   if (device.find('/') != std::string::npos) return device;
   for (const char* dir : {"/dev/input/by-id/", "/dev/input/by-path/", "/dev/input/"}) {
-    const std::string p = dir + device;
+    std::string p = dir + device;
     if (::access(p.c_str(), F_OK) == 0) return p;
   }
   return "/dev/input/by-id/" + device;

@@ -39,7 +39,7 @@ void GpioButton::Run() {
       config_.active_low ? GPIOD_LINE_EVENT_FALLING_EDGE : GPIOD_LINE_EVENT_RISING_EDGE;
   bool have_edge = false;
   TimeNs last_edge = 0;  // kernel timestamp of the previous edge, any direction
-  const timespec wait = {0, 100 * 1000 * 1000};
+  const timespec wait = {0, 100L * 1000 * 1000};
   while (!stop_) {
     const int r = gpiod_line_event_wait(line_->line(), &wait);
     if (r == 0) continue;

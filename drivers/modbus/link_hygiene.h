@@ -19,7 +19,7 @@
 
 #include "common/clock.h"
 
-struct _modbus;
+struct _modbus;  // NOLINT(bugprone-reserved-identifier): libmodbus's own tag for modbus_t
 
 namespace aggscan::modbus {
 

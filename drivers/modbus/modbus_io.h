@@ -25,7 +25,7 @@
 #include "drivers/button.h"
 #include "drivers/status_light.h"
 
-struct _modbus;
+struct _modbus;  // NOLINT(bugprone-reserved-identifier): libmodbus's own tag for modbus_t
 
 namespace aggscan::modbus {
 

@@ -50,7 +50,8 @@
 #include "config/turntable_profile.h"
 #include "drivers/turntable.h"
 
-struct _modbus;  // libmodbus's modbus_t, kept out of this header
+// libmodbus's modbus_t, kept out of this header.
+struct _modbus;  // NOLINT(bugprone-reserved-identifier): libmodbus's own tag for modbus_t
 
 namespace aggscan::modbus {
 

@@ -81,7 +81,7 @@ void Rasterize(const std::vector<std::array<int, 3>>& faces, const int32_t* xs, 
 // In-place box blur along rows (stride 1) or columns, zero outside.
 void BoxBlur(float* data, int w, int h, int r, bool rows, std::vector<float>* tmp) {
   const int n = rows ? w : h, lines = rows ? h : w;
-  const int step = rows ? 1 : w, line_step = rows ? w : 1;
+  const ptrdiff_t step = rows ? 1 : w, line_step = rows ? w : 1;
   tmp->resize(n);
   const float norm = 1.0f / static_cast<float>(2 * r + 1);
   for (int l = 0; l < lines; ++l) {
@@ -247,6 +247,8 @@ struct Renderer::Impl {
     const float vig = 1.0f - 0.12f * r2 / r2_corner;
     for (int k = 0; k < 3; ++k) {
       const float x = rgb[k] * vig * gains[k];
+      // srgb holds [0, 255]: non-negative, so +0.5 and truncation round half up.
+      // NOLINTNEXTLINE(bugprone-incorrect-roundings): operand never negative; hot per-pixel path
       out[k] = static_cast<uint8_t>(srgb[static_cast<int>(std::min(x, 4095.0f))] + 0.5f);
     }
   }
@@ -297,7 +299,8 @@ bool Renderer::Impl::Shade(const FrameState& fs, int u, int v, float rgb[3], flo
       const float* M = fs.M;
       const float dx = M[0] * xu + M[1] * yu + M[2], dy = M[3] * xu + M[4] * yu + M[5],
                   dz = M[6] * xu + M[7] * yu + M[8];
-      const float nx = fn[3 * t], ny = fn[3 * t + 1], nz = fn[3 * t + 2];
+      const size_t f3 = 3 * static_cast<size_t>(t);
+      const float nx = fn[f3], ny = fn[f3 + 1], nz = fn[f3 + 2];
       const float den = nx * dx + ny * dy + nz * dz;
       const float zbuf = 1.0f / invz[vis_idx];
       float tt = den < -1e-4f ? (fd[t] - (nx * fs.ox + ny * fs.oy + nz * fs.oz)) / den : zbuf;

@@ -65,7 +65,7 @@ Status SimCamera::DoConfigure(const CameraSettings& settings) {
     if (!worker_.joinable() || stop_) return OkStatus();
     Job job;
     job.warmup = true;
-    job.done = [&warmed](Result<FramePtr>) { warmed.set_value(); };
+    job.done = [&warmed](const Result<FramePtr>&) { warmed.set_value(); };
     queue_.push_back(std::move(job));
   }
   cv_.notify_one();

@@ -22,7 +22,8 @@ void TruthRecorder::Attach(RigDevices& rig,
                            std::function<std::string(const std::string&)> truth_dir_for) {
   auto* cam = dynamic_cast<SimCamera*>(rig.camera.get());
   if (!cam) return;
-  cam->SetTruthSink([this, truth_dir_for](const StillRequest& req, const TruthView& tv) {
+  cam->SetTruthSink([this, truth_dir_for = std::move(truth_dir_for)](const StillRequest& req,
+                                                                     const TruthView& tv) {
     const std::string dir = truth_dir_for(req.sample_id) + "/side" + std::to_string(tv.side);
     char name[64];
     std::snprintf(name, sizeof name, "view_%03d_mask.pgm", tv.view);

@@ -298,7 +298,7 @@ void GeodesicSphere(int freq, std::vector<Vec3>* dirs, std::vector<std::array<in
   auto vertex = [&](std::array<std::pair<int, int>, 3> w) {
     std::sort(w.begin(), w.end());
     std::array<int, 6> k{-1, 0, -1, 0, -1, 0};
-    int m = 0;
+    size_t m = 0;
     Vec3 p;
     for (const auto& [corner, weight] : w) {
       if (weight == 0) continue;
@@ -404,8 +404,8 @@ Rigid Rigid::Inverse() const {
 
 Rigid operator*(const Rigid& a, const Rigid& b) {
   Rigid r;
-  for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 3; ++j)
+  for (size_t i = 0; i < 3; ++i)
+    for (size_t j = 0; j < 3; ++j)
       r.R[3 * i + j] =
           a.R[3 * i] * b.R[j] + a.R[3 * i + 1] * b.R[3 + j] + a.R[3 * i + 2] * b.R[6 + j];
   r.t = a.Apply(b.t);
@@ -485,6 +485,7 @@ Mesh MakeProceduralRock(uint64_t seed, double size_mm, int target_faces) {
   };
   std::vector<Dent> dents;
   const int ndents = 2 + rng.Int(3);
+  dents.reserve(ndents);
   for (int i = 0; i < ndents; ++i)
     dents.push_back({rng.UnitVector(), rng.Uniform(0.2, 0.45), rng.Uniform(0.05, 0.14) * a});
   const uint32_t rough_seed = static_cast<uint32_t>(rng.Next());

@@ -82,7 +82,7 @@ std::vector<Cluster> FitBackground(const cv::Mat& img32, const cv::Mat& sample,
   const int n = cv::countNonZero(sample);
   const int step = std::max(1, n / kMaxSamples);
   std::vector<cv::Vec3f> pts;
-  pts.reserve(static_cast<size_t>(n / step + 1));
+  pts.reserve(static_cast<size_t>(n / step) + 1);
   int i = 0;
   for (int y = 0; y < img32.rows; ++y) {
     const cv::Vec3f* p = img32.ptr<cv::Vec3f>(y);
@@ -387,7 +387,7 @@ cv::Mat CoarseMask(Scene& s, const MaskOptions& o) {
   // it as it is (paint is neutral there); the other refinements want the paint
   // set aside (a label touching the rock must not join it) and re-attach
   // markers by their rim.
-  const cv::Mat all = CleanEvidence(evidence, o);
+  cv::Mat all = CleanEvidence(evidence, o);
   SetRockColor(s, all, o);
   if (o.refine == MaskRefine::kGraphCut) return all;
   return CleanEvidence(evidence & ~s.paint, o);

@@ -183,7 +183,7 @@ cv::Mat SegmentGraphCut(const cv::Mat& bgr, const cv::Mat& texture, const cv::Ma
   // Contrast term: beta = 1 / (2 <|dI|^2>) over the 4 forward neighbours.
   const int w = bgr.cols, h = bgr.rows;
   auto diff2 = [&](int y0, int x0, int y1, int x1) {
-    const cv::Vec3b a = bgr.at<cv::Vec3b>(y0, x0), b = bgr.at<cv::Vec3b>(y1, x1);
+    const cv::Vec3b &a = bgr.at<cv::Vec3b>(y0, x0), &b = bgr.at<cv::Vec3b>(y1, x1);
     const double d0 = a[0] - b[0], d1 = a[1] - b[1], d2 = a[2] - b[2];
     return d0 * d0 + d1 * d1 + d2 * d2;
   };

@@ -60,7 +60,7 @@ Result<std::unique_ptr<MaskNet>> MaskNet::Load(const MaskNetOptions& opts) {
                      "mask network " + path + " holds no layers; re-export it or " + kFixConfig);
   net.setPreferableBackend(cv::dnn::DNN_BACKEND_OPENCV);
   net.setPreferableTarget(cv::dnn::DNN_TARGET_CPU);
-  std::unique_ptr<MaskNet> m(new MaskNet(opts, std::move(net)));
+  std::unique_ptr<MaskNet> m(new MaskNet(opts, net));
   // One pass on a blank photo: the model must take the configured input and
   // give one map.
   auto out = m->Forward(cv::Mat(opts.input_size, CV_8UC3, cv::Scalar(128, 128, 128)));

@@ -54,7 +54,8 @@ class MaskNet {
   const MaskNetOptions& options() const { return opts_; }
 
  private:
-  MaskNet(MaskNetOptions opts, cv::dnn::Net net) : opts_(std::move(opts)), net_(std::move(net)) {}
+  // cv::dnn::Net has no move constructor: a copy shares the loaded network.
+  MaskNet(MaskNetOptions opts, const cv::dnn::Net& net) : opts_(std::move(opts)), net_(net) {}
   // The output map of one forward pass (CV_32F hxw, as the network gives it).
   Result<cv::Mat> Forward(const cv::Mat& bgr);
 
