@@ -14,6 +14,7 @@
 
 #include "common/clock.h"
 #include "common/fsutil.h"
+#include "common/json_io.h"
 #include "config/config.h"
 #include "drivers/sim/board.h"
 #include "drivers/sim/jpeg.h"
@@ -22,6 +23,7 @@
 #include "pipeline/worker/side_job.h"
 #include "store/empty_turntable.h"
 #include "store/layout.h"
+#include "store/sample_files.h"
 
 #ifndef AGGSCAN_SOURCE_DIR
 #define AGGSCAN_SOURCE_DIR ""
@@ -217,20 +219,15 @@ Result<double> IngestView(const std::string& sample_dir, const std::string& scen
 
 // A side manifest's byte counts brought in line with the replaced photos.
 Status UpdateManifest(const std::string& side_dir) {
-  const std::string path = side_dir + "/" + layout::kManifest;
-  auto text = ReadFile(path);
-  if (!text) return text.error();
-  json m = json::parse(*text, nullptr, false);
-  if (!m.is_object() || !m["views"].is_array())
-    return MakeError(ErrorClass::kInvalidArgument, path + " is not a manifest");
-  for (json& v : m["views"]) {
+  Result<SideManifest> m = ReadSideManifest(side_dir);
+  if (!m) return m.error();
+  for (SideManifest::Entry& v : m->views) {
     std::error_code ec;
-    const auto size = fs::file_size(side_dir + "/" + v.value("image", ""), ec);
-    if (ec)
-      return MakeError(ErrorClass::kIo, "cannot stat " + side_dir + "/" + v.value("image", ""));
-    v["bytes"] = static_cast<uint64_t>(size);
+    const auto size = fs::file_size(side_dir + "/" + v.image, ec);
+    if (ec) return MakeError(ErrorClass::kIo, "cannot stat " + side_dir + "/" + v.image);
+    v.bytes = static_cast<int64_t>(size);
   }
-  return WriteFileAtomic(path, m.dump(1) + "\n");
+  return jsonio::WriteFile(side_dir + "/" + layout::kManifest, m->ToJson());
 }
 
 // The empty-turntable frames (side 1's views) as the sample's own set of
@@ -258,11 +255,13 @@ Status IngestEmptyTurntable(const std::string& sample_dir, const std::string& sc
     set.width = size->width;
     set.height = size->height;
     const std::string side_dir = sample_dir + "/" + layout::SideDirName(side);
-    const double angle = MeasuredAngle(side_dir, layout::ViewSidecarName(v));
+    const Result<ViewSidecar> car = ReadViewSidecar(side_dir, v);
+    const double angle = car && car->measured_angle_deg ? *car->measured_angle_deg : std::nan("");
     if (!std::isfinite(angle))
       return MakeError(ErrorClass::kCorrupt,
                        side_dir + "/" + layout::ViewSidecarName(v) +
-                           " has no measured angle for the empty-turntable photo");
+                           " has no measured angle for the empty-turntable photo",
+                       car ? std::string() : car.error().ToString());
     set.views.push_back({name, angle});
     photos.push_back(staging + "/" + name);
   }

@@ -25,6 +25,7 @@
 #include "config/config.h"
 #include "drivers/sim/world.h"
 #include "pipeline/calib/calibrate.h"
+#include "pipeline/core/records.h"
 #include "pipeline/worker/reconstruct.h"
 #include "pipeline/worker/side_job.h"
 
@@ -438,18 +439,6 @@ bool ParseCount(const std::string& s, long long* v) {
   return end != s.c_str() && *end == '\0' && *v >= 0;
 }
 
-// A row-major 4x4 rigid transform; false when malformed.
-bool IsoFrom(const json& j, Eigen::Isometry3d* out) {
-  if (!j.is_array() || j.size() != 16) return false;
-  Eigen::Matrix4d m;
-  for (int i = 0; i < 16; ++i) {
-    if (!j[static_cast<size_t>(i)].is_number()) return false;
-    m(i / 4, i % 4) = j[static_cast<size_t>(i)].get<double>();
-  }
-  out->matrix() = m;
-  return true;
-}
-
 // Rotation angle (deg) and displacement RMS (mm) over `pts` between two
 // transforms of the same frame.
 void TransformError(const Eigen::Isometry3d& est, const Eigen::Isometry3d& truth,
@@ -465,17 +454,15 @@ void TransformError(const Eigen::Isometry3d& est, const Eigen::Isometry3d& truth
 
 StitchTruthError StitchAgainstTruth(const std::string& sample_dir, const json& truth) {
   StitchTruthError e;
-  auto text = ReadFile(sample_dir + "/results/stitch.json");
-  const json st = text ? json::parse(*text, nullptr, false) : json();
+  auto st = records::Read<records::StitchRecord>(sample_dir + "/results/stitch.json",
+                                                 "stitch record", "");
   auto mesh = LoadMesh(sample_dir + "/results/mesh.ply", "mm");
-  if (!st.is_object() || !mesh) return e;
+  if (!st || !mesh) return e;
   std::map<int, Eigen::Isometry3d> rest;  // rock -> turntable, per side
   for (const json& p : truth.value("poses", json::array())) {
-    Eigen::Isometry3d m;
-    if (p.is_object() && p.contains("side") &&
-        IsoFrom(p.value("rock_to_turntable_4x4", json()), &m)) {
-      rest[p["side"].get<int>()] = m;
-    }
+    if (!p.is_object() || !p.contains("side") || !p["side"].is_number_integer()) continue;
+    auto m = PoseField(p, "rock_to_turntable_4x4", jsonio::Source{"truth", sample_dir, ""});
+    if (m) rest[p["side"].get<int>()] = *m;
   }
   if (!rest.count(1)) return e;
   std::vector<Eigen::Vector3d> pts;  // the reconstructed surface, object frame (side 1's turntable)
@@ -483,40 +470,33 @@ StitchTruthError StitchAgainstTruth(const std::string& sample_dir, const json& t
   for (size_t i = 0; i < mesh->vertices.size(); i += step) {
     pts.emplace_back(mesh->vertices[i][0], mesh->vertices[i][1], mesh->vertices[i][2]);
   }
-  for (const json& s : st.value("stitches", json::array())) {
-    const int side = s.value("side", 0);
+  for (const records::SideStitch& s : st->stitches) {
+    const int side = s.side;
     if (!rest.count(side)) continue;
     // Object frame = side 1's turntable frame: side s sees it through
     // rest_s * rest_1^-1.
     const Eigen::Isometry3d truth_t = rest[side] * rest[1].inverse();
-    Eigen::Isometry3d taken;
-    bool found = false;
-    for (const json& sd : st.value("sides", json::array())) {
-      if (sd.value("side", 0) == side)
-        found = IsoFrom(sd.value("table_from_object_4x4", json()), &taken);
-    }
-    if (!found) continue;
+    const auto found = st->table_from_object.find(side);
+    if (found == st->table_from_object.end()) continue;
+    const Eigen::Isometry3d& taken = found->second;
     double deg = 0, mm = 0;
     TransformError(taken, truth_t, pts, &deg, &mm);
     if (!e.measured || deg > e.deg) {
       e.measured = true;
       e.deg = deg;
       e.mm = mm;
-      e.source = s.value("source", "");
-      e.silhouette_deficit = st.value("silhouette_deficit", 0.0);
-      e.consistent = s.value("consistent", true);
-      e.warning = s.value("warning", "");
+      e.source = s.source;
+      e.silhouette_deficit = st->silhouette_deficit.value_or(0.0);
+      e.consistent = s.consistent;
+      e.warning = s.warning;
       e.markers_deg = e.markers_mm = e.features_deg = e.features_mm = -1;
-      for (const char* src : {"markers", "features"}) {
-        const json& est = s.value(src, json::object());
-        Eigen::Isometry3d moving_to_ref;
-        if (!est.value("valid", false) ||
-            !IsoFrom(est.value("moving_to_reference_4x4", json()), &moving_to_ref))
-          continue;
+      for (const bool markers : {true, false}) {
+        const auto& est = markers ? s.markers : s.features;
+        if (!est || !est->valid || !est->moving_to_reference) continue;
         double d = 0, m = 0;
-        TransformError(moving_to_ref.inverse(), truth_t, pts, &d, &m);
-        (std::string(src) == "markers" ? e.markers_deg : e.features_deg) = d;
-        (std::string(src) == "markers" ? e.markers_mm : e.features_mm) = m;
+        TransformError(est->moving_to_reference->inverse(), truth_t, pts, &d, &m);
+        (markers ? e.markers_deg : e.features_deg) = d;
+        (markers ? e.markers_mm : e.features_mm) = m;
       }
     }
   }

@@ -1469,7 +1469,7 @@ json CaptureService::CalibrationCaptureOnLoop() const {
       if (!j.error.empty()) out["error"] = j.error;
     }
   }
-  Result<std::string> r = ReadFile(dir + "/" + layout::kResultsDir + "/calibration_result.json");
+  Result<std::string> r = ReadFile(layout::ResultsPath(dir, layout::kCalibrationResult));
   if (r) {
     json res = json::parse(*r, nullptr, false);
     if (res.is_object()) out["result"] = res;
@@ -1611,7 +1611,7 @@ json CaptureService::ResultSummary(const std::string& sample_id) const {
   // The worker's figures once it has written them, with their quality: a
   // doubtful result is shown as such wherever the sample is.
   Result<std::string> m =
-      ReadFile(store_.SampleDir(sample_id) + "/" + layout::kResultsDir + "/morphology.json");
+      ReadFile(layout::ResultsPath(store_.SampleDir(sample_id), layout::kMorphology));
   if (!m) return nullptr;
   const json mj = json::parse(*m, nullptr, false);
   if (!mj.is_object() || !mj.contains("morphology_3d") || !mj["morphology_3d"].is_object())

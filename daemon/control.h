@@ -12,13 +12,14 @@
 #include <vector>
 
 #include "common/error.h"
+#include "store/layout.h"
 
 namespace aggscan {
 
-/// The result files the API serves, as named in results/ (pipeline/worker/reconstruct.h).
+/// The result files the API serves, as named in results/ (store/layout.h).
 inline const std::vector<std::string>& ResultFileNames() {
-  static const std::vector<std::string> names = {"morphology.json", "mesh.ply", "mesh.obj",
-                                                 "mesh.stl"};
+  static const std::vector<std::string> names = {layout::kMorphology, layout::kMeshPly,
+                                                 layout::kMeshObj, layout::kMeshStl};
   return names;
 }
 

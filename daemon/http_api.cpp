@@ -272,10 +272,10 @@ Endpoint Match(const std::string& path, std::string* id, std::string* file) {
     *file = id->substr(slash + 1);
     id->resize(slash);
     if (*file == "results") {
-      *file = "morphology.json";
+      *file = layout::kMorphology;
       return Endpoint::kSampleFile;
     }
-    if (*file == "mesh.ply" || *file == "mesh.obj" || *file == "mesh.stl")
+    if (*file == layout::kMeshPly || *file == layout::kMeshObj || *file == layout::kMeshStl)
       return Endpoint::kSampleFile;
     if (*file == "retry") return Endpoint::kSampleRetry;
     if (*file == "images.zip") return Endpoint::kImageArchive;

@@ -8,7 +8,9 @@
 
 #include "common/clock.h"
 #include "common/fsutil.h"
+#include "common/json_io.h"
 #include "store/layout.h"
+#include "store/sample_files.h"
 
 namespace aggscan {
 namespace {
@@ -20,11 +22,8 @@ constexpr const char* kManifest = "manifest.json";
 constexpr const char* kCurrent = "current.json";
 
 Result<json> ReadJsonFile(const std::string& path) {
-  Result<std::string> text = ReadFile(path);
-  if (!text) return text.error();
-  json j = json::parse(*text, nullptr, false);
-  if (j.is_discarded()) return MakeError(ErrorClass::kCorrupt, path + " is not JSON");
-  return j;
+  return jsonio::ReadFile(path, "empty-turntable record",
+                          "shoot the empty turntable again (aggscan empty-turntable)");
 }
 
 // A set id from the time it is installed: sorts by time, no ':' (a path).
@@ -154,26 +153,27 @@ Result<EmptyTurntableSet> InstallEmptyTurntableSet(const std::string& state_dir,
     return MakeError(ErrorClass::kNotFound, "side " + std::to_string(side) + " of " + sample_dir +
                                                 " is not a complete capture (no " + manifest_path +
                                                 ")");
-  Result<json> manifest = ReadJsonFile(manifest_path);
+  Result<SideManifest> manifest = ReadSideManifest(side_dir);
   if (!manifest) return manifest.error();
-  if (!manifest->is_object() || !(*manifest)["views"].is_array() || (*manifest)["views"].empty())
+  if (manifest->views.empty())
     return MakeError(ErrorClass::kCorrupt, manifest_path + " lists no views");
   EmptyTurntableSet set;
   set.source = sample_dir + " side " + std::to_string(side);
-  set.captured_utc = manifest->value("completed_utc", "");
+  set.captured_utc = manifest->completed_utc.value_or("");
   set.width = width;
   set.height = height;
   std::vector<std::string> photos;
-  for (const json& v : (*manifest)["views"]) {
-    const std::string image = v.value("image", ""), sidecar = v.value("sidecar", "");
-    Result<json> sc = ReadJsonFile(side_dir + "/" + sidecar);
-    if (!sc || !sc->is_object() || !(*sc)["measured_angle_deg"].is_number())
+  for (const SideManifest::Entry& v : manifest->views) {
+    const std::string sidecar = v.sidecar.value_or(layout::ViewSidecarName(v.view));
+    Result<ViewSidecar> sc = ReadViewSidecarFile(side_dir + "/" + sidecar);
+    if (!sc || !sc->measured_angle_deg)
       return MakeError(
           ErrorClass::kInvalidArgument,
-          side_dir + "/" + sidecar + " gives no measured turntable angle for " + image +
-              ": the empty-turntable photos are matched to a rock's views by that angle");
-    set.views.push_back({image, (*sc)["measured_angle_deg"].get<double>()});
-    photos.push_back(side_dir + "/" + image);
+          side_dir + "/" + sidecar + " gives no measured turntable angle for " + v.image +
+              ": the empty-turntable photos are matched to a rock's views by that angle" +
+              (sc ? std::string() : " (" + sc.error().message + ")"));
+    set.views.push_back({v.image, *sc->measured_angle_deg});
+    photos.push_back(side_dir + "/" + v.image);
   }
   const std::string root = EmptyTurntableRoot(state_dir);
   if (Status s = MakeDirsDurable(root); !s) return s.error();

@@ -11,9 +11,11 @@
 
 #include "common/clock.h"
 #include "common/fsutil.h"
+#include "common/json_io.h"
 #include "common/rig_calibration.h"
 #include "store/empty_turntable.h"
 #include "store/layout.h"
+#include "store/sample_files.h"
 
 namespace aggscan {
 namespace {
@@ -128,7 +130,8 @@ std::string RecordShapeProblem(const json& rec) {
   return "";
 }
 
-// The field `key` of a sidecar when it holds the type of `fallback`, else `fallback`.
+// The field `key` of a sidecar that does not read as a ViewSidecar (damaged,
+// or hand-edited) when it holds the type of `fallback`, else `fallback`.
 template <typename T>
 T SidecarField(const json& car, const char* key, T fallback) {
   if (!car.contains(key)) return fallback;
@@ -138,6 +141,63 @@ T SidecarField(const json& car, const char* key, T fallback) {
   } else {
     return v.is_string() ? v.get<std::string>() : fallback;
   }
+}
+
+// The sidecar the capture hands over, as stored at `path`: the store's own
+// coordinates (sample, side, view, image name) filled in where it leaves them
+// out; a sidecar of another type, with a field of the wrong type or naming
+// other coordinates is refused before anything is written.
+Result<ViewSidecar> SidecarToStore(const json& given, const std::string& id, int side, int view,
+                                   const std::string& path) {
+  if (!given.is_null() && !given.is_object()) {
+    return MakeError(ErrorClass::kInvalidArgument,
+                     "view sidecar for " + path + " is not a JSON object; view not stored");
+  }
+  json j = given.is_null() ? json::object() : given;
+  const std::string image = layout::ViewImageName(view);
+  for (const auto& [key, value] : {std::pair<const char*, json>{"sample_id", id},
+                                   {"side", side},
+                                   {"view", view},
+                                   {"image", image}}) {
+    if (!j.contains(key) || j[key].is_null()) j[key] = value;
+  }
+  Result<ViewSidecar> car = ViewSidecar::FromJson(j, jsonio::Source{kViewSidecarWhat, path, ""});
+  if (!car) {
+    return MakeError(ErrorClass::kInvalidArgument, car.error().message + "; view not stored");
+  }
+  auto mismatch = [&](const std::string& what) {
+    return MakeError(ErrorClass::kInvalidArgument,
+                     "view sidecar " + path + ": " + what + "; view not stored");
+  };
+  if (car->sample_id != id) return mismatch("\"sample_id\" is not \"" + id + "\"");
+  if (car->side != side) return mismatch("\"side\" is not " + std::to_string(side));
+  if (car->view != view) return mismatch("\"view\" is not " + std::to_string(view));
+  if (car->image != image) return mismatch("\"image\" is not \"" + image + "\"");
+  return car;
+}
+
+// Writes side_dir/manifest.json listing the side's complete views.
+Result<SideManifest> WriteSideManifest(const std::string& side_dir, const std::string& id,
+                                       int side) {
+  SideManifest m;
+  m.side = side;
+  m.sample_id = id;
+  for (int v : CompleteViews(side_dir)) {
+    struct stat st {};
+    if (::stat((side_dir + "/" + layout::ViewImageName(v)).c_str(), &st) != 0) {
+      return ErrnoError("cannot stat " + side_dir + "/" + layout::ViewImageName(v), errno);
+    }
+    SideManifest::Entry e;
+    e.view = v;
+    e.image = layout::ViewImageName(v);
+    e.sidecar = layout::ViewSidecarName(v);
+    e.bytes = static_cast<int64_t>(st.st_size);
+    m.views.push_back(std::move(e));
+  }
+  m.completed_utc = NowUtcString();
+  Status s = jsonio::WriteFile(side_dir + "/" + layout::kManifest, m.ToJson(), true);
+  if (!s) return s.error();
+  return m;
 }
 
 }  // namespace
@@ -414,40 +474,32 @@ Status SampleStore::BeginSide(const std::string& id, int side) {
 Status SampleStore::WriteView(const std::string& id, int side, int view,
                               std::span<const unsigned char> image, const json& sidecar) {
   const std::string side_dir = SampleDir(id) + "/" + layout::SideDirName(side);
+  const std::string car_path = side_dir + "/" + layout::ViewSidecarName(view);
+  // Checked before the image lands: a view is stored whole or not at all.
+  Result<ViewSidecar> car = SidecarToStore(sidecar, id, side, view, car_path);
+  if (!car) return car.error();
   Status s =
       WriteFileAtomic(side_dir + "/" + layout::ViewImageName(view), image, /*no_replace=*/true);
   if (!s) return s;
-  return WriteFileAtomic(side_dir + "/" + layout::ViewSidecarName(view), JsonText(sidecar), true);
+  return jsonio::WriteFile(car_path, car->ToJson(), /*no_replace=*/true);
 }
 
 Result<json> SampleStore::WriteManifest(const std::string& id, int side) {
-  const std::string side_dir = SampleDir(id) + "/" + layout::SideDirName(side);
-  json views = json::array();
-  for (int v : CompleteViews(side_dir)) {
-    struct stat st {};
-    if (::stat((side_dir + "/" + layout::ViewImageName(v)).c_str(), &st) != 0) {
-      return ErrnoError("cannot stat " + side_dir + "/" + layout::ViewImageName(v), errno);
-    }
-    views.push_back({{"view", v},
-                     {"image", layout::ViewImageName(v)},
-                     {"sidecar", layout::ViewSidecarName(v)},
-                     {"bytes", static_cast<int64_t>(st.st_size)}});
-  }
-  json manifest = {
-      {"sample_id", id}, {"side", side}, {"views", views}, {"completed_utc", NowUtcString()}};
-  Status s = WriteFileAtomic(side_dir + "/" + layout::kManifest, JsonText(manifest), true);
-  if (!s) return s.error();
-  return manifest;
+  Result<SideManifest> m =
+      WriteSideManifest(SampleDir(id) + "/" + layout::SideDirName(side), id, side);
+  if (!m) return m.error();
+  return m->ToJson();
 }
 
 Status SampleStore::FinishSide(const std::string& id, int side) {
-  Result<json> manifest = WriteManifest(id, side);
+  Result<SideManifest> manifest =
+      WriteSideManifest(SampleDir(id) + "/" + layout::SideDirName(side), id, side);
   if (!manifest) return manifest.error();
   return UpdateRecord(id, [&](json& r) {
     ForSide(r, side, [&](json& sd) {
       sd["state"] = "done";
-      sd["views"] = (*manifest)["views"].size();
-      sd["completed_utc"] = (*manifest)["completed_utc"];
+      sd["views"] = manifest->views.size();
+      sd["completed_utc"] = manifest->completed_utc.value_or(NowUtcString());
     });
   });
 }
@@ -566,16 +618,26 @@ Result<json> SampleStore::Describe(const std::string& id) const {
     const std::string side_dir = dir + "/" + layout::SideDirName(sd.value("side", 0));
     json views = json::array();
     for (int v : CompleteViews(side_dir)) {
-      Result<std::string> t = ReadFile(side_dir + "/" + layout::ViewSidecarName(v));
-      json car = t ? json::parse(*t, nullptr, false) : json();
-      if (!car.is_object()) car = json::object();
-      views.push_back(
-          {{"view", v},
-           {"image", layout::SideDirName(sd.value("side", 0)) + "/" + layout::ViewImageName(v)},
-           {"commanded_angle_deg", SidecarField(car, "commanded_angle_deg", 0.0)},
-           {"measured_angle_deg", SidecarField(car, "measured_angle_deg", 0.0)},
-           {"capture_utc", SidecarField(car, "capture_utc", std::string())},
-           {"schedule_error_ms", SidecarField(car, "schedule_error_ms", 0.0)}});
+      json view = {
+          {"view", v},
+          {"image", layout::SideDirName(sd.value("side", 0)) + "/" + layout::ViewImageName(v)}};
+      if (Result<ViewSidecar> car = ReadViewSidecar(side_dir, v)) {
+        view["commanded_angle_deg"] = car->commanded_angle_deg.value_or(0.0);
+        view["measured_angle_deg"] = car->measured_angle_deg.value_or(0.0);
+        view["capture_utc"] = car->capture_utc.value_or("");
+        view["schedule_error_ms"] = car->schedule_error_ms.value_or(0.0);
+      } else {
+        // A damaged or hand-edited sidecar: what still reads, and why the rest does not.
+        Result<std::string> t = ReadFile(side_dir + "/" + layout::ViewSidecarName(v));
+        json raw = t ? json::parse(*t, nullptr, false) : json();
+        if (!raw.is_object()) raw = json::object();
+        view["commanded_angle_deg"] = SidecarField(raw, "commanded_angle_deg", 0.0);
+        view["measured_angle_deg"] = SidecarField(raw, "measured_angle_deg", 0.0);
+        view["capture_utc"] = SidecarField(raw, "capture_utc", std::string());
+        view["schedule_error_ms"] = SidecarField(raw, "schedule_error_ms", 0.0);
+        view["sidecar_problem"] = car.error().message;
+      }
+      views.push_back(std::move(view));
     }
     sd["captured_views"] = views;
     json attempts = json::array();

@@ -22,6 +22,7 @@
 #include "pipeline/core/image_io.h"
 #include "pipeline/markers/aruco_scale.h"
 #include "store/layout.h"
+#include "store/sample_files.h"
 
 namespace aggscan {
 
@@ -511,49 +512,48 @@ Result<CalibrationResult> CalibrateSampleSide(const std::string& sample_dir, int
   const std::string side_name = layout::SideDirName(side);
   const std::string side_dir = sample_dir + "/" + side_name;
   const std::string manifest_path = side_dir + "/" + layout::kManifest;
-  Result<std::string> text = ReadFile(manifest_path);
-  if (!text) {
-    if (text.error().cls == ErrorClass::kNotFound) {
+  // Image and sidecar names are checked there to be files in the side directory.
+  Result<SideManifest> manifest = ReadSideManifest(side_dir);
+  if (!manifest) {
+    if (manifest.error().cls == ErrorClass::kNotFound) {
       return MakeError(ErrorClass::kNotFound,
                        side_name + " of " + sample_dir +
                            " has no manifest.json: it was not captured or the "
                            "capture did not finish; capture the board again");
     }
-    return text.error();
-  }
-  json manifest = json::parse(*text, nullptr, false);
-  if (!manifest.is_object() || !manifest.contains("views") || !manifest["views"].is_array()) {
-    return MakeError(ErrorClass::kCorrupt, manifest_path + " is damaged; capture the board again");
+    if (manifest.error().cls == ErrorClass::kCorrupt) {
+      return MakeError(ErrorClass::kCorrupt, manifest.error().message + "; capture the board again",
+                       manifest.error().detail);
+    }
+    return manifest.error();
   }
   std::vector<BoardView> views;
   std::string camera_id;
   int width = 0, height = 0;
-  for (const json& v : manifest["views"]) {
-    if (!v.is_object() || !v.value("image", json()).is_string() ||
-        !v.value("sidecar", json()).is_string()) {
-      return MakeError(ErrorClass::kCorrupt,
-                       manifest_path + " lists a view without image or sidecar");
+  for (const SideManifest::Entry& v : manifest->views) {
+    if (!v.sidecar) {
+      return MakeError(ErrorClass::kCorrupt, manifest_path + " lists view " +
+                                                 std::to_string(v.view) +
+                                                 " without its sidecar; capture the board again");
     }
-    const std::string image = v["image"].get<std::string>(),
-                      sidecar = v["sidecar"].get<std::string>();
-    if (image.find('/') != std::string::npos || sidecar.find('/') != std::string::npos) {
-      return MakeError(ErrorClass::kCorrupt,
-                       manifest_path + " names a file outside the side directory");
-    }
-    const std::string sc_path = side_dir + "/" + sidecar;
-    Result<std::string> sc_text = ReadFile(sc_path);
-    json sc = sc_text ? json::parse(*sc_text, nullptr, false) : json();
-    if (!sc.is_object() || !sc.contains("measured_angle_deg") ||
-        !sc["measured_angle_deg"].is_number() ||
-        !std::isfinite(sc["measured_angle_deg"].get<double>())) {
+    const std::string& image = v.image;
+    const std::string& sidecar = *v.sidecar;
+    Result<ViewSidecar> sc = ReadViewSidecarFile(side_dir + "/" + sidecar);
+    if (!sc || !sc->measured_angle_deg || !std::isfinite(*sc->measured_angle_deg)) {
       return MakeError(
           ErrorClass::kCorrupt,
           side_name + "/" + sidecar +
               " is missing, damaged or has no measured_angle_deg: the turntable angle of " + image +
               " is unknown, so the view cannot be placed; capture the board again",
-          sc_text ? std::string() : sc_text.error().ToString());
+          sc ? std::string() : sc.error().ToString());
     }
-    if (camera_id.empty()) camera_id = sc.value("camera_id", "");
+    if (sc->view != v.view) {
+      return MakeError(ErrorClass::kCorrupt,
+                       side_name + "/" + sidecar + " is of view " + std::to_string(sc->view) +
+                           ", the manifest lists it for view " + std::to_string(v.view) +
+                           "; capture the board again");
+    }
+    if (camera_id.empty()) camera_id = sc->camera_id.value_or("");
     int w = 0, h = 0;
     Result<BoardView> det = DetectBoardInImage(side_dir + "/" + image, b, &w, &h);
     if (!det) return det.error();
@@ -565,7 +565,7 @@ Result<CalibrationResult> CalibrateSampleSide(const std::string& sample_dir, int
                            std::to_string(height) + "; one capture must keep one resolution");
     }
     det->name = side_name + "/" + image;
-    det->angle_deg = sc["measured_angle_deg"].get<double>();
+    det->angle_deg = *sc->measured_angle_deg;
     views.push_back(std::move(det).value());
   }
   if (views.empty()) {

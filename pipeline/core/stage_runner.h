@@ -30,6 +30,7 @@
 
 #include "common/error.h"
 #include "common/log.h"
+#include "store/layout.h"
 
 namespace aggscan {
 
@@ -108,7 +109,7 @@ struct StageRunReport {
   nlohmann::json seconds = nlohmann::json::object();
 };
 
-inline constexpr const char* kStageLedger = "stages.json";
+using layout::kStageLedger;
 
 /// Runs the job's stages in order over `sample_dir` (see the top of this
 /// file). Each stage runs inside RunStage (exceptions become its error); the

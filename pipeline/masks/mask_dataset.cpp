@@ -11,9 +11,12 @@
 #include <sstream>
 
 #include "common/fsutil.h"
+#include "common/json_io.h"
 #include "pipeline/core/geometry.h"
 #include "pipeline/core/image_io.h"
+#include "pipeline/core/records.h"
 #include "store/layout.h"
+#include "store/sample_files.h"
 
 namespace aggscan {
 namespace {
@@ -21,32 +24,7 @@ namespace {
 using json = nlohmann::json;
 namespace fs = std::filesystem;
 
-Result<json> ReadJsonFile(const std::string& path) {
-  std::ifstream f(path);
-  if (!f) return MakeError(ErrorClass::kNotFound, path + " does not exist or is unreadable");
-  try {
-    return json::parse(f);
-  } catch (const json::exception& e) {
-    return MakeError(ErrorClass::kCorrupt, path + " is not valid JSON", e.what());
-  }
-}
-
-Result<Eigen::Isometry3d> IsoFromJson(const json& j, const std::string& what) {
-  if (!j.is_array() || j.size() != 16)
-    return MakeError(ErrorClass::kCorrupt, what + ": not a 4x4 matrix");
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 4; ++c) {
-      const json& e = j[r * 4 + c];
-      if (!e.is_number()) return MakeError(ErrorClass::kCorrupt, what + ": not a 4x4 matrix");
-      if (c < 3)
-        T.linear()(r, c) = e.get<double>();
-      else
-        T.translation()(r) = e.get<double>();
-    }
-  }
-  return T;
-}
+Result<json> ReadJsonFile(const std::string& path) { return jsonio::ReadFile(path, "record"); }
 
 std::string SampleName(const std::string& dir) {
   fs::path p = fs::path(dir).lexically_normal();
@@ -104,63 +82,53 @@ Result<std::vector<ProjectedView>> ProjectReconstruction(const std::string& samp
   const std::string results = sample_dir + "/" + layout::kResultsDir;
   const std::string redo =
       ": reconstruct the sample first (aggscan reconstruct " + sample_dir + ")";
-  for (const char* f : {"morphology.json", "mesh.ply", "stitch.json", "calibration_used.json"}) {
+  for (const char* f :
+       {layout::kMorphology, layout::kMeshPly, layout::kStitch, layout::kCalibrationUsed}) {
     if (!PathExists(results + "/" + f)) {
       return MakeError(ErrorClass::kNotFound, sample_dir + " has no results/" + f + redo);
     }
   }
-  auto cal_json = ReadJsonFile(results + "/calibration_used.json");
+  auto cal_json = ReadJsonFile(layout::ResultsPath(sample_dir, layout::kCalibrationUsed));
   if (!cal_json) return cal_json.error();
-  auto cal = CalibrationFromJson(*cal_json, results + "/calibration_used.json");
+  auto cal =
+      CalibrationFromJson(*cal_json, layout::ResultsPath(sample_dir, layout::kCalibrationUsed));
   if (!cal) return cal.error();
-  auto mesh = LoadMesh(results + "/mesh.ply", "mm");
+  auto mesh = LoadMesh(layout::ResultsPath(sample_dir, layout::kMeshPly), "mm");
   if (!mesh) return mesh.error();
-  auto stitch = ReadJsonFile(results + "/stitch.json");
+  auto stitch = records::Read<records::StitchRecord>(
+      layout::ResultsPath(sample_dir, layout::kStitch), "stitch record", redo.substr(2));
   if (!stitch) return stitch.error();
-  std::map<int, Eigen::Isometry3d> table_from_object;
-  for (const auto& s : stitch->value("sides", json::array())) {
-    auto T = IsoFromJson(s.value("table_from_object_4x4", json()), results + "/stitch.json");
-    if (!T) return T.error();
-    table_from_object[s.value("side", 0)] = *T;
-  }
-  if (table_from_object.empty()) {
-    return MakeError(ErrorClass::kCorrupt, results + "/stitch.json lists no side" + redo);
-  }
+  const std::map<int, Pose>& table_from_object = stitch->table_from_object;
   std::vector<ProjectedView> out;
   for (const auto& [side, table_T] : table_from_object) {
     const std::string side_dir = sample_dir + "/" + layout::SideDirName(side);
-    const std::string poses_path = results + "/poses_" + layout::SideDirName(side) + ".json";
-    auto poses = ReadJsonFile(poses_path);
-    if (!poses)
+    const std::string poses_path = layout::ResultsPath(sample_dir, layout::PosesName(side));
+    auto poses = records::Read<records::PosesRecord>(poses_path, "poses record", redo.substr(2));
+    if (!poses) {
+      if (poses.error().cls != ErrorClass::kNotFound) return poses.error();
       return MakeError(poses.error().cls, poses.error().message + redo, poses.error().detail);
+    }
     struct Posed {
       Eigen::Isometry3d cam_from_table;
       std::string image, mask, pose;
     };
     std::map<int, Posed> views;
-    for (const auto& v : poses->value("views", json::array())) {
-      auto T = IsoFromJson(v.value("cam_from_table_4x4", json()), poses_path);
-      if (!T) return T.error();
-      views[v.value("view", -1)] = {*T, v.value("image", ""), v.value("mask", ""), "poses"};
-    }
+    for (const records::PosedViewRecord& v : poses->views)
+      views[v.view] = {v.cam_from_table, v.image, v.mask, "poses"};
     // A turntable-posed side: the views the worker left out (their mask
     // failed, the very views a better mask is for) have a pose too, from
     // the calibration and the angle the turntable measured.
-    const std::string method = poses->value("method", "");
+    const std::string& method = poses->method;
     if (method.rfind("turntable", 0) == 0) {
-      auto manifest = ReadJsonFile(side_dir + "/" + layout::kManifest);
+      auto manifest = ReadSideManifest(side_dir);
       if (manifest) {
-        for (const auto& v : manifest->value("views", json::array())) {
-          const int view = v.value("view", -1);
-          if (view < 0 || views.count(view)) continue;
-          auto sidecar =
-              ReadJsonFile(side_dir + "/" + v.value("sidecar", layout::ViewSidecarName(view)));
-          if (!sidecar || !(*sidecar).contains("measured_angle_deg") ||
-              !(*sidecar)["measured_angle_deg"].is_number())
-            continue;
-          const double angle = (*sidecar)["measured_angle_deg"].get<double>();
-          views[view] = {geom::IsoFromRowMajor(cal->CamFromTable(angle)),
-                         v.value("image", layout::ViewImageName(view)), "", "turntable"};
+        for (const SideManifest::Entry& v : manifest->views) {
+          if (views.count(v.view)) continue;
+          auto sidecar = ReadViewSidecarFile(side_dir + "/" +
+                                             v.sidecar.value_or(layout::ViewSidecarName(v.view)));
+          if (!sidecar || !sidecar->measured_angle_deg) continue;
+          views[v.view] = {geom::IsoFromRowMajor(cal->CamFromTable(*sidecar->measured_angle_deg)),
+                           v.image, "", "turntable"};
         }
       }
     }

@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "common/error.h"
+#include "pipeline/core/stats.h"
 
 namespace aggscan {
 
@@ -35,20 +36,6 @@ struct Morph2D {
 /// non-zero = object). kInvalidArgument for a wrong type or a mask without any
 /// object pixel.
 Result<Morph2D> ComputeMorph2D(const cv::Mat& binary_mask);
-
-/// Summary statistics of one figure across views. std is the SAMPLE standard
-/// deviation (n-1 denominator; 0 for n < 2); cov = std / mean (0 when mean is 0).
-struct Stats {
-  double mean = 0;
-  double min = 0;
-  double max = 0;
-  double std = 0;
-  double cov = 0;
-  int n = 0;
-};
-
-/// Stats over `values`; all zero (n = 0) for an empty vector.
-Stats ComputeStats(const std::vector<double>& values);
 
 /// Keeps the largest 8-connected non-zero component of `mask` and fills its
 /// holes; returns a 0/255 CV_8UC1 image (all zero when the mask is empty).

@@ -20,16 +20,6 @@ std::string SfmModelDirName(int side) { return "sfm/" + layout::SideDirName(side
 
 namespace {
 
-json IsoJson(const Eigen::Matrix3d& R, const Eigen::Vector3d& t) {
-  json a = json::array();
-  for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c) a.push_back(R(r, c));
-    a.push_back(t(r));
-  }
-  for (double v : {0.0, 0.0, 0.0, 1.0}) a.push_back(v);
-  return a;
-}
-
 json Vec(const Eigen::Vector3d& p) { return json::array({p.x(), p.y(), p.z()}); }
 
 std::string Fmt(const char* f, double v) {
@@ -46,7 +36,7 @@ struct Reference {
 
 }  // namespace
 
-Result<json> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts) {
+Result<records::PosesRecord> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts) {
   const std::string side_name = layout::SideDirName(in.side);
   const std::string what = "poses stage (sfm), " + side_name + ": ";
   if (in.views.size() < 3) {
@@ -58,7 +48,7 @@ Result<json> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts) {
   ColmapSfmOptions o;
   o.colmap_binary = opts.colmap_binary;
   o.workspace = in.sample_dir + "/work/" + side_name + "/sfm";
-  for (const SfmPosesView& v : in.views) {
+  for (const SampleView& v : in.views) {
     o.images.push_back(v.image);
     o.masks.push_back(v.mask);
     o.angles_deg.push_back(v.angle_deg);
@@ -237,16 +227,18 @@ Result<json> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts) {
     return MakeError(s.error().cls, what + "exporting the model: " + s.error().message,
                      s.error().detail);
   }
-  json jviews = json::array();
+  records::PosesRecord rec;
   std::optional<RigCalibration> cal;
   for (int i : registered) {
-    const SfmPosesView& v = in.views[static_cast<size_t>(i)];
+    const SampleView& v = in.views[static_cast<size_t>(i)];
     const SfmImage* img = model.FindImage(sfm->ImageForInput(i)->id);
-    jviews.push_back({{"view", v.view},
-                      {"image", v.image_rel},
-                      {"mask", v.mask_rel},
-                      {"angle_deg", v.angle_deg},
-                      {"cam_from_table_4x4", IsoJson(img->R_cam_world, img->t_cam_world)}});
+    records::PosedViewRecord pv;
+    pv.view = v.view;
+    pv.image = v.image_rel;
+    pv.mask = v.mask_rel;
+    pv.angle_deg = v.angle_deg;
+    pv.cam_from_table = ToPose(geom::Rigid3{img->R_cam_world, img->t_cam_world});
+    rec.views.push_back(std::move(pv));
     if (!cal) {
       // A turntable pose consistent with CamFromTable(angle) at this view:
       // cam_from_table0 = cam_from_table * Rz(-angle).
@@ -290,27 +282,24 @@ Result<json> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts) {
     jsfm["focal_hint_px"] = *in.expected_focal_px;
     jsfm["focal_hint_source"] = in.focal_hint_source;
   }
-  json j = {{"side", in.side},
-            {"method", "sfm"},
-            {"method_detail",
-             "full SfM through COLMAP (masked SIFT, circular pair list, mapper), scaled into the "
-             "turntable frame by a "
-             "similarity onto the configured " +
-                 reference},
-            {"sfm", jsfm},
-            {"scale",
-             {{"reference", reference},
-              {"scale", sim->scale},
-              {"residual_mm", rms},
-              {"max_residual_mm", worst},
-              {"limit_mm", opts.max_scale_residual_mm},
-              {"references", jrefs},
-              {"labels", jlabels},
-              {"aruco", jaruco}}},
-            {"calibration", CalibrationToJson(*cal)},
-            {"views", jviews},
-            {"unregistered_views", unregistered}};
-  return j;
+  rec.side = in.side;
+  rec.method = "sfm";
+  rec.method_detail =
+      "full SfM through COLMAP (masked SIFT, circular pair list, mapper), scaled into the "
+      "turntable frame by a similarity onto the configured " +
+      reference;
+  rec.sfm = std::move(jsfm);
+  rec.scale = {{"reference", reference},
+               {"scale", sim->scale},
+               {"residual_mm", rms},
+               {"max_residual_mm", worst},
+               {"limit_mm", opts.max_scale_residual_mm},
+               {"references", jrefs},
+               {"labels", jlabels},
+               {"aruco", jaruco}};
+  rec.calibration = CalibrationToJson(*cal);
+  rec.unregistered_views = unregistered;
+  return rec;
 }
 
 std::optional<FocalHint> FocalHintFromConfig(const Config& cfg, int image_width) {

@@ -34,6 +34,8 @@
 #include "common/error.h"
 #include "common/rig_calibration.h"
 #include "config/config.h"
+#include "pipeline/core/records.h"
+#include "pipeline/core/view.h"
 
 namespace aggscan {
 
@@ -64,20 +66,10 @@ struct SfmPosesOptions {
   double max_scale_residual_mm = 2.0;
 };
 
-/// One view taking part (a view with a rock mask).
-struct SfmPosesView {
-  int view = 0;
-  double angle_deg = 0;   // measured turntable angle (sidecar)
-  std::string image;      // photo, path
-  std::string mask;       // rock mask PNG, path
-  std::string image_rel;  // as recorded in the poses record (relative to the side dir)
-  std::string mask_rel;   // ... (relative to results/)
-};
-
 struct SfmPosesInput {
   std::string sample_dir;
   int side = 1;
-  std::vector<SfmPosesView> views;  // capture order
+  std::vector<SampleView> views;  // capture order; the views with a rock mask, not yet posed
   /// Known intrinsics (full image size), held fixed; nullopt: COLMAP
   /// estimates them (free_camera_model).
   std::optional<CameraModel> fixed_camera;
@@ -111,7 +103,7 @@ std::optional<FocalHint> FocalHintFromConfig(const Config& cfg, int image_width)
 /// mask, angle_deg, cam_from_table_4x4 per registered view),
 /// "unregistered_views"}. Errors name the side, the failed step or check and
 /// what to do; nothing is written to results/ then except COLMAP's workspace.
-Result<nlohmann::json> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts);
+Result<records::PosesRecord> RunSfmPoses(const SfmPosesInput& in, const SfmPosesOptions& opts);
 
 /// The results-relative directory of a side's exported model: "sfm/side<N>".
 std::string SfmModelDirName(int side);

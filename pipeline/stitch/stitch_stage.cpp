@@ -20,31 +20,16 @@ using nlohmann::json;
 
 namespace {
 
-json IsoJson(const Eigen::Isometry3d& T) {
-  json a = json::array();
-  for (int r = 0; r < 4; ++r)
-    for (int c = 0; c < 4; ++c) a.push_back(T.matrix()(r, c));
-  return a;
-}
-
-Eigen::Isometry3d ToIso(const geom::Rigid3& r) {
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() = r.R;
-  T.translation() = r.t;
-  return T;
-}
-
-geom::Rigid3 ToRigid(const Eigen::Isometry3d& T) { return {T.linear(), T.translation()}; }
-
 json Vec(const Eigen::Vector3d& p) { return json::array({p.x(), p.y(), p.z()}); }
 
-json EstimateJson(const StitchEstimate& e) {
-  json j = {{"valid", e.valid},   {"pairs", e.pairs},   {"inliers", e.inliers},
-            {"rms_mm", e.rms_mm}, {"max_mm", e.max_mm}, {"points", e.points},
-            {"note", e.note}};
-  if (e.rotation_sigma_deg > 0) j["rotation_sigma_deg"] = e.rotation_sigma_deg;
-  if (e.valid) j["moving_to_reference_4x4"] = IsoJson(ToIso(e.T));
-  return j;
+records::SourceEstimate EstimateRecord(const StitchEstimate& e) {
+  records::SourceEstimate r;
+  r.valid = e.valid;
+  if (e.valid) r.moving_to_reference = ToPose(e.T);
+  r.detail = {{"pairs", e.pairs},   {"inliers", e.inliers}, {"rms_mm", e.rms_mm},
+              {"max_mm", e.max_mm}, {"points", e.points},   {"note", e.note}};
+  if (e.rotation_sigma_deg > 0) r.detail["rotation_sigma_deg"] = e.rotation_sigma_deg;
+  return r;
 }
 
 json MarkersJson(const SideMarkers& m) {
@@ -148,10 +133,10 @@ struct SideEvidence {
 };
 
 Result<SideEvidence> GatherSide(const StitchStageInput& in, int side,
-                                const std::vector<StitchViewInput>& views, bool want_features) {
+                                const std::vector<SampleView>& views, bool want_features) {
   const CameraModel& cam = in.calibration->camera;
   std::vector<geom::Rigid3> poses;
-  for (const StitchViewInput& v : views) poses.push_back(ToRigid(v.cam_from_table));
+  for (const SampleView& v : views) poses.push_back(ToRigid3(v.cam_from_table));
   const std::vector<int> distinct = want_features ? DistinctViewpoints(poses) : std::vector<int>{};
   std::vector<bool> is_distinct(views.size(), false);
   for (int i : distinct) is_distinct[static_cast<size_t>(i)] = true;
@@ -318,7 +303,7 @@ EvidenceOptions StitchEvidenceOptions(const StitchStageInput& in, int window_mar
   return o;
 }
 
-Result<json> RunStitchStage(const StitchStageInput& in) {
+Result<records::StitchRecord> RunStitchStage(const StitchStageInput& in) {
   const auto t0 = std::chrono::steady_clock::now();
   if (in.views.empty()) return MakeError(ErrorClass::kInvalidArgument, "stitch stage: no sides");
   if (!in.calibration)
@@ -345,29 +330,22 @@ Result<json> RunStitchStage(const StitchStageInput& in) {
     side_records.push_back(ev->record);
     sides.emplace(side, std::move(*ev));
   }
-  json j = {{"per_side", side_records}};
+  records::StitchRecord rec;
+  rec.per_side = side_records;
   // The scale check: the worst RMS length residual over the sides and the
   // references each located (colour label distances, ArUco marker sides,
   // diagonals and centre distances); the calibrated rig measures in mm, the
   // references confirm it. Null when no side located either.
-  if (scale_residuals.empty()) {
-    j["scale_residual_mm"] = nullptr;
-    j["scale_reference"] = nullptr;
-  } else {
-    j["scale_residual_mm"] = *std::max_element(scale_residuals.begin(), scale_residuals.end());
-    j["scale_reference"] =
-        by_labels && by_aruco ? "labels+aruco" : (by_labels ? "labels" : "aruco");
+  if (!scale_residuals.empty()) {
+    rec.scale_residual_mm = *std::max_element(scale_residuals.begin(), scale_residuals.end());
+    rec.scale_reference = by_labels && by_aruco ? "labels+aruco" : (by_labels ? "labels" : "aruco");
   }
 
   const int ref = in.views.begin()->first;
-  json transforms = json::array(
-      {{{"side", ref}, {"table_from_object_4x4", IsoJson(Eigen::Isometry3d::Identity())}}});
+  rec.table_from_object[ref] = Pose::Identity();
   if (!several) {
-    j["method"] = "single-side";
-    j["rms_mm"] = nullptr;
-    j["max_mm"] = nullptr;
+    rec.method = "single-side";
   } else {
-    json stitches = json::array();
     double worst_rms = 0, worst_max = 0, worst_deficit = -1;
     bool residual_known = true;
     std::string method;
@@ -438,29 +416,30 @@ Result<json> RunStitchStage(const StitchStageInput& in) {
       }
       method = method.empty() ? st->source : (method == st->source ? method : "mixed");
       // T maps the moving side's table frame into side 1's (the object frame).
-      transforms.push_back(
-          {{"side", side}, {"table_from_object_4x4", IsoJson(ToIso(st->T.Inverse()))}});
-      stitches.push_back({{"side", side},
-                          {"onto_side", ref},
-                          {"source", st->source},
-                          {"markers", EstimateJson(st->markers)},
-                          {"features", EstimateJson(st->features)},
-                          {"cross_checked", st->cross_checked},
-                          {"disagreement_deg", st->disagreement_deg},
-                          {"disagreement_mm", st->disagreement_mm},
-                          {"consistent", st->consistent},
-                          {"silhouettes", sil_record},
-                          {"warning", st->warning}});
+      rec.table_from_object[side] = ToPose(st->T.Inverse());
+      records::SideStitch ss;
+      ss.side = side;
+      ss.onto_side = ref;
+      ss.source = st->source;
+      ss.markers = EstimateRecord(st->markers);
+      ss.features = EstimateRecord(st->features);
+      ss.consistent = st->consistent;
+      ss.warning = st->warning;
+      ss.silhouettes = sil_record;
+      ss.extra = {{"cross_checked", st->cross_checked},
+                  {"disagreement_deg", st->disagreement_deg},
+                  {"disagreement_mm", st->disagreement_mm}};
+      rec.stitches.push_back(std::move(ss));
     }
-    j["method"] = method;
-    j["rms_mm"] = residual_known ? json(worst_rms) : json();
-    j["max_mm"] = residual_known ? json(worst_max) : json();
-    j["silhouette_deficit"] = worst_deficit >= 0 ? json(worst_deficit) : json();
-    j["stitches"] = stitches;
+    rec.method = method;
+    if (residual_known) {
+      rec.rms_mm = worst_rms;
+      rec.max_mm = worst_max;
+    }
+    if (worst_deficit >= 0) rec.silhouette_deficit = worst_deficit;
   }
-  j["sides"] = transforms;
-  j["stage_seconds"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  return j;
+  rec.stage_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return rec;
 }
 
 }  // namespace aggscan

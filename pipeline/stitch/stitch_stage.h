@@ -25,24 +25,18 @@
 #include "common/error.h"
 #include "common/rig_calibration.h"
 #include "config/config.h"
+#include "pipeline/core/records.h"
+#include "pipeline/core/view.h"
 #include "pipeline/markers/view_evidence.h"
 
 namespace aggscan {
-
-struct StitchViewInput {
-  int view = 0;
-  double angle_deg = 0;
-  std::string image;  // path of the photo
-  std::string mask;   // path of its rock mask (PNG)
-  Eigen::Isometry3d cam_from_table = Eigen::Isometry3d::Identity();
-};
 
 struct StitchStageInput {
   std::string sample_dir;
   const RigCalibration* calibration = nullptr;
   RigConfig rig;  // background labels and ArUco scale markers (the sample's config)
   std::vector<std::string> object_colors = {"purple", "red"};  // the study's object markers
-  std::map<int, std::vector<StitchViewInput>> views;           // per side (1-based)
+  std::map<int, std::vector<SampleView>> views;                // per side (1-based)
   /// What earlier stages found in the views (photo path -> evidence), when
   /// its options are StitchEvidenceOptions of this input: a view found there
   /// is not decoded for its markers, and a view decoded here is added to it.
@@ -54,14 +48,13 @@ struct StitchStageInput {
 /// before it fill; `window_margin` is the surface stage's (RockWindow).
 EvidenceOptions StitchEvidenceOptions(const StitchStageInput& in, int window_margin);
 
-/// The stitch record: {"method", "sides": [{"side", "table_from_object_4x4"}],
-/// "rms_mm", "max_mm", "scale_residual_mm", "scale_reference" ("labels" |
-/// "aruco" | "labels+aruco": which references gave it), per-side markers,
-/// labels, ArUco scale markers ("aruco_scale") and feature clouds, the two
-/// estimates and their cross-check, "stage_seconds"}.
-/// With one side the object frame is that side's turntable frame (the labels
-/// are still located for the scale check). Errors say what was seen on each
-/// side and what to do.
-Result<nlohmann::json> RunStitchStage(const StitchStageInput& in);
+/// The stitch record (records.h StitchRecord): each side's table frame to
+/// the object frame (side 1's table frame), the residual of the source chosen,
+/// the scale check (which references gave it: "labels", "aruco",
+/// "labels+aruco"), and per side its labels, object markers, ArUco markers and
+/// feature cloud, the two estimates and their cross-check. With one side the
+/// object frame is that side's turntable frame (the labels are still located
+/// for the scale check). Errors say what was seen on each side and what to do.
+Result<records::StitchRecord> RunStitchStage(const StitchStageInput& in);
 
 }  // namespace aggscan

@@ -12,6 +12,7 @@
 
 #include "common/clock.h"
 #include "common/fsutil.h"
+#include "common/json_io.h"
 #include "common/log.h"
 #include "common/mesh_check.h"
 #include "common/mesh_props.h"
@@ -19,6 +20,7 @@
 #include "pipeline/core/geometry.h"
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/parallel_for.h"
+#include "pipeline/core/records.h"
 #include "pipeline/core/stage.h"
 #include "pipeline/core/stage_runner.h"
 #include "pipeline/markers/markers.h"
@@ -32,8 +34,6 @@
 
 namespace aggscan {
 
-std::string results::PosesName(int side) { return "poses_" + layout::SideDirName(side) + ".json"; }
-
 namespace {
 
 namespace fs = std::filesystem;
@@ -41,45 +41,28 @@ using nlohmann::json;
 
 constexpr const char* kCat = "worker";
 
-std::string ResultsPath(const std::string& sample_dir, const std::string& name) {
-  return sample_dir + "/" + layout::kResultsDir + "/" + name;
-}
+using layout::ResultsPath;
 
-Status WriteJson(const std::string& path, const json& j) {
-  return WriteFileAtomic(path, j.dump(2) + "\n");
-}
+Status WriteJson(const std::string& path, const json& j) { return jsonio::WriteFile(path, j); }
 
 Result<json> ReadJson(const std::string& path, const std::string& what) {
-  auto text = ReadFile(path);
-  if (!text) return text.error();
-  json j = json::parse(*text, nullptr, false);
-  if (j.is_discarded() || !j.is_object()) {
-    return MakeError(ErrorClass::kCorrupt,
-                     what + " " + path + " is not valid JSON; delete it to recompute that stage");
-  }
-  return j;
+  return jsonio::ReadFile(path, what, "delete it to recompute that stage");
 }
 
 double Seconds(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
-json IsoToJson(const Eigen::Isometry3d& T) {
-  json a = json::array();
-  for (int r = 0; r < 4; ++r)
-    for (int c = 0; c < 4; ++c) a.push_back(T.matrix()(r, c));
-  return a;
+// The records of the stages (records.h), read with what to do when one is bad.
+Result<records::SideResult> ReadSideResult(const std::string& sample_dir, int side) {
+  return records::Read<records::SideResult>(SideResultPath(sample_dir, side), "side result",
+                                            "delete it to recompute the side's masks");
 }
 
-Result<Eigen::Isometry3d> IsoFromJson(const json& j, const std::string& what) {
-  if (!j.is_array() || j.size() != 16)
-    return MakeError(ErrorClass::kCorrupt, what + ": not a 4x4 matrix");
-  std::array<double, 16> m{};
-  for (int i = 0; i < 16; ++i) {
-    if (!j[i].is_number()) return MakeError(ErrorClass::kCorrupt, what + ": not a 4x4 matrix");
-    m[i] = j[i].get<double>();
-  }
-  return geom::IsoFromRowMajor(m);
+Result<records::PosesRecord> ReadPoses(const std::string& sample_dir, int side) {
+  return records::Read<records::PosesRecord>(
+      ResultsPath(sample_dir, layout::PosesName(side)), "poses record",
+      "run the reconstruction again from the poses (aggscan reconstruct --from poses)");
 }
 
 // --- stage: calibration --------------------------------------------------
@@ -87,7 +70,7 @@ Result<Eigen::Isometry3d> IsoFromJson(const json& j, const std::string& what) {
 Result<RigCalibration> CalibrationStage(const std::string& sample_dir,
                                         const ReconstructOptions& opts, const cv::Size& image_size,
                                         json* timings) {
-  const std::string out = ResultsPath(sample_dir, results::kCalibrationUsed);
+  const std::string out = ResultsPath(sample_dir, layout::kCalibrationUsed);
   if (PathExists(out)) {
     auto j = ReadJson(out, "calibration record");
     if (!j) return j.error();
@@ -150,27 +133,17 @@ Result<bool> ChoosePosesPath(const std::string& sample_dir, const ReconstructOpt
 
 // The calibration record of a side's SfM poses (the camera it was posed with).
 Result<RigCalibration> SfmCalibrationOfSide(const std::string& sample_dir, int side) {
-  const std::string path = ResultsPath(sample_dir, results::PosesName(side));
-  auto j = ReadJson(path, "poses");
+  const std::string path = ResultsPath(sample_dir, layout::PosesName(side));
+  auto j = ReadPoses(sample_dir, side);
   if (!j) return j.error();
-  if (j->value("method", "") != "sfm" || !j->contains("calibration")) {
-    return MakeError(ErrorClass::kCorrupt, path + " holds no SfM camera (method " +
-                                               j->value("method", "?") +
+  if (!j->IsSfm()) {
+    return MakeError(ErrorClass::kCorrupt, path + " holds no SfM camera (method " + j->method +
                                                "); delete it to pose that side again");
   }
-  return CalibrationFromJson((*j)["calibration"], path);
+  return CalibrationFromJson(j->calibration, path);
 }
 
 // --- stage: poses --------------------------------------------------------
-
-struct ViewInput {
-  int side = 0;
-  int view = 0;
-  double angle_deg = 0;
-  std::string image;  // path
-  std::string mask;   // path
-  Eigen::Isometry3d cam_from_table = Eigen::Isometry3d::Identity();
-};
 
 // The figures of a bundle adjustment for the poses record.
 json BundleAdjustJson(const BundleAdjustResult& r) {
@@ -194,32 +167,34 @@ json BundleAdjustJson(const BundleAdjustResult& r) {
 }
 
 // A side result view's measured turntable angle (from its sidecar).
-Result<double> MeasuredAngle(const json& v, int side) {
-  if (!v.contains("measured_angle_deg") || !v["measured_angle_deg"].is_number()) {
-    return MakeError(ErrorClass::kCorrupt, "poses stage: view " +
-                                               std::to_string(v.value("view", -1)) + " of " +
+Result<double> MeasuredAngle(const records::View2D& v, int side) {
+  if (!v.measured_angle_deg) {
+    return MakeError(ErrorClass::kCorrupt, "poses stage: view " + std::to_string(v.view) + " of " +
                                                layout::SideDirName(side) +
                                                " has no measured turntable angle in its sidecar");
   }
-  return v["measured_angle_deg"].get<double>();
+  return *v.measured_angle_deg;
 }
 
 // The SfM poses record of a side (sfm_poses.h) from its side result.
 // `setup`: what the side needs besides its views (camera, focal hint, rig).
-Result<json> SfmPosesRecord(const std::string& sample_dir, int side, const json& side_result,
-                            const SfmPosesInput& setup, const ReconstructOptions& opts) {
+Result<records::PosesRecord> SfmPosesRecord(const std::string& sample_dir, int side,
+                                            const records::SideResult& side_result,
+                                            const SfmPosesInput& setup,
+                                            const ReconstructOptions& opts) {
   SfmPosesInput in = setup;
   in.sample_dir = sample_dir;
   in.side = side;
-  for (const auto& v : side_result.value("views", json::array())) {
-    if (!v.value("ok", false)) continue;
+  for (const records::View2D& v : side_result.views) {
+    if (!v.ok) continue;
     auto angle = MeasuredAngle(v, side);
     if (!angle) return angle.error();
-    SfmPosesView sv;
-    sv.view = v.value("view", 0);
+    SampleView sv;
+    sv.side = side;
+    sv.view = v.view;
     sv.angle_deg = *angle;
-    sv.image_rel = v.value("image", "");
-    sv.mask_rel = v.value("mask", "");
+    sv.image_rel = v.image;
+    sv.mask_rel = v.mask;
     sv.image = sample_dir + "/" + layout::SideDirName(side) + "/" + sv.image_rel;
     sv.mask = ResultsPath(sample_dir, sv.mask_rel);
     in.views.push_back(std::move(sv));
@@ -228,47 +203,47 @@ Result<json> SfmPosesRecord(const std::string& sample_dir, int side, const json&
   return RunSfmPoses(in, opts.sfm);
 }
 
-Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int side,
-                                          const RigCalibration* cal, const SfmPosesInput* sfm,
-                                          const ReconstructOptions& opts, json* timings,
-                                          std::string* method, ViewEvidenceCache* evidence) {
-  const std::string out = ResultsPath(sample_dir, results::PosesName(side));
+Result<std::vector<SampleView>> PosesStage(const std::string& sample_dir, int side,
+                                           const RigCalibration* cal, const SfmPosesInput* sfm,
+                                           const ReconstructOptions& opts, json* timings,
+                                           std::string* method, ViewEvidenceCache* evidence) {
+  const std::string out = ResultsPath(sample_dir, layout::PosesName(side));
   const std::string side_dir = sample_dir + "/" + layout::SideDirName(side);
-  std::vector<ViewInput> views;
+  std::vector<SampleView> views;
   if (!PathExists(out) && sfm) {
     const auto t0 = std::chrono::steady_clock::now();
-    auto side_result = ReadJson(SideResultPath(sample_dir, side), "side result");
+    auto side_result = ReadSideResult(sample_dir, side);
     if (!side_result) return side_result.error();
     auto j = SfmPosesRecord(sample_dir, side, *side_result, *sfm, opts);
     if (!j) return j.error();
-    (*j)["stage_seconds"] = Seconds(t0);
-    if (Status s = WriteJson(out, *j); !s) return s.error();
+    j->stage_seconds = Seconds(t0);
+    if (Status s = records::Write(out, *j); !s) return s.error();
     StageLog(LogLevel::kInfo, kCat, layout::SampleIdOfDir(sample_dir),
              layout::SideDirName(side) + ": SfM registered " +
-                 std::to_string((*j)["sfm"].value("registered_views", 0)) +
-                 " views, scale residual " +
-                 std::to_string((*j)["scale"].value("residual_mm", 0.0)) + " mm");
+                 std::to_string(j->sfm.value("registered_views", 0)) + " views, scale residual " +
+                 std::to_string(j->scale.value("residual_mm", 0.0)) + " mm");
   } else if (!PathExists(out)) {
     if (!cal)
       return MakeError(ErrorClass::kInternal, "poses stage: no calibration for the turntable path");
     const auto t0 = std::chrono::steady_clock::now();
-    auto side_result = ReadJson(SideResultPath(sample_dir, side), "side result");
+    auto side_result = ReadSideResult(sample_dir, side);
     if (!side_result) return side_result.error();
     if (Status s = SideHasEnoughWholeViews(*side_result); !s) {
       return MakeError(s.error().cls, "poses stage: " + s.error().message);
     }
-    json jviews = json::array();
-    for (const auto& v : side_result->value("views", json::array())) {
-      if (!v.value("ok", false)) continue;  // no rock in this view: it cannot bound the hull
+    records::PosesRecord rec;
+    std::vector<records::PosedViewRecord>& jviews = rec.views;
+    for (const records::View2D& v : side_result->views) {
+      if (!v.ok) continue;  // no rock in this view: it cannot bound the hull
       auto measured = MeasuredAngle(v, side);
       if (!measured) return measured.error();
-      const double angle = *measured;
-      const Eigen::Isometry3d T = geom::IsoFromRowMajor(cal->CamFromTable(angle));
-      jviews.push_back({{"view", v["view"]},
-                        {"image", v.value("image", "")},
-                        {"mask", v.value("mask", "")},
-                        {"angle_deg", angle},
-                        {"cam_from_table_4x4", IsoToJson(T)}});
+      records::PosedViewRecord pv;
+      pv.view = v.view;
+      pv.image = v.image;
+      pv.mask = v.mask;
+      pv.angle_deg = *measured;
+      pv.cam_from_table = geom::IsoFromRowMajor(cal->CamFromTable(pv.angle_deg));
+      jviews.push_back(std::move(pv));
     }
     if (jviews.size() < 3) {
       return MakeError(ErrorClass::kCorrupt,
@@ -276,20 +251,20 @@ Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int sid
                            std::to_string(jviews.size()) +
                            " views with a rock; at least 3 are needed: re-capture the side");
     }
-    json j = {{"side", side},
-              {"method", "turntable"},
-              {"method_detail", "calibrated turntable: cam_from_table0 * Rz(measured angle)"}};
+    rec.side = side;
+    rec.method = "turntable";
+    rec.method_detail = "calibrated turntable: cam_from_table0 * Rz(measured angle)";
     if (opts.bundle_adjust) {
       // Eq. 2 of the study: only the features inside the rock masks refine the
       // poses; the photos are read one at a time.
       std::vector<double> measured;
-      for (const auto& v : jviews) measured.push_back(v["angle_deg"].get<double>());
+      for (const auto& v : jviews) measured.push_back(v.angle_deg);
       // What the stitch and the surface need of each photo is kept while it
       // is decoded here (view_evidence.h).
       auto load = [&](int i, cv::Mat* bgr, cv::Mat* mask) {
-        const std::string image = side_dir + "/" + jviews[i].value("image", "");
+        const std::string image = side_dir + "/" + jviews[i].image;
         auto img = LoadImage(image, ImageMode::kColor, opts.worker.image_limits);
-        auto m = LoadImage(ResultsPath(sample_dir, jviews[i].value("mask", "")), ImageMode::kGray,
+        auto m = LoadImage(ResultsPath(sample_dir, jviews[i].mask), ImageMode::kGray,
                            opts.worker.image_limits);
         if (!img || !m) return false;
         *bgr = std::move(*img);
@@ -300,48 +275,46 @@ Result<std::vector<ViewInput>> PosesStage(const std::string& sample_dir, int sid
       };
       const BundleAdjustResult ba =
           BundleAdjustSideImages(static_cast<int>(jviews.size()), load, measured, *cal, opts.ba);
-      j["bundle_adjustment"] = BundleAdjustJson(ba);
+      rec.bundle_adjustment = BundleAdjustJson(ba);
       if (ba.refined) {
-        j["method"] = "turntable+ba";
-        j["method_detail"] =
+        rec.method = "turntable+ba";
+        rec.method_detail =
             "calibrated turntable, angles refined by bundle adjustment (Ceres) over feature tracks "
-            "inside the "
-            "rock masks";
+            "inside the rock masks";
         for (size_t i = 0; i < jviews.size(); ++i) {
-          jviews[i]["measured_angle_deg"] = measured[i];
-          jviews[i]["angle_deg"] = ba.angle_deg[i];
-          jviews[i]["angle_correction_deg"] = ba.correction_deg[i];
-          jviews[i]["ba_adjusted"] = static_cast<bool>(ba.adjusted[i]);
-          jviews[i]["cam_from_table_4x4"] =
-              IsoToJson(geom::IsoFromRowMajor(ba.calibration.CamFromTable(ba.angle_deg[i])));
+          jviews[i].measured_angle_deg = measured[i];
+          jviews[i].angle_deg = ba.angle_deg[i];
+          jviews[i].angle_correction_deg = ba.correction_deg[i];
+          jviews[i].ba_adjusted = static_cast<bool>(ba.adjusted[i]);
+          jviews[i].cam_from_table =
+              geom::IsoFromRowMajor(ba.calibration.CamFromTable(ba.angle_deg[i]));
         }
       } else {
         StageLog(LogLevel::kWarning, kCat, layout::SampleIdOfDir(sample_dir),
                  layout::SideDirName(side) + ": poses not refined: " + ba.reason);
       }
     } else {
-      j["bundle_adjustment"] = {{"refined", false}, {"reason", "bundle adjustment is turned off"}};
+      rec.bundle_adjustment = {{"refined", false}, {"reason", "bundle adjustment is turned off"}};
     }
-    j["views"] = jviews;
-    j["stage_seconds"] = Seconds(t0);
-    if (Status s = WriteJson(out, j); !s) return s.error();
+    rec.stage_seconds = Seconds(t0);
+    if (Status s = records::Write(out, rec); !s) return s.error();
   }
-  auto j = ReadJson(out, "poses");
+  auto j = ReadPoses(sample_dir, side);
   if (!j) return j.error();
-  for (const auto& v : j->value("views", json::array())) {
-    ViewInput in;
+  for (const records::PosedViewRecord& v : j->views) {
+    SampleView in;
     in.side = side;
-    in.view = v.value("view", 0);
-    in.angle_deg = v.value("angle_deg", 0.0);
-    in.image = side_dir + "/" + v.value("image", "");
-    in.mask = sample_dir + "/" + layout::kResultsDir + "/" + v.value("mask", "");
-    auto T = IsoFromJson(v.value("cam_from_table_4x4", json()), out);
-    if (!T) return T.error();
-    in.cam_from_table = *T;
+    in.view = v.view;
+    in.angle_deg = v.angle_deg;
+    in.image_rel = v.image;
+    in.mask_rel = v.mask;
+    in.image = side_dir + "/" + v.image;
+    in.mask = ResultsPath(sample_dir, v.mask);
+    in.cam_from_table = v.cam_from_table;
     views.push_back(std::move(in));
   }
-  (*timings)["poses_" + layout::SideDirName(side) + "_s"] = j->value("stage_seconds", 0.0);
-  *method = j->value("method", "turntable");
+  (*timings)["poses_" + layout::SideDirName(side) + "_s"] = j->stage_seconds;
+  *method = j->method;
   return views;
 }
 
@@ -407,7 +380,7 @@ Status ReadColourWindow(const std::string& image, const cv::Rect& roi, cv::Size 
 
 // Per-vertex colour from the view that sees the vertex most head-on among
 // those where it lies well inside the silhouette.
-Result<VertexColors> ColourVertices(const Mesh& mesh, const std::vector<ViewInput>& views,
+Result<VertexColors> ColourVertices(const Mesh& mesh, const std::vector<SampleView>& views,
                                     const std::vector<Eigen::Isometry3d>& cam_from_object,
                                     const std::vector<ViewWindow>& windows, cv::Size full_size,
                                     const ImageLimits& limits, const ViewEvidenceCache* evidence) {
@@ -598,7 +571,7 @@ constexpr double kIouFloor = 0.90;
 // 7), where the segmentation most likely lost the rock: ashlar 923 scaled to
 // 220 mm reaches the top of the frame, and the mask of 21 of its side-2 views
 // became a colour label. Empty when no view stands out.
-std::string SuspectMasks(const std::vector<ViewInput>& views,
+std::string SuspectMasks(const std::vector<SampleView>& views,
                          const std::vector<ViewWindow>& windows) {
   std::map<int, std::vector<double>> areas;
   for (size_t i = 0; i < views.size(); ++i)
@@ -624,12 +597,17 @@ std::string SuspectMasks(const std::vector<ViewInput>& views,
          "stay inside the frame at every angle (move the camera back or use a wider lens)";
 }
 
-Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewInput>& views,
-                          const std::map<int, Eigen::Isometry3d>& table_from_object,
-                          const RigCalibration& cal, const ReconstructOptions& opts,
-                          const std::string& sample_id, const ViewEvidenceCache* evidence) {
-  const std::string out = ResultsPath(sample_dir, results::kSurface);
-  if (PathExists(out)) return ReadJson(out, "surface record");
+Result<records::SurfaceRecord> SurfaceStage(
+    const std::string& sample_dir, const std::vector<SampleView>& views,
+    const std::map<int, Eigen::Isometry3d>& table_from_object, const RigCalibration& cal,
+    const ReconstructOptions& opts, const std::string& sample_id,
+    const ViewEvidenceCache* evidence) {
+  const std::string out = ResultsPath(sample_dir, layout::kSurface);
+  if (PathExists(out)) {
+    return records::Read<records::SurfaceRecord>(
+        out, "surface record",
+        "run the reconstruction again from the surface (aggscan reconstruct --from surface)");
+  }
   const auto t0 = std::chrono::steady_clock::now();
   // The masks, each kept as its window: from the evidence of an earlier
   // stage, or read (side by side).
@@ -637,7 +615,7 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
   std::vector<ViewWindow> windows(views.size());
   std::vector<std::optional<Error>> load_error(views.size());
   ParallelFor(views.size(), kWorkerThreads, [&](size_t i) {
-    const ViewInput& v = views[i];
+    const SampleView& v = views[i];
     if (auto w = CachedWindow(evidence, v.image, cal.camera, margin)) {
       windows[i] = std::move(*w);
       return;
@@ -692,9 +670,9 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
   // Views that disagree with the others: left out and the hull carved again
   // without them; a side that would lose more than a third of its views is
   // refused (the capture itself is in doubt).
-  json left_out = json::array();
+  std::vector<records::ViewNote> left_out;
   json consistency = json::object();
-  std::vector<ViewInput> kept_views = views;
+  std::vector<SampleView> kept_views = views;
   {
     const auto tsc = std::chrono::steady_clock::now();
     const SoleCarving sc = SoleCarvingVolumes(sv, floors, hull->box, Eigen::AlignedBox3d(lo, hi));
@@ -717,7 +695,7 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
         HighOutliers(sc.volume_mm3, kSoleCarvingMaxFraction * sc.agreed_mm3);
     if (!bad.empty()) {
       std::map<int, int> per_side_total, per_side_bad;
-      for (const ViewInput& v : views) ++per_side_total[v.side];
+      for (const SampleView& v : views) ++per_side_total[v.side];
       std::string names;
       for (size_t k : bad) {
         ++per_side_bad[views[k].side];
@@ -728,10 +706,8 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
                       "holds to be rock "
                       "(median of all views %.0f mm3): the photo or its mask lost part of the rock",
                       sc.volume_mm3[k], 100 * frac, Median(sc.volume_mm3));
-        left_out.push_back({{"side", views[k].side},
-                            {"view", views[k].view},
-                            {"reason", why},
-                            {"sole_carving_mm3", sc.volume_mm3[k]}});
+        left_out.push_back(
+            {views[k].side, views[k].view, why, {{"sole_carving_mm3", sc.volume_mm3[k]}}});
         names += (names.empty() ? "" : ", ") + layout::SideDirName(views[k].side) + " view " +
                  std::to_string(views[k].view);
       }
@@ -772,7 +748,7 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
       hull->seconds += first_s;
     }
   }
-  const std::vector<ViewInput>& used_views = kept_views;
+  const std::vector<SampleView>& used_views = kept_views;
   const double carve_s = hull->seconds;
   // Photo-consistency: the hull is an upper bound; concavities are recovered
   // where the textured photos agree on a deeper surface.
@@ -859,21 +835,20 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
   const double iou_s = Seconds(ti);
   const auto te = std::chrono::steady_clock::now();
   for (auto [name, st] :
-       {std::pair{results::kMeshPly,
-                  SaveMeshPly(hull->mesh, ResultsPath(sample_dir, results::kMeshPly), &*colors)},
-        std::pair{results::kMeshObj,
-                  SaveMeshObj(hull->mesh, ResultsPath(sample_dir, results::kMeshObj), &*colors)},
-        std::pair{results::kMeshStl,
-                  SaveMeshStl(hull->mesh, ResultsPath(sample_dir, results::kMeshStl))}}) {
+       {std::pair{layout::kMeshPly,
+                  SaveMeshPly(hull->mesh, ResultsPath(sample_dir, layout::kMeshPly), &*colors)},
+        std::pair{layout::kMeshObj,
+                  SaveMeshObj(hull->mesh, ResultsPath(sample_dir, layout::kMeshObj), &*colors)},
+        std::pair{layout::kMeshStl,
+                  SaveMeshStl(hull->mesh, ResultsPath(sample_dir, layout::kMeshStl))}}) {
     if (!st) return st.error();
   }
-  json jiou = json::array();
-  for (size_t i = 0; i < used_views.size(); ++i) {
-    jiou.push_back({{"side", used_views[i].side}, {"view", used_views[i].view}, {"iou", iou[i]}});
-  }
+  std::vector<records::ViewIoU> jiou;
+  for (size_t i = 0; i < used_views.size(); ++i)
+    jiou.push_back({used_views[i].side, used_views[i].view, iou[i]});
   // A mask far larger than the model's silhouette in it (a leak, a pose that
   // does not fit) does not carve the model, but it disagrees: named.
-  json disagreeing = json::array();
+  std::vector<records::ViewNote> disagreeing;
   {
     std::vector<double> neg;
     for (double x : iou) neg.push_back(-x);
@@ -884,41 +859,37 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
                     "the mask or the "
                     "view's pose disagrees with the others; check its photo and mask",
                     iou[k], Median(iou));
-      disagreeing.push_back({{"side", used_views[k].side},
-                             {"view", used_views[k].view},
-                             {"iou", iou[k]},
-                             {"reason", why}});
+      disagreeing.push_back({used_views[k].side, used_views[k].view, why, {{"iou", iou[k]}}});
     }
   }
-  json j = {
-      {"method", opts.photo_refine ? "visual-hull+photo" : "visual-hull"},
-      {"method_detail",
-       std::string("silhouette signed-distance field over all views of all sides in the object "
-                   "frame (side 1's "
-                   "turntable frame), each side's turntable top as a floor; marching tetrahedra") +
-           (opts.photo_refine
-                ? "; vertices moved inward to the depth of best multi-view NCC of tangent-plane "
-                  "patches, confident moves only, smoothed, folds undone"
-                : "")},
-      {"photo_refine", photo},
-      {"voxel_mm", hull->voxel_mm},
-      {"vertices", hull->mesh.vertices.size()},
-      {"faces", hull->mesh.faces.size()},
-      {"views", used_views.size()},
-      {"silhouette_iou", jiou},
-      {"views_left_out", left_out},
-      {"consistency", consistency},
-      {"views_disagreeing", disagreeing},
-      {"files",
-       {{"ply", results::kMeshPly}, {"obj", results::kMeshObj}, {"stl", results::kMeshStl}}},
-      {"timings_s",
-       {{"carve", carve_s},
-        {"photo_refine", photo_s},
-        {"colour", colour_s},
-        {"silhouette_check", iou_s},
-        {"export", Seconds(te)}}},
-      {"stage_seconds", Seconds(t0)}};
-  if (Status s = WriteJson(out, j); !s) return s.error();
+  records::SurfaceRecord j;
+  j.method = opts.photo_refine ? "visual-hull+photo" : "visual-hull";
+  j.method_detail =
+      std::string(
+          "silhouette signed-distance field over all views of all sides in the object "
+          "frame (side 1's turntable frame), each side's turntable top as a floor; "
+          "marching tetrahedra") +
+      (opts.photo_refine
+           ? "; vertices moved inward to the depth of best multi-view NCC of tangent-plane "
+             "patches, confident moves only, smoothed, folds undone"
+           : "");
+  j.photo_refine = photo;
+  j.voxel_mm = hull->voxel_mm;
+  j.vertices = static_cast<int>(hull->mesh.vertices.size());
+  j.faces = static_cast<int>(hull->mesh.faces.size());
+  j.views = static_cast<int>(used_views.size());
+  j.silhouette_iou = std::move(jiou);
+  j.views_left_out = std::move(left_out);
+  j.consistency = consistency;
+  j.views_disagreeing = std::move(disagreeing);
+  j.files = {{"ply", layout::kMeshPly}, {"obj", layout::kMeshObj}, {"stl", layout::kMeshStl}};
+  j.timings_s = {{"carve", carve_s},
+                 {"photo_refine", photo_s},
+                 {"colour", colour_s},
+                 {"silhouette_check", iou_s},
+                 {"export", Seconds(te)}};
+  j.stage_seconds = Seconds(t0);
+  if (Status s = records::Write(out, j); !s) return s.error();
   StageLog(LogLevel::kInfo, kCat, sample_id,
            "surface: " + std::to_string(hull->mesh.faces.size()) + " faces at " +
                std::to_string(hull->voxel_mm) + " mm in " + std::to_string(Seconds(t0)) + " s");
@@ -927,16 +898,12 @@ Result<json> SurfaceStage(const std::string& sample_dir, const std::vector<ViewI
 
 // --- stage: morphology ---------------------------------------------------
 
-json StatsJson(const std::vector<double>& v) {
-  const Stats s = ComputeStats(v);
-  return {{"mean", s.mean}, {"min", s.min}, {"max", s.max},
-          {"std", s.std},   {"cov", s.cov}, {"n", s.n}};
-}
+json StatsJson(const std::vector<double>& v) { return records::StatsToJson(ComputeStats(v)); }
 
-Status AppendLibraryRow(const std::string& state_dir, const json& morphology) {
+Status AppendLibraryRow(const std::string& state_dir, const records::Morphology& morphology) {
   if (state_dir.empty()) return OkStatus();
-  const std::string path = state_dir + "/" + results::kLibraryCsv;
-  const std::string id = morphology.value("sample_id", "");
+  const std::string path = state_dir + "/" + layout::kLibraryCsv;
+  const std::string& id = morphology.sample_id;
   std::string text;
   if (PathExists(path)) {
     auto t = ReadFile(path);
@@ -979,33 +946,47 @@ std::string LibraryCsvHeader() {
          "silhouette_iou_mean,total_s,confident,quality_flags\n";
 }
 
-std::string LibraryCsvRow(const json& m) {
-  const json& d = m.at("morphology_3d");
-  const json& o = m.at("stats_2d").at("overall");
-  const json& q = m.at("quality");
+std::string LibraryCsvRow(const records::Morphology& m) {
+  // The figures a reader needs are typed; the rest is looked up without
+  // trusting the file's shape (a missing figure is an empty-looking "nan").
+  auto at = [](const json& j, std::initializer_list<const char*> path) {
+    const json* p = &j;
+    for (const char* k : path) {
+      if (!p->is_object() || !p->contains(k)) return json();
+      p = &(*p)[k];
+    }
+    return *p;
+  };
   auto num = [](const json& v) {
     char b[64];
     std::snprintf(b, sizeof b, "%.6g", v.is_number() ? v.get<double>() : std::nan(""));
     return std::string(b);
   };
-  std::string row = m.value("sample_id", "") + "," + m.value("created_utc", "");
-  for (const char* k : {"volume_mm3", "surface_area_mm2", "a_mm", "b_mm", "c_mm", "fer_3d",
-                        "ratio_c_b", "ratio_b_a", "sphericity"}) {
-    row += "," + num(d.value(k, json()));
+  auto method = [&](const char* k) {
+    auto it = m.methods.find(k);
+    return it == m.methods.end() ? std::string() : it->second;
+  };
+  std::string row = m.sample_id + "," + m.created_utc;
+  for (json v : {json(m.volume_mm3), json(m.surface_area_mm2), json(m.a_mm), json(m.b_mm),
+                 json(m.c_mm), json(m.fer_3d), at(m.morphology_3d, {"ratio_c_b"}),
+                 at(m.morphology_3d, {"ratio_b_a"}), json(m.sphericity)}) {
+    row += "," + num(v);
   }
-  row += "," + num(o.at("fer_2d").value("mean", json())) + "," +
-         num(o.at("circularity").value("mean", json()));
-  row += "," + std::to_string(m.value("views_2d", json::array()).size());
-  row += "," + m.at("methods").value("poses", "") + "," + m.at("methods").value("stitch", "") +
-         "," + m.at("methods").value("surface", "");
-  row += "," + num(q.value("stitch_rms_mm", json())) + "," +
-         num(q.value("silhouette_iou_mean", json()));
-  row += "," + num(m.at("timings_s").value("total", json()));
+  row += "," + num(at(m.stats_2d, {"overall", "fer_2d", "mean"})) + "," +
+         num(at(m.stats_2d, {"overall", "circularity", "mean"}));
+  row += "," + std::to_string(m.views_2d.size());
+  row += "," + method("poses") + "," + method("stitch") + "," + method("surface");
+  row += "," + num(at(m.quality, {"stitch_rms_mm"})) + "," +
+         num(at(m.quality, {"silhouette_iou_mean"}));
+  row += "," + num(at(m.timings_s, {"total"}));
   // Flag codes joined by ';' (no commas or quotes: one CSV field).
   std::string codes;
-  for (const json& f : q.value("flags", json::array()))
-    codes += (codes.empty() ? "" : ";") + f.value("code", "");
-  row += std::string(",") + (q.value("confident", true) ? "yes" : "no") + "," + codes + "\n";
+  const json flags = at(m.quality, {"flags"});
+  for (const json& f : flags.is_array() ? flags : json::array()) {
+    if (f.is_object() && f.contains("code") && f["code"].is_string())
+      codes += (codes.empty() ? "" : ";") + f["code"].get<std::string>();
+  }
+  row += std::string(",") + (m.confident ? "yes" : "no") + "," + codes + "\n";
   return row;
 }
 
@@ -1031,14 +1012,22 @@ const char* PosesPathName(PosesPath p) {
   return "?";
 }
 
-Result<json> ReadMorphology(const std::string& sample_dir) {
-  const std::string path = ResultsPath(sample_dir, results::kMorphology);
+Result<records::Morphology> ReadMorphologyRecord(const std::string& sample_dir) {
+  const std::string path = ResultsPath(sample_dir, layout::kMorphology);
   if (!PathExists(path)) {
     return MakeError(ErrorClass::kNotFound,
                      "no results yet for " + layout::SampleIdOfDir(sample_dir) +
                          " (the worker has not finished it; see its state and the worker log)");
   }
-  return ReadJson(path, "results");
+  return records::Read<records::Morphology>(
+      path, "results",
+      "run the reconstruction again from the morphology (aggscan reconstruct --from morphology)");
+}
+
+Result<json> ReadMorphology(const std::string& sample_dir) {
+  auto m = ReadMorphologyRecord(sample_dir);
+  if (!m) return m.error();
+  return m->ToJson();
 }
 
 namespace {
@@ -1062,12 +1051,12 @@ struct SampleRun {
   json timings = json::object();
   std::optional<RigCalibration> cal;
   SfmPosesInput sfm_setup;
-  std::map<int, std::vector<ViewInput>> side_views;
+  std::map<int, std::vector<SampleView>> side_views;
   std::map<int, std::string> poses_methods;
-  std::vector<ViewInput> all_views;
-  json stitch;
-  std::map<int, Eigen::Isometry3d> table_from_object;
-  json surface;
+  std::vector<SampleView> all_views;
+  records::StitchRecord stitch;
+  std::map<int, Pose> table_from_object;
+  records::SurfaceRecord surface;
   std::optional<ViewEvidenceCache> evidence;  // once the calibration is known
 };
 
@@ -1086,13 +1075,12 @@ ViewEvidenceCache* EvidenceOf(SampleRun& r) {
 
 // The image size of the sample's photos, from the first readable mask.
 Status ReadImageSize(SampleRun& r) {
-  auto side1 = ReadJson(SideResultPath(r.dir, r.sides[0]), "side result");
+  auto side1 = ReadSideResult(r.dir, r.sides[0]);
   if (!side1) return side1.error();
-  r.mask_method = side1->value("mask_method", r.mask_method);
-  for (const auto& v : side1->value("views", json::array())) {
-    if (!v.value("ok", false)) continue;
-    auto m = LoadImage(r.dir + "/" + layout::kResultsDir + "/" + v.value("mask", ""),
-                       ImageMode::kGray, r.opts.worker.image_limits);
+  r.mask_method = side1->mask_method;
+  for (const records::View2D& v : side1->views) {
+    if (!v.ok) continue;
+    auto m = LoadImage(ResultsPath(r.dir, v.mask), ImageMode::kGray, r.opts.worker.image_limits);
     if (m) {
       r.image_size = m->size();
       return OkStatus();
@@ -1146,12 +1134,12 @@ Status PosesOfSide(SampleRun& r, int side) {
 
 // SfM without a rig calibration: the first side's camera is the sample's.
 Status CalibrationFromSfm(SampleRun& r) {
-  const std::string out = ResultsPath(r.dir, results::kCalibrationUsed);
+  const std::string out = ResultsPath(r.dir, layout::kCalibrationUsed);
   if (!PathExists(out)) {
     auto c = SfmCalibrationOfSide(r.dir, r.sides[0]);
     if (!c) return c.error();
     json j = CalibrationToJson(*c);
-    j["origin"] = ResultsPath(r.dir, results::PosesName(r.sides[0]));
+    j["origin"] = ResultsPath(r.dir, layout::PosesName(r.sides[0]));
     j["stage_seconds"] = 0.0;
     if (Status s = WriteJson(out, j); !s) return s;
   }
@@ -1171,25 +1159,19 @@ Status StitchSides(SampleRun& r) {
   // The background labels are the ones configured when the sample was armed.
   sin.rig = r.rig;
   sin.evidence = EvidenceOf(r);
-  for (const auto& [side, vs] : r.side_views) {
-    for (const ViewInput& v : vs) {
-      sin.views[side].push_back({v.view, v.angle_deg, v.image, v.mask, v.cam_from_table});
-    }
-  }
-  const std::string stitch_path = ResultsPath(r.dir, results::kStitch);
+  sin.views = r.side_views;
+  const std::string stitch_path = ResultsPath(r.dir, layout::kStitch);
   if (!PathExists(stitch_path)) {
     auto st = RunStitchStage(sin);
     if (!st) return st.error();
-    if (Status s = WriteJson(stitch_path, *st); !s) return s;
+    if (Status s = records::Write(stitch_path, *st); !s) return s;
   }
-  auto stitch = ReadJson(stitch_path, "stitch record");
+  auto stitch = records::Read<records::StitchRecord>(
+      stitch_path, "stitch record",
+      "run the reconstruction again from the stitch (aggscan reconstruct --from stitch)");
   if (!stitch) return stitch.error();
   r.stitch = std::move(*stitch);
-  for (const auto& s : r.stitch.value("sides", json::array())) {
-    auto T = IsoFromJson(s.value("table_from_object_4x4", json()), stitch_path);
-    if (!T) return T.error();
-    r.table_from_object[s.value("side", 0)] = *T;
-  }
+  r.table_from_object = r.stitch.table_from_object;
   for (int side : r.sides) {
     if (!r.table_from_object.count(side)) {
       return MakeError(ErrorClass::kCorrupt, stitch_path + " has no transform for " +
@@ -1198,7 +1180,7 @@ Status StitchSides(SampleRun& r) {
                                                  "(aggscan reconstruct --from stitch)");
     }
   }
-  r.timings["stitch_s"] = r.stitch.value("stage_seconds", 0.0);
+  r.timings["stitch_s"] = r.stitch.stage_seconds;
   return OkStatus();
 }
 
@@ -1207,8 +1189,8 @@ Status SurfaceOfSample(SampleRun& r) {
       SurfaceStage(r.dir, r.all_views, r.table_from_object, *r.cal, r.opts, r.id, EvidenceOf(r));
   if (!surface) return surface.error();
   r.surface = std::move(*surface);
-  r.timings["surface_s"] = r.surface.value("stage_seconds", 0.0);
-  r.timings["surface_detail_s"] = r.surface.value("timings_s", json::object());
+  r.timings["surface_s"] = r.surface.stage_seconds;
+  r.timings["surface_detail_s"] = r.surface.timings_s;
   return OkStatus();
 }
 
@@ -1222,7 +1204,7 @@ Status MorphologyStage(SampleRun& r) {
     if (name == "2d" || name.rfind("masks ", 0) == 0) r.masks_s += e.value("seconds", 0.0);
   }
   const auto t_m = std::chrono::steady_clock::now();
-  auto mesh = LoadMesh(ResultsPath(r.dir, results::kMeshPly), "mm");
+  auto mesh = LoadMesh(ResultsPath(r.dir, layout::kMeshPly), "mm");
   if (!mesh) return mesh.error();
   const Status watertight = CheckClosedManifold(*mesh, "reconstructed mesh");
   const MeshProps p = ComputeMeshProps(*mesh);
@@ -1238,41 +1220,45 @@ Status MorphologyStage(SampleRun& r) {
   centroid /= std::max<size_t>(1, mesh->vertices.size());
 
   // Every view's 2D figures, in mm at the rock's depth in that view.
-  std::map<std::pair<int, int>, const ViewInput*> by_view;
-  for (const ViewInput& v : r.all_views) by_view[{v.side, v.view}] = &v;
-  json views2d = json::array();
+  std::map<std::pair<int, int>, const SampleView*> by_view;
+  for (const SampleView& v : r.all_views) by_view[{v.side, v.view}] = &v;
+  records::Morphology out;
+  std::map<int, records::SideResult> side_results;
   std::map<int, std::map<std::string, std::vector<double>>> per_side;
   std::map<std::string, std::vector<double>> overall;
   for (int side : r.sides) {
-    auto sr = ReadJson(SideResultPath(r.dir, side), "side result");
+    auto sr = ReadSideResult(r.dir, side);
     if (!sr) return sr.error();
-    for (const auto& v : sr->value("views", json::array())) {
-      if (!v.value("ok", false)) continue;
-      const int view = v.value("view", 0);
-      json jv = {{"side", side}, {"view", view}};
-      double mm_per_px = 0;
-      auto it = by_view.find({side, view});
+    for (const records::View2D& v : sr->views) {
+      if (!v.ok) continue;
+      records::MorphView2D jv;
+      jv.side = side;
+      jv.view = v.view;
+      auto it = by_view.find({side, v.view});
       if (it != by_view.end()) {
         const Eigen::Vector3d pc =
             it->second->cam_from_table * r.table_from_object[side] * centroid;
-        mm_per_px = pc.z() / std::sqrt(r.cal->camera.fx * r.cal->camera.fy);
-        jv["angle_deg"] = it->second->angle_deg;
+        jv.mm_per_px_at_rock = pc.z() / std::sqrt(r.cal->camera.fx * r.cal->camera.fy);
+        jv.angle_deg = it->second->angle_deg;
       }
-      jv["fer_2d"] = v.value("fer_2d", 0.0);
-      jv["circularity"] = v.value("circularity", 0.0);
-      jv["l_max_px"] = v.value("l_max_px", 0.0);
-      jv["l_min_px"] = v.value("l_min_px", 0.0);
-      jv["area_px"] = v.value("area_px", 0.0);
-      jv["perimeter_px"] = v.value("perimeter_px", 0.0);
-      jv["mm_per_px_at_rock"] = mm_per_px;
-      jv["l_max_mm"] = v.value("l_max_px", 0.0) * mm_per_px;
-      jv["l_min_mm"] = v.value("l_min_px", 0.0) * mm_per_px;
-      for (const char* k : {"fer_2d", "circularity", "l_max_mm", "l_min_mm"}) {
-        per_side[side][k].push_back(jv[k].get<double>());
-        overall[k].push_back(jv[k].get<double>());
+      jv.fer_2d = v.fer_2d;
+      jv.circularity = v.circularity;
+      jv.l_max_px = v.l_max_px;
+      jv.l_min_px = v.l_min_px;
+      jv.area_px = v.area_px;
+      jv.perimeter_px = v.perimeter_px;
+      jv.l_max_mm = v.l_max_px * jv.mm_per_px_at_rock;
+      jv.l_min_mm = v.l_min_px * jv.mm_per_px_at_rock;
+      for (const auto& [k, x] : {std::pair<const char*, double>{"fer_2d", jv.fer_2d},
+                                 {"circularity", jv.circularity},
+                                 {"l_max_mm", jv.l_max_mm},
+                                 {"l_min_mm", jv.l_min_mm}}) {
+        per_side[side][k].push_back(x);
+        overall[k].push_back(x);
       }
-      views2d.push_back(std::move(jv));
+      out.views_2d.push_back(jv);
     }
+    side_results[side] = std::move(*sr);
   }
   json stats = json::object();
   auto block = [&](std::map<std::string, std::vector<double>>& vals) {
@@ -1289,9 +1275,13 @@ Status MorphologyStage(SampleRun& r) {
   const double lo = std::min(p.c_over_b, p.b_over_a), hi = std::max(p.c_over_b, p.b_over_a);
 
   std::vector<double> ious;
-  for (const auto& e : r.surface.value("silhouette_iou", json::array()))
-    ious.push_back(e.value("iou", 0.0));
+  json iou_json = json::array();
+  for (const records::ViewIoU& e : r.surface.silhouette_iou) {
+    ious.push_back(e.iou);
+    iou_json.push_back({{"side", e.side}, {"view", e.view}, {"iou", e.iou}});
+  }
   const Stats iou = ComputeStats(ious);
+  auto opt = [](const auto& o) { return o ? json(*o) : json(); };
   json quality = {
       {"silhouette_iou_mean", iou.mean},
       {"silhouette_iou_min", iou.min},
@@ -1299,17 +1289,16 @@ Status MorphologyStage(SampleRun& r) {
        "IoU of each mask with the reconstructed surface's silhouette: an estimate of mask and pose "
        "consistency (1 = every mask agrees with all the others)"},
       {"calibration_reprojection_rms_px", r.cal->reprojection_rms_px},
-      {"stitch_rms_mm", r.stitch.value("rms_mm", json())},
-      {"stitch_max_mm", r.stitch.value("max_mm", json())},
-      {"stitch_silhouette_deficit", r.stitch.value("silhouette_deficit", json())},
-      {"scale_residual_mm", r.stitch.value("scale_residual_mm", json())},
-      {"scale_reference", r.stitch.value("scale_reference", json())},
+      {"stitch_rms_mm", opt(r.stitch.rms_mm)},
+      {"stitch_max_mm", opt(r.stitch.max_mm)},
+      {"stitch_silhouette_deficit", opt(r.stitch.silhouette_deficit)},
+      {"scale_residual_mm", opt(r.stitch.scale_residual_mm)},
+      {"scale_reference", opt(r.stitch.scale_reference)},
       {"watertight", watertight.ok()}};
   // What the figures cannot be trusted for, with the reason: never a
   // confident number from poor masks or an unconfirmed stitch.
-  quality["flags"] =
-      QualityFlags(quality, r.stitch, r.surface.value("silhouette_iou", json::array()));
-  quality["confident"] = quality["flags"].empty();
+  quality["flags"] = QualityFlags(quality, r.stitch.ToJson(), iou_json);
+  out.confident = quality["flags"].empty();
   for (const json& f : quality["flags"]) {
     StageLog(LogLevel::kWarning, kCat, r.id, "not confident: " + f.value("reason", ""));
   }
@@ -1337,14 +1326,16 @@ Status MorphologyStage(SampleRun& r) {
   }
   // Each side's poses figures (the method's own: SfM's registration and
   // scale, or the bundle adjustment's).
-  json poses_detail = json::array();
   for (int side : r.sides) {
-    auto pj = ReadJson(ResultsPath(r.dir, results::PosesName(side)), "poses");
+    auto pj = ReadPoses(r.dir, side);
     if (!pj) return pj.error();
-    json e = {{"side", side}, {"method", pj->value("method", "")}};
-    if (pj->contains("sfm")) {
-      const json& s = (*pj)["sfm"];
-      const json& sc = pj->value("scale", json::object());
+    records::PosesSummary ps;
+    ps.side = side;
+    ps.method = pj->method;
+    json& e = ps.figures;
+    if (pj->sfm.is_object()) {
+      const json& s = pj->sfm;
+      const json& sc = pj->scale.is_object() ? pj->scale : json::object();
       e.update({{"registered_views", s.value("registered_views", 0)},
                 {"input_views", s.value("input_views", 0)},
                 {"mean_reprojection_px", s.value("mean_reprojection_px", 0.0)},
@@ -1354,73 +1345,61 @@ Status MorphologyStage(SampleRun& r) {
                 {"scale_residual_mm", sc.value("residual_mm", 0.0)},
                 {"colmap_s", s.value("colmap_s", 0.0)},
                 {"model_dir", s.value("model_dir", "")}});
-    } else if (pj->contains("bundle_adjustment")) {
-      const json& ba = (*pj)["bundle_adjustment"];
+    } else if (pj->bundle_adjustment.is_object()) {
+      const json& ba = pj->bundle_adjustment;
       e.update({{"ba_refined", ba.value("refined", false)},
                 {"ba_final_rms_px", ba.value("final_rms_px", 0.0)}});
     }
-    poses_detail.push_back(std::move(e));
+    out.poses.push_back(std::move(ps));
   }
   // Everything left out or doubtful, with what to do: a figure computed
   // without some views is still a figure, but the operator must know.
-  json warnings = json::array();
-  for (int side : r.sides) {
-    auto sr = ReadJson(SideResultPath(r.dir, side), "side result");
-    if (!sr) return sr.error();
-    for (const char* k : {"image_problems", "mask_problems"}) {
-      const std::string w = sr->value(k, "");
-      if (!w.empty()) warnings.push_back(layout::SideDirName(side) + ": " + w);
+  std::vector<std::string>& warnings = out.warnings;
+  for (const auto& [side, sr] : side_results) {
+    for (const std::string* w : {&sr.image_problems, &sr.mask_problems}) {
+      if (!w->empty()) warnings.push_back(layout::SideDirName(side) + ": " + *w);
     }
   }
-  for (const auto& v : r.surface.value("views_left_out", json::array())) {
-    warnings.push_back(layout::SideDirName(v.value("side", 0)) + " view " +
-                       std::to_string(v.value("view", 0)) +
-                       " left out of the model: " + v.value("reason", ""));
+  for (const records::ViewNote& v : r.surface.views_left_out) {
+    warnings.push_back(layout::SideDirName(v.side) + " view " + std::to_string(v.view) +
+                       " left out of the model: " + v.reason);
   }
-  for (const auto& v : r.surface.value("views_disagreeing", json::array())) {
-    warnings.push_back(layout::SideDirName(v.value("side", 0)) + " view " +
-                       std::to_string(v.value("view", 0)) +
-                       " disagrees with the model: " + v.value("reason", ""));
+  for (const records::ViewNote& v : r.surface.views_disagreeing) {
+    warnings.push_back(layout::SideDirName(v.side) + " view " + std::to_string(v.view) +
+                       " disagrees with the model: " + v.reason);
   }
-  json morphology_3d = MeshPropsJson(p);
-  morphology_3d["watertight"] = watertight.ok();
-  json out = {{"format", "aggscan-morphology-1"},
-              {"sample_id", r.id},
-              {"created_utc", NowUtcString()},
-              {"units",
-               "mm, mm2, mm3, degrees; ratios dimensionless; 2D lengths in px and in mm at the "
-               "rock's depth"},
-              {"methods",
-               {{"calibration", r.cal->method},
-                {"poses", poses_method},
-                {"stitch", r.stitch.value("method", "")},
-                {"surface", r.surface.value("method", "")},
-                {"masks", r.mask_method}}},
-              {"morphology_3d", morphology_3d},
-              {"poses", poses_detail},
-              {"views_2d", views2d},
-              {"stats_2d", stats},
-              {"comparison_2d_3d",
-               {{"fer_3d", p.fer_3d},
-                {"fer_2d_mean", fer2d_mean},
-                {"fer_2d_mean_over_fer_3d", p.fer_3d > 0 ? fer2d_mean / p.fer_3d : 0.0},
-                {"ratio_c_b", p.c_over_b},
-                {"ratio_b_a", p.b_over_a},
-                {"fer_2d_mean_between_c_b_and_b_a", fer2d_mean >= lo && fer2d_mean <= hi},
-                {"sphericity", p.sphericity},
-                {"circularity_mean", circ_mean},
-                {"circularity_mean_minus_sphericity", circ_mean - p.sphericity}}},
-              {"quality", quality},
-              {"warnings", warnings},
-              {"timings_s", r.timings},
-              {"files",
-               {{"mesh_ply", results::kMeshPly},
-                {"mesh_obj", results::kMeshObj},
-                {"mesh_stl", results::kMeshStl},
-                {"stitch", results::kStitch},
-                {"surface", results::kSurface}}}};
-  if (!watertight) out["morphology_3d"]["watertight_problem"] = watertight.error().message;
-  if (Status s = WriteJson(r.morph_path, out); !s) return s;
+  out.morphology_3d = MeshPropsJson(p);
+  out.morphology_3d["watertight"] = watertight.ok();
+  if (!watertight) out.morphology_3d["watertight_problem"] = watertight.error().message;
+  const jsonio::Source self{"morphology", r.morph_path, ""};
+  if (Status s = out.Read3D(self); !s) return s;
+  out.sample_id = r.id;
+  out.created_utc = NowUtcString();
+  out.units =
+      "mm, mm2, mm3, degrees; ratios dimensionless; 2D lengths in px and in mm at the rock's depth";
+  out.methods = {{"calibration", r.cal->method},
+                 {"poses", poses_method},
+                 {"stitch", r.stitch.method},
+                 {"surface", r.surface.method},
+                 {"masks", r.mask_method}};
+  out.stats_2d = stats;
+  out.comparison_2d_3d = {{"fer_3d", p.fer_3d},
+                          {"fer_2d_mean", fer2d_mean},
+                          {"fer_2d_mean_over_fer_3d", p.fer_3d > 0 ? fer2d_mean / p.fer_3d : 0.0},
+                          {"ratio_c_b", p.c_over_b},
+                          {"ratio_b_a", p.b_over_a},
+                          {"fer_2d_mean_between_c_b_and_b_a", fer2d_mean >= lo && fer2d_mean <= hi},
+                          {"sphericity", p.sphericity},
+                          {"circularity_mean", circ_mean},
+                          {"circularity_mean_minus_sphericity", circ_mean - p.sphericity}};
+  out.quality = quality;
+  out.timings_s = r.timings;
+  out.files = {{"mesh_ply", layout::kMeshPly},
+               {"mesh_obj", layout::kMeshObj},
+               {"mesh_stl", layout::kMeshStl},
+               {"stitch", layout::kStitch},
+               {"surface", layout::kSurface}};
+  if (Status s = records::Write(r.morph_path, out); !s) return s;
   StageLog(LogLevel::kNotice, kCat, r.id,
            "reconstructed: V " + std::to_string(static_cast<long>(p.volume_mm3)) + " mm3, a/b/c " +
                std::to_string(p.a_mm) + "/" + std::to_string(p.b_mm) + "/" +
@@ -1554,7 +1533,7 @@ Status TwoDFiguresStages(const std::string& sample_dir, const WorkerOptions& wo)
 Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructOptions& opts) {
   SampleRun r(sample_dir, opts);
   r.id = layout::SampleIdOfDir(sample_dir);
-  r.morph_path = ResultsPath(sample_dir, results::kMorphology);
+  r.morph_path = ResultsPath(sample_dir, layout::kMorphology);
   auto sides = CapturedSides(sample_dir);
   if (!sides) return sides.error();
   r.sides = *sides;
@@ -1588,7 +1567,7 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
     return StageDecl{"calibration",
                      "",
                      fp->calibration,
-                     {std::string("results/") + results::kCalibrationUsed},
+                     {std::string("results/") + layout::kCalibrationUsed},
                      {},
                      [&, from_sfm](StageContext&) -> Status {
                        if (from_sfm) return CalibrationFromSfm(r);
@@ -1604,7 +1583,7 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
     stages.push_back({"poses side " + std::to_string(side),
                       "poses",
                       fp->poses[side],
-                      {"results/" + results::PosesName(side)},
+                      {"results/" + layout::PosesName(side)},
                       // COLMAP's workspace (work/side<N>/sfm) stays: each of its
                       // steps is kept or redone by its own fingerprint.
                       {"results/" + SfmModelDirName(side)},
@@ -1617,21 +1596,21 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
   stages.push_back({"stitch",
                     "",
                     fp->stitch,
-                    {std::string("results/") + results::kStitch},
+                    {std::string("results/") + layout::kStitch},
                     {},
                     [&](StageContext&) { return StitchSides(r); }});
   stages.push_back(
       {"surface",
        "",
        fp->surface,
-       {std::string("results/") + results::kSurface, std::string("results/") + results::kMeshPly,
-        std::string("results/") + results::kMeshObj, std::string("results/") + results::kMeshStl},
+       {std::string("results/") + layout::kSurface, std::string("results/") + layout::kMeshPly,
+        std::string("results/") + layout::kMeshObj, std::string("results/") + layout::kMeshStl},
        {},
        [&](StageContext&) { return SurfaceOfSample(r); }});
   stages.push_back({"morphology",
                     "",
                     fp->morphology,
-                    {std::string("results/") + results::kMorphology},
+                    {std::string("results/") + layout::kMorphology},
                     {},
                     [&](StageContext&) { return MorphologyStage(r); }});
 
@@ -1641,7 +1620,7 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
   // The masks' time for the record: the side jobs' (and this run's) seconds.
   auto run = RunStages(sample_dir, stages, ro);
   if (!run) return run.error();
-  auto m = ReadJson(r.morph_path, "results");
+  auto m = ReadMorphologyRecord(sample_dir);
   if (!m) return m.error();
   return AppendLibraryRow(opts.state_dir, *m);
 }

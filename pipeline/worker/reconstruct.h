@@ -95,18 +95,6 @@ struct ReconstructOptions {
   const std::atomic<bool>* cancel = nullptr;
 };
 
-namespace results {
-inline constexpr const char* kMorphology = "morphology.json";
-inline constexpr const char* kSurface = "surface.json";
-inline constexpr const char* kStitch = "stitch.json";
-inline constexpr const char* kCalibrationUsed = "calibration_used.json";
-inline constexpr const char* kMeshPly = "mesh.ply";
-inline constexpr const char* kMeshObj = "mesh.obj";
-inline constexpr const char* kMeshStl = "mesh.stl";
-inline constexpr const char* kLibraryCsv = "library.csv";
-std::string PosesName(int side);  // "poses_side1.json"
-}  // namespace results
-
 /// Runs every stage of the sample whose result is missing or was made with
 /// other options or inputs (sides first) and writes results/morphology.json.
 /// Errors name the stage and what to do; cancellation is kCancelled.
@@ -116,11 +104,14 @@ Status ReconstructSample(const std::string& sample_dir, const ReconstructOptions
 /// rig calibration on the turntable path), through the same stages.
 Status TwoDFigures(const std::string& sample_dir, const WorkerOptions& opts);
 
-/// results/morphology.json of a sample, parsed; kNotFound before it exists.
+/// results/morphology.json of a sample, read and checked (records.h);
+/// kNotFound before it exists, kCorrupt naming the field when it does not read.
+Result<records::Morphology> ReadMorphologyRecord(const std::string& sample_dir);
+/// The same record as JSON (ToJson of the above).
 Result<nlohmann::json> ReadMorphology(const std::string& sample_dir);
 
 /// The CSV header of the library and one sample's row (from morphology.json).
 std::string LibraryCsvHeader();
-std::string LibraryCsvRow(const nlohmann::json& morphology);
+std::string LibraryCsvRow(const records::Morphology& morphology);
 
 }  // namespace aggscan

@@ -24,6 +24,7 @@
 #include "pipeline/worker/options_json.h"
 #include "store/empty_turntable.h"
 #include "store/layout.h"
+#include "store/sample_files.h"
 
 namespace aggscan {
 namespace {
@@ -57,12 +58,6 @@ json StatsBlock(const std::map<std::string, std::vector<double>>& values) {
   return out;
 }
 
-// A plain file name inside the side directory: nothing that could leave it.
-bool IsPlainName(const std::string& n) {
-  return !n.empty() && n[0] != '.' && n.find('/') == std::string::npos &&
-         n.find('\0') == std::string::npos;
-}
-
 struct ManifestView {
   int view = 0;
   std::string image;
@@ -72,55 +67,34 @@ struct ManifestView {
 Result<std::vector<ManifestView>> ReadManifest(const std::string& side_dir, int side,
                                                const std::string& sample_id) {
   const std::string path = side_dir + "/" + layout::kManifest;
-  if (!PathExists(path))
+  auto m = ReadSideManifest(side_dir);
+  if (!m) {
+    if (m.error().cls != ErrorClass::kNotFound) return m.error();
     return MakeError(ErrorClass::kNotFound,
                      "side " + std::to_string(side) + " of sample " + sample_id +
                          " has no manifest (not captured, or the capture did not finish): " + path);
-  auto text = ReadFile(path);
-  if (!text.ok()) return text.error();
-  json m;
-  try {
-    m = json::parse(*text);
-  } catch (const json::exception& e) {
-    return MakeError(ErrorClass::kCorrupt,
-                     "manifest " + path + " is not valid JSON; re-capture the side", e.what());
   }
   auto corrupt = [&](const std::string& what) {
-    return MakeError(ErrorClass::kCorrupt, "manifest " + path + " is inconsistent: " + what);
+    return MakeError(ErrorClass::kCorrupt,
+                     "manifest " + path + " is inconsistent: " + what + "; re-capture the side");
   };
-  if (!m.is_object()) return corrupt("not a JSON object");
-  if (!m.contains("side") || !m["side"].is_number_integer() || m["side"].get<int>() != side)
-    return corrupt("\"side\" is missing or is not " + std::to_string(side));
-  if (m.contains("sample_id") &&
-      (!m["sample_id"].is_string() || m["sample_id"].get<std::string>() != sample_id))
+  if (m->side != side) return corrupt("\"side\" is not " + std::to_string(side));
+  if (m->sample_id && *m->sample_id != sample_id)
     return corrupt("\"sample_id\" does not match the sample directory " + sample_id);
-  if (!m.contains("views") || !m["views"].is_array() || m["views"].empty())
-    return corrupt("\"views\" is missing or empty");
+  if (m->views.empty()) return corrupt("\"views\" is empty");
   std::vector<ManifestView> views;
-  std::set<int> seen;
-  for (const auto& v : m["views"]) {
-    if (!v.is_object() || !v.contains("view") || !v["view"].is_number_integer() ||
-        !v.contains("image") || !v["image"].is_string())
-      return corrupt("a view entry lacks an integer \"view\" or a string \"image\"");
+  for (const SideManifest::Entry& v : m->views) {
     ManifestView mv;
-    mv.view = v["view"].get<int>();
-    mv.image = v["image"].get<std::string>();
-    if (mv.view < 0 || !seen.insert(mv.view).second)
-      return corrupt("view index " + std::to_string(mv.view) + " is negative or repeated");
-    if (!IsPlainName(mv.image))
-      return corrupt("image name \"" + mv.image + "\" is not a plain file name");
-    if (v.contains("sidecar") && v["sidecar"].is_string() &&
-        IsPlainName(v["sidecar"].get<std::string>()))
-      mv.sidecar = v["sidecar"].get<std::string>();
+    mv.view = v.view;
+    mv.image = v.image;
+    mv.sidecar = v.sidecar.value_or("");
     const std::string img = side_dir + "/" + mv.image;
     std::error_code ec;
     const auto size = fs::file_size(img, ec);
     if (ec) return corrupt("listed image " + mv.image + " is missing");
-    if (v.contains("bytes")) {
-      if (!v["bytes"].is_number_unsigned() || v["bytes"].get<uint64_t>() != size)
-        return corrupt("image " + mv.image + " has " + std::to_string(size) +
-                       " bytes, the manifest says " + v["bytes"].dump());
-    }
+    if (v.bytes && static_cast<uint64_t>(*v.bytes) != size)
+      return corrupt("image " + mv.image + " has " + std::to_string(size) +
+                     " bytes, the manifest says " + std::to_string(*v.bytes));
     views.push_back(std::move(mv));
   }
   std::sort(views.begin(), views.end(),
@@ -168,28 +142,28 @@ std::string ViewList(const std::vector<int>& v) {
 
 }  // namespace
 
-std::string CheckSideMasks(json* jviews) {
+std::string CheckSideMasks(std::vector<records::View2D>* views) {
   double largest = 0;
-  for (const json& jv : *jviews) {
-    if (Flag(jv, "ok")) largest = std::max(largest, Number(jv, "mask_area_fraction", 0.0));
+  for (const records::View2D& v : *views) {
+    if (v.ok) largest = std::max(largest, v.mask_area_fraction.value_or(0.0));
   }
   std::vector<int> cut, small;
-  for (json& jv : *jviews) {
-    if (!Flag(jv, "ok")) continue;
-    const int view = Count(jv, "view", -1);
-    const int frame_px = Count(jv, "mask_frame_px", 0);
-    const double area = Number(jv, "mask_area_fraction", 0.0);
+  for (records::View2D& v : *views) {
+    if (!v.ok) continue;
+    const int view = v.view;
+    const int frame_px = v.mask_frame_px.value_or(0);
+    const double area = v.mask_area_fraction.value_or(0.0);
     if (frame_px >= kMaskFrameMinPx) {
       cut.push_back(view);
-      jv["ok"] = false;
-      jv["error"] = "the rock reaches the edge of the photo (" + std::to_string(frame_px) +
-                    " px on its border): its silhouette is cut";
+      v.ok = false;
+      v.error = "the rock reaches the edge of the photo (" + std::to_string(frame_px) +
+                " px on its border): its silhouette is cut";
     } else if (area < kMaskMinAreaOfLargest * largest) {
       small.push_back(view);
-      jv["ok"] = false;
-      jv["error"] = "the mask covers " +
-                    std::to_string(static_cast<int>(std::lround(100 * area / largest))) +
-                    " % of the side's largest: the segmentation lost the rock";
+      v.ok = false;
+      v.error = "the mask covers " +
+                std::to_string(static_cast<int>(std::lround(100 * area / largest))) +
+                " % of the side's largest: the segmentation lost the rock";
     }
   }
   std::string msg;
@@ -211,15 +185,15 @@ std::string CheckSideMasks(json* jviews) {
   return msg;
 }
 
-Status SideHasEnoughWholeViews(const json& side_result) {
-  std::string problems = Text(side_result, "mask_problems");
-  const std::string damaged = Text(side_result, "image_problems");
+Status SideHasEnoughWholeViews(const records::SideResult& side_result) {
+  std::string problems = side_result.mask_problems;
+  const std::string& damaged = side_result.image_problems;
   if (!damaged.empty()) problems += (problems.empty() ? "" : "; ") + damaged;
-  const int total = Count(side_result, "views_total", 0), ok = Count(side_result, "views_ok", 0);
+  const int total = side_result.views_total, ok = side_result.views_ok;
   if (problems.empty() || 3 * int64_t{ok} >= 2 * int64_t{total}) return OkStatus();
   return MakeError(ErrorClass::kCorrupt,
-                   "side " + std::to_string(Count(side_result, "side", 0)) + ": only " +
-                       std::to_string(ok) + " of " + std::to_string(total) +
+                   "side " + std::to_string(side_result.side) + ": only " + std::to_string(ok) +
+                       " of " + std::to_string(total) +
                        " views show the whole rock, too few for its model: " + problems);
 }
 
@@ -232,10 +206,10 @@ Status WriteJson(const std::string& path, const json& j) {
 }  // namespace
 
 std::string SideResultPath(const std::string& sample_dir, int side) {
-  return ResultsDir(sample_dir) + "/" + layout::SideDirName(side) + "_morph2d.json";
+  return layout::ResultsPath(sample_dir, layout::SideResultName(side));
 }
 std::string SampleResultPath(const std::string& sample_dir) {
-  return ResultsDir(sample_dir) + "/morph2d.json";
+  return layout::ResultsPath(sample_dir, layout::kSampleMorph2d);
 }
 std::string ViewMaskPath(const std::string& sample_dir, int side, int view) {
   return MasksDir(sample_dir, side) + "/" + layout::ViewStem(view) + ".png";
@@ -243,11 +217,8 @@ std::string ViewMaskPath(const std::string& sample_dir, int side, int view) {
 
 double MeasuredAngle(const std::string& side_dir, const std::string& sidecar) {
   if (sidecar.empty()) return std::nan("");
-  auto text = ReadFile(side_dir + "/" + sidecar);
-  const json j = text.ok() ? json::parse(*text, nullptr, false) : json();
-  return j.is_object() && j.contains("measured_angle_deg") && j["measured_angle_deg"].is_number()
-             ? j["measured_angle_deg"].get<double>()
-             : std::nan("");
+  auto sc = ReadViewSidecarFile(side_dir + "/" + sidecar);
+  return sc && sc->measured_angle_deg ? *sc->measured_angle_deg : std::nan("");
 }
 
 cv::Mat EmptyTurntablePhoto(const std::string& sample_dir, const EmptyTurntableSet& set,
@@ -305,7 +276,7 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
   RemoveTempFiles(ResultsDir(sample_dir));
 
   const TimeNs t_start = MonotonicNs();
-  json jviews = json::array();
+  std::vector<records::View2D> side_views;
   std::map<std::string, std::vector<double>> values;
   int reused = 0;
   std::vector<int> image_problems;  // views whose photo cannot be decoded or is of an unusable size
@@ -324,7 +295,7 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
   // its log read the same whatever the threads did.
   struct ViewOutcome {
     bool started = false;
-    json jv;
+    records::View2D v2;
     std::optional<Error> fatal;
     bool reused = false, image_problem = false, empty_used = false;
     std::string image_reason, empty_problem;
@@ -379,13 +350,13 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
         // named with what to do.
         o.image_problem = true;
         o.image_reason = img.error().message;
-        o.jv = {{"view", v.view},
-                {"image", v.image},
-                {"ok", false},
-                {"image_problem", img.error().message},
-                {"error", img.error().message +
-                              ": re-shoot the side (arm the sample again) and check the camera's "
-                              "link and the storage"}};
+        o.v2.view = v.view;
+        o.v2.image = v.image;
+        o.v2.ok = false;
+        o.v2.image_problem = img.error().message;
+        o.v2.error = img.error().message +
+                     ": re-shoot the side (arm the sample again) and check the camera's link and "
+                     "the storage";
         o.warnings.push_back("side " + std::to_string(side) + " view " + std::to_string(v.view) +
                              ": " + img.error().ToString());
         const std::lock_guard<std::mutex> lock(progress_mu);
@@ -430,41 +401,40 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
     }
     const double mask_ms = static_cast<double>(MonotonicNs() - t0) / 1e6;
 
-    json jv = {
-        {"view", v.view},
-        {"image", v.image},
-        {"mask", "masks/" + layout::SideDirName(side) + "/" + layout::ViewStem(v.view) + ".png"}};
+    records::View2D rv;
+    rv.view = v.view;
+    rv.image = v.image;
+    rv.mask = layout::ViewMaskName(side, v.view);
     if (!v.sidecar.empty()) {
-      auto sc = ReadFile(side_dir + "/" + v.sidecar);
-      json js = sc.ok() ? json::parse(*sc, nullptr, false) : json();
-      if (js.is_object()) {
-        for (const char* k : {"commanded_angle_deg", "measured_angle_deg"})
-          if (js.contains(k) && js[k].is_number()) jv[k] = js[k];
+      auto sc = ReadViewSidecarFile(side_dir + "/" + v.sidecar);
+      if (sc) {
+        rv.commanded_angle_deg = sc->commanded_angle_deg;
+        rv.measured_angle_deg = sc->measured_angle_deg;
       } else {
-        o.warnings.push_back("sidecar " + v.sidecar + " is missing or unreadable");
+        o.warnings.push_back("sidecar " + v.sidecar + ": " + sc.error().message);
       }
     }
     const double total_px = static_cast<double>(image_size.area());
-    jv["mask_area_fraction"] = total_px > 0 ? cv::countNonZero(mask) / total_px : 0.0;
-    jv["mask_frame_px"] = FramePixels(mask);
+    rv.mask_area_fraction = total_px > 0 ? cv::countNonZero(mask) / total_px : 0.0;
+    rv.mask_frame_px = FramePixels(mask);
     auto m = ComputeMorph2D(mask);
     if (m.ok()) {
-      jv["ok"] = true;
-      jv["l_max_px"] = m->l_max_px;
-      jv["l_min_px"] = m->l_min_px;
-      jv["fer_2d"] = m->fer_2d;
-      jv["area_px"] = m->area_px;
-      jv["perimeter_px"] = m->perimeter_px;
-      jv["circularity"] = m->circularity;
-      jv["l_max_angle_deg"] = m->l_max_angle_deg;
+      rv.ok = true;
+      rv.l_max_px = m->l_max_px;
+      rv.l_min_px = m->l_min_px;
+      rv.fer_2d = m->fer_2d;
+      rv.area_px = m->area_px;
+      rv.perimeter_px = m->perimeter_px;
+      rv.circularity = m->circularity;
+      rv.l_max_angle_deg = m->l_max_angle_deg;
     } else {
-      jv["ok"] = false;
-      jv["error"] = "no rock found in this view";
+      rv.ok = false;
+      rv.error = "no rock found in this view";
       o.warnings.push_back("side " + std::to_string(side) + " view " + std::to_string(v.view) +
                            ": no rock found in the mask");
     }
-    jv["timing_ms"] = mask_ms;
-    o.jv = std::move(jv);
+    rv.timing_ms = mask_ms;
+    o.v2 = std::move(rv);
     const std::lock_guard<std::mutex> lock(progress_mu);
     ++views_done;
   };
@@ -488,18 +458,18 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
   for (ViewOutcome& o : outcomes) {
     if (o.reused) ++reused;
     if (o.image_problem) {
-      image_problems.push_back(o.jv.value("view", -1));
+      image_problems.push_back(o.v2.view);
       image_reasons += (image_reasons.empty() ? "" : "; ") + o.image_reason;
     }
     if (o.empty_used) ++empty_used;
     if (!o.empty_problem.empty()) empty_problems.push_back(o.empty_problem);
-    jviews.push_back(std::move(o.jv));
+    side_views.push_back(std::move(o.v2));
   }
   // Masks that cannot be the rock's whole silhouette: cut by the photo's
   // edge, or a small fraction of the side's largest (the segmentation lost
   // the rock). Either would make the 2D figures wrong and carve rock away
   // from the model, so such views are left out, and said so.
-  const std::string lost = CheckSideMasks(&jviews);
+  const std::string lost = CheckSideMasks(&side_views);
   if (!lost.empty()) {
     StageLog(LogLevel::kWarning, kCat, sample_id, "side " + std::to_string(side) + ": " + lost);
   }
@@ -511,12 +481,12 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
               "and the storage";
     StageLog(LogLevel::kWarning, kCat, sample_id, "side " + std::to_string(side) + ": " + damaged);
   }
-  for (const json& jv : jviews) {
-    if (!jv.value("ok", false)) continue;
-    values["fer_2d"].push_back(jv["fer_2d"].get<double>());
-    values["circularity"].push_back(jv["circularity"].get<double>());
-    values["l_max_px"].push_back(jv["l_max_px"].get<double>());
-    values["l_min_px"].push_back(jv["l_min_px"].get<double>());
+  for (const records::View2D& v : side_views) {
+    if (!v.ok) continue;
+    values["fer_2d"].push_back(v.fer_2d);
+    values["circularity"].push_back(v.circularity);
+    values["l_max_px"].push_back(v.l_max_px);
+    values["l_min_px"].push_back(v.l_min_px);
   }
   const int ok_views = static_cast<int>(values["fer_2d"].size());
   if (ok_views == 0)
@@ -526,21 +496,24 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
                          (lost.empty() ? "" : "; " + lost) +
                          (damaged.empty() ? "" : "; " + damaged));
   const double total_ms = static_cast<double>(MonotonicNs() - t_start) / 1e6;
-  json out = {{"sample_id", sample_id},
-              {"side", side},
-              {"views", jviews},
-              {"views_total", static_cast<int>(views->size())},
-              {"views_ok", ok_views},
-              {"mask_problems", lost},
-              {"image_problems", damaged},
-              {"stats", StatsBlock(values)},
-              {"std_kind", "sample"},
-              {"mask_method", opts.mask_net ? "onnx" : "classical"},
-              {"mask_empty_turntable", empty_set ? json(empty_set->id) : json(nullptr)},
-              {"mask_empty_turntable_views", empty_used},
-              {"timing_ms", total_ms}};
+  records::SideResult out;
+  out.sample_id = sample_id;
+  out.side = side;
+  out.views = std::move(side_views);
+  out.views_total = static_cast<int>(views->size());
+  out.views_ok = ok_views;
+  out.mask_problems = lost;
+  out.image_problems = damaged;
+  for (const char* f : kStatFields) {
+    auto it = values.find(f);
+    out.stats[f] = ComputeStats(it == values.end() ? std::vector<double>{} : it->second);
+  }
+  out.mask_method = opts.mask_net ? "onnx" : "classical";
+  if (empty_set) out.mask_empty_turntable = empty_set->id;
+  out.mask_empty_turntable_views = empty_used;
+  out.timing_ms = total_ms;
   if (!empty_problems.empty()) {
-    out["mask_empty_turntable_problems"] = empty_problems;
+    out.mask_empty_turntable_problems = empty_problems;
     std::string list;
     for (const std::string& p : empty_problems) list += (list.empty() ? "" : "; ") + p;
     StageLog(LogLevel::kWarning, kCat, sample_id,
@@ -549,7 +522,7 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
                  "); shoot the empty turntable again at the sample's angles and camera settings "
                  "(aggscan empty-turntable)");
   }
-  if (Status s = WriteJson(result_path, out); !s.ok()) return s;
+  if (Status s = records::Write(result_path, out); !s.ok()) return s;
   StageLog(LogLevel::kInfo, kCat, sample_id,
            "side " + std::to_string(side) + ": " + std::to_string(ok_views) + "/" +
                std::to_string(views->size()) + " views measured (" + std::to_string(reused) +
@@ -575,20 +548,19 @@ Status ProcessSampleStage(const std::string& sample_dir, const WorkerOptions& op
     if (!PathExists(side_result)) {
       if (Status s = ProcessSide(sample_dir, side, opts); !s.ok()) return s;
     }
-    auto text = ReadFile(side_result);
-    if (!text.ok()) return text.error();
-    const json j = json::parse(*text, nullptr, false);
-    if (!j.is_object() || !j.contains("views") || !j["views"].is_array())
-      return MakeError(ErrorClass::kCorrupt,
-                       "side result " + side_result + " is unreadable; delete it to recompute");
+    auto sr = records::Read<records::SideResult>(side_result, "side result",
+                                                 "delete it to recompute the side's masks");
+    if (!sr) return sr.error();
     std::map<std::string, std::vector<double>> vals;
-    for (const auto& v : j["views"]) {
-      if (!Flag(v, "ok")) continue;
-      for (const char* f : kStatFields)
-        if (v.contains(f) && v[f].is_number()) {
-          vals[f].push_back(v[f].get<double>());
-          all[f].push_back(v[f].get<double>());
-        }
+    for (const records::View2D& v : sr->views) {
+      if (!v.ok) continue;
+      for (const auto& [f, x] : {std::pair<const char*, double>{"fer_2d", v.fer_2d},
+                                 {"circularity", v.circularity},
+                                 {"l_max_px", v.l_max_px},
+                                 {"l_min_px", v.l_min_px}}) {
+        vals[f].push_back(x);
+        all[f].push_back(x);
+      }
     }
     views_ok += static_cast<int>(vals["fer_2d"].size());
     jsides.push_back(
@@ -670,7 +642,7 @@ Result<StageDecl> MasksStage(const std::string& sample_dir, int side, const Work
       "masks",
       *fp,
       {results + "/masks/" + layout::SideDirName(side),
-       results + "/" + layout::SideDirName(side) + "_morph2d.json"},
+       results + "/" + layout::SideResultName(side)},
       {},
       [sample_dir, side, opts](StageContext&) { return ProcessSide(sample_dir, side, opts); }};
 }

@@ -22,6 +22,7 @@
 #include "common/error.h"
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/parallel_for.h"
+#include "pipeline/core/records.h"
 #include "pipeline/core/stage_runner.h"
 #include "pipeline/masks/mask.h"
 #include "pipeline/masks/mask_net.h"
@@ -79,19 +80,18 @@ inline constexpr int kMaskFrameMinPx = 3;
 /// 22 cm ashlar 923, reaching the frame, left masks of 0.8 %).
 inline constexpr double kMaskMinAreaOfLargest = 0.15;
 
-/// Marks the views of one side's result (the "views" array of
-/// side<N>_morph2d.json, each with "ok", "mask_area_fraction" and
-/// "mask_frame_px") whose masks cannot be the rock's whole silhouette: cut by
-/// the photo's edge, or under kMaskMinAreaOfLargest of the side's largest.
-/// Those get "ok": false and an "error"; the later stages leave them out.
-/// Returns what was found and what to do, empty when nothing.
-std::string CheckSideMasks(nlohmann::json* views);
+/// Marks the views of one side's result whose masks cannot be the rock's
+/// whole silhouette: cut by the photo's edge (mask_frame_px), or under
+/// kMaskMinAreaOfLargest of the side's largest (mask_area_fraction). Those get
+/// ok = false and an error; the later stages leave them out. Returns what was
+/// found and what to do, empty when nothing.
+std::string CheckSideMasks(std::vector<records::View2D>* views);
 
 /// kCorrupt, naming the side, the views left and what to do, when a side
 /// result (side<N>_morph2d.json) lost more than a third of its views to
 /// CheckSideMasks: the silhouettes left are too few for a trustworthy model,
 /// and the cause (a rock too big for the frame, say) is usually in every view.
-Status SideHasEnoughWholeViews(const nlohmann::json& side_result);
+Status SideHasEnoughWholeViews(const records::SideResult& side_result);
 
 /// Paths of the outputs, relative names as in the layout above.
 std::string SideResultPath(const std::string& sample_dir, int side);

@@ -51,10 +51,14 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (!s && s.error().message.empty()) std::abort();
   if (parts.size() > 2) {
     json side2 = json::parse(parts[2], nullptr, false);
-    if (side2.is_object()) {
-      (void)SideHasEnoughWholeViews(side2);
-      if (side2.contains("views") && side2["views"].is_array())
-        (void)CheckSideMasks(&side2["views"]);
+    auto r = records::SideResult::FromJson(side2, {"side result", "side2", ""});
+    if (!r && r.error().message.empty()) std::abort();
+    if (r) {
+      (void)SideHasEnoughWholeViews(*r);
+      (void)CheckSideMasks(&r->views);
+      // What was read writes back and reads again as the same record.
+      auto again = records::SideResult::FromJson(r->ToJson(), {"side result", "side2", ""});
+      if (!again || again->ToJson() != r->ToJson()) std::abort();
     }
   }
   return 0;

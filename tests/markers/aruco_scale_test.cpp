@@ -23,6 +23,13 @@
 namespace aggscan {
 namespace {
 
+// The stitch stage's record as it is written to results/stitch.json.
+Result<nlohmann::json> StitchJson(const StitchStageInput& in) {
+  auto r = RunStitchStage(in);
+  if (!r) return r.error();
+  return r->ToJson();
+}
+
 using testing::RenderSide;
 using testing::SimView;
 
@@ -356,7 +363,7 @@ TEST(ArucoScale, StitchStageRecordsTheArucoReference) {
   in.sample_dir = dir;
   in.calibration = &cal;
   for (size_t i = 0; i < views.size(); ++i) {
-    StitchViewInput v;
+    SampleView v;
     v.view = static_cast<int>(i);
     v.angle_deg = views[i].measured_deg;
     v.image = dir + "/view" + std::to_string(i) + ".png";
@@ -372,7 +379,7 @@ TEST(ArucoScale, StitchStageRecordsTheArucoReference) {
   // ArUco only (no colour labels configured).
   in.rig = cfg.rig;
   in.rig.markers.clear();
-  Result<nlohmann::json> j = RunStitchStage(in);
+  Result<nlohmann::json> j = StitchJson(in);
   ASSERT_TRUE(j.ok()) << j.error().ToString();
   const nlohmann::json& side = (*j)["per_side"][0];
   const nlohmann::json& aru = side["aruco_scale"];
@@ -391,7 +398,7 @@ TEST(ArucoScale, StitchStageRecordsTheArucoReference) {
 
   // Labels and ArUco: both count, the worse residual is the sample's.
   in.rig = cfg.rig;
-  j = RunStitchStage(in);
+  j = StitchJson(in);
   ASSERT_TRUE(j.ok()) << j.error().ToString();
   const nlohmann::json& both = (*j)["per_side"][0];
   ASSERT_TRUE(both["background_labels"]["ok"].get<bool>()) << both["background_labels"].dump();
@@ -402,7 +409,7 @@ TEST(ArucoScale, StitchStageRecordsTheArucoReference) {
 
   // Labels only: the study's default, unchanged.
   in.rig.aruco_markers.clear();
-  j = RunStitchStage(in);
+  j = StitchJson(in);
   ASSERT_TRUE(j.ok()) << j.error().ToString();
   EXPECT_FALSE((*j)["per_side"][0]["aruco_scale"]["configured"].get<bool>());
   EXPECT_EQ((*j)["scale_reference"], "labels");
@@ -410,7 +417,7 @@ TEST(ArucoScale, StitchStageRecordsTheArucoReference) {
   // ArUco configured but none on the disc, no labels: reported, not fatal.
   in.rig.markers.clear();
   in.rig.aruco_markers = {{40, 60.0, 0.0, 0.0}};
-  j = RunStitchStage(in);
+  j = StitchJson(in);
   ASSERT_TRUE(j.ok()) << j.error().ToString();
   const nlohmann::json& missing = (*j)["per_side"][0]["aruco_scale"];
   EXPECT_FALSE(missing["ok"].get<bool>());
@@ -458,7 +465,7 @@ TEST(ArucoScale, StitchStageFromTheEvidenceCacheIsTheSame) {
   for (int side = 1; side <= 2; ++side) {
     const std::vector<SimView> views = RenderSide(r, side, 8, 8);
     for (size_t i = 0; i < views.size(); ++i) {
-      StitchViewInput v;
+      SampleView v;
       v.view = static_cast<int>(i);
       v.angle_deg = views[i].measured_deg;
       const std::string name = std::to_string(side) + "_" + std::to_string(i);
@@ -477,7 +484,7 @@ TEST(ArucoScale, StitchStageFromTheEvidenceCacheIsTheSame) {
   // numbers: each run starts from the state a fresh worker process has.
   std::srand(1);
   cv::theRNG() = cv::RNG();
-  Result<nlohmann::json> plain = RunStitchStage(in);
+  Result<nlohmann::json> plain = StitchJson(in);
   ASSERT_TRUE(plain.ok()) << plain.error().ToString();
   for (const auto& side : (*plain)["per_side"]) EXPECT_EQ(side["photos_decoded"], 8);
   ASSERT_TRUE((*plain)["per_side"][0]["aruco_scale"]["ok"].get<bool>());
@@ -491,7 +498,7 @@ TEST(ArucoScale, StitchStageFromTheEvidenceCacheIsTheSame) {
     in.evidence = &cache;
     std::srand(1);
     cv::theRNG() = cv::RNG();
-    Result<nlohmann::json> cached = RunStitchStage(in);
+    Result<nlohmann::json> cached = StitchJson(in);
     in.evidence = nullptr;
     ASSERT_TRUE(cached.ok()) << cached.error().ToString();
     EXPECT_EQ(WithoutTimings(*cached), WithoutTimings(*plain));
@@ -513,7 +520,7 @@ TEST(ArucoScale, StitchStageFromTheEvidenceCacheIsTheSame) {
   in.evidence = &foreign;
   std::srand(1);
   cv::theRNG() = cv::RNG();
-  Result<nlohmann::json> not_taken = RunStitchStage(in);
+  Result<nlohmann::json> not_taken = StitchJson(in);
   ASSERT_TRUE(not_taken.ok()) << not_taken.error().ToString();
   for (const auto& side : (*not_taken)["per_side"]) EXPECT_EQ(side["photos_decoded"], 8);
   EXPECT_EQ(WithoutTimings(*not_taken), WithoutTimings(*plain));

@@ -359,21 +359,22 @@ TEST(SampleStore, WronglyTypedRecordFieldsAreRefusedNotThrown) {
   }
 }
 
-TEST(SampleStore, WronglyTypedSidecarFieldsReadAsAbsent) {
+// A sidecar with a field of the wrong type is refused before anything of the
+// view is stored (a damaged one on disk is described as far as it reads:
+// SampleFiles.DescribeShowsWhatADamagedSidecarStillHolds).
+TEST(SampleStore, AWronglyTypedSidecarIsRefusedAndNothingLands) {
   TempDir t;
   SampleStore store(t.path());
   ASSERT_TRUE(store.Init());
   ASSERT_TRUE(store.CreateOrResume("r", SmallPlan(), "cfg"));
   ASSERT_TRUE(store.BeginSide("r", 1));
-  ASSERT_TRUE(store.WriteView(
+  const Status s = store.WriteView(
       "r", 1, 0, Bytes("x"),
-      {{"commanded_angle_deg", "zero"}, {"measured_angle_deg", 30.5}, {"capture_utc", 12}}));
-  auto d = store.Describe("r");
-  ASSERT_TRUE(d.ok()) << d.error().ToString();
-  const auto& view = (*d)["sides"][0]["captured_views"][0];
-  EXPECT_EQ(view["commanded_angle_deg"], 0.0);
-  EXPECT_EQ(view["measured_angle_deg"], 30.5);
-  EXPECT_EQ(view["capture_utc"], "");
+      {{"commanded_angle_deg", "zero"}, {"measured_angle_deg", 30.5}, {"capture_utc", 12}});
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().message.find("commanded_angle_deg"), std::string::npos) << s.error().message;
+  EXPECT_FALSE(PathExists(store.SampleDir("r") + "/side1/view_000.jpg"));
+  EXPECT_FALSE(PathExists(store.SampleDir("r") + "/side1/view_000.json"));
 }
 
 TEST(SampleStore, DamagedCalibrationWithBytesThatAreNotUtf8IsRecordedNotThrown) {

@@ -117,6 +117,13 @@ TEST_F(SideJobTest, ProcessesSidesAndSample) {
               r["stats"]["circularity"]["mean"].get<double>(), 1e-12);
 }
 
+// A side result as the stages after the side job read it.
+records::SideResult Typed(const json& j) {
+  auto r = records::SideResult::FromJson(j, {"side result", "test", ""});
+  EXPECT_TRUE(r.ok()) << r.error().ToString();
+  return r.ok() ? *r : records::SideResult{};
+}
+
 // The empty-turntable photos linked into a sample are matched to its views
 // by the measured angle: a view with one within the tolerance is masked
 // against it (the stone on the disc the frame's border does not show is
@@ -283,79 +290,93 @@ TEST_F(SideJobTest, MasksCutByTheFrameOrLostAreLeftOut) {
   EXPECT_NE(problems.find("move the camera back"), std::string::npos) << problems;
   EXPECT_NE(problems.find("segmentation in view 2 "), std::string::npos) << problems;
   // Half the views left out: the side cannot give a model, and says why.
-  const Status enough = SideHasEnoughWholeViews(r);
+  const Status enough = SideHasEnoughWholeViews(Typed(r));
   ASSERT_FALSE(enough.ok());
   EXPECT_EQ(enough.error().cls, ErrorClass::kCorrupt);
   EXPECT_NE(enough.error().message.find("side 1: only 2 of 4 views"), std::string::npos)
       << enough.error().message;
   EXPECT_NE(enough.error().message.find("move the camera back"), std::string::npos)
       << enough.error().message;
-  EXPECT_TRUE(SideHasEnoughWholeViews(first).ok());
+  EXPECT_TRUE(SideHasEnoughWholeViews(Typed(first)).ok());
 }
 
 TEST(CheckSideMasks, ThresholdsAndMessages) {
   auto view = [](int v, double area, int frame) {
-    return json{{"view", v}, {"ok", true}, {"mask_area_fraction", area}, {"mask_frame_px", frame}};
+    records::View2D r;
+    r.view = v;
+    r.ok = true;
+    r.mask = "masks/side1/" + std::to_string(v) + ".png";
+    r.mask_area_fraction = area;
+    r.mask_frame_px = frame;
+    return r;
   };
-  json views = json::array({view(0, 0.20, 0), view(1, 0.20 * kMaskMinAreaOfLargest * 1.01, 0),
-                            view(2, 0.20 * kMaskMinAreaOfLargest * 0.99, 0),
-                            view(3, 0.18, kMaskFrameMinPx - 1), view(4, 0.19, kMaskFrameMinPx),
-                            view(5, 0.19, 0)});
-  views[5]["ok"] = false;  // already without a rock: untouched
+  std::vector<records::View2D> views = {view(0, 0.20, 0),
+                                        view(1, 0.20 * kMaskMinAreaOfLargest * 1.01, 0),
+                                        view(2, 0.20 * kMaskMinAreaOfLargest * 0.99, 0),
+                                        view(3, 0.18, kMaskFrameMinPx - 1),
+                                        view(4, 0.19, kMaskFrameMinPx),
+                                        view(5, 0.19, 0)};
+  views[5].ok = false;  // already without a rock: untouched
   const std::string msg = CheckSideMasks(&views);
   std::vector<bool> ok;
-  for (const auto& v : views) ok.push_back(v["ok"].get<bool>());
+  for (const auto& v : views) ok.push_back(v.ok);
   EXPECT_EQ(ok, (std::vector<bool>{true, true, false, true, false, false}));
-  EXPECT_FALSE(views[5].contains("error"));
+  EXPECT_TRUE(views[5].error.empty());
   EXPECT_NE(msg.find("view 4 "), std::string::npos) << msg;
   EXPECT_NE(msg.find("view 2 "), std::string::npos) << msg;
 
-  json fine = json::array({view(0, 0.2, 0), view(1, 0.1, 0)});
+  std::vector<records::View2D> fine = {view(0, 0.2, 0), view(1, 0.1, 0)};
   EXPECT_EQ(CheckSideMasks(&fine), "");
+  // A view without the mask's figures (a record of an older worker): its
+  // area counts as none, its frame pixels as none.
+  std::vector<records::View2D> bare = {view(0, 0.2, 0), view(1, 0.2, 0)};
+  bare[1].mask_area_fraction.reset();
+  bare[1].mask_frame_px.reset();
+  EXPECT_NE(CheckSideMasks(&bare).find("segmentation in view 1 "), std::string::npos);
 }
 
 // A side result read back from disk with a field of another type (as in
-// tests/fuzz/corpus/worker_json/side_result_types.json) made json::value
-// throw out of the worker.
-TEST(CheckSideMasks, WronglyTypedFieldsReadAsAbsent) {
-  json views = json::array(
-      {json{{"view", 0}, {"ok", true}, {"mask_area_fraction", 0.2}, {"mask_frame_px", 0}},
-       json{{"view", "one"}, {"ok", 1}, {"mask_area_fraction", "big"}},
-       json{{"view", 2}, {"ok", true}, {"mask_area_fraction", 0.19}, {"mask_frame_px", 1e300}},
-       json{{"view", 3}, {"ok", true}, {"mask_area_fraction", "small"}}, json(7)});
-  const std::string msg = CheckSideMasks(&views);
-  EXPECT_TRUE(views[0]["ok"].get<bool>());
-  EXPECT_EQ(views[1]["ok"], 1);              // not a rock view: untouched
-  EXPECT_TRUE(views[2]["ok"].get<bool>());   // a frame count that is no integer counts as none
-  EXPECT_FALSE(views[3]["ok"].get<bool>());  // no area: lost
-  EXPECT_NE(msg.find("segmentation in view 3 "), std::string::npos) << msg;
-  EXPECT_EQ(views[4], 7);
-
-  const json huge = {
-      {"side", 1}, {"mask_problems", "cut"}, {"views_total", 2147483647}, {"views_ok", 2147483647}};
+// tests/fuzz/corpus/worker_json/side_result_types.json) is refused with the
+// field named, not read as something else.
+TEST(SideHasEnoughWholeViews, CountsAndRecordsOfAnotherType) {
+  records::SideResult huge;
+  huge.mask_problems = "cut";
+  huge.views_total = huge.views_ok = 2147483647;
   EXPECT_TRUE(SideHasEnoughWholeViews(huge).ok());
+  records::SideResult few;
+  few.mask_problems = "cut";
+  few.views_total = 30;
+  few.views_ok = 19;
+  const Status s = SideHasEnoughWholeViews(few);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().message.find("only 19 of 30 views"), std::string::npos) << s.error().message;
+  few.mask_problems.clear();
+  EXPECT_TRUE(SideHasEnoughWholeViews(few).ok());  // no problems named
+
   const json typed = {
       {"side", "1"}, {"mask_problems", "cut"}, {"views_total", 30}, {"views_ok", "30"}};
-  const Status s = SideHasEnoughWholeViews(typed);
-  ASSERT_FALSE(s.ok());
-  EXPECT_NE(s.error().message.find("only 0 of 30 views"), std::string::npos) << s.error().message;
-  EXPECT_TRUE(SideHasEnoughWholeViews(json{{"mask_problems", 5}}).ok());  // no problems named
+  auto r = records::SideResult::FromJson(typed, {"side result", "side1_morph2d.json", ""});
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("\"side\" is not a whole number"), std::string::npos)
+      << r.error().message;
 }
 
-TEST_F(SideJobTest, SampleStageSurvivesAWronglyTypedSideResult) {
+TEST_F(SideJobTest, SampleStageRefusesAWronglyTypedSideResult) {
   MakeSide(1);
   ASSERT_TRUE(ProcessSide(dir_, 1).ok());
   fs::create_directories(dir_ + "/side2");
   Write(
       SideResultPath(dir_, 2),
-      R"({"side": 2, "views": [{"ok": 1, "fer_2d": 1.5}, {"ok": true, "fer_2d": "x", "circularity": 0.7}, 3]})");
-  ASSERT_TRUE(ProcessSample(dir_).ok());
-  const json r = ReadJson(SampleResultPath(dir_));
-  EXPECT_EQ(r["sides"][1]["side"], 2);
-  EXPECT_EQ(r["sides"][1]["views_ok"],
-            0);  // the views without a number are left out, not thrown on
-  EXPECT_EQ(r["sides"][1]["stats"]["circularity"]["n"], 1);
-  EXPECT_EQ(r["overall"]["views_ok"], 3);
+      R"({"side": 2, "views_total": 3, "views_ok": 2, "views": [{"view": 0, "ok": 1, "fer_2d": 1.5}, 3]})");
+  const Status s = ProcessSample(dir_);
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().cls, ErrorClass::kCorrupt);
+  EXPECT_NE(s.error().message.find("side2_morph2d.json"), std::string::npos) << s.error().message;
+  EXPECT_NE(s.error().message.find("\"ok\" is not true or false"), std::string::npos)
+      << s.error().message;
+  EXPECT_NE(s.error().message.find("delete it to recompute"), std::string::npos)
+      << s.error().message;
+  EXPECT_FALSE(PathExists(SampleResultPath(dir_)));
 }
 
 TEST_F(SideJobTest, CancelStopsBetweenViewsAndResumes) {
@@ -439,10 +460,10 @@ TEST_F(SideJobTest, UnusablePhotosAreLeftOutAndNamed) {
   EXPECT_NE(problems.find("re-shoot the side"), std::string::npos) << problems;
   EXPECT_FALSE(PathExists(ViewMaskPath(dir_, 1, 1)));
   // 4 of 6 left: enough (two thirds); one more lost is not.
-  EXPECT_TRUE(SideHasEnoughWholeViews(r).ok());
+  EXPECT_TRUE(SideHasEnoughWholeViews(Typed(r)).ok());
   json fewer = r;
   fewer["views_ok"] = 3;
-  Status s = SideHasEnoughWholeViews(fewer);
+  Status s = SideHasEnoughWholeViews(Typed(fewer));
   ASSERT_FALSE(s.ok());
   EXPECT_NE(s.error().message.find("the photo of views 1, 3 cannot be used"), std::string::npos)
       << s.error().message;

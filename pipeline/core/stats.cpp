@@ -1,0 +1,26 @@
+#include "pipeline/core/stats.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace aggscan {
+
+Stats ComputeStats(const std::vector<double>& values) {
+  Stats s;
+  s.n = static_cast<int>(values.size());
+  if (values.empty()) return s;
+  s.min = *std::min_element(values.begin(), values.end());
+  s.max = *std::max_element(values.begin(), values.end());
+  double sum = 0;
+  for (double v : values) sum += v;
+  s.mean = sum / s.n;
+  if (s.n >= 2) {
+    double ss = 0;
+    for (double v : values) ss += (v - s.mean) * (v - s.mean);
+    s.std = std::sqrt(ss / (s.n - 1));
+  }
+  s.cov = s.mean != 0 ? s.std / s.mean : 0.0;
+  return s;
+}
+
+}  // namespace aggscan
