@@ -108,6 +108,19 @@ Result<records::PosesRecord> RunSfmPoses(const SfmPosesInput& in, const SfmPoses
   std::vector<geom::Rigid3> poses;
   std::vector<int> registered;  // input indices
   json unregistered = json::array();
+  // The sample's evidence, when it asks for what is asked here with the
+  // same lens and options (it also holds the object markers, which the label
+  // search does not depend on: every colour class is classified either way).
+  ViewEvidenceCache* cache = nullptr;
+  if (in.evidence) {
+    EvidenceOptions same = in.evidence->options();
+    same.camera = cam;
+    same.label_colors = label_colors;
+    same.markers = mopts;
+    same.rig = in.rig;
+    if (same.Key() == in.evidence->options().Key()) cache = in.evidence;
+  }
+  int from_cache = 0;
   for (size_t i = 0; i < in.views.size(); ++i) {
     const SfmImage* img = sfm->ImageForInput(static_cast<int>(i));
     if (!img) {
@@ -116,6 +129,15 @@ Result<records::PosesRecord> RunSfmPoses(const SfmPosesInput& in, const SfmPoses
     }
     if (in.cancel && in.cancel->load())
       return MakeError(ErrorClass::kCancelled, what + "interrupted");
+    std::shared_ptr<const ViewEvidence> e = cache ? cache->Find(in.views[i].image) : nullptr;
+    if (e) {
+      ++from_cache;
+      registered.push_back(static_cast<int>(i));
+      poses.push_back({img->R_cam_world, img->t_cam_world});
+      vm.push_back(e->markers_found ? e->markers : ViewMarkers{});
+      if (want_aruco) va.push_back(e->aruco_found ? e->aruco : ArucoViewDetections{});
+      continue;
+    }
     auto loaded = LoadImage(in.views[i].image, ImageMode::kColor);
     auto loaded_mask = LoadImage(in.views[i].mask, ImageMode::kGray);
     const cv::Mat bgr = loaded ? *loaded : cv::Mat();
@@ -128,6 +150,14 @@ Result<records::PosesRecord> RunSfmPoses(const SfmPosesInput& in, const SfmPoses
     }
     registered.push_back(static_cast<int>(i));
     poses.push_back({img->R_cam_world, img->t_cam_world});
+    if (cache) {
+      // Found once for the stages after this one too.
+      cache->Add(in.views[i].image, bgr, mask);
+      e = cache->Find(in.views[i].image);
+      vm.push_back(e && e->markers_found ? e->markers : ViewMarkers{});
+      if (want_aruco) va.push_back(e && e->aruco_found ? e->aruco : ArucoViewDetections{});
+      continue;
+    }
     auto m = DetectViewMarkers(bgr, mask, label_colors, {}, &cam, mopts);
     vm.push_back(m ? std::move(*m) : ViewMarkers{});
     if (want_aruco) {
@@ -277,7 +307,8 @@ Result<records::PosesRecord> RunSfmPoses(const SfmPosesInput& in, const SfmPoses
                {"model_dir", SfmModelDirName(in.side)},
                {"timings_s", jtimings},
                {"colmap_s", sfm_s},
-               {"references_s", ref_s}};
+               {"references_s", ref_s},
+               {"references_from_evidence", from_cache}};
   if (!in.fixed_camera && in.expected_focal_px) {
     jsfm["focal_hint_px"] = *in.expected_focal_px;
     jsfm["focal_hint_source"] = in.focal_hint_source;

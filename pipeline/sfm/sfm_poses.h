@@ -36,6 +36,7 @@
 #include "config/config.h"
 #include "pipeline/core/records.h"
 #include "pipeline/core/view.h"
+#include "pipeline/markers/view_evidence.h"
 
 namespace aggscan {
 
@@ -81,6 +82,14 @@ struct SfmPosesInput {
   const RigCalibration* calibration = nullptr;
   RigConfig rig;  // labels and ArUco markers (the sample's config)
   const std::atomic<bool>* cancel = nullptr;
+  /// The sample's view evidence (view_evidence.h); may be null. When it was
+  /// gathered with this side's lens and label options (a calibrated rig), the
+  /// labels and ArUco markers are taken from it where an earlier stage found
+  /// them, and what is found here is kept in it: the stitch then finds them
+  /// again in no view. Without a rig calibration the SfM camera has no metric
+  /// pose yet, so the labels are searched without their expected size here
+  /// and with it by the stitch: two searches of different kinds.
+  ViewEvidenceCache* evidence = nullptr;
 };
 
 /// The focal hint for a rig without calibration, from the sample's config:

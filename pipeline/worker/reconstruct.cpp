@@ -181,8 +181,10 @@ Result<double> MeasuredAngle(const records::View2D& v, int side) {
 Result<records::PosesRecord> SfmPosesRecord(const std::string& sample_dir, int side,
                                             const records::SideResult& side_result,
                                             const SfmPosesInput& setup,
-                                            const ReconstructOptions& opts) {
+                                            const ReconstructOptions& opts,
+                                            ViewEvidenceCache* evidence) {
   SfmPosesInput in = setup;
+  in.evidence = evidence;
   in.sample_dir = sample_dir;
   in.side = side;
   for (const records::View2D& v : side_result.views) {
@@ -214,7 +216,7 @@ Result<std::vector<SampleView>> PosesStage(const std::string& sample_dir, int si
     const auto t0 = std::chrono::steady_clock::now();
     auto side_result = ReadSideResult(sample_dir, side);
     if (!side_result) return side_result.error();
-    auto j = SfmPosesRecord(sample_dir, side, *side_result, *sfm, opts);
+    auto j = SfmPosesRecord(sample_dir, side, *side_result, *sfm, opts, evidence);
     if (!j) return j.error();
     j->stage_seconds = Seconds(t0);
     if (Status s = records::Write(out, *j); !s) return s.error();
@@ -258,6 +260,7 @@ Result<std::vector<SampleView>> PosesStage(const std::string& sample_dir, int si
       // Eq. 2 of the study: only the features inside the rock masks refine the
       // poses; the photos are read one at a time.
       std::vector<double> measured;
+      measured.reserve(jviews.size());
       for (const auto& v : jviews) measured.push_back(v.angle_deg);
       // What the stitch and the surface need of each photo is kept while it
       // is decoded here (view_evidence.h).
@@ -550,6 +553,7 @@ constexpr double kMadOutlier = 5.0;
 std::vector<size_t> HighOutliers(const std::vector<double>& v, double floor) {
   const double med = Median(v);
   std::vector<double> dev;
+  dev.reserve(v.size());
   for (double x : v) dev.push_back(std::abs(x - med));
   const double mad = 1.4826 * Median(dev);
   std::vector<size_t> out;
@@ -851,6 +855,7 @@ Result<records::SurfaceRecord> SurfaceStage(
   std::vector<records::ViewNote> disagreeing;
   {
     std::vector<double> neg;
+    neg.reserve(iou.size());
     for (double x : iou) neg.push_back(-x);
     for (size_t k : HighOutliers(neg, -kIouFloor)) {
       char why[200];
@@ -967,9 +972,9 @@ std::string LibraryCsvRow(const records::Morphology& m) {
     return it == m.methods.end() ? std::string() : it->second;
   };
   std::string row = m.sample_id + "," + m.created_utc;
-  for (json v : {json(m.volume_mm3), json(m.surface_area_mm2), json(m.a_mm), json(m.b_mm),
-                 json(m.c_mm), json(m.fer_3d), at(m.morphology_3d, {"ratio_c_b"}),
-                 at(m.morphology_3d, {"ratio_b_a"}), json(m.sphericity)}) {
+  for (const json& v : {json(m.volume_mm3), json(m.surface_area_mm2), json(m.a_mm), json(m.b_mm),
+                        json(m.c_mm), json(m.fer_3d), at(m.morphology_3d, {"ratio_c_b"}),
+                        at(m.morphology_3d, {"ratio_b_a"}), json(m.sphericity)}) {
     row += "," + num(v);
   }
   row += "," + num(at(m.stats_2d, {"overall", "fer_2d", "mean"})) + "," +
@@ -1492,7 +1497,7 @@ Result<SampleFingerprints> SampleJobFingerprints(const SampleRun& r,
 Result<SampleFingerprints> AddMasksAndTwoDStages(const std::string& sample_dir,
                                                  const std::vector<int>& sides,
                                                  const WorkerOptions& wo,
-                                                 std::function<Status()> then,
+                                                 const std::function<Status()>& then,
                                                  std::vector<StageDecl>* stages) {
   SampleFingerprints fp;
   Fingerprint two_d;

@@ -175,6 +175,12 @@ TEST(SfmReconstruct, TwoSidesWithCalibrationMatchTheTruth) {
     EXPECT_LT(worst, 15.0);
   }
   EXPECT_EQ(ReadJsonFile(sample + "/results/calibration_used.json")["method"], "sim-truth");
+  // The labels are found once: the SfM step keeps what it found in the
+  // sample's view evidence, and the stitch finds its labels and markers
+  // there (no photo decoded again).
+  const json stitch = ReadJsonFile(sample + "/results/stitch.json");
+  ASSERT_EQ(stitch["per_side"].size(), 2u);
+  for (const json& ps : stitch["per_side"]) EXPECT_EQ(ps["photos_decoded"], 0) << ps.dump();
   ExpectMorphology(sample, 0.03, 0.03);
 }
 
