@@ -47,9 +47,8 @@ bool RigidFrom(const json& j, sim::Rigid* out) {
   if (!j.is_array() || j.size() != 16) return false;
   for (const json& x : j)
     if (!x.is_number()) return false;
-  for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c)
-      out->R[static_cast<size_t>(3 * r + c)] = j[static_cast<size_t>(4 * r + c)].get<double>();
+  for (size_t r = 0; r < 3; ++r) {
+    for (size_t c = 0; c < 3; ++c) out->R[3 * r + c] = j[4 * r + c].get<double>();
   }
   out->t = {j[3].get<double>(), j[7].get<double>(), j[11].get<double>()};
   return true;
@@ -355,7 +354,7 @@ BlenderLook BatchLook(int i, uint64_t seed) {
 
 std::string BlenderScriptPath() {
   if (const char* e = std::getenv("AGGSCAN_BLENDER_SCRIPT"); e && *e) return e;
-  const std::string installed = ExecutableDir() + "/../share/aggscan/blender/" + kScriptName;
+  std::string installed = ExecutableDir() + "/../share/aggscan/blender/" + kScriptName;
   if (PathExists(installed)) return installed;
   return std::string(AGGSCAN_SOURCE_DIR) + "/scripts/blender/" + kScriptName;
 }

@@ -45,7 +45,7 @@ constexpr double kIouGoal = 0.98;
 
 std::string TrainScriptPath() {
   if (const char* e = std::getenv("AGGSCAN_TRAIN_MASKS_SCRIPT"); e && *e) return e;
-  const std::string installed = ExecutableDir() + "/../share/aggscan/masks/" + kTrainScript;
+  std::string installed = ExecutableDir() + "/../share/aggscan/masks/" + kTrainScript;
   if (PathExists(installed)) return installed;
   return std::string(AGGSCAN_SOURCE_DIR) + "/scripts/masks/" + kTrainScript;
 }
@@ -168,7 +168,7 @@ int TrainCommand(const std::vector<std::string>& args, std::ostream& out, std::o
     } else if (args[i] == "--python" && has) {
       python = args[++i];
     } else if (args[i] == "--backgrounds" && has) {
-      const std::string dir = args[++i];
+      const std::string& dir = args[++i];
       if (!fs::is_directory(dir)) {
         err << "aggscan masks train: --backgrounds " << dir
             << " is not a folder (give a folder of empty-turntable photos)\n";

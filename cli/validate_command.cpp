@@ -972,7 +972,7 @@ int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, 
       o.unit = args[++i];
     } else if (a == "--scale-to-mm") {
       if (!has_value) return need("a length L or a range LO:HI in mm");
-      const std::string v = args[++i];
+      const std::string& v = args[++i];
       const size_t colon = v.find(':');
       double lo = 0, hi = 0;
       const bool ok = colon == std::string::npos ? ParseDouble(v, &lo) && (hi = lo, true)

@@ -37,7 +37,7 @@ class BodySource {
 class ZipStream final : public BodySource {
  public:
   /// Bytes of a member read from disk per step.
-  static constexpr size_t kBlockBytes = 64 * 1024;
+  static constexpr size_t kBlockBytes = size_t{64} * 1024;
 
   /// Checks that every member is a regular file (its size and time are
   /// taken now) and that the names are unique and relative; kNotFound

@@ -47,11 +47,11 @@ constexpr size_t kHandlerThreads = 4;
 // gives 1/8); the budget holds several samples' worth.
 constexpr int kThumbnailSide = 320;
 constexpr int kThumbnailQuality = 80;
-constexpr size_t kThumbnailCacheBytes = 4 * 1024 * 1024;
+constexpr size_t kThumbnailCacheBytes = size_t{4} * 1024 * 1024;
 // Per-connection memory of libmicrohttpd (read buffer and parsed head): above
 // ApiLimits' header and URI limits, so those are answered with our JSON
 // errors; a head larger than the pool gets libmicrohttpd's own 431 or 414.
-constexpr size_t kConnectionMemory = 64 * 1024;
+constexpr size_t kConnectionMemory = size_t{64} * 1024;
 // Separates the frames of the live view's multipart answer.
 constexpr const char* kFrameBoundary = "aggscanframe";
 // A body over the limit is still read (and dropped) up to this size, so that
@@ -1190,8 +1190,8 @@ struct HttpApi::Server {
       }
     }
     auto* holder = new SourceHolder{this, ex->answer->source};
-    MHD_Response* resp = MHD_create_response_from_callback(MHD_SIZE_UNKNOWN, 64 * 1024, &SourceRead,
-                                                           holder, &SourceFree);
+    MHD_Response* resp = MHD_create_response_from_callback(MHD_SIZE_UNKNOWN, size_t{64} * 1024,
+                                                           &SourceRead, holder, &SourceFree);
     if (resp == nullptr) {
       SourceFree(holder);
       return MHD_NO;
@@ -1283,7 +1283,7 @@ struct HttpApi::Server {
       }
     }
     const size_t n = std::min(max, s.buf.size() - s.off);
-    std::memcpy(out, s.buf.data() + s.off, n);
+    s.buf.copy(out, n, s.off);  // raw bytes of the answer: no terminator
     s.off += n;
     s.last_write = SteadyClock::now();
     return static_cast<ssize_t>(n);

@@ -66,11 +66,11 @@ int HttpStatusFor(ErrorClass cls);
 /// Limits on what one request may hold and how long it may take.
 struct ApiLimits {
   /// Largest accepted request body; larger ones get 413.
-  static constexpr size_t kMaxBodyBytes = 64 * 1024;
+  static constexpr size_t kMaxBodyBytes = size_t{64} * 1024;
   /// Most header fields in one request; more get 431.
   static constexpr size_t kMaxHeaderCount = 100;
   /// Most bytes of header names and values together; more get 431.
-  static constexpr size_t kMaxHeaderBytes = 16 * 1024;
+  static constexpr size_t kMaxHeaderBytes = size_t{16} * 1024;
   /// Longest request target (path and query); longer get 414.
   static constexpr size_t kMaxUriBytes = 2048;
 };

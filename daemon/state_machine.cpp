@@ -42,8 +42,8 @@ StepResult Reject(const State& s, const Event& e, std::string why = {}) {
   StepResult r;
   r.next = s;
   r.accepted = false;
-  r.reason =
-      why.empty() ? std::string(EventName(e)) + " is not allowed while " + PhaseName(s.phase) : why;
+  r.reason = why.empty() ? std::string(EventName(e)) + " is not allowed while " + PhaseName(s.phase)
+                         : std::move(why);
   return r;
 }
 

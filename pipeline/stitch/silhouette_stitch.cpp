@@ -44,7 +44,7 @@ struct Pose {
     }
   }
   void Apply(const double* p, double* out) const {
-    for (int r = 0; r < 3; ++r)
+    for (size_t r = 0; r < 3; ++r)
       out[r] = m[4 * r] * p[0] + m[4 * r + 1] * p[1] + m[4 * r + 2] * p[2] + m[4 * r + 3];
   }
 };
@@ -197,6 +197,7 @@ std::vector<int> PickViews(const SilhouetteSideInput& in, int max_views) {
   std::vector<int> use;
   const int n = static_cast<int>(distinct.size());
   const int k = std::min(n, std::max(1, max_views));
+  use.reserve(static_cast<size_t>(k));
   for (int i = 0; i < k; ++i) use.push_back(distinct[static_cast<size_t>(i * n / k)]);
   return use;
 }

@@ -316,6 +316,7 @@ StitchEstimate StitchFromMarkers(const SideMarkers& ref, const SideMarkers& mov,
   e.inliers = static_cast<int>(chosen.size());
   {
     std::vector<Vector3d> used;
+    used.reserve(chosen.size());
     for (int i : chosen) used.push_back(a[i]);
     e.rotation_sigma_deg = RotationSigmaDeg(used, opts.marker_sigma_mm);
   }
@@ -441,7 +442,7 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
   if (silhouettes) {
     SilhouetteRefinement& sr = out.silhouettes;
     auto refine = [&](const geom::Rigid3& start, double step_deg) {
-      const SilhouetteFit fit = silhouettes->Refine(start, step_deg, step_deg);
+      SilhouetteFit fit = silhouettes->Refine(start, step_deg, step_deg);
       sr.evaluations += fit.evaluations;
       sr.seconds += fit.seconds;
       return fit;

@@ -136,6 +136,7 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side,
                                 const std::vector<SampleView>& views, bool want_features) {
   const CameraModel& cam = in.calibration->camera;
   std::vector<geom::Rigid3> poses;
+  poses.reserve(views.size());
   for (const SampleView& v : views) poses.push_back(ToRigid3(v.cam_from_table));
   const std::vector<int> distinct = want_features ? DistinctViewpoints(poses) : std::vector<int>{};
   std::vector<bool> is_distinct(views.size(), false);

@@ -378,16 +378,17 @@ Result<ChildEnd> RunInChild(F&& fn, WorkerReporter* reporter = nullptr) {
   ChildEnd end;
   if (WIFEXITED(status) && WEXITSTATUS(status) == kChildDone) {
     end.kind = ChildEnd::kDone;
-  } else if (WIFEXITED(status) && WEXITSTATUS(status) == kChildStopped) {
+  } else if ((WIFEXITED(status) && WEXITSTATUS(status) == kChildStopped) ||
+             (WIFSIGNALED(status) && forwarded &&
+              (WTERMSIG(status) == SIGTERM || WTERMSIG(status) == SIGKILL))) {
+    // Stopped: by our own exit code, or by a signal that stopped us too
+    // (systemd stops the whole unit).
     end.kind = ChildEnd::kStopped;
   } else if (WIFEXITED(status) && WEXITSTATUS(status) == kChildFailed &&
              g_report->message[0] != '\0') {
     end.kind = ChildEnd::kFailed;
     end.reason =
         std::string(g_report->message, strnlen(g_report->message, sizeof g_report->message));
-  } else if (WIFSIGNALED(status) && forwarded &&
-             (WTERMSIG(status) == SIGTERM || WTERMSIG(status) == SIGKILL)) {
-    end.kind = ChildEnd::kStopped;  // stopped with us (systemd stops the whole unit)
   } else if (WIFSIGNALED(status)) {
     const int sig = WTERMSIG(status);
     end.reason =
