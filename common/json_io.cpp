@@ -1,6 +1,8 @@
 #include "common/json_io.h"
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
 
 #include "common/fsutil.h"
 
@@ -119,5 +121,62 @@ Result<json> ArrayOr(const json& j, const char* key, const Source& src) {
 }
 
 json Finite(double v) { return std::isfinite(v) ? json(v) : json(); }
+
+Result<int64_t> Int64(const json& j, const char* key, const Source& src) {
+  if (!j.is_object() || !j.contains(key)) return src.Bad(Field(key) + " is missing");
+  const json& v = j[key];
+  if (!v.is_number_integer()) return src.Bad(Field(key) + " is not a whole number");
+  if (v.is_number_unsigned() && v.get<uint64_t>() > static_cast<uint64_t>(INT64_MAX))
+    return src.Bad(Field(key) + " is out of range");
+  return v.get<int64_t>();
+}
+
+Result<uint64_t> UInt64(const json& j, const char* key, const Source& src) {
+  if (!j.is_object() || !j.contains(key)) return src.Bad(Field(key) + " is missing");
+  const json& v = j[key];
+  if (!v.is_number_integer()) return src.Bad(Field(key) + " is not a whole number");
+  if (!v.is_number_unsigned() && v.get<int64_t>() < 0) return src.Bad(Field(key) + " is negative");
+  return v.get<uint64_t>();
+}
+
+Fields::Fields(const json& j, const Source& src) : j_(j), src_(src) {
+  if (!j.is_object()) Fail(src.Bad("not a JSON object"));
+}
+
+bool Fields::Absent(const char* key) const {
+  return !j_.is_object() || !j_.contains(key) || j_[key].is_null();
+}
+
+void Fields::Raw(const char* key, json* out) {
+  seen_.push_back(key);
+  if (j_.is_object() && j_.contains(key)) *out = j_[key];
+}
+
+void Fields::Strings(const char* key, std::vector<std::string>* out) {
+  seen_.push_back(key);
+  if (!ok()) return;
+  auto a = ArrayOr(j_, key, src_);
+  if (!a) return Fail(a.error());
+  for (const json& e : *a) {
+    if (!e.is_string()) return Fail(src_.Bad(Field(key) + " holds something not a string"));
+    out->push_back(e.get<std::string>());
+  }
+}
+
+void Fields::Schema(int current) {
+  seen_.push_back("schema");
+  if (!ok()) return;
+  auto v = SchemaVersion(j_, "schema", current, src_);
+  if (!v) Fail(v.error());
+}
+
+json Fields::Extra() const {
+  json e = json::object();
+  if (!j_.is_object()) return e;
+  for (const auto& [k, v] : j_.items()) {
+    if (std::find(seen_.begin(), seen_.end(), k) == seen_.end()) e[k] = v;
+  }
+  return e;
+}
 
 }  // namespace aggscan::jsonio

@@ -3,94 +3,15 @@
 #include <algorithm>
 #include <cstdint>
 #include <set>
-#include <span>
-#include <type_traits>
 
 #include "store/layout.h"
 
 namespace aggscan {
 namespace {
 
+using jsonio::Fields;
+using jsonio::Put;
 using nlohmann::json;
-
-std::string Field(const char* key) { return std::string("\"") + key + "\""; }
-
-bool Absent(const json& j, const char* key) { return !j.contains(key) || j[key].is_null(); }
-
-// Optional fields: nullopt when absent or null, an error naming the field
-// when present with another type.
-Result<std::optional<double>> OptNumber(const json& j, const char* key, const jsonio::Source& src) {
-  if (Absent(j, key)) return std::optional<double>();
-  auto v = jsonio::Number(j, key, src);
-  if (!v) return v.error();
-  return std::optional<double>(*v);
-}
-
-Result<std::optional<int>> OptInt(const json& j, const char* key, const jsonio::Source& src) {
-  if (Absent(j, key)) return std::optional<int>();
-  auto v = jsonio::Int(j, key, src);
-  if (!v) return v.error();
-  return std::optional<int>(*v);
-}
-
-Result<std::optional<int64_t>> OptInt64(const json& j, const char* key, const jsonio::Source& src) {
-  if (Absent(j, key)) return std::optional<int64_t>();
-  const json& v = j[key];
-  if (!v.is_number_integer()) return src.Bad(Field(key) + " is not a whole number");
-  if (v.is_number_unsigned() && v.get<uint64_t>() > static_cast<uint64_t>(INT64_MAX))
-    return src.Bad(Field(key) + " is out of range");
-  return std::optional<int64_t>(v.get<int64_t>());
-}
-
-Result<std::optional<uint64_t>> OptUInt64(const json& j, const char* key,
-                                          const jsonio::Source& src) {
-  if (Absent(j, key)) return std::optional<uint64_t>();
-  const json& v = j[key];
-  if (!v.is_number_integer()) return src.Bad(Field(key) + " is not a whole number");
-  if (!v.is_number_unsigned() && v.get<int64_t>() < 0) return src.Bad(Field(key) + " is negative");
-  return std::optional<uint64_t>(v.get<uint64_t>());
-}
-
-Result<std::optional<std::string>> OptString(const json& j, const char* key,
-                                             const jsonio::Source& src) {
-  if (Absent(j, key)) return std::optional<std::string>();
-  auto v = jsonio::String(j, key, src);
-  if (!v) return v.error();
-  return std::optional<std::string>(std::move(*v));
-}
-
-Result<std::optional<bool>> OptBool(const json& j, const char* key, const jsonio::Source& src) {
-  if (Absent(j, key)) return std::optional<bool>();
-  auto v = jsonio::Bool(j, key, src);
-  if (!v) return v.error();
-  return std::optional<bool>(*v);
-}
-
-// Reads one optional field into `out`; on a bad one returns false with `err` set.
-template <typename T, typename Reader>
-bool Read(const json& j, const char* key, const jsonio::Source& src, Reader reader,
-          std::optional<T>& out, std::optional<Error>& err) {
-  if (err) return false;
-  auto v = reader(j, key, src);
-  if (!v) {
-    err = v.error();
-    return false;
-  }
-  out = std::move(*v);
-  return true;
-}
-
-// The members of `j` whose keys are not in `known` (nor "schema").
-json Extra(const json& j, std::span<const char* const> known) {
-  json extra = json::object();
-  for (const auto& [k, v] : j.items()) {
-    if (k == "schema") continue;
-    bool is_known = false;
-    for (const char* n : known) is_known = is_known || k == n;
-    if (!is_known) extra[k] = v;
-  }
-  return extra;
-}
 
 // A file name inside the side directory: nothing that could leave it.
 bool IsPlainName(const std::string& n) {
@@ -104,42 +25,6 @@ json Base(const json& extra) {
   j["schema"] = kSampleFilesSchema;
   return j;
 }
-
-template <typename T>
-void Put(json& j, const char* key, const std::optional<T>& v) {
-  if (!v) return;
-  if constexpr (std::is_same_v<T, double>) {
-    j[key] = jsonio::Finite(*v);
-  } else {
-    j[key] = *v;
-  }
-}
-
-constexpr const char* kSidecarKeys[] = {"view",
-                                        "side",
-                                        "image",
-                                        "sample_id",
-                                        "commanded_angle_deg",
-                                        "measured_angle_deg",
-                                        "due_monotonic_ns",
-                                        "trigger_monotonic_ns",
-                                        "capture_monotonic_ns",
-                                        "capture_utc",
-                                        "schedule_error_ms",
-                                        "schedule_overrun",
-                                        "exposure_us",
-                                        "gain",
-                                        "wb_red",
-                                        "wb_blue",
-                                        "camera_id",
-                                        "camera_backend",
-                                        "width",
-                                        "height",
-                                        "frame_sequence",
-                                        "time_scale",
-                                        "missing_controls"};
-constexpr const char* kEntryKeys[] = {"view", "image", "sidecar", "bytes"};
-constexpr const char* kManifestKeys[] = {"side", "sample_id", "completed_utc", "views"};
 
 }  // namespace
 
@@ -174,46 +59,36 @@ json ViewSidecar::ToJson() const {
 }
 
 Result<ViewSidecar> ViewSidecar::FromJson(const json& j, const jsonio::Source& src) {
-  auto schema = jsonio::SchemaVersion(j, "schema", kSampleFilesSchema, src);
-  if (!schema) return schema.error();
   ViewSidecar c;
-  auto view = jsonio::Int(j, "view", src);
-  if (!view) return view.error();
-  if (*view < 0) return src.Bad("\"view\" is negative");
-  c.view = *view;
-  std::optional<Error> err;
-  Read(j, "side", src, OptInt, c.side, err);
-  Read(j, "image", src, OptString, c.image, err);
-  Read(j, "sample_id", src, OptString, c.sample_id, err);
-  Read(j, "commanded_angle_deg", src, OptNumber, c.commanded_angle_deg, err);
-  Read(j, "measured_angle_deg", src, OptNumber, c.measured_angle_deg, err);
-  Read(j, "due_monotonic_ns", src, OptInt64, c.due_monotonic_ns, err);
-  Read(j, "trigger_monotonic_ns", src, OptInt64, c.trigger_monotonic_ns, err);
-  Read(j, "capture_monotonic_ns", src, OptInt64, c.capture_monotonic_ns, err);
-  Read(j, "capture_utc", src, OptString, c.capture_utc, err);
-  Read(j, "schedule_error_ms", src, OptNumber, c.schedule_error_ms, err);
-  Read(j, "schedule_overrun", src, OptBool, c.schedule_overrun, err);
-  Read(j, "exposure_us", src, OptNumber, c.exposure_us, err);
-  Read(j, "gain", src, OptNumber, c.gain, err);
-  Read(j, "wb_red", src, OptNumber, c.wb_red, err);
-  Read(j, "wb_blue", src, OptNumber, c.wb_blue, err);
-  Read(j, "camera_id", src, OptString, c.camera_id, err);
-  Read(j, "camera_backend", src, OptString, c.camera_backend, err);
-  Read(j, "width", src, OptInt, c.width, err);
-  Read(j, "height", src, OptInt, c.height, err);
-  Read(j, "frame_sequence", src, OptUInt64, c.frame_sequence, err);
-  Read(j, "time_scale", src, OptNumber, c.time_scale, err);
-  if (err) return *err;
-  if (c.side && *c.side < 1) return src.Bad("\"side\" is not 1 or more");
-  if (!Absent(j, "missing_controls")) {
-    const json& m = j["missing_controls"];
-    if (!m.is_array()) return src.Bad("\"missing_controls\" is not a list");
-    for (const json& s : m) {
-      if (!s.is_string()) return src.Bad("\"missing_controls\" holds something not a string");
-      c.missing_controls.push_back(s.get<std::string>());
-    }
-  }
-  c.extra = Extra(j, kSidecarKeys);
+  Fields f(j, src);
+  f.Schema(kSampleFilesSchema);
+  f.Req("view", &c.view);
+  f.Opt("side", &c.side);
+  f.Opt("image", &c.image);
+  f.Opt("sample_id", &c.sample_id);
+  f.Opt("commanded_angle_deg", &c.commanded_angle_deg);
+  f.Opt("measured_angle_deg", &c.measured_angle_deg);
+  f.Opt("due_monotonic_ns", &c.due_monotonic_ns);
+  f.Opt("trigger_monotonic_ns", &c.trigger_monotonic_ns);
+  f.Opt("capture_monotonic_ns", &c.capture_monotonic_ns);
+  f.Opt("capture_utc", &c.capture_utc);
+  f.Opt("schedule_error_ms", &c.schedule_error_ms);
+  f.Opt("schedule_overrun", &c.schedule_overrun);
+  f.Opt("exposure_us", &c.exposure_us);
+  f.Opt("gain", &c.gain);
+  f.Opt("wb_red", &c.wb_red);
+  f.Opt("wb_blue", &c.wb_blue);
+  f.Opt("camera_id", &c.camera_id);
+  f.Opt("camera_backend", &c.camera_backend);
+  f.Opt("width", &c.width);
+  f.Opt("height", &c.height);
+  f.Opt("frame_sequence", &c.frame_sequence);
+  f.Opt("time_scale", &c.time_scale);
+  f.Strings("missing_controls", &c.missing_controls);
+  if (f.ok() && c.view < 0) f.Fail(src.Bad("\"view\" is negative"));
+  if (f.ok() && c.side && *c.side < 1) f.Fail(src.Bad("\"side\" is not 1 or more"));
+  if (!f.ok()) return f.error();
+  c.extra = f.Extra();
   return c;
 }
 
@@ -231,25 +106,20 @@ json SideManifest::Entry::ToJson() const {
 
 Result<SideManifest::Entry> SideManifest::Entry::FromJson(const json& j,
                                                           const jsonio::Source& src) {
-  if (!j.is_object()) return src.Bad("not a JSON object");
   Entry e;
-  auto view = jsonio::Int(j, "view", src);
-  if (!view) return view.error();
-  if (*view < 0) return src.Bad("\"view\" is negative");
-  e.view = *view;
-  auto image = jsonio::String(j, "image", src);
-  if (!image) return image.error();
-  if (!IsPlainName(*image))
-    return src.Bad("\"image\" \"" + *image + "\" is not a file name in the side directory");
-  e.image = std::move(*image);
-  std::optional<Error> err;
-  Read(j, "sidecar", src, OptString, e.sidecar, err);
-  Read(j, "bytes", src, OptInt64, e.bytes, err);
-  if (err) return *err;
+  Fields f(j, src);
+  f.Req("view", &e.view);
+  f.Req("image", &e.image);
+  f.Opt("sidecar", &e.sidecar);
+  f.Opt("bytes", &e.bytes);
+  if (!f.ok()) return f.error();
+  if (e.view < 0) return src.Bad("\"view\" is negative");
+  if (!IsPlainName(e.image))
+    return src.Bad("\"image\" \"" + e.image + "\" is not a file name in the side directory");
   if (e.sidecar && !IsPlainName(*e.sidecar))
     return src.Bad("\"sidecar\" \"" + *e.sidecar + "\" is not a file name in the side directory");
   if (e.bytes && *e.bytes < 0) return src.Bad("\"bytes\" is negative");
-  e.extra = Extra(j, kEntryKeys);
+  e.extra = f.Extra();
   return e;
 }
 
@@ -265,29 +135,22 @@ json SideManifest::ToJson() const {
 }
 
 Result<SideManifest> SideManifest::FromJson(const json& j, const jsonio::Source& src) {
-  auto schema = jsonio::SchemaVersion(j, "schema", kSampleFilesSchema, src);
-  if (!schema) return schema.error();
   SideManifest m;
-  auto side = jsonio::Int(j, "side", src);
-  if (!side) return side.error();
-  if (*side < 1) return src.Bad("\"side\" is not 1 or more");
-  m.side = *side;
-  std::optional<Error> err;
-  Read(j, "sample_id", src, OptString, m.sample_id, err);
-  Read(j, "completed_utc", src, OptString, m.completed_utc, err);
-  if (err) return *err;
-  if (!j.contains("views")) return src.Bad("\"views\" is missing");
-  if (!j["views"].is_array()) return src.Bad("\"views\" is not a list");
+  Fields f(j, src);
+  f.Schema(kSampleFilesSchema);
+  f.Req("side", &m.side);
+  f.Opt("sample_id", &m.sample_id);
+  f.Opt("completed_utc", &m.completed_utc);
+  if (f.ok() && m.side < 1) f.Fail(src.Bad("\"side\" is not 1 or more"));
+  if (f.ok() && !j.contains("views")) f.Fail(src.Bad("\"views\" is missing"));
+  f.List("views", &m.views, Entry::FromJson);
+  if (!f.ok()) return f.error();
   std::set<int> seen;
-  for (size_t i = 0; i < j["views"].size(); ++i) {
-    const jsonio::Source at{src.what, src.path + " (views[" + std::to_string(i) + "])", src.redo};
-    auto e = Entry::FromJson(j["views"][i], at);
-    if (!e) return e.error();
-    if (!seen.insert(e->view).second)
-      return at.Bad("view " + std::to_string(e->view) + " is listed twice");
-    m.views.push_back(std::move(*e));
+  for (const Entry& e : m.views) {
+    if (!seen.insert(e.view).second)
+      return src.Bad("view " + std::to_string(e.view) + " is listed twice");
   }
-  m.extra = Extra(j, kManifestKeys);
+  m.extra = f.Extra();
   return m;
 }
 

@@ -1,110 +1,16 @@
 #include "pipeline/core/records.h"
 
-#include <set>
-
 namespace aggscan::records {
 
 using nlohmann::json;
 
 namespace {
 
-// Reads the fields of one JSON object into a record, keeping the first error
-// and the keys it did not read (the record's `extra`).
-class Fields {
- public:
-  Fields(const json& j, const jsonio::Source& src) : j_(j), src_(src) {
-    if (!j.is_object()) Fail(src.Bad("not a JSON object"));
-  }
+using jsonio::Fields;
+using jsonio::Put;
 
-  bool ok() const { return !err_; }
-  Error error() const { return *err_; }
-  void Fail(Error e) {
-    if (!err_) err_ = std::move(e);
-  }
-
-  void Req(const char* key, int* out) { Take(key, jsonio::Int(j_, key, src_), out); }
-  void Req(const char* key, double* out) { Take(key, jsonio::Number(j_, key, src_), out); }
-  void Req(const char* key, bool* out) { Take(key, jsonio::Bool(j_, key, src_), out); }
-  void Req(const char* key, std::string* out) { Take(key, jsonio::String(j_, key, src_), out); }
-
-  void Opt(const char* key, int* out) { Take(key, jsonio::IntOr(j_, key, *out, src_), out); }
-  void Opt(const char* key, double* out) { Take(key, jsonio::NumberOr(j_, key, *out, src_), out); }
-  void Opt(const char* key, bool* out) { Take(key, jsonio::BoolOr(j_, key, *out, src_), out); }
-  void Opt(const char* key, std::string* out) {
-    Take(key, jsonio::StringOr(j_, key, *out, src_), out);
-  }
-  template <typename T>
-  void Opt(const char* key, std::optional<T>* out) {
-    seen_.insert(key);
-    if (!ok() || !j_.is_object() || !j_.contains(key) || j_[key].is_null()) return;
-    T v{};
-    Req(key, &v);
-    if (ok()) *out = v;
-  }
-  /// Any JSON, kept as it is; `out` unchanged when absent.
-  void Raw(const char* key, json* out) {
-    seen_.insert(key);
-    if (j_.is_object() && j_.contains(key)) *out = j_[key];
-  }
-  /// A list of objects, each read by `read`.
-  template <typename T, typename ReadOne>
-  void List(const char* key, std::vector<T>* out, ReadOne read) {
-    seen_.insert(key);
-    if (!ok()) return;
-    auto a = jsonio::ArrayOr(j_, key, src_);
-    if (!a) return Fail(a.error());
-    for (size_t i = 0; i < a->size(); ++i) {
-      jsonio::Source item = src_;
-      item.what = src_.what + " (" + key + "[" + std::to_string(i) + "])";
-      auto v = read((*a)[i], item);
-      if (!v) return Fail(v.error());
-      out->push_back(std::move(*v));
-    }
-  }
-  void Strings(const char* key, std::vector<std::string>* out) {
-    seen_.insert(key);
-    if (!ok()) return;
-    auto a = jsonio::ArrayOr(j_, key, src_);
-    if (!a) return Fail(a.error());
-    for (const json& e : *a) {
-      if (!e.is_string()) return Fail(src_.Bad(std::string("\"") + key + "\" holds a non-string"));
-      out->push_back(e.get<std::string>());
-    }
-  }
-  void PoseReq(const char* key, Pose* out) { Take(key, PoseField(j_, key, src_), out); }
-  void Schema() {
-    seen_.insert("schema");
-    if (!ok()) return;
-    auto v = jsonio::SchemaVersion(j_, "schema", kRecordSchema, src_);
-    if (!v) Fail(v.error());
-  }
-  /// The keys not read.
-  json Extra() const {
-    json e = json::object();
-    if (!j_.is_object()) return e;
-    for (const auto& [k, v] : j_.items())
-      if (!seen_.count(k)) e[k] = v;
-    return e;
-  }
-
- private:
-  template <typename T>
-  void Take(const char* key, Result<T> r, T* out) {
-    seen_.insert(key);
-    if (!ok()) return;
-    if (!r) return Fail(r.error());
-    *out = std::move(*r);
-  }
-
-  const json& j_;
-  const jsonio::Source& src_;
-  std::optional<Error> err_;
-  std::set<std::string> seen_;
-};
-
-template <typename T>
-void Put(json& j, const char* key, const std::optional<T>& v) {
-  if (v) j[key] = *v;
+void PoseReq(Fields& f, const json& j, const char* key, Pose* out) {
+  f.Use(key, PoseField(j, key, f.source()), out);
 }
 
 // Writes `extra` first and the record's own fields over it.
@@ -220,7 +126,7 @@ json SideResult::ToJson() const {
 Result<SideResult> SideResult::FromJson(const json& j, const jsonio::Source& src) {
   SideResult r;
   Fields f(j, src);
-  f.Schema();
+  f.Schema(kRecordSchema);
   f.Opt("sample_id", &r.sample_id);
   f.Req("side", &r.side);
   f.List("views", &r.views, View2D::FromJson);
@@ -279,7 +185,7 @@ Result<PosedViewRecord> PosedViewRecord::FromJson(const json& j, const jsonio::S
   f.Opt("measured_angle_deg", &v.measured_angle_deg);
   f.Opt("angle_correction_deg", &v.angle_correction_deg);
   f.Opt("ba_adjusted", &v.ba_adjusted);
-  f.PoseReq("cam_from_table_4x4", &v.cam_from_table);
+  PoseReq(f, j, "cam_from_table_4x4", &v.cam_from_table);
   if (!f.ok()) return f.error();
   v.extra = f.Extra();
   return v;
@@ -306,7 +212,7 @@ json PosesRecord::ToJson() const {
 Result<PosesRecord> PosesRecord::FromJson(const json& j, const jsonio::Source& src) {
   PosesRecord r;
   Fields f(j, src);
-  f.Schema();
+  f.Schema(kRecordSchema);
   f.Req("side", &r.side);
   f.Req("method", &r.method);
   f.Opt("method_detail", &r.method_detail);
@@ -434,7 +340,7 @@ json StitchRecord::ToJson() const {
 Result<StitchRecord> StitchRecord::FromJson(const json& j, const jsonio::Source& src) {
   StitchRecord r;
   Fields f(j, src);
-  f.Schema();
+  f.Schema(kRecordSchema);
   f.Req("method", &r.method);
   struct SideT {
     int side = 0;
@@ -445,7 +351,7 @@ Result<StitchRecord> StitchRecord::FromJson(const json& j, const jsonio::Source&
     SideT out;
     Fields g(e, s);
     g.Req("side", &out.side);
-    g.PoseReq("table_from_object_4x4", &out.T);
+    PoseReq(g, e, "table_from_object_4x4", &out.T);
     if (!g.ok()) return g.error();
     return out;
   });
@@ -544,7 +450,7 @@ json SurfaceRecord::ToJson() const {
 Result<SurfaceRecord> SurfaceRecord::FromJson(const json& j, const jsonio::Source& src) {
   SurfaceRecord r;
   Fields f(j, src);
-  f.Schema();
+  f.Schema(kRecordSchema);
   f.Req("method", &r.method);
   f.Opt("method_detail", &r.method_detail);
   f.Opt("vertices", &r.vertices);
@@ -656,7 +562,7 @@ json Morphology::ToJson() const {
 Result<Morphology> Morphology::FromJson(const json& j, const jsonio::Source& src) {
   Morphology m;
   Fields f(j, src);
-  f.Schema();
+  f.Schema(kRecordSchema);
   std::string format;
   f.Req("format", &format);
   if (f.ok() && format != kFormat) f.Fail(src.Bad("format \"" + format + "\" is not " + kFormat));

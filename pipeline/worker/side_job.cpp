@@ -111,29 +111,6 @@ int FramePixels(const cv::Mat& mask) {
          cv::countNonZero(mask.col(c).rowRange(1, std::max(1, r)));
 }
 
-// Fields of a side result, which is read back from disk: the type asked for,
-// else `fallback` (json::value throws on another type, and a double beyond
-// int's range does not convert).
-bool Flag(const json& j, const char* key) {
-  const auto it = j.find(key);
-  return it != j.end() && it->is_boolean() && it->get<bool>();
-}
-double Number(const json& j, const char* key, double fallback) {
-  const auto it = j.find(key);
-  return it != j.end() && it->is_number() ? it->get<double>() : fallback;
-}
-int Count(const json& j, const char* key, int fallback) {
-  const auto it = j.find(key);
-  if (it == j.end() || !it->is_number_integer()) return fallback;
-  const int64_t v =
-      it->is_number_unsigned() && it->get<uint64_t>() > INT32_MAX ? INT64_MAX : it->get<int64_t>();
-  return v >= INT32_MIN && v <= INT32_MAX ? static_cast<int>(v) : fallback;
-}
-std::string Text(const json& j, const char* key) {
-  const auto it = j.find(key);
-  return it != j.end() && it->is_string() ? it->get<std::string>() : std::string();
-}
-
 std::string ViewList(const std::vector<int>& v) {
   std::string s;
   for (size_t i = 0; i < v.size(); ++i) s += (i ? ", " : "") + std::to_string(v[i]);
