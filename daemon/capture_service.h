@@ -132,6 +132,8 @@ class CaptureService final : public DaemonControl {
   void RefreshCalibration();
 
  private:
+  // Tests run the steps of Execute() one at a time (tests/daemon/capture_steps_test.cpp).
+  friend class CaptureServiceTestPeer;
   struct MotionWatch {
     bool active = false;
     bool homing = false;

@@ -1,0 +1,203 @@
+// The steps of CaptureService::Execute, one effect at a time, on the sim rig:
+// what each step stores, schedules or starts, and the events it queues for
+// the state machine. CaptureServiceTestPeer runs a step on the service's loop
+// and takes the events it queued, so the state machine never sees them.
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <future>
+#include <memory>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "common/fsutil.h"
+#include "config/config.h"
+#include "daemon/capture_service.h"
+#include "daemon/event_loop.h"
+#include "drivers/factory.h"
+#include "store/layout.h"
+#include "store/sample_store.h"
+#include "tests/util/temp_dir.h"
+
+namespace aggscan {
+
+class CaptureServiceTestPeer {
+ public:
+  CaptureServiceTestPeer(CaptureService& s, EventLoop& loop) : s_(s), loop_(loop) {}
+
+  /// Runs the step of `e` on the loop; returns the names of the events it
+  /// queued (taken away: the state machine does not see them).
+  std::vector<std::string> Run(const capture::Effect& e) {
+    return OnLoop([&] {
+      s_.Execute(e);
+      std::vector<std::string> names;
+      for (const capture::Event& ev : s_.pending_events_) names.push_back(capture::EventName(ev));
+      s_.pending_events_.clear();
+      return names;
+    });
+  }
+  TimeNs side_t0() {
+    return OnLoop([&] { return s_.side_t0_; });
+  }
+  TimeNs due() {
+    return OnLoop([&] { return s_.pending_.due; });
+  }
+  TimeNs now() {
+    return OnLoop([&] { return loop_.clock().Now(); });
+  }
+  bool motion_active() {
+    return OnLoop([&] { return s_.motion_.active; });
+  }
+  double turntable_angle() {
+    return OnLoop([&] {
+      auto st = s_.dev_.turntable->ReadStatus();
+      return st ? st->angle_deg : -1.0;
+    });
+  }
+  int faults(const std::string& cls) {
+    return OnLoop([&] {
+      auto it = s_.faults_by_class_.find(cls);
+      return it == s_.faults_by_class_.end() ? 0 : it->second;
+    });
+  }
+
+ private:
+  template <typename F>
+  auto OnLoop(F fn) -> decltype(fn()) {
+    std::promise<decltype(fn())> done;
+    loop_.Post([&] { done.set_value(fn()); });
+    return done.get_future().get();
+  }
+
+  CaptureService& s_;
+  EventLoop& loop_;
+};
+
+namespace {
+
+using nlohmann::json;
+using Names = std::vector<std::string>;
+
+class CaptureSteps : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    config_.daemon.state_dir = dir_.path() + "/state";
+    config_.camera.width = 320;
+    config_.camera.height = 240;
+    config_.capture.settle = 0;  // t0 is the end of the side's first settle: now
+    config_.capture.interval = 2 * kNsPerSec;
+    store_ = std::make_unique<SampleStore>(config_.daemon.state_dir);
+    ASSERT_TRUE(store_->Init().ok());
+    loop_ = std::make_unique<EventLoop>(clock_);
+    Result<RigDevices> rig = CreateRig(config_, clock_);
+    ASSERT_TRUE(rig) << rig.error().ToString();
+    service_ =
+        std::make_unique<CaptureService>(*loop_, config_, "", std::move(*rig), *store_, nullptr);
+    loop_->Post([this] { service_->Start(); });
+    thread_ = std::thread([this] { loop_->Run(); });
+    const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+    while (std::chrono::steady_clock::now() < until &&
+           service_->GetHealth().value("status", "") != "ok") {
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    ASSERT_EQ(service_->GetHealth().value("status", ""), "ok");
+    Result<json> armed = service_->Arm("rock-1", CallContext::Within(std::chrono::seconds(5)));
+    ASSERT_TRUE(armed) << armed.error().ToString();
+    peer_ = std::make_unique<CaptureServiceTestPeer>(*service_, *loop_);
+  }
+  void TearDown() override {
+    if (thread_.joinable()) {
+      if (peer_) (void)peer_->Run(capture::StopMotion{});  // cancels the steps' timers
+      loop_->Post([this] { service_->Shutdown(); });
+      loop_->Quit(0);
+      thread_.join();
+    }
+  }
+  std::string SampleState(const std::string& id) {
+    auto r = store_->LoadRecord(id);
+    return r ? r->value("state", "") : "unreadable: " + r.error().ToString();
+  }
+
+  test::TempDir dir_;
+  Config config_;
+  RealClock clock_;
+  std::unique_ptr<SampleStore> store_;
+  std::unique_ptr<EventLoop> loop_;
+  std::unique_ptr<CaptureService> service_;
+  std::unique_ptr<CaptureServiceTestPeer> peer_;
+  std::thread thread_;
+};
+
+TEST_F(CaptureSteps, CreateSampleStoresTheRecordOrQueuesTheStoreFailure) {
+  EXPECT_EQ(peer_->Run(capture::CreateSample{"rock-2"}), Names{});
+  EXPECT_EQ(SampleState("rock-2"), "armed");
+  EXPECT_TRUE(PathExists(store_->SampleDir("rock-2") + "/" + layout::kSampleRecord));
+  // Again: the stored sample is resumed, nothing is overwritten.
+  EXPECT_EQ(peer_->Run(capture::CreateSample{"rock-2"}), Names{});
+  // A name that could leave the state directory is refused by the store.
+  EXPECT_EQ(peer_->Run(capture::CreateSample{"../rock"}), Names{"store_failed"});
+  EXPECT_FALSE(PathExists(dir_.path() + "/rock"));
+}
+
+TEST_F(CaptureSteps, BeginSideAndWaitUntilDueKeepTheSchedule) {
+  const TimeNs before = peer_->now();
+  EXPECT_EQ(peer_->Run(capture::BeginSide{1}), Names{});
+  EXPECT_TRUE(PathExists(store_->SampleDir("rock-1") + "/" + layout::SideDirName(1)));
+  const TimeNs t0 = peer_->side_t0();
+  EXPECT_GE(t0, before);
+  // View 0 is due at t0, already past: due at once.
+  EXPECT_EQ(peer_->Run(capture::WaitUntilDue{1, 0}), Names{"view_due"});
+  EXPECT_EQ(peer_->due(), t0);
+  // View 3 at t0 + 3 intervals, not counted from now: the schedule never drifts.
+  EXPECT_EQ(peer_->Run(capture::WaitUntilDue{1, 3}), Names{});
+  EXPECT_EQ(peer_->due(), t0 + 3 * config_.capture.interval);
+}
+
+// Wait until the step's motion watch has seen the turntable arrive.
+bool WaitMotionDone(CaptureServiceTestPeer& peer) {
+  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+  while (std::chrono::steady_clock::now() < until) {
+    if (!peer.motion_active()) return true;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  return false;
+}
+
+TEST_F(CaptureSteps, HomeThenMoveToStartTheTurntableAndWatchIt) {
+  // Before homing the turntable refuses a move: the step queues the fault.
+  EXPECT_EQ(peer_->Run(capture::MoveTo{90.0}), Names{"device_fault"});
+  EXPECT_EQ(peer_->Run(capture::Home{}), Names{});
+  EXPECT_TRUE(peer_->motion_active());
+  ASSERT_TRUE(WaitMotionDone(*peer_));
+  EXPECT_EQ(peer_->Run(capture::MoveTo{90.0}), Names{});
+  EXPECT_TRUE(peer_->motion_active());
+  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+  double angle = -1;
+  while (std::chrono::steady_clock::now() < until) {
+    angle = peer_->turntable_angle();
+    if (std::abs(angle - 90.0) < 0.5) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  EXPECT_NEAR(angle, 90.0, 0.5);
+  // StopMotion ends the watch and every timer of the capture.
+  EXPECT_EQ(peer_->Run(capture::StopMotion{}), Names{});
+  EXPECT_FALSE(peer_->motion_active());
+}
+
+TEST_F(CaptureSteps, MarkAbortedAndMarkInterruptedAreRecorded) {
+  EXPECT_EQ(peer_->Run(capture::MarkInterrupted{0}), Names{});
+  EXPECT_EQ(SampleState("rock-1"), "interrupted");
+  EXPECT_EQ(peer_->Run(capture::MarkAborted{0}), Names{});
+  EXPECT_EQ(SampleState("rock-1"), "aborted");
+}
+
+TEST_F(CaptureSteps, RecordFaultCountsItByClass) {
+  EXPECT_EQ(peer_->faults("timeout"), 0);
+  EXPECT_EQ(peer_->Run(capture::RecordFault{ErrorClass::kTimeout, "camera: no still"}), Names{});
+  EXPECT_EQ(peer_->faults("timeout"), 1);
+  EXPECT_EQ(peer_->Run(capture::ClearFault{}), Names{});
+}
+
+}  // namespace
+}  // namespace aggscan
