@@ -13,6 +13,7 @@
 #include <sstream>
 
 #include "common/fsutil.h"
+#include "common/json_io.h"
 #include "common/log.h"
 #include "daemon/calibration_check.h"
 #include "store/layout.h"
@@ -1610,21 +1611,24 @@ json ReconstructionOf(const std::vector<Job>& jobs, bool has_result) {
 json CaptureService::ResultSummary(const std::string& sample_id) const {
   // The worker's figures once it has written them, with their quality: a
   // doubtful result is shown as such wherever the sample is.
-  Result<std::string> m =
-      ReadFile(layout::ResultsPath(store_.SampleDir(sample_id), layout::kMorphology));
-  if (!m) return nullptr;
-  const json mj = json::parse(*m, nullptr, false);
-  if (!mj.is_object() || !mj.contains("morphology_3d") || !mj["morphology_3d"].is_object())
-    return nullptr;
-  const json& d3 = mj["morphology_3d"];
-  const json q = mj.value("quality", json::object());
+  // A record that does not read (cut short, edited by hand) shows no
+  // figures; one whose quality does not read is not confident.
+  const std::string path = layout::ResultsPath(store_.SampleDir(sample_id), layout::kMorphology);
+  Result<json> mj = jsonio::ReadFile(path, "results");
+  if (!mj) return nullptr;
+  const jsonio::Source src{"results", path, ""};
+  Result<json> d3 = jsonio::ObjectOr(*mj, "morphology_3d", src);
+  if (!d3 || d3->empty()) return nullptr;
   json r = json::object();
   for (const char* k :
        {"volume_mm3", "surface_area_mm2", "a_mm", "b_mm", "c_mm", "sphericity", "fer_3d"}) {
-    if (d3.contains(k)) r[k] = d3[k];
+    if (d3->contains(k) && (*d3)[k].is_number()) r[k] = (*d3)[k];
   }
-  r["confident"] = q.is_object() ? q.value("confident", true) : true;
-  r["quality_flags"] = q.is_object() ? q.value("flags", json::array()) : json::array();
+  Result<json> q = jsonio::ObjectOr(*mj, "quality", src);
+  Result<bool> confident = q ? jsonio::BoolOr(*q, "confident", true, src) : Result<bool>(false);
+  Result<json> flags = q ? jsonio::ArrayOr(*q, "flags", src) : Result<json>(json::array());
+  r["confident"] = confident && *confident && flags;
+  r["quality_flags"] = flags ? *flags : json::array();
   return r;
 }
 

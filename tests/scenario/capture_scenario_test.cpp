@@ -459,6 +459,20 @@ TEST(CaptureScenario, SampleAnswerCarriesTheResultAndItsQuality) {
   EXPECT_FALSE(s["result"]["confident"].get<bool>());
   ASSERT_EQ(s["result"]["quality_flags"].size(), 1u);
   EXPECT_EQ(s["result"]["quality_flags"][0]["code"], "mask_consistency");
+  // Edited by hand with the wrong types: the figures that read are shown,
+  // the result is not confident, and the daemon goes on answering.
+  std::ofstream(results + "/morphology.json") << json{
+      {"morphology_3d", {{"volume_mm3", 715900.0}, {"a_mm", "83.7"}}},
+      {"quality",
+       {{"confident", "yes"}, {"flags", 3}}}}.dump();
+  const json edited = d.Get("/api/v1/samples/q-2");
+  ASSERT_TRUE(edited.contains("result")) << edited.dump();
+  EXPECT_EQ(edited["result"]["volume_mm3"], 715900.0);
+  EXPECT_FALSE(edited["result"].contains("a_mm"));
+  EXPECT_FALSE(edited["result"]["confident"].get<bool>());
+  EXPECT_TRUE(edited["result"]["quality_flags"].empty());
+  std::ofstream(results + "/morphology.json") << "{\"morphology_3d\": {\"volume";
+  EXPECT_FALSE(d.Get("/api/v1/samples/q-2").contains("result"));
   EXPECT_EQ(d.Stop(), 0);
 }
 
