@@ -16,10 +16,6 @@ void PoseReq(Fields& f, const json& j, const char* key, Pose* out) {
 // Writes `extra` first and the record's own fields over it.
 json Base(const json& extra) { return extra.is_object() ? extra : json::object(); }
 
-Result<Pose> OptionalPose(const json& j, const char* key, const jsonio::Source& src) {
-  return PoseFromJson(j[key], key, src);
-}
-
 }  // namespace
 
 // --- Stats -----------------------------------------------------------------
@@ -218,19 +214,16 @@ Result<PosesRecord> PosesRecord::FromJson(const json& j, const jsonio::Source& s
   f.Opt("method_detail", &r.method_detail);
   f.List("views", &r.views, PosedViewRecord::FromJson);
   f.Opt("stage_seconds", &r.stage_seconds);
-  f.Raw("bundle_adjustment", &r.bundle_adjustment);
-  f.Raw("sfm", &r.sfm);
-  f.Raw("scale", &r.scale);
-  f.Raw("calibration", &r.calibration);
-  f.Raw("unregistered_views", &r.unregistered_views);
-  for (const char* k : {"bundle_adjustment", "sfm", "scale", "calibration"}) {
-    const json& b = k == std::string("bundle_adjustment") ? r.bundle_adjustment
-                    : k == std::string("sfm")             ? r.sfm
-                    : k == std::string("scale")           ? r.scale
-                                                          : r.calibration;
-    if (f.ok() && !b.is_null() && !b.is_object())
+  // The method's own blocks: objects when present, null when absent.
+  for (auto [k, out] : {std::pair<const char*, json*>{"bundle_adjustment", &r.bundle_adjustment},
+                        {"sfm", &r.sfm},
+                        {"scale", &r.scale},
+                        {"calibration", &r.calibration}}) {
+    f.Raw(k, out);
+    if (f.ok() && !out->is_null() && !out->is_object())
       f.Fail(src.Bad(std::string("\"") + k + "\" is not an object"));
   }
+  f.Raw("unregistered_views", &r.unregistered_views);
   if (f.ok() && r.IsSfm() && !r.calibration.is_object())
     f.Fail(src.Bad("an SfM poses record without the camera it posed with (\"calibration\")"));
   if (!f.ok()) return f.error();
@@ -251,16 +244,14 @@ Result<SourceEstimate> SourceEstimate::FromJson(const json& j, const jsonio::Sou
   SourceEstimate e;
   Fields f(j, src);
   f.Req("valid", &e.valid);
-  Result<Pose> T = Pose::Identity();
-  if (f.ok() && j.contains("moving_to_reference_4x4")) {
-    T = OptionalPose(j, "moving_to_reference_4x4", src);
-    if (!T) f.Fail(T.error());
-    if (f.ok()) e.moving_to_reference = *T;
+  constexpr const char* kT = "moving_to_reference_4x4";
+  if (j.is_object() && j.contains(kT)) {
+    Pose T = Pose::Identity();
+    PoseReq(f, j, kT, &T);
+    if (f.ok()) e.moving_to_reference = T;
   } else if (f.ok() && e.valid) {
-    f.Fail(src.Bad("a valid estimate without \"moving_to_reference_4x4\""));
+    f.Fail(src.Bad(std::string("a valid estimate without \"") + kT + "\""));
   }
-  json matrix;
-  f.Raw("moving_to_reference_4x4", &matrix);  // read above; not part of the detail
   if (!f.ok()) return f.error();
   e.detail = f.Extra();
   return e;
@@ -419,6 +410,18 @@ Result<std::map<std::string, std::string>> StringMap(const json& j, const char* 
   return m;
 }
 
+Result<std::map<std::string, double>> NumberMap(const json& j, const char* key,
+                                                const jsonio::Source& src) {
+  auto o = jsonio::ObjectOr(j, key, src);
+  if (!o) return o.error();
+  std::map<std::string, double> m;
+  for (const auto& [k, v] : o->items()) {
+    if (!v.is_number()) return src.Bad(std::string("\"") + key + "\"." + k + " is not a number");
+    m[k] = v.get<double>();
+  }
+  return m;
+}
+
 }  // namespace
 
 json SurfaceRecord::ToJson() const {
@@ -457,30 +460,12 @@ Result<SurfaceRecord> SurfaceRecord::FromJson(const json& j, const jsonio::Sourc
   f.Opt("faces", &r.faces);
   f.Opt("views", &r.views);
   f.Opt("voxel_mm", &r.voxel_mm);
-  json tmp;
-  f.Raw("files", &tmp);
-  if (f.ok()) {
-    auto m = StringMap(j, "files", src);
-    if (!m) f.Fail(m.error());
-    if (f.ok()) r.files = *m;
-  }
+  f.Use("files", StringMap(j, "files", src), &r.files);
   f.List("silhouette_iou", &r.silhouette_iou, IoUFromJson);
   f.List("views_left_out", &r.views_left_out, NoteFromJson);
   f.List("views_disagreeing", &r.views_disagreeing, NoteFromJson);
   f.Opt("stage_seconds", &r.stage_seconds);
-  f.Raw("timings_s", &tmp);
-  if (f.ok()) {
-    auto o = jsonio::ObjectOr(j, "timings_s", src);
-    if (!o) f.Fail(o.error());
-    const json timings = o ? *o : json::object();
-    for (const auto& [k, v] : timings.items()) {
-      if (!v.is_number()) {
-        f.Fail(src.Bad("\"timings_s\"." + k + " is not a number"));
-        break;
-      }
-      r.timings_s[k] = v.get<double>();
-    }
-  }
+  f.Use("timings_s", NumberMap(j, "timings_s", src), &r.timings_s);
   f.Raw("photo_refine", &r.photo_refine);
   f.Raw("consistency", &r.consistency);
   if (!f.ok()) return f.error();
@@ -569,13 +554,7 @@ Result<Morphology> Morphology::FromJson(const json& j, const jsonio::Source& src
   f.Opt("sample_id", &m.sample_id);
   f.Opt("created_utc", &m.created_utc);
   f.Opt("units", &m.units);
-  json tmp;
-  f.Raw("methods", &tmp);
-  if (f.ok()) {
-    auto mm = StringMap(j, "methods", src);
-    if (!mm) f.Fail(mm.error());
-    if (f.ok()) m.methods = *mm;
-  }
+  f.Use("methods", StringMap(j, "methods", src), &m.methods);
   f.Raw("morphology_3d", &m.morphology_3d);
   if (f.ok() && !m.morphology_3d.is_object())
     f.Fail(src.Bad("\"morphology_3d\" is missing or not an object"));
@@ -621,12 +600,7 @@ Result<Morphology> Morphology::FromJson(const json& j, const jsonio::Source& src
   }
   f.Strings("warnings", &m.warnings);
   f.Raw("timings_s", &m.timings_s);
-  f.Raw("files", &tmp);
-  if (f.ok()) {
-    auto mm = StringMap(j, "files", src);
-    if (!mm) f.Fail(mm.error());
-    if (f.ok()) m.files = *mm;
-  }
+  f.Use("files", StringMap(j, "files", src), &m.files);
   if (!f.ok()) return f.error();
   m.extra = f.Extra();
   return m;

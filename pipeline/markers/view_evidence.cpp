@@ -50,6 +50,11 @@ std::string EvidenceOptions::Key() const {
   return k.str();
 }
 
+bool ViewEvidenceCache::Serves(EvidenceOptions wanted) const {
+  wanted.window_margin = options_.window_margin;
+  return wanted.Key() == options_.Key();
+}
+
 cv::Mat ViewEvidence::FullMask() const {
   cv::Mat full = cv::Mat::zeros(frame, CV_8U);
   if (mask.empty()) return full;

@@ -86,6 +86,10 @@ class ViewEvidenceCache {
   explicit ViewEvidenceCache(EvidenceOptions options, size_t colour_budget_bytes = 160u << 20);
 
   const EvidenceOptions& options() const { return options_; }
+  /// True when the evidence kept is what `wanted` asks for: the same lens,
+  /// colours, detector options and ArUco set (the window margin aside, which
+  /// only the surface's windows depend on).
+  bool Serves(EvidenceOptions wanted) const;
   /// Gathers and keeps the view's evidence unless it is kept already.
   void Add(const std::string& image, const cv::Mat& bgr, const cv::Mat& mask);
   /// The view's evidence, or null when no stage has decoded it yet.

@@ -113,12 +113,12 @@ Result<records::PosesRecord> RunSfmPoses(const SfmPosesInput& in, const SfmPoses
   // search does not depend on: every colour class is classified either way).
   ViewEvidenceCache* cache = nullptr;
   if (in.evidence) {
-    EvidenceOptions same = in.evidence->options();
-    same.camera = cam;
-    same.label_colors = label_colors;
-    same.markers = mopts;
-    same.rig = in.rig;
-    if (same.Key() == in.evidence->options().Key()) cache = in.evidence;
+    EvidenceOptions wanted = in.evidence->options();  // its object colours: the labels ignore them
+    wanted.camera = cam;
+    wanted.label_colors = label_colors;
+    wanted.markers = mopts;
+    wanted.rig = in.rig;
+    if (in.evidence->Serves(wanted)) cache = in.evidence;
   }
   int from_cache = 0;
   for (size_t i = 0; i < in.views.size(); ++i) {

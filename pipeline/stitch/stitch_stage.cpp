@@ -146,11 +146,7 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side,
   // The cache's evidence is used when it was found with this stage's
   // parameters (its window margin is the surface stage's business).
   ViewEvidenceCache* cache = nullptr;
-  if (in.evidence) {
-    EvidenceOptions same = eo;
-    same.window_margin = in.evidence->options().window_margin;
-    if (same.Key() == in.evidence->options().Key()) cache = in.evidence;
-  }
+  if (in.evidence && in.evidence->Serves(eo)) cache = in.evidence;
   std::vector<ViewMarkers> vm(views.size());
   std::vector<ViewFeatures> vf(views.size());
   const bool want_aruco = eo.want_aruco();

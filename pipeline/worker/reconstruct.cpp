@@ -1060,7 +1060,6 @@ struct SampleRun {
   std::map<int, std::string> poses_methods;
   std::vector<SampleView> all_views;
   records::StitchRecord stitch;
-  std::map<int, Pose> table_from_object;
   records::SurfaceRecord surface;
   std::optional<ViewEvidenceCache> evidence;  // once the calibration is known
 };
@@ -1176,9 +1175,8 @@ Status StitchSides(SampleRun& r) {
       "run the reconstruction again from the stitch (aggscan reconstruct --from stitch)");
   if (!stitch) return stitch.error();
   r.stitch = std::move(*stitch);
-  r.table_from_object = r.stitch.table_from_object;
   for (int side : r.sides) {
-    if (!r.table_from_object.count(side)) {
+    if (!r.stitch.table_from_object.count(side)) {
       return MakeError(ErrorClass::kCorrupt, stitch_path + " has no transform for " +
                                                  layout::SideDirName(side) +
                                                  "; run the reconstruction again from the stitch "
@@ -1190,8 +1188,8 @@ Status StitchSides(SampleRun& r) {
 }
 
 Status SurfaceOfSample(SampleRun& r) {
-  auto surface =
-      SurfaceStage(r.dir, r.all_views, r.table_from_object, *r.cal, r.opts, r.id, EvidenceOf(r));
+  auto surface = SurfaceStage(r.dir, r.all_views, r.stitch.table_from_object, *r.cal, r.opts, r.id,
+                              EvidenceOf(r));
   if (!surface) return surface.error();
   r.surface = std::move(*surface);
   r.timings["surface_s"] = r.surface.stage_seconds;
@@ -1242,7 +1240,7 @@ Status MorphologyStage(SampleRun& r) {
       auto it = by_view.find({side, v.view});
       if (it != by_view.end()) {
         const Eigen::Vector3d pc =
-            it->second->cam_from_table * r.table_from_object[side] * centroid;
+            it->second->cam_from_table * r.stitch.table_from_object.at(side) * centroid;
         jv.mm_per_px_at_rock = pc.z() / std::sqrt(r.cal->camera.fx * r.cal->camera.fy);
         jv.angle_deg = it->second->angle_deg;
       }

@@ -302,6 +302,17 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
         "masks side " + std::to_string(side) + " view " + std::to_string(v.view),
         /*concurrent=*/true);
     const TimeNs t0 = MonotonicNs();
+    // The view's sidecar, read once: its angles go into the side result and
+    // the measured one picks the empty-turntable photo.
+    std::optional<ViewSidecar> sidecar;
+    if (!v.sidecar.empty()) {
+      auto sc = ReadViewSidecarFile(side_dir + "/" + v.sidecar);
+      if (sc) {
+        sidecar = std::move(*sc);
+      } else {
+        o.warnings.push_back("sidecar " + v.sidecar + ": " + sc.error().message);
+      }
+    }
     const std::string mask_path = ViewMaskPath(sample_dir, side, v.view);
     cv::Mat mask;
     if (opts.reuse_masks && PathExists(mask_path)) {
@@ -344,8 +355,9 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
       cv::Mat empty;
       if (empty_set) {
         std::string why;
-        empty = EmptyTurntablePhoto(sample_dir, *empty_set, MeasuredAngle(side_dir, v.sidecar),
-                                    *img, opts, &why);
+        const double angle =
+            sidecar && sidecar->measured_angle_deg ? *sidecar->measured_angle_deg : std::nan("");
+        empty = EmptyTurntablePhoto(sample_dir, *empty_set, angle, *img, opts, &why);
         if (empty.empty()) {
           o.empty_problem = layout::ViewStem(v.view) + ": " + why;
         } else {
@@ -382,14 +394,9 @@ Status ProcessSideStage(const std::string& sample_dir, int side, const WorkerOpt
     rv.view = v.view;
     rv.image = v.image;
     rv.mask = layout::ViewMaskName(side, v.view);
-    if (!v.sidecar.empty()) {
-      auto sc = ReadViewSidecarFile(side_dir + "/" + v.sidecar);
-      if (sc) {
-        rv.commanded_angle_deg = sc->commanded_angle_deg;
-        rv.measured_angle_deg = sc->measured_angle_deg;
-      } else {
-        o.warnings.push_back("sidecar " + v.sidecar + ": " + sc.error().message);
-      }
+    if (sidecar) {
+      rv.commanded_angle_deg = sidecar->commanded_angle_deg;
+      rv.measured_angle_deg = sidecar->measured_angle_deg;
     }
     const double total_px = static_cast<double>(image_size.area());
     rv.mask_area_fraction = total_px > 0 ? cv::countNonZero(mask) / total_px : 0.0;
