@@ -1,5 +1,6 @@
 #include "cli/empty_turntable_command.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -39,6 +40,13 @@ void PrintEmptyTurntableUsage(std::ostream& o) {
 
 int RunEmptyTurntableCommand(const std::vector<std::string>& args, std::ostream& out,
                              std::ostream& err) {
+  // Before anything else: with a sample named, the command installs a set.
+  if (std::any_of(args.begin(), args.end(),
+                  [](const std::string& a) { return a == "--help" || a == "-h"; })) {
+    out << "usage:\n";
+    PrintEmptyTurntableUsage(out);
+    return 0;
+  }
   std::string sample, state_dir;
   int side = 1;
   for (size_t i = 0; i < args.size(); ++i) {

@@ -632,21 +632,25 @@ int EvalCommand(const std::vector<std::string>& args, std::ostream& out, std::os
   return 0;
 }
 
-}  // namespace
-
-void PrintMasksUsage(std::ostream& o) {
+void PrintDatasetUsage(std::ostream& o) {
   o << "  aggscan masks dataset --out DIR SAMPLE_DIR...\n"
        "      training pairs for the mask network from reconstructed samples: each photo with\n"
-       "      the sample's mesh projected into it (PNG 0/255), index.json and index.csv\n"
-       "  aggscan masks train --dataset DIR --out MODEL.onnx [--epochs N (30)] [--input WxH "
+       "      the sample's mesh projected into it (PNG 0/255), index.json and index.csv\n";
+}
+
+void PrintTrainUsage(std::ostream& o) {
+  o << "  aggscan masks train --dataset DIR --out MODEL.onnx [--epochs N (30)] [--input WxH "
        "(320x320)]\n"
        "                      [--seed N] [--threads N (2)] [--python PATH] [--backgrounds DIR]...\n"
        "      train the small salient-object network on the CPU (Debian's python3-torch and\n"
        "      python3-opencv), export it to ONNX, print the [mask] config lines to use it;\n"
        "      --backgrounds: photos of the empty turntable where the rig is to work (disc, floor,\n"
        "      lights): the dataset's rocks are also laid onto them with a drawn shadow, which\n"
-       "      teaches the network that place without a rock from it\n"
-       "  aggscan masks eval [--model MODEL.onnx] [--grabcut DIR] [--summary | --json] "
+       "      teaches the network that place without a rock from it\n";
+}
+
+void PrintEvalUsage(std::ostream& o) {
+  o << "  aggscan masks eval [--model MODEL.onnx] [--grabcut DIR] [--summary | --json] "
        "[--save DIR] [--threshold P] SAMPLE_DIR...\n"
        "      IoU of the classical and the trained masks side by side against the truth masks\n"
        "      of simulated samples, per view and summarised (min/mean), and on the GrabCut\n"
@@ -657,8 +661,30 @@ void PrintMasksUsage(std::ostream& o) {
        "      [mask] threshold, 0.5)\n";
 }
 
+}  // namespace
+
+void PrintMasksUsage(std::ostream& o) {
+  PrintDatasetUsage(o);
+  PrintTrainUsage(o);
+  PrintEvalUsage(o);
+}
+
 int RunMasksCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {
   const std::string sub = args.empty() ? "" : args[0];
+  // Before anything else: dataset and train write files.
+  if (std::any_of(args.begin(), args.end(),
+                  [](const std::string& a) { return a == "--help" || a == "-h"; })) {
+    out << "usage:\n";
+    if (sub == "dataset")
+      PrintDatasetUsage(out);
+    else if (sub == "train")
+      PrintTrainUsage(out);
+    else if (sub == "eval")
+      PrintEvalUsage(out);
+    else
+      PrintMasksUsage(out);
+    return 0;
+  }
   const std::vector<std::string> rest(args.empty() ? args.end() : args.begin() + 1, args.end());
   if (sub == "dataset") return DatasetCommand(rest, out, err);
   if (sub == "train") return TrainCommand(rest, out, err);

@@ -18,6 +18,17 @@ namespace {
 
 constexpr size_t kMinPassword = 8;
 
+// One verb's line of the usage (PrintUserUsage prints them all).
+void PrintVerbUsage(std::ostream& o, const std::string& verb) {
+  if (verb == "add")
+    o << "  aggscan user add NAME --role operator|viewer --file FILE   add or replace an API "
+         "account (password from the terminal, or stdin's first line)\n";
+  if (verb == "remove")
+    o << "  aggscan user remove NAME --file FILE                       remove an account\n";
+  if (verb == "list")
+    o << "  aggscan user list --file FILE                              names and roles\n";
+}
+
 int Usage(std::ostream& err, const std::string& why) {
   err << "aggscan user: " << why << "\n";
   PrintUserUsage(err);
@@ -67,14 +78,23 @@ Status WriteAccounts(const std::string& path, const std::vector<Account>& accoun
 }  // namespace
 
 void PrintUserUsage(std::ostream& o) {
-  o << "  aggscan user add NAME --role operator|viewer --file FILE   add or replace an API "
-       "account (password from the terminal, or stdin's first line)\n"
-    << "  aggscan user remove NAME --file FILE                       remove an account\n"
-    << "  aggscan user list --file FILE                              names and roles\n";
+  PrintVerbUsage(o, "add");
+  PrintVerbUsage(o, "remove");
+  PrintVerbUsage(o, "list");
 }
 
 int RunUserCommand(const std::vector<std::string>& args, std::istream& in, std::ostream& out,
                    std::ostream& err) {
+  // Before anything else: `user add NAME --help` must not ask for a password.
+  if (std::any_of(args.begin(), args.end(),
+                  [](const std::string& a) { return a == "--help" || a == "-h"; })) {
+    out << "usage:\n";
+    if (args[0] == "add" || args[0] == "remove" || args[0] == "list")
+      PrintVerbUsage(out, args[0]);
+    else
+      PrintUserUsage(out);
+    return 0;
+  }
   if (args.empty()) return Usage(err, "say add, remove or list");
   const std::string verb = args[0];
   std::string name, file, role_text;

@@ -937,6 +937,13 @@ void PrintValidateUsage(std::ostream& o) {
 }
 
 int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {
+  // Before the options are judged: a line that asks for help starts no harness.
+  if (std::any_of(args.begin(), args.end(),
+                  [](const std::string& a) { return a == "--help" || a == "-h"; })) {
+    out << "usage:\n";
+    PrintValidateUsage(out);
+    return 0;
+  }
   ValidateOptions o;
   bool json_out = false, count_given = false, seed_given = false;
   for (size_t i = 0; i < args.size(); ++i) {

@@ -11,6 +11,7 @@
 
 #include "common/fsutil.h"
 #include "common/log.h"
+#include "common/version.h"
 #include "config/config.h"
 #include "config/turntable_profile.h"
 #include "daemon/capture_service.h"
@@ -32,13 +33,15 @@ void Usage(std::FILE* f) {
       f,
       "usage: aggscand [--config FILE] [--check-config] [--print-config]\n"
       "                [--state-dir DIR] [--port N] [--port-file FILE] [--log-level LEVEL]\n"
+      "       aggscand --version\n"
       "  --config FILE     TOML config (default: built-in defaults, sim rig)\n"
       "  --check-config    validate the config, list every problem, exit (78 if invalid)\n"
       "  --print-config    print the effective config as TOML and exit\n"
       "  --state-dir DIR   override daemon.state_dir\n"
       "  --port N          override daemon.listen_port (0 = any free port)\n"
       "  --port-file FILE  write the bound HTTP port to FILE once listening\n"
-      "  --log-level L     error|warning|notice|info|debug\n");
+      "  --log-level L     error|warning|notice|info|debug\n"
+      "  --version         print the software version and exit\n");
 }
 
 }  // namespace
@@ -48,6 +51,19 @@ int main(int argc, char** argv) {
   std::string config_path, state_dir_override, port_file, log_level;
   int port_override = -1;
   bool check_only = false, print_only = false;
+  // Answered before the other options are judged: neither may open a config,
+  // the state directory or the port, whatever else is on the line.
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    if (a == "--version") {
+      std::printf("aggscand %s\n", SoftwareVersion());
+      return 0;
+    }
+    if (a == "-h" || a == "--help") {
+      Usage(stdout);
+      return 0;
+    }
+  }
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto need = [&](const char* what) -> std::string {

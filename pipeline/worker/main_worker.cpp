@@ -45,6 +45,7 @@
 
 #include "common/fsutil.h"
 #include "common/log.h"
+#include "common/version.h"
 #include "config/config.h"
 #include "pipeline/calib/calibrate.h"
 #include "pipeline/core/image_io.h"
@@ -118,6 +119,7 @@ void Usage(FILE* f) {
       "usage: aggscan-worker --state-dir DIR [--config FILE] [--once] [--poll-ms N] [--log-level "
       "L]\n"
       "       aggscan-worker --sample SAMPLE_DIR [--config FILE] [--log-level L]\n"
+      "       aggscan-worker --version\n"
       "  --sample DIR      process one sample directory now (every captured side, then\n"
       "                    the sample stage), without the queue; exit 1 on failure\n"
       "  --state-dir DIR   aggscan state directory (samples/, queue.db)\n"
@@ -125,7 +127,8 @@ void Usage(FILE* f) {
       "otherwise\n"
       "  --once            exit when the queue is empty (exit 1 if a job failed for good)\n"
       "  --poll-ms N       idle queue polling period in ms (overrides the config)\n"
-      "  --log-level L     error|warning|notice|info|debug\n");
+      "  --log-level L     error|warning|notice|info|debug\n"
+      "  --version         print the software version and exit\n");
 }
 
 struct Args {
@@ -138,6 +141,19 @@ struct Args {
 };
 
 bool ParseArgs(int argc, char** argv, Args* a) {
+  // Answered before the other options are judged: neither needs a state
+  // directory or a config, whatever else is on the line.
+  for (int i = 1; i < argc; ++i) {
+    const std::string k = argv[i];
+    if (k == "--version") {
+      std::printf("aggscan-worker %s\n", aggscan::SoftwareVersion());
+      std::exit(0);
+    }
+    if (k == "-h" || k == "--help") {
+      Usage(stdout);
+      std::exit(0);
+    }
+  }
   for (int i = 1; i < argc; ++i) {
     const std::string k = argv[i];
     auto need = [&](std::string* out) {
