@@ -10,14 +10,18 @@
 #include <algorithm>
 #include <cctype>
 #include <cerrno>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <filesystem>
+#include <fstream>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <sstream>
 #include <string_view>
 
+#include "common/error.h"
 #include "store/layout.h"
 
 namespace aggscan {
@@ -350,6 +354,26 @@ int PrintHealth(const json& h, std::ostream& out) {
   return bad;
 }
 
+// A number as people read it: fixed decimals, no exponent; "-" when absent.
+std::string Fixed(const json& obj, const char* key, int decimals, double scale = 1.0) {
+  if (!obj.is_object()) return "-";
+  const auto it = obj.find(key);
+  if (it == obj.end() || !it->is_number()) return "-";
+  char t[64];
+  std::snprintf(t, sizeof t, "%.*f", decimals, it->get<double>() * scale);
+  return t;
+}
+
+// Where a sample stands, in one word: its capture state until it is
+// captured, then its reconstruction's (queued, reconstructing, done, failed).
+std::string SampleState(const json& s) {
+  const std::string state = FieldText(s, "state");
+  if (state == "captured" && s.contains("reconstruction") && s["reconstruction"].is_object() &&
+      HasText(s["reconstruction"], "state"))
+    return FieldText(s["reconstruction"], "state");
+  return state;
+}
+
 void PrintSamples(const json& answer, std::ostream& out) {
   const json* list = &answer;
   if (answer.is_object() && answer.contains("samples")) list = &answer["samples"];
@@ -357,21 +381,36 @@ void PrintSamples(const json& answer, std::ostream& out) {
     out << "no samples\n";
     return;
   }
-  const std::vector<std::pair<const char*, const char*>> cols = {{"ID", "id"},
-                                                                 {"STATE", "state"},
-                                                                 {"CREATED (UTC)", "created_utc"},
-                                                                 {"SIDES DONE", "sides_done"},
-                                                                 {"VIEWS", "views"}};
+  const std::vector<const char*> header = {"ID",    "STATE",   "CREATED (UTC)", "LOT",
+                                           "VIEWS", "V cm3",   "b mm",          "FER",
+                                           "SPH",   "MASS kg", "QUALITY"};
   std::vector<std::vector<std::string>> rows;
   std::vector<size_t> width;
-  width.reserve(cols.size());
-  for (const auto& c : cols) width.push_back(std::strlen(c.first));
+  width.reserve(header.size());
+  for (const char* h : header) width.push_back(std::strlen(h));
   for (const auto& s : *list) {
-    std::vector<std::string> row;
-    for (size_t i = 0; i < cols.size(); ++i) {
-      row.push_back(FieldText(s, cols[i].second));
-      width[i] = std::max(width[i], row.back().size());
+    const json r = s.is_object() ? s.value("result", json()) : json();
+    const json meta = s.is_object() ? s.value("meta", json::object()) : json();
+    std::string quality = "-";
+    if (r.is_object()) {
+      const json flags = r.value("quality_flags", json::array());
+      quality = r.value("confident", false) && flags.empty()
+                    ? "confident"
+                    : "NOT CONFIDENT (" + std::to_string(flags.size()) + " flag(s))";
     }
+    std::vector<std::string> row = {
+        FieldText(s, "id"),
+        SampleState(s),
+        FieldText(s, "created_utc"),
+        meta.is_object() && HasText(meta, "lot") ? FieldText(meta, "lot") : "-",
+        FieldText(s, "views"),
+        Fixed(r, "volume_mm3", 1, 1e-3),
+        Fixed(r, "b_mm", 1),
+        Fixed(r, "fer_3d", 2),
+        Fixed(r, "sphericity", 3),
+        Fixed(r, "mass_g", 3, 1e-3),
+        quality};
+    for (size_t i = 0; i < row.size(); ++i) width[i] = std::max(width[i], row[i].size());
     rows.push_back(std::move(row));
   }
   auto print_row = [&](const std::vector<std::string>& cells) {
@@ -382,10 +421,7 @@ void PrintSamples(const json& answer, std::ostream& out) {
     }
     out << line << "\n";
   };
-  std::vector<std::string> header;
-  header.reserve(cols.size());
-  for (const auto& c : cols) header.emplace_back(c.first);
-  print_row(header);
+  print_row(std::vector<std::string>(header.begin(), header.end()));
   for (const auto& r : rows) print_row(r);
 }
 
@@ -430,21 +466,52 @@ void PrintTree(const json& j, int indent, std::ostream& out) {
 }
 
 void PrintSample(const json& s, std::ostream& out) {
-  out << "sample: " << FieldText(s, "id") << "  state: " << FieldText(s, "state") << "\n";
+  out << "sample: " << FieldText(s, "id") << "  state: " << SampleState(s) << "\n";
   if (!s.is_object()) return;
+  if (const json meta = s.value("meta", json::object()); meta.is_object() && !meta.empty()) {
+    for (const char* k : {"operator", "lot", "notes"}) {
+      if (HasText(meta, k)) out << k << ": " << FieldText(meta, k) << "\n";
+    }
+    if (meta.contains("material") && meta["material"].is_object()) {
+      const json& m = meta["material"];
+      out << "material: " << (HasText(m, "name") ? FieldText(m, "name") : "(unnamed)");
+      if (m.contains("specific_gravity") && m["specific_gravity"].is_number())
+        out << ", specific gravity " << Fixed(m, "specific_gravity", 3) << " ("
+            << FieldText(m, "basis") << ")";
+      if (m.value("source", "") == "config") out << " [config default]";
+      out << "\n";
+    }
+  }
   if (s.contains("result") && s["result"].is_object()) {
     const json& r = s["result"];
-    auto num = [&r](const char* k, const char* fmt) {
-      const auto it = r.find(k);
-      if (it == r.end() || !it->is_number()) return std::string("-");
-      char t[64];
-      std::snprintf(t, sizeof t, fmt, it->get<double>());
-      return std::string(t);
-    };
-    out << "result: V " << num("volume_mm3", "%.0f") << " mm3, a/b/c " << num("a_mm", "%.1f")
-        << " / " << num("b_mm", "%.1f") << " / " << num("c_mm", "%.1f") << " mm\n";
+    out << "result:\n"
+        << "  volume       " << Fixed(r, "volume_mm3", 1) << " mm3 ("
+        << Fixed(r, "volume_mm3", 2, 1e-3) << " cm3)\n"
+        << "  area         " << Fixed(r, "surface_area_mm2", 1) << " mm2\n"
+        << "  a / b / c    " << Fixed(r, "a_mm", 1) << " / " << Fixed(r, "b_mm", 1) << " / "
+        << Fixed(r, "c_mm", 1) << " mm\n"
+        << "  FER (c/a)    " << Fixed(r, "fer_3d", 3) << "   c/b " << Fixed(r, "ratio_c_b", 3)
+        << "   b/a " << Fixed(r, "ratio_b_a", 3) << "\n"
+        << "  sphericity   " << Fixed(r, "sphericity", 3) << "\n";
+    if (r.contains("mass_g")) {
+      out << "  mass         " << Fixed(r, "mass_g", 1) << " g (specific gravity "
+          << Fixed(r, "specific_gravity", 3) << ", " << FieldText(r, "mass_basis") << ")\n";
+    } else {
+      out << "  mass         - (" << (HasText(r, "mass_none") ? FieldText(r, "mass_none") : "none")
+          << ")\n";
+    }
+    if (r.contains("views_2d") && r["views_2d"].is_object()) {
+      const json& d2 = r["views_2d"];
+      for (const char* k : {"fer_2d", "circularity"}) {
+        if (!d2.contains(k) || !d2[k].is_object()) continue;
+        const json& st = d2[k];
+        out << "  2D " << (std::string(k) == "fer_2d" ? "FER       " : "circularity") << " mean "
+            << Fixed(st, "mean", 3) << " (" << Fixed(st, "min", 3) << " to " << Fixed(st, "max", 3)
+            << ", CoV " << Fixed(st, "cov", 1, 100.0) << " %, " << Fixed(st, "n", 0) << " views)\n";
+      }
+    }
     const json flags = r.value("quality_flags", json::array());
-    if (r.value("confident", true) && flags.empty()) {
+    if (r.value("confident", false) && flags.empty()) {
       out << "quality: confident\n";
     } else {
       out << "quality: NOT CONFIDENT (" << flags.size()
@@ -454,12 +521,108 @@ void PrintSample(const json& s, std::ostream& out) {
           out << "  " << FieldText(f, "code") << ": " << FieldText(f, "reason") << "\n";
       }
     }
+    if (r.contains("warnings") && r["warnings"].is_array()) {
+      out << "warnings:\n";
+      for (const json& w : r["warnings"]) {
+        out << "  - " << (w.is_string() ? Clean(w.get<std::string>()) : Scalar(w)) << "\n";
+      }
+    }
+    if (r.contains("software") && r["software"].is_object())
+      out << "computed by: aggscan " << FieldText(r["software"], "version") << ", config sha256 "
+          << FieldText(r["software"], "config_sha256").substr(0, 12) << "\n";
   }
   json rest = s;
   rest.erase("id");
   rest.erase("state");
   rest.erase("result");
+  rest.erase("meta");
   PrintTree(rest, 0, out);
+}
+
+// One line of a CSV file as RFC 4180 reads it (quoted fields, doubled quotes).
+std::vector<std::string> CsvFields(const std::string& line) {
+  std::vector<std::string> out(1);
+  bool quoted = false;
+  for (size_t i = 0; i < line.size(); ++i) {
+    const char c = line[i];
+    if (quoted) {
+      if (c == '"' && i + 1 < line.size() && line[i + 1] == '"') {
+        out.back() += '"';
+        ++i;
+      } else if (c == '"') {
+        quoted = false;
+      } else {
+        out.back() += c;
+      }
+    } else if (c == '"') {
+      quoted = true;
+    } else if (c == ',') {
+      out.emplace_back();
+    } else if (c != '\r') {
+      out.back() += c;
+    }
+  }
+  for (std::string& f : out) {
+    const size_t b = f.find_first_not_of(" \t");
+    const size_t e = f.find_last_not_of(" \t");
+    f = b == std::string::npos ? std::string() : f.substr(b, e - b + 1);
+  }
+  return out;
+}
+
+// Reference volumes measured another way (water displacement, ASTM D6473
+// style): a header naming sample_id and volume_cm3, volume_ml or volume_mm3
+// (and optionally method), one rock a line. Every line is checked before
+// anything is sent: (sample id, "reference" object) pairs, or what is wrong
+// where.
+Result<std::vector<std::pair<std::string, json>>> ReadReferenceCsv(const std::string& path) {
+  std::ifstream f(path);
+  if (!f) return MakeError(ErrorClass::kNotFound, "cannot read " + path);
+  std::string line;
+  if (!std::getline(f, line)) return MakeError(ErrorClass::kInvalidArgument, path + " is empty");
+  const std::vector<std::string> header = CsvFields(line);
+  auto col = [&](const char* name) {
+    const auto it = std::find(header.begin(), header.end(), name);
+    return it == header.end() ? -1 : static_cast<int>(it - header.begin());
+  };
+  const int id_col = col("sample_id");
+  int vol_col = col("volume_cm3");
+  double scale = 1000.0;  // to mm3
+  if (vol_col < 0) vol_col = col("volume_ml");
+  if (vol_col < 0) {
+    vol_col = col("volume_mm3");
+    scale = 1.0;
+  }
+  const int method_col = col("method");
+  if (id_col < 0 || vol_col < 0) {
+    return MakeError(ErrorClass::kInvalidArgument,
+                     path +
+                         ": the first line must name the columns: sample_id and volume_cm3 "
+                         "(or volume_ml, volume_mm3), optionally method");
+  }
+  std::vector<std::pair<std::string, json>> rows;
+  for (int n = 2; std::getline(f, line); ++n) {
+    if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
+    const std::vector<std::string> v = CsvFields(line);
+    const std::string where = path + " line " + std::to_string(n);
+    if (static_cast<int>(v.size()) <= std::max(id_col, vol_col))
+      return MakeError(ErrorClass::kInvalidArgument, where + ": too few columns");
+    if (!layout::IsValidSampleId(v[id_col]))
+      return MakeError(ErrorClass::kInvalidArgument,
+                       where + ": \"" + Clean(v[id_col]) + "\" is not a sample id");
+    char* end = nullptr;
+    const double x = std::strtod(v[vol_col].c_str(), &end);
+    if (v[vol_col].empty() || *end != '\0' || !std::isfinite(x) || x <= 0)
+      return MakeError(ErrorClass::kInvalidArgument,
+                       where + ": volume \"" + Clean(v[vol_col]) +
+                           "\" is not a positive number (a decimal point, no unit)");
+    json ref = {{"volume_mm3", x * scale}, {"source", std::filesystem::path(path).filename()}};
+    if (method_col >= 0 && method_col < static_cast<int>(v.size()) && !v[method_col].empty())
+      ref["method"] = v[method_col];
+    rows.emplace_back(v[id_col], ref);
+  }
+  if (rows.empty()) return MakeError(ErrorClass::kInvalidArgument, path + " has no rock");
+  return rows;
 }
 
 int Usage(std::ostream& err, const std::string& problem) {
@@ -470,7 +633,7 @@ int Usage(std::ostream& err, const std::string& problem) {
 
 struct Command {
   std::string name;
-  std::string method;  // "GET" or "POST"
+  std::string method;  // "GET", "POST", "PATCH", "PUT" or "DELETE"
   std::string path;    // under /api/v1
   std::string body;    // POST body
 };
@@ -478,9 +641,9 @@ struct Command {
 }  // namespace
 
 bool IsClientCommand(const std::string& word) {
-  static const char* const kCommands[] = {"status", "selftest", "arm",   "arm-calibration",
-                                          "press",  "abort",    "reset", "samples",
-                                          "show",   "retry"};
+  static const char* const kCommands[] = {
+      "status", "selftest", "arm",  "arm-calibration", "press",    "abort", "reset", "samples",
+      "show",   "retry",    "meta", "batch",           "reference"};
   return std::any_of(std::begin(kCommands), std::end(kCommands),
                      [&](const char* c) { return word == c; });
 }
@@ -492,6 +655,8 @@ void PrintClientUsage(std::ostream& out) {
          "                                         (exit 0 all ok, 4 a device is unhealthy)\n"
          "  aggscan [--url URL] [--json] arm ID     arm a new sample (or resume one) named ID\n"
          "      [--operator NAME] [--lot LOT] [--notes TEXT]   kept in the sample's record\n"
+         "      [--material NAME] [--sg G --sg-basis bulk-ssd|oven-dry]   the stone and its\n"
+         "                                         specific gravity (mass); default [material]\n"
          "  aggscan [--url URL] [--json] arm-calibration   arm a capture of the calibration\n"
          "                                         board lying on the disc (no rock); press\n"
          "                                         START and the worker solves the rig "
@@ -501,6 +666,21 @@ void PrintClientUsage(std::ostream& out) {
          "  aggscan [--url URL] [--json] reset      clear a fault and return to idle\n"
          "  aggscan [--url URL] [--json] samples    list the samples\n"
          "  aggscan [--url URL] [--json] show ID    one sample: sides, views, jobs\n"
+         "  aggscan [--url URL] [--json] meta ID [--operator NAME] [--lot LOT] [--notes TEXT]\n"
+         "      [--material NAME] [--sg G] [--sg-basis bulk-ssd|oven-dry] [--clear FIELD]...\n"
+         "                                         edit a sample's description (sample.json only;\n"
+         "                                         photos and results untouched; kept in its\n"
+         "                                         meta_history); --clear "
+         "operator|lot|notes|material\n"
+         "  aggscan [--url URL] [--json] batch list | show NAME | delete NAME\n"
+         "  aggscan [--url URL] [--json] batch set NAME [--lot LOT] [--from DATE] [--to DATE]\n"
+         "      [--samples ID,ID,...] [--notes TEXT]   a named set of samples for reports: those\n"
+         "                                         of the lot created in the dates (YYYY-MM-DD,\n"
+         "                                         UTC, both ends included), and those listed\n"
+         "  aggscan [--url URL] reference import FILE.csv   reference volumes measured another\n"
+         "      way (water displacement): columns sample_id, volume_cm3 (or volume_ml,\n"
+         "      volume_mm3), optionally method; kept in each sample's description for the\n"
+         "      batch report's Figure 6\n"
          "  aggscan [--url URL] [--json] retry ID   put the sample's failed jobs back in the\n"
          "                                         worker's queue (after fixing the cause that\n"
          "                                         `aggscan status` names)\n"
@@ -519,15 +699,48 @@ int RunClientCommand(const std::vector<std::string>& args, std::ostream& out, st
   std::optional<std::string> url_flag;
   bool json_out = false;
   std::vector<std::string> words;
-  // arm's description of the sample, stored in its sample.json.
+  // arm's and meta's description of the sample, stored in its sample.json.
   json arm_meta = json::object();
+  json batch_def = json::object();  // batch set's criteria
   for (size_t i = 0; i < args.size(); ++i) {
     const std::string& a = args[i];
     if (a == "--json") {
       json_out = true;
+    } else if (a == "--from" || a == "--to") {
+      if (i + 1 >= args.size()) return Usage(err, a + " needs a date, e.g. 2026-12-01");
+      batch_def[a.substr(2)] = args[++i];
+    } else if (a == "--samples") {
+      if (i + 1 >= args.size()) return Usage(err, "--samples needs ids, e.g. rock-1,rock-2");
+      json ids = json::array();
+      std::stringstream list(args[++i]);
+      for (std::string part; std::getline(list, part, ',');) {
+        if (!part.empty()) ids.push_back(part);
+      }
+      batch_def["samples"] = ids;
     } else if (a == "--operator" || a == "--lot" || a == "--notes") {
       if (i + 1 >= args.size()) return Usage(err, a + " needs a value");
       arm_meta[a.substr(2)] = args[++i];
+    } else if (a == "--material" || a == "--sg-basis") {
+      if (i + 1 >= args.size()) return Usage(err, a + " needs a value");
+      arm_meta["material"][a == "--material" ? "name" : "basis"] = args[++i];
+    } else if (a == "--sg") {
+      if (i + 1 >= args.size()) return Usage(err, "--sg needs a value, e.g. --sg 2.65");
+      const std::string& v = args[++i];
+      char* end = nullptr;
+      const double sg = std::strtod(v.c_str(), &end);
+      if (v.empty() || end != v.c_str() + v.size() || !std::isfinite(sg))
+        return Usage(err,
+                     "--sg expects a number (the stone's specific gravity, e.g. 2.65), got \"" +
+                         Clean(v) + "\"");
+      arm_meta["material"]["specific_gravity"] = sg;
+    } else if (a == "--clear") {
+      if (i + 1 >= args.size())
+        return Usage(err, "--clear needs a field: operator, lot, notes or material");
+      const std::string& f = args[++i];
+      if (f != "operator" && f != "lot" && f != "notes" && f != "material")
+        return Usage(err,
+                     "--clear takes operator, lot, notes or material, not \"" + Clean(f) + "\"");
+      arm_meta[f] = nullptr;
     } else if (a == "--url") {
       if (i + 1 >= args.size())
         return Usage(err, "--url needs a value, e.g. --url http://127.0.0.1:8470");
@@ -546,14 +759,65 @@ int RunClientCommand(const std::vector<std::string>& args, std::ostream& out, st
   if (words.empty()) return Usage(err, "missing command");
   const std::string& name = words[0];
   if (!IsClientCommand(name)) return Usage(err, "unknown command \"" + name + "\"");
-  if (name != "arm" && !arm_meta.empty())
-    return Usage(err, "--operator, --lot and --notes belong to arm");
-  const bool needs_id = name == "arm" || name == "show" || name == "retry";
+  if (name == "batch") {
+    // batch set takes the lot and notes as criteria, not as a description.
+    const std::string verb = words.size() > 1 ? words[1] : "";
+    if (verb == "set") {
+      for (const char* k : {"lot", "notes"}) {
+        if (arm_meta.contains(k)) {
+          batch_def[k] = arm_meta[k];
+          arm_meta.erase(k);
+        }
+      }
+    }
+    if (!arm_meta.empty())
+      return Usage(err, "batch takes --lot, --from, --to, --samples and --notes (with set)");
+    if (verb != "list" && verb != "show" && verb != "set" && verb != "delete")
+      return Usage(err, "batch needs list, show NAME, set NAME or delete NAME");
+    if (!batch_def.empty() && verb != "set")
+      return Usage(err, "--lot, --from, --to, --samples belong to batch set");
+    const size_t want_words = verb == "list" ? 2 : 3;
+    if (words.size() < want_words) return Usage(err, "batch " + verb + " needs a batch name");
+    if (words.size() > want_words)
+      return Usage(err, "unexpected argument \"" + words[want_words] + "\" after batch " + verb);
+    if (verb == "set" && batch_def.empty())
+      return Usage(err,
+                   "batch set needs its samples: --lot LOT, --from DATE --to DATE or --samples "
+                   "ID,ID,...");
+  } else if (!batch_def.empty()) {
+    return Usage(err, "--from, --to and --samples belong to batch set");
+  }
+  std::vector<std::pair<std::string, json>> references;
+  if (name == "reference") {
+    if (words.size() != 3 || words[1] != "import")
+      return Usage(err, "reference needs: reference import FILE.csv");
+    Result<std::vector<std::pair<std::string, json>>> rows = ReadReferenceCsv(words[2]);
+    if (!rows) return Usage(err, rows.error().message);
+    references = std::move(*rows);
+  }
+  if (name != "arm" && name != "meta" && name != "batch" && !arm_meta.empty())
+    return Usage(
+        err, "--operator, --lot, --notes, --material, --sg and --sg-basis belong to arm and meta");
+  if (name == "arm" &&
+      std::any_of(arm_meta.begin(), arm_meta.end(), [](const json& v) { return v.is_null(); }))
+    return Usage(err, "--clear belongs to meta (a new sample has nothing to clear)");
+  if (name == "meta" && arm_meta.empty())
+    return Usage(
+        err, "meta needs something to change, e.g. --lot L-12 or --sg 2.65 --sg-basis bulk-ssd");
+  const bool needs_id = name == "arm" || name == "show" || name == "retry" || name == "meta";
   const size_t want = needs_id ? 2 : 1;
-  if (words.size() < want) return Usage(err, name + " needs a sample id");
-  if (words.size() > want)
+  const bool own_words = name == "batch" || name == "reference";
+  if (!own_words && words.size() < want) return Usage(err, name + " needs a sample id");
+  if (!own_words && words.size() > want)
     return Usage(err, "unexpected argument \"" + words[want] + "\" after " + name);
   std::string id;
+  const std::string batch_verb = name == "batch" ? words[1] : "";
+  const std::string batch_name = name == "batch" && words.size() > 2 ? words[2] : "";
+  if (!batch_name.empty() && !layout::IsValidSampleId(batch_name)) {
+    return Usage(err, "invalid batch name \"" + Clean(batch_name) +
+                          "\": use 1-64 characters from A-Z a-z 0-9 . _ -, not starting with '.' "
+                          "or '-'");
+  }
   if (needs_id) {
     id = words[1];
     // Checked here too: the id becomes part of the request path.
@@ -588,6 +852,11 @@ int RunClientCommand(const std::vector<std::string>& args, std::ostream& out, st
   if (name == "selftest") cmd = {name, "GET", "/health", {}};
   if (name == "show") cmd = {name, "GET", "/samples/" + id, {}};
   if (name == "retry") cmd = {name, "POST", "/samples/" + id + "/retry", "{}"};
+  if (name == "meta") cmd = {name, "PATCH", "/samples/" + id + "/meta", arm_meta.dump()};
+  if (batch_verb == "list") cmd = {name, "GET", "/batches", {}};
+  if (batch_verb == "show") cmd = {name, "GET", "/batches/" + batch_name, {}};
+  if (batch_verb == "set") cmd = {name, "PUT", "/batches/" + batch_name, batch_def.dump()};
+  if (batch_verb == "delete") cmd = {name, "DELETE", "/batches/" + batch_name, {}};
 
   httplib::Client client(target->origin);
   if (const char* ca = std::getenv("AGGSCAN_CA_CERT"); ca != nullptr && *ca != '\0')
@@ -605,9 +874,41 @@ int RunClientCommand(const std::vector<std::string>& args, std::ostream& out, st
   client.set_read_timeout(kReadTimeoutSec, 0);
   client.set_write_timeout(kConnectTimeoutSec, 0);
   client.set_tcp_nodelay(true);  // a POST's headers and body are separate writes
+  if (name == "reference") {
+    // One edit per rock: each kept in its sample's meta_history.
+    int done = 0;
+    std::vector<std::string> failed;
+    for (const auto& [sid, ref] : references) {
+      const json body = {{"reference", ref}};
+      httplib::Result r = client.Patch(target->prefix + "/api/v1/samples/" + sid + "/meta",
+                                       body.dump(), "application/json");
+      if (!r) {
+        err << "aggscan: " << TransportError(*target, r.error()) << "\n";
+        return kClientExitUnreachable;
+      }
+      if (r->status >= 200 && r->status < 300) {
+        ++done;
+      } else {
+        const json e = json::parse(r->body, nullptr, false);
+        std::string why = "HTTP " + std::to_string(r->status);
+        if (e.is_object() && e.contains("error") && e["error"].is_object() &&
+            HasText(e["error"], "message"))
+          why = Clean(e["error"]["message"].get<std::string>());
+        failed.push_back(sid + ": " + why);
+      }
+    }
+    out << done << " reference volume(s) imported";
+    if (!failed.empty()) out << ", " << failed.size() << " refused";
+    out << "\n";
+    for (const std::string& f : failed) err << "aggscan: reference import: " << f << "\n";
+    return failed.empty() ? kClientExitOk : kClientExitDaemonError;
+  }
   const std::string path = target->prefix + "/api/v1" + cmd.path;
-  httplib::Result res =
-      cmd.method == "GET" ? client.Get(path) : client.Post(path, cmd.body, "application/json");
+  httplib::Result res = cmd.method == "GET"      ? client.Get(path)
+                        : cmd.method == "PATCH"  ? client.Patch(path, cmd.body, "application/json")
+                        : cmd.method == "PUT"    ? client.Put(path, cmd.body, "application/json")
+                        : cmd.method == "DELETE" ? client.Delete(path)
+                                                 : client.Post(path, cmd.body, "application/json");
   if (!res) {
     err << "aggscan: " << TransportError(*target, res.error()) << "\n";
     if (name == "selftest") {
@@ -655,6 +956,48 @@ int RunClientCommand(const std::vector<std::string>& args, std::ostream& out, st
     PrintSamples(answer, out);
   } else if (name == "show") {
     PrintSample(answer, out);
+  } else if (name == "batch") {
+    if (batch_verb == "list") {
+      const json list =
+          (answer.is_object() ? answer.value("batches", json::array()) : json::array());
+      if (list.empty()) out << "no batches\n";
+      for (const json& b : list) {
+        out << FieldText(b, "name") << ": " << FieldText(b, "members") << " sample(s)";
+        if (HasText(b, "lot")) out << ", lot " << FieldText(b, "lot");
+        if (HasText(b, "from") || HasText(b, "to"))
+          out << ", created " << (HasText(b, "from") ? FieldText(b, "from") : "...") << " to "
+              << (HasText(b, "to") ? FieldText(b, "to") : "...");
+        if (b.contains("samples") && b["samples"].is_array() && !b["samples"].empty())
+          out << ", " << b["samples"].size() << " listed";
+        out << "\n";
+      }
+    } else if (batch_verb == "delete") {
+      out << "batch " << batch_name << " deleted (its samples are untouched)\n";
+    } else {
+      out << "batch: " << FieldText(answer, "name") << "\n";
+      if (HasText(answer, "lot")) out << "lot: " << FieldText(answer, "lot") << "\n";
+      if (HasText(answer, "from") || HasText(answer, "to"))
+        out << "created: " << (HasText(answer, "from") ? FieldText(answer, "from") : "...")
+            << " to " << (HasText(answer, "to") ? FieldText(answer, "to") : "...") << "\n";
+      if (HasText(answer, "notes")) out << "notes: " << FieldText(answer, "notes") << "\n";
+      const json members =
+          (answer.is_object() ? answer.value("members", json::array()) : json::array());
+      out << members.size() << " sample(s):\n";
+      if (!members.empty()) PrintSamples(members, out);
+      for (const json& m :
+           (answer.is_object() ? answer.value("missing", json::array()) : json::array())) {
+        out << "listed but not on this rig: " << (m.is_string() ? Clean(m.get<std::string>()) : "?")
+            << "\n";
+      }
+    }
+  } else if (name == "meta") {
+    const json changed = answer.is_object() ? answer.value("changed", json::object()) : json();
+    if (!changed.is_object() || changed.empty()) {
+      out << "sample " << id << ": nothing changed\n";
+    } else {
+      out << "sample " << id << ": description changed (" << changed.size() << " field(s))\n";
+      if (answer.contains("meta")) PrintTree(answer["meta"], 2, out);
+    }
   } else if (name == "retry") {
     out << "sample " << id << ": " << FieldText(answer, "requeued")
         << " failed job(s) back in the worker's queue; follow them with `aggscan show " << id

@@ -424,6 +424,15 @@ const std::vector<Field<Config>>& Fields() {
       D(worker.silent_after, Range(0, 24 * 3600 * kSec),
         "aggscand calls the worker unhealthy when it has not reported for this long (0 = not "
         "watched)"),
+
+      F(material.name, Any(),
+        "the stone measured, as the report names it (e.g. \"granite, pit 3\")"),
+      F(material.specific_gravity, Range(0, 6),
+        "its specific gravity (density relative to water), for mass = volume x this; 0 = "
+        "unknown: no mass until a sample or this gives one (riprap: typically 2.5-3.0)"),
+      F(material.basis, OneOf({"bulk-ssd", "oven-dry"}),
+        "what the specific gravity was measured on: bulk-ssd (saturated surface-dry, what "
+        "gradations by mass use) | oven-dry"),
   };
   return k;
 }
@@ -502,6 +511,9 @@ const std::vector<Section>& Sections() {
        "Foreground masks: classical segmentation, or an ONNX salient-object network that seeds "
        "its refinement."},
       {"worker", "Reconstruction worker."},
+      {"material",
+       "Default material of the samples armed without one: name, specific gravity (mass) and "
+       "its basis."},
   };
   return k;
 }
@@ -958,6 +970,12 @@ class Validator {
                                      FormatDuration(c.worker.heartbeat_interval) +
                                      "): a worker that is running would be called silent; raise it "
                                      "or set 0 to not watch the worker");
+    }
+    if (c.material.specific_gravity > 0 && c.material.specific_gravity < 1.0) {
+      Add("material.specific_gravity",
+          FormatDouble(c.material.specific_gravity) +
+              " is below 1 (a stone that floats): give the stone's specific gravity, riprap "
+              "is about 2.3-3.2, or 0 for unknown");
     }
     if (c.daemon.reopen_backoff_max < c.daemon.reopen_backoff_min) {
       Add("daemon.reopen_backoff_max", FormatDuration(c.daemon.reopen_backoff_max) +

@@ -448,6 +448,19 @@ struct WorkerConfig {
   bool operator==(const WorkerConfig&) const = default;
 };
 
+// The stone a rig measures, by default: every sample armed without a
+// material of its own records this one. Mass = volume x specific gravity x
+// the density of water (1 g/cm3), so mass is only as good as the specific
+// gravity and its basis: bulk SSD (saturated surface-dry, the one riprap
+// gradations by mass use, EN 13383-2 / ASTM C127) or oven-dry.
+struct MaterialConfig {
+  std::string name;                // e.g. "granite, quarry X"; empty = none given
+  double specific_gravity = 0;     // 0 = unknown: no mass is computed until one is given
+  std::string basis = "bulk-ssd";  // bulk-ssd | oven-dry
+
+  bool operator==(const MaterialConfig&) const = default;
+};
+
 struct Config {
   DaemonConfig daemon;
   CaptureConfig capture;
@@ -460,6 +473,7 @@ struct Config {
   CalibrationConfig calibration;
   MaskConfig mask;
   WorkerConfig worker;
+  MaterialConfig material;
 
   bool operator==(const Config&) const = default;
 };

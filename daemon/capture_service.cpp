@@ -16,7 +16,10 @@
 #include "common/json_io.h"
 #include "common/log.h"
 #include "daemon/calibration_check.h"
+#include "store/batches.h"
 #include "store/layout.h"
+#include "store/library_csv.h"
+#include "store/sample_meta.h"
 
 namespace aggscan {
 
@@ -1409,10 +1412,14 @@ Result<json> CaptureService::ArmOnLoop(const ArmRequest& request) {
   Result<int> first = store_.PrepareArm(sample_id, plan);
   if (!first) return first.error();
   // Kept until the record is written when the first side starts.
-  arm_meta_ = json::object();
-  if (!request.operator_name.empty()) arm_meta_["operator"] = request.operator_name;
-  if (!request.lot.empty()) arm_meta_["lot"] = request.lot;
-  if (!request.notes.empty()) arm_meta_["notes"] = request.notes;
+  arm_meta_ = request.meta.is_object() ? request.meta : json::object();
+  // The config's material is the default of a new sample; a resumed one
+  // keeps the material it has (SampleStore::CreateOrResume).
+  if (!arm_meta_.contains("material")) {
+    json m = sample_meta::MaterialFromConfig(
+        config_.material.name, config_.material.specific_gravity, config_.material.basis);
+    if (!m.is_null()) arm_meta_["material"] = std::move(m);
+  }
   Dispatch(cs::Arm{sample_id, cs::Plan{plan.sides, plan.views_per_side, plan.step_deg}, *first});
   if (state_.phase == cs::Phase::kFaulted) {
     return MakeError(state_.fault_class, state_.fault_message);
@@ -1567,6 +1574,92 @@ Result<json> CaptureService::Press(const std::string& source, const CallContext&
   return OnLoop([this, source] { return PressOnLoop(source); }, ctx);
 }
 
+Result<json> CaptureService::EditMeta(const std::string& sample_id, const json& doc,
+                                      const std::string& by, const CallContext& ctx) {
+  // On the loop: the capture writes the same sample.json (its state) there.
+  return OnLoop(
+      [this, sample_id, doc, by]() -> Result<json> {
+        Result<json> r = store_.EditMeta(sample_id, doc, by);
+        if (r && !(*r)["changed"].empty()) {
+          LogLine(LogLevel::kNotice, "capture", sample_id,
+                  "description edited by " + by + ": " + (*r)["changed"].dump());
+          // The library's row carries the description and the mass from it.
+          const std::string mpath =
+              layout::ResultsPath(store_.SampleDir(sample_id), layout::kMorphology);
+          if (PathExists(mpath)) {
+            Result<json> m = jsonio::ReadFile(mpath, "results");
+            Status s = m ? library_csv::Upsert(store_.state_dir(), sample_id,
+                                               library_csv::Row(*m, (*r)["meta"]))
+                         : Status(m.error());
+            if (!s) {
+              LogLine(LogLevel::kWarning, "capture", sample_id,
+                      "library.csv row not updated after the edit: " + s.error().ToString());
+            }
+          }
+        }
+        return r;
+      },
+      ctx);
+}
+
+Result<json> CaptureService::ListBatches() {
+  Result<json> samples = store_.List();
+  if (!samples) return samples.error();
+  std::vector<std::string> problems;
+  std::vector<BatchDef> defs;
+  {
+    std::lock_guard<std::mutex> lock(batches_mu_);
+    defs = BatchStore(store_.state_dir()).List(&problems);
+  }
+  json out = {{"batches", json::array()}};
+  for (const BatchDef& b : defs) {
+    json j = b.ToJson();
+    j["members"] = ResolveBatch(b, *samples).ids.size();
+    out["batches"].push_back(std::move(j));
+  }
+  if (!problems.empty()) out["problems"] = problems;
+  return out;
+}
+
+Result<json> CaptureService::GetBatch(const std::string& name) {
+  Result<BatchDef> def = [&] {
+    std::lock_guard<std::mutex> lock(batches_mu_);
+    return BatchStore(store_.state_dir()).Get(name);
+  }();
+  if (!def) return def.error();
+  Result<json> samples = ListSamples();
+  if (!samples) return samples.error();
+  const BatchMembers m = ResolveBatch(*def, *samples);
+  json out = def->ToJson();
+  out["members"] = json::array();
+  for (const std::string& id : m.ids) {
+    for (const json& s : *samples) {
+      if (s.value("id", "") == id) out["members"].push_back(s);
+    }
+  }
+  out["missing"] = m.missing;
+  return out;
+}
+
+Result<json> CaptureService::PutBatch(const std::string& name, const json& doc) {
+  Result<BatchDef> def = BatchFromRequest(name, doc);
+  if (!def) return def.error();
+  {
+    std::lock_guard<std::mutex> lock(batches_mu_);
+    Result<BatchDef> put = BatchStore(store_.state_dir()).Put(std::move(*def));
+    if (!put) return put.error();
+  }
+  LogLine(LogLevel::kNotice, "capture", "", "batch " + name + " set: " + doc.dump());
+  return GetBatch(name);
+}
+
+Result<json> CaptureService::DeleteBatch(const std::string& name) {
+  std::lock_guard<std::mutex> lock(batches_mu_);
+  if (Status s = BatchStore(store_.state_dir()).Remove(name); !s) return s.error();
+  LogLine(LogLevel::kNotice, "capture", "", "batch " + name + " deleted");
+  return json{{"deleted", name}};
+}
+
 Result<json> CaptureService::Abort(const CallContext& ctx) {
   return OnLoop([this] { return AbortOnLoop(); }, ctx);
 }
@@ -1608,7 +1701,7 @@ json ReconstructionOf(const std::vector<Job>& jobs, bool has_result) {
 
 }  // namespace
 
-json CaptureService::ResultSummary(const std::string& sample_id) const {
+json CaptureService::ResultSummary(const std::string& sample_id, const json& meta) const {
   // The worker's figures once it has written them, with their quality: a
   // doubtful result is shown as such wherever the sample is.
   // A record that does not read (cut short, edited by hand) shows no
@@ -1620,10 +1713,38 @@ json CaptureService::ResultSummary(const std::string& sample_id) const {
   Result<json> d3 = jsonio::ObjectOr(*mj, "morphology_3d", src);
   if (!d3 || d3->empty()) return nullptr;
   json r = json::object();
-  for (const char* k :
-       {"volume_mm3", "surface_area_mm2", "a_mm", "b_mm", "c_mm", "sphericity", "fer_3d"}) {
+  for (const char* k : {"volume_mm3", "surface_area_mm2", "a_mm", "b_mm", "c_mm", "sphericity",
+                        "fer_3d", "ratio_c_b", "ratio_b_a"}) {
     if (d3->contains(k) && (*d3)[k].is_number()) r[k] = (*d3)[k];
   }
+  // Mass from the sample's description as it is now: an edited specific
+  // gravity shows at once, without reconstructing.
+  if (r.contains("volume_mm3")) {
+    const sample_meta::Mass m = sample_meta::MassOf(r["volume_mm3"].get<double>(), meta);
+    if (m.grams) {
+      r["mass_g"] = *m.grams;
+      r["mass_basis"] = m.basis;
+      r["specific_gravity"] = m.specific_gravity;
+    } else {
+      r["mass_none"] = m.why_none;
+    }
+  }
+  // The per-view 2D figures against the 3D ones (the study's Figure 7).
+  if (Result<json> s2 = jsonio::ObjectOr(*mj, "stats_2d", src); s2 && s2->contains("overall")) {
+    const json& o = (*s2)["overall"];
+    json d2 = json::object();
+    for (const char* k : {"fer_2d", "circularity"}) {
+      if (!o.is_object() || !o.contains(k) || !o[k].is_object()) continue;
+      json st = json::object();
+      for (const char* f : {"mean", "min", "max", "cov", "n"}) {
+        if (o[k].contains(f) && o[k][f].is_number()) st[f] = o[k][f];
+      }
+      d2[k] = std::move(st);
+    }
+    if (!d2.empty()) r["views_2d"] = std::move(d2);
+  }
+  if (Result<json> w = jsonio::ArrayOr(*mj, "warnings", src); w && !w->empty()) r["warnings"] = *w;
+  if (mj->contains("software") && (*mj)["software"].is_object()) r["software"] = (*mj)["software"];
   Result<json> q = jsonio::ObjectOr(*mj, "quality", src);
   Result<bool> confident = q ? jsonio::BoolOr(*q, "confident", true, src) : Result<bool>(false);
   Result<json> flags = q ? jsonio::ArrayOr(*q, "flags", src) : Result<json>(json::array());
@@ -1640,7 +1761,7 @@ Result<json> CaptureService::ListSamples() {
   std::vector<std::string> ids;
   for (auto& s : *list) {
     const std::string id = s.value("id", "");
-    const json r = ResultSummary(id);
+    const json r = ResultSummary(id, s.value("meta", json::object()));
     if (!r.is_null()) s["result"] = r;
     ids.push_back(id);
   }
@@ -1667,7 +1788,8 @@ Result<json> CaptureService::GetSample(const std::string& sample_id) {
   Result<json> d = store_.Describe(sample_id);
   if (!d) return d;
   json out = *d;
-  if (json r = ResultSummary(sample_id); !r.is_null()) out["result"] = std::move(r);
+  if (json r = ResultSummary(sample_id, out.value("meta", json::object())); !r.is_null())
+    out["result"] = std::move(r);
   if (queue_) {
     // Our own queue handle is used from the loop thread only.
     auto jobs = OnLoop([this, sample_id]() -> Result<std::vector<Job>> {

@@ -88,6 +88,12 @@ class CaptureService final : public DaemonControl {
   Result<nlohmann::json> Abort(const CallContext& ctx) override;
   Result<nlohmann::json> Reset(const CallContext& ctx) override;
   Result<nlohmann::json> Retry(const std::string& sample_id) override;
+  Result<nlohmann::json> EditMeta(const std::string& sample_id, const nlohmann::json& doc,
+                                  const std::string& by, const CallContext& ctx) override;
+  Result<nlohmann::json> ListBatches() override;
+  Result<nlohmann::json> GetBatch(const std::string& name) override;
+  Result<nlohmann::json> PutBatch(const std::string& name, const nlohmann::json& doc) override;
+  Result<nlohmann::json> DeleteBatch(const std::string& name) override;
   Result<nlohmann::json> ListSamples() override;
   Result<nlohmann::json> GetSample(const std::string& sample_id) override;
   Result<std::string> ResultFile(const std::string& sample_id, const std::string& name) override;
@@ -98,10 +104,11 @@ class CaptureService final : public DaemonControl {
 
   // Loop-thread versions (used by the offline sim capture and by the above).
   Result<nlohmann::json> ArmOnLoop(const ArmRequest& request);
-  /// The sample's key figures from its morphology.json; null when none yet.
-  nlohmann::json ResultSummary(const std::string& sample_id) const;
+  /// The sample's key figures from its morphology.json, with the mass from
+  /// `meta` (its record's description); null when none yet.
+  nlohmann::json ResultSummary(const std::string& sample_id, const nlohmann::json& meta) const;
   Result<nlohmann::json> ArmOnLoop(const std::string& sample_id) {
-    return ArmOnLoop(ArmRequest{sample_id, {}, {}, {}});
+    return ArmOnLoop(ArmRequest{sample_id, nlohmann::json::object()});
   }
   /// Arms a capture of the calibration board (one side, into
   /// state_dir/calibration-captures/calibration-<UTC>); the worker solves it.
@@ -263,6 +270,7 @@ class CaptureService final : public DaemonControl {
   RigDevices dev_;
   SampleStore& store_;
   SampleStore cal_store_;  // state_dir/calibration-captures
+  std::mutex batches_mu_;  // one writer of state_dir/batches at a time
   JobQueue* queue_;
   bool calibration_capture_ = false;  // the armed (or last) capture is of the board
   std::string cal_last_id_;           // the latest calibration capture

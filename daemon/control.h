@@ -61,9 +61,9 @@ struct CallContext {
 /// What the operator fills in to arm a sample.
 struct ArmRequest {
   std::string id;
-  std::string operator_name;  // who captures it
-  std::string lot;            // source or lot of the stone
-  std::string notes;
+  /// The sample's description as store/sample_meta.h checks it ("operator",
+  /// "lot", "notes", "material"), already checked.
+  nlohmann::json meta = nlohmann::json::object();
 };
 
 class DaemonControl {
@@ -84,7 +84,7 @@ class DaemonControl {
   /// "meta" (a resume keeps what was stored unless new text is given).
   virtual Result<nlohmann::json> Arm(const ArmRequest& request, const CallContext& ctx) = 0;
   Result<nlohmann::json> Arm(const std::string& sample_id, const CallContext& ctx) {
-    return Arm(ArmRequest{sample_id, {}, {}, {}}, ctx);
+    return Arm(ArmRequest{sample_id, nlohmann::json::object()}, ctx);
   }
   /// Arms a capture of the calibration board lying on the disc (no rock):
   /// one side into state_dir/calibration-captures/calibration-<UTC>, which
@@ -105,6 +105,22 @@ class DaemonControl {
   /// attempts reset (after the cause was fixed): {"sample_id", "requeued",
   /// "jobs"}. kNotFound when the sample does not exist or has no failed job.
   virtual Result<nlohmann::json> Retry(const std::string& sample_id) = 0;
+  /// Edits a sample's description (operator, lot, notes, material) in its
+  /// sample.json only, in any state; `doc` is the request as given, checked
+  /// by store/sample_meta.h; `by` who asked. {"id", "meta", "changed"}.
+  virtual Result<nlohmann::json> EditMeta(const std::string& sample_id, const nlohmann::json& doc,
+                                          const std::string& by, const CallContext& ctx) = 0;
+  /// Batches (store/batches.h): {"batches": [{"name", "lot", "from", "to",
+  /// "samples", "notes", "members" (how many belong now)}...]}.
+  virtual Result<nlohmann::json> ListBatches() = 0;
+  /// One batch: its definition, "members" (ListSamples' entries of the
+  /// samples that belong now, with their results) and "missing" (listed ids
+  /// the store does not have). kNotFound naming the batches there are.
+  virtual Result<nlohmann::json> GetBatch(const std::string& name) = 0;
+  /// Creates or replaces a batch from {"lot", "from", "to", "samples",
+  /// "notes"} (checked by BatchFromRequest); answers as GetBatch.
+  virtual Result<nlohmann::json> PutBatch(const std::string& name, const nlohmann::json& doc) = 0;
+  virtual Result<nlohmann::json> DeleteBatch(const std::string& name) = 0;
   /// Path of one of a sample's result files, written by the worker: name is
   /// "morphology.json", "mesh.ply", "mesh.obj" or "mesh.stl" (ResultFileNames()).
   /// kNotFound when the sample does not exist or has no such result yet.

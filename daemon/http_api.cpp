@@ -27,6 +27,7 @@
 #include "common/fsutil.h"
 #include "common/log.h"
 #include "store/layout.h"
+#include "store/sample_meta.h"
 
 namespace aggscan {
 
@@ -39,6 +40,7 @@ constexpr const char* kCat = "api";
 constexpr const char* kJsonType = "application/json";
 constexpr const char* kMetricsType = "text/plain; version=0.0.4; charset=utf-8";
 constexpr const char* kSamplesPrefix = "/api/v1/samples/";
+constexpr const char* kBatchesPrefix = "/api/v1/batches/";
 // Threads that run routed requests (each may wait up to kRequestBudget on the
 // capture loop); the polling thread hands them complete requests only, so a
 // slow client never occupies one.
@@ -183,6 +185,9 @@ enum class Endpoint {
   kSample,
   kSampleFile,
   kSampleRetry,
+  kSampleMeta,
+  kBatches,
+  kBatch,
   kButton,
   kCalibration,
   kAbort,
@@ -217,6 +222,12 @@ const char* AllowedMethods(Endpoint ep) {
       return "GET, HEAD, POST, DELETE";
     case Endpoint::kSamples:
       return "GET, HEAD, POST";
+    case Endpoint::kSampleMeta:
+      return "PATCH";
+    case Endpoint::kBatches:
+      return "GET, HEAD";
+    case Endpoint::kBatch:
+      return "GET, HEAD, PUT, DELETE";
     case Endpoint::kSampleRetry:
     case Endpoint::kButton:
     case Endpoint::kCalibration:
@@ -248,6 +259,11 @@ Endpoint Match(const std::string& path, std::string* id, std::string* file) {
   if (path == "/api/v1/status") return Endpoint::kStatus;
   if (path == "/api/v1/health") return Endpoint::kHealth;
   if (path == "/api/v1/samples") return Endpoint::kSamples;
+  if (path == "/api/v1/batches") return Endpoint::kBatches;
+  if (path.rfind(kBatchesPrefix, 0) == 0) {
+    *id = path.substr(std::strlen(kBatchesPrefix));
+    return Endpoint::kBatch;
+  }
   if (path == "/api/v1/button") return Endpoint::kButton;
   if (path == "/api/v1/calibration") return Endpoint::kCalibration;
   if (path == "/api/v1/abort") return Endpoint::kAbort;
@@ -278,6 +294,7 @@ Endpoint Match(const std::string& path, std::string* id, std::string* file) {
     if (*file == layout::kMeshPly || *file == layout::kMeshObj || *file == layout::kMeshStl)
       return Endpoint::kSampleFile;
     if (*file == "retry") return Endpoint::kSampleRetry;
+    if (*file == "meta") return Endpoint::kSampleMeta;
     if (*file == "images.zip") return Endpoint::kImageArchive;
     if (file->rfind("sides/", 0) == 0) return Endpoint::kView;  // checked by ServeView
     // Anything else is not a sub-resource: the whole rest is the (invalid) id.
@@ -600,6 +617,37 @@ ApiResponse ApiRouter::HandleUnsafe(const ApiRequest& req) {
       if (!layout::IsValidSampleId(id))
         return ErrorResponse(400, ErrorClass::kInvalidArgument, InvalidIdMessage(id));
       return Reply(control_.Retry(id));
+    case Endpoint::kSampleMeta: {
+      if (!layout::IsValidSampleId(id))
+        return ErrorResponse(400, ErrorClass::kInvalidArgument, InvalidIdMessage(id));
+      const json doc = json::parse(req.body, nullptr, /*allow_exceptions=*/false);
+      if (doc.is_discarded() || !doc.is_object()) {
+        return ErrorResponse(400, ErrorClass::kInvalidArgument,
+                             "request body is not a JSON object: expected the fields to change, "
+                             "e.g. {\"lot\": \"L-12\", \"material\": {\"specific_gravity\": "
+                             "2.65, \"basis\": \"bulk-ssd\"}} (null removes a field)");
+      }
+      return Reply(control_.EditMeta(id, doc, who ? who->user : "api", req.ctx));
+    }
+    case Endpoint::kBatches:
+      return Reply(control_.ListBatches());
+    case Endpoint::kBatch: {
+      if (!layout::IsValidSampleId(id)) {
+        return ErrorResponse(400, ErrorClass::kInvalidArgument,
+                             "invalid batch name \"" + Printable(id, 80) +
+                                 "\": use 1-64 characters from A-Z a-z 0-9 . _ -, not starting "
+                                 "with '.' or '-'");
+      }
+      if (get) return Reply(control_.GetBatch(id));
+      if (req.method == "DELETE") return Reply(control_.DeleteBatch(id));
+      const json doc = json::parse(req.body, nullptr, /*allow_exceptions=*/false);
+      if (doc.is_discarded()) {
+        return ErrorResponse(400, ErrorClass::kInvalidArgument,
+                             "request body is not valid JSON: expected {\"lot\", \"from\", "
+                             "\"to\", \"samples\", \"notes\"}");
+      }
+      return Reply(control_.PutBatch(id, doc));
+    }
     case Endpoint::kCalibration:
       return Reply(control_.ArmCalibration(req.ctx));
     case Endpoint::kButton:
@@ -868,7 +916,7 @@ ApiResponse ApiRouter::HandleSession(const ApiRequest& req, const std::optional<
 
 ApiResponse ApiRouter::ArmFromBody(const std::string& body, const CallContext& ctx) {
   static const std::string kExpected =
-      R"(expected a JSON object {"id": "<sample id>"} (optional "operator", "lot", "notes"))";
+      R"(expected a JSON object {"id": "<sample id>"} (optional "operator", "lot", "notes", "material": {"name", "specific_gravity", "basis"}))";
   const json doc = json::parse(body, nullptr, /*allow_exceptions=*/false);
   if (doc.is_discarded()) {
     return ErrorResponse(400, ErrorClass::kInvalidArgument,
@@ -887,41 +935,15 @@ ApiResponse ApiRouter::ArmFromBody(const std::string& body, const CallContext& c
   req.id = it->get<std::string>();
   if (!layout::IsValidSampleId(req.id))
     return ErrorResponse(400, ErrorClass::kInvalidArgument, InvalidIdMessage(req.id));
-  // The operator's description: short single-line text, notes may have lines.
-  struct Field {
-    const char* key;
-    std::string* out;
-    size_t max_bytes;
-    bool multiline;
-  };
-  for (const Field& f :
-       {Field{"operator", &req.operator_name, 80, false}, Field{"lot", &req.lot, 80, false},
-        Field{"notes", &req.notes, 2000, true}}) {
-    const auto v = doc.find(f.key);
-    if (v == doc.end() || v->is_null()) continue;
-    if (!v->is_string()) {
-      return ErrorResponse(400, ErrorClass::kInvalidArgument,
-                           std::string("\"") + f.key + "\" must be a string (or left out)");
-    }
-    std::string text = v->get<std::string>();
-    if (text.size() > f.max_bytes) {
-      return ErrorResponse(400, ErrorClass::kInvalidArgument,
-                           std::string("\"") + f.key + "\" is " + std::to_string(text.size()) +
-                               " bytes long: at most " + std::to_string(f.max_bytes));
-    }
-    for (const unsigned char ch : text) {
-      if ((ch < 0x20 && !(f.multiline && (ch == '\n' || ch == '\t'))) || ch == 0x7f) {
-        return ErrorResponse(400, ErrorClass::kInvalidArgument,
-                             std::string("\"") + f.key + "\" contains a control character" +
-                                 (f.multiline ? " (only line breaks and tabs are kept)" : "") +
-                                 ": remove it");
-      }
-    }
-    // Leading and trailing blanks are typing noise.
-    const size_t b = text.find_first_not_of(" \t\n");
-    const size_t e = text.find_last_not_of(" \t\n");
-    *f.out = b == std::string::npos ? std::string() : text.substr(b, e - b + 1);
+  // Other fields are let through as before (a newer console's, say); the
+  // description's own are checked.
+  json described = json::object();
+  for (const char* k : {"operator", "lot", "notes", "material"}) {
+    if (doc.contains(k)) described[k] = doc[k];
   }
+  Result<json> meta = sample_meta::CheckPatch(described, /*allow_removal=*/false);
+  if (!meta) return ErrorResponse(400, ErrorClass::kInvalidArgument, meta.error().message);
+  req.meta = std::move(*meta);
   return Reply(control_.Arm(req, ctx));
 }
 

@@ -16,6 +16,7 @@
 #include "store/empty_turntable.h"
 #include "store/layout.h"
 #include "store/sample_files.h"
+#include "store/sample_meta.h"
 
 namespace aggscan {
 namespace {
@@ -222,6 +223,26 @@ Status SampleStore::UpdateRecord(const std::string& id, const std::function<void
   return SaveRecord(id, r);
 }
 
+Result<json> SampleStore::EditMeta(const std::string& id, const json& doc, const std::string& by) {
+  Result<json> rec = LoadRecord(id);
+  if (!rec) return rec.error();
+  json meta = rec->value("meta", json::object());
+  if (!meta.is_object()) meta = json::object();
+  Result<json> patch =
+      sample_meta::CheckPatch(doc, /*allow_removal=*/true, {}, meta.value("material", json()));
+  if (!patch) return patch.error();
+  json changed = sample_meta::ApplyPatch(meta, *patch);
+  if (!changed.empty()) {
+    json r = std::move(*rec);
+    r["meta"] = meta;
+    if (!r.contains("meta_history") || !r["meta_history"].is_array())
+      r["meta_history"] = json::array();
+    r["meta_history"].push_back({{"utc", NowUtcString()}, {"by", by}, {"changed", changed}});
+    if (Status s = SaveRecord(id, r); !s) return s.error();
+  }
+  return json{{"id", id}, {"meta", meta}, {"changed", changed}};
+}
+
 Result<json> SampleStore::LoadRecord(const std::string& id) const {
   if (!layout::IsValidSampleId(id)) return BadId(id);
   const std::string path = SampleDir(id) + "/" + layout::kSampleRecord;
@@ -407,7 +428,16 @@ Status SampleStore::CreateOrResume(const std::string& id, const SamplePlan& plan
     }
   }
   if (meta.is_object()) {
-    for (const auto& [k, v] : meta.items()) rec["meta"][k] = v;
+    json m = rec.value("meta", json::object());
+    json given = meta;
+    // A default from the config does not replace the material a resumed
+    // sample already has (given when it was armed, or edited since).
+    if (given.contains("material") && given["material"].is_object() &&
+        given["material"].value("source", "") == "config" && m.is_object() &&
+        m.contains("material"))
+      given.erase("material");
+    sample_meta::ApplyPatch(m, given);
+    if (!m.empty() || rec.contains("meta")) rec["meta"] = std::move(m);
   }
   // The config in effect for this capture; a resume keeps the first copy too.
   const std::string cfg = dir + "/" + layout::kConfigCopy;

@@ -87,6 +87,13 @@ class SampleStore {
   Status SetSampleState(const std::string& id, const std::string& state, int side_in_progress = 0,
                         const std::string& side_state = "");
 
+  /// Edits the sample's description (store/sample_meta.h: `doc` is checked
+  /// there, a null field removes it) in sample.json alone, in any state;
+  /// "meta_history" gets {"utc", "by", "changed": {field: value before}}.
+  /// Returns {"id", "meta", "changed"}; nothing is written when nothing changes.
+  Result<nlohmann::json> EditMeta(const std::string& id, const nlohmann::json& doc,
+                                  const std::string& by);
+
   Result<nlohmann::json> LoadRecord(const std::string& id) const;
   /// Summaries of every sample, sorted by creation time.
   Result<nlohmann::json> List() const;

@@ -541,6 +541,7 @@ json Morphology::ToJson() const {
   j["warnings"] = warnings;
   j["timings_s"] = timings_s;
   j["files"] = files;
+  if (software.is_object() && !software.empty()) j["software"] = software;
   return j;
 }
 
@@ -601,7 +602,9 @@ Result<Morphology> Morphology::FromJson(const json& j, const jsonio::Source& src
   f.Strings("warnings", &m.warnings);
   f.Raw("timings_s", &m.timings_s);
   f.Use("files", StringMap(j, "files", src), &m.files);
+  f.Raw("software", &m.software);
   if (!f.ok()) return f.error();
+  if (!m.software.is_object()) m.software = json::object();
   m.extra = f.Extra();
   return m;
 }

@@ -236,6 +236,10 @@ struct Morphology {
   std::vector<std::string> warnings;
   nlohmann::json timings_s = nlohmann::json::object();
   std::map<std::string, std::string> files;
+  /// What computed it: {"version" (common/version.h), "config_sha256" (of
+  /// the effective config, as ConfigToToml writes it)}; for people and
+  /// reports, so kept as written.
+  nlohmann::json software = nlohmann::json::object();
   nlohmann::json extra = nlohmann::json::object();
 
   /// Sets the typed 3D figures from morphology_3d (after it is filled).

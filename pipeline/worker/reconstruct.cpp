@@ -1,5 +1,7 @@
 #include "pipeline/worker/reconstruct.h"
 
+#include <openssl/evp.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -17,6 +19,7 @@
 #include "common/mesh_check.h"
 #include "common/mesh_props.h"
 #include "common/rig_calibration.h"
+#include "common/version.h"
 #include "pipeline/core/geometry.h"
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/parallel_for.h"
@@ -31,6 +34,7 @@
 #include "pipeline/worker/options_json.h"
 #include "pipeline/worker/quality.h"
 #include "store/layout.h"
+#include "store/library_csv.h"
 
 namespace aggscan {
 
@@ -903,97 +907,40 @@ Result<records::SurfaceRecord> SurfaceStage(
 
 // --- stage: morphology ---------------------------------------------------
 
+std::string Sha256Hex(const std::string& text) {
+  unsigned char digest[EVP_MAX_MD_SIZE];
+  unsigned int len = 0;
+  if (EVP_Digest(text.data(), text.size(), digest, &len, EVP_sha256(), nullptr) != 1) return "";
+  std::string hex;
+  hex.reserve(2 * len);
+  static const char* const kHex = "0123456789abcdef";
+  for (unsigned int i = 0; i < len; ++i) {
+    hex += kHex[digest[i] >> 4];
+    hex += kHex[digest[i] & 15];
+  }
+  return hex;
+}
+
 json StatsJson(const std::vector<double>& v) { return records::StatsToJson(ComputeStats(v)); }
 
-Status AppendLibraryRow(const std::string& state_dir, const records::Morphology& morphology) {
+// The rock's row in the state directory's library, with its description
+// (sample.json's "meta": operator, lot, material and the mass from it).
+Status AppendLibraryRow(const std::string& state_dir, const std::string& sample_dir,
+                        const records::Morphology& morphology) {
   if (state_dir.empty()) return OkStatus();
-  const std::string path = state_dir + "/" + layout::kLibraryCsv;
-  const std::string& id = morphology.sample_id;
-  std::string text;
-  if (PathExists(path)) {
-    auto t = ReadFile(path);
-    if (!t) return t.error();
-    text = *t;
-    // Already there: the same row (a resumed run after it was written) is
-    // left alone; a sample reconstructed again gets its new row in place.
-    if (const size_t at = text.find("\n" + id + ","); at != std::string::npos) {
-      const size_t end = text.find('\n', at + 1);
-      const std::string row = LibraryCsvRow(morphology);
-      const size_t len = (end == std::string::npos ? text.size() : end + 1) - (at + 1);
-      if (text.compare(at + 1, len, row) == 0) return OkStatus();
-      text.replace(at + 1, len, row);
-      return WriteFileAtomic(path, std::string_view(text));
-    }
-    if (text.compare(0, LibraryCsvHeader().size(), LibraryCsvHeader()) != 0) {
-      // Written with other columns (an older worker): kept beside under a
-      // new name, and a new library begins, so no row is mixed or lost.
-      const std::string kept = state_dir + "/library-" + NowUtcString() + ".csv";
-      if (Status s = RenameDurable(path, kept); !s) return s;
-      StageLog(LogLevel::kNotice, kCat, id,
-               "library.csv had other columns; kept as " + kept + ", a new one begun");
-      text = LibraryCsvHeader();
-    }
-  } else {
-    text = LibraryCsvHeader();
+  json meta = json::object();
+  const std::string rec_path = sample_dir + "/" + layout::kSampleRecord;
+  if (PathExists(rec_path)) {
+    // A record that does not read leaves the description columns empty; the
+    // figures are still the rock's.
+    if (auto rec = jsonio::ReadFile(rec_path, "sample record"); rec && rec->is_object())
+      meta = rec->value("meta", json::object());
   }
-  // Rewrite the whole file atomically: a crash leaves the old or the new one.
-  text += LibraryCsvRow(morphology);
-  return WriteFileAtomic(path, std::string_view(text));
+  return library_csv::Upsert(state_dir, morphology.sample_id,
+                             library_csv::Row(morphology.ToJson(), meta));
 }
 
 }  // namespace
-
-std::string LibraryCsvHeader() {
-  return "sample_id,created_utc,volume_mm3,surface_area_mm2,a_mm,b_mm,c_mm,fer_3d,ratio_c_b,ratio_"
-         "b_a,sphericity,"
-         "fer_2d_mean,circularity_mean,views,poses_method,stitch_method,surface_method,stitch_rms_"
-         "mm,"
-         "silhouette_iou_mean,total_s,confident,quality_flags\n";
-}
-
-std::string LibraryCsvRow(const records::Morphology& m) {
-  // The figures a reader needs are typed; the rest is looked up without
-  // trusting the file's shape (a missing figure is an empty-looking "nan").
-  auto at = [](const json& j, std::initializer_list<const char*> path) {
-    const json* p = &j;
-    for (const char* k : path) {
-      if (!p->is_object() || !p->contains(k)) return json();
-      p = &(*p)[k];
-    }
-    return *p;
-  };
-  auto num = [](const json& v) {
-    char b[64];
-    std::snprintf(b, sizeof b, "%.6g", v.is_number() ? v.get<double>() : std::nan(""));
-    return std::string(b);
-  };
-  auto method = [&](const char* k) {
-    auto it = m.methods.find(k);
-    return it == m.methods.end() ? std::string() : it->second;
-  };
-  std::string row = m.sample_id + "," + m.created_utc;
-  for (const json& v : {json(m.volume_mm3), json(m.surface_area_mm2), json(m.a_mm), json(m.b_mm),
-                        json(m.c_mm), json(m.fer_3d), at(m.morphology_3d, {"ratio_c_b"}),
-                        at(m.morphology_3d, {"ratio_b_a"}), json(m.sphericity)}) {
-    row += "," + num(v);
-  }
-  row += "," + num(at(m.stats_2d, {"overall", "fer_2d", "mean"})) + "," +
-         num(at(m.stats_2d, {"overall", "circularity", "mean"}));
-  row += "," + std::to_string(m.views_2d.size());
-  row += "," + method("poses") + "," + method("stitch") + "," + method("surface");
-  row += "," + num(at(m.quality, {"stitch_rms_mm"})) + "," +
-         num(at(m.quality, {"silhouette_iou_mean"}));
-  row += "," + num(at(m.timings_s, {"total"}));
-  // Flag codes joined by ';' (no commas or quotes: one CSV field).
-  std::string codes;
-  const json flags = at(m.quality, {"flags"});
-  for (const json& f : flags.is_array() ? flags : json::array()) {
-    if (f.is_object() && f.contains("code") && f["code"].is_string())
-      codes += (codes.empty() ? "" : ";") + f["code"].get<std::string>();
-  }
-  row += std::string(",") + (m.confident ? "yes" : "no") + "," + codes + "\n";
-  return row;
-}
 
 bool ParsePosesPath(const std::string& name, PosesPath* out) {
   for (PosesPath p : {PosesPath::kAuto, PosesPath::kTurntable, PosesPath::kSfm}) {
@@ -1397,6 +1344,13 @@ Status MorphologyStage(SampleRun& r) {
                           {"circularity_mean_minus_sphericity", circ_mean - p.sphericity}};
   out.quality = quality;
   out.timings_s = r.timings;
+  out.software = {{"version", SoftwareVersion()}};
+  if (r.sample_cfg) {
+    // The config in effect, defaults included, as one text: two results
+    // with the same hash were computed with the same settings.
+    out.software["config_sha256"] = Sha256Hex(ConfigToToml(*r.sample_cfg));
+    out.software["config_source"] = std::string("sample ") + layout::kConfigCopy;
+  }
   out.files = {{"mesh_ply", layout::kMeshPly},
                {"mesh_obj", layout::kMeshObj},
                {"mesh_stl", layout::kMeshStl},
@@ -1407,7 +1361,7 @@ Status MorphologyStage(SampleRun& r) {
            "reconstructed: V " + std::to_string(static_cast<long>(p.volume_mm3)) + " mm3, a/b/c " +
                std::to_string(p.a_mm) + "/" + std::to_string(p.b_mm) + "/" +
                std::to_string(p.c_mm) + " mm");
-  return AppendLibraryRow(r.opts.state_dir, out);
+  return AppendLibraryRow(r.opts.state_dir, r.dir, out);
 }
 
 // The fingerprints of the stages (pipeline/core/stage_runner.h): each stage's
@@ -1625,7 +1579,7 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
   if (!run) return run.error();
   auto m = ReadMorphologyRecord(sample_dir);
   if (!m) return m.error();
-  return AppendLibraryRow(opts.state_dir, *m);
+  return AppendLibraryRow(opts.state_dir, sample_dir, *m);
 }
 
 }  // namespace

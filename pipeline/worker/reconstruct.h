@@ -110,8 +110,4 @@ Result<records::Morphology> ReadMorphologyRecord(const std::string& sample_dir);
 /// The same record as JSON (ToJson of the above).
 Result<nlohmann::json> ReadMorphology(const std::string& sample_dir);
 
-/// The CSV header of the library and one sample's row (from morphology.json).
-std::string LibraryCsvHeader();
-std::string LibraryCsvRow(const records::Morphology& morphology);
-
 }  // namespace aggscan

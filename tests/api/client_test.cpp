@@ -134,8 +134,8 @@ TEST_F(ClientTest, ShowSaysWhenAResultIsNotConfidentAndWhy) {
                             {"reason", "side 2's stitch onto side 1 is not confirmed"}}}}};
   ASSERT_EQ(Run({"show", "rock-11"}), kClientExitOk) << err_.str();
   std::string out = out_.str();
-  EXPECT_NE(out.find("result: V 715900 mm3, a/b/c 83.7 / 122.0 / 142.8 mm\n"), std::string::npos)
-      << out;
+  EXPECT_NE(out.find("  volume       715900.0 mm3 (715.90 cm3)\n"), std::string::npos) << out;
+  EXPECT_NE(out.find("  a / b / c    83.7 / 122.0 / 142.8 mm\n"), std::string::npos) << out;
   EXPECT_NE(out.find("quality: NOT CONFIDENT (1 flag(s))"), std::string::npos) << out;
   EXPECT_NE(out.find("  stitch_unconfirmed: side 2's stitch onto side 1 is not confirmed\n"),
             std::string::npos)
@@ -145,6 +145,156 @@ TEST_F(ClientTest, ShowSaysWhenAResultIsNotConfidentAndWhy) {
   out_.str("");
   ASSERT_EQ(Run({"show", "rock-11"}), kClientExitOk) << err_.str();
   EXPECT_NE(out_.str().find("quality: confident\n"), std::string::npos) << out_.str();
+}
+
+// Every figure the QA engineer reads, in plain decimals, the mass with its
+// specific gravity and basis, the 2D summary, the description and every
+// warning; a missing specific gravity says how to give one.
+TEST_F(ClientTest, ShowPrintsEveryFigureMassAndWarning) {
+  fake_.sample_result = {
+      {"volume_mm3", 1747490.5},
+      {"surface_area_mm2", 73512.25},
+      {"a_mm", 101.25},
+      {"b_mm", 152.5},
+      {"c_mm", 201.75},
+      {"fer_3d", 1.9926},
+      {"ratio_c_b", 1.3230},
+      {"ratio_b_a", 1.5062},
+      {"sphericity", 0.8123},
+      {"mass_g", 4630.85},
+      {"specific_gravity", 2.65},
+      {"mass_basis", "bulk-ssd"},
+      {"views_2d",
+       {{"fer_2d", {{"mean", 1.41}, {"min", 1.02}, {"max", 1.88}, {"cov", 0.185}, {"n", 60}}}}},
+      {"warnings", {"side 2 view 7 left out of the model: blurred"}},
+      {"software", {{"version", "0.1.0+gabc"}, {"config_sha256", "0123456789abcdef"}}},
+      {"confident", true},
+      {"quality_flags", json::array()}};
+  fake_.sample_meta = {
+      {"operator", "M. Rossi"},
+      {"lot", "L-7"},
+      {"material", {{"name", "granite"}, {"specific_gravity", 2.65}, {"basis", "bulk-ssd"}}}};
+  ASSERT_EQ(Run({"show", "rock-11"}), kClientExitOk) << err_.str();
+  const std::string out = out_.str();
+  for (const char* want :
+       {"operator: M. Rossi\n", "lot: L-7\n",
+        "material: granite, specific gravity 2.650 (bulk-ssd)\n",
+        "  volume       1747490.5 mm3 (1747.49 cm3)\n", "  area         73512.2 mm2\n",
+        "  a / b / c    101.2 / 152.5 / 201.8 mm\n",
+        "  FER (c/a)    1.993   c/b 1.323   b/a 1.506\n", "  sphericity   0.812\n",
+        "  mass         4630.9 g (specific gravity 2.650, bulk-ssd)\n",
+        "  2D FER        mean 1.410 (1.020 to 1.880, CoV 18.5 %, 60 views)\n",
+        "quality: confident\n", "warnings:\n  - side 2 view 7 left out of the model: blurred\n",
+        "computed by: aggscan 0.1.0+gabc, config sha256 0123456789ab\n"}) {
+    EXPECT_NE(out.find(want), std::string::npos) << want << "\n---\n" << out;
+  }
+  EXPECT_EQ(out.find("e+0"), std::string::npos) << out;
+  fake_.sample_result.erase("mass_g");
+  fake_.sample_result["mass_none"] = "no specific gravity: give the sample's material";
+  ASSERT_EQ(Run({"show", "rock-11"}), kClientExitOk) << err_.str();
+  EXPECT_NE(out_.str().find("  mass         - (no specific gravity: give the sample's material)\n"),
+            std::string::npos)
+      << out_.str();
+}
+
+// A captured sample shows where its reconstruction is, with its key figures.
+TEST_F(ClientTest, SamplesShowReconstructionStateAndFigures) {
+  fake_.samples =
+      json::array({{{"id", "rock-1"},
+                    {"state", "captured"},
+                    {"created_utc", "2026-01-01T10:00:00.000Z"},
+                    {"views", 60},
+                    {"meta", {{"lot", "L-7"}}},
+                    {"reconstruction", {{"state", "done"}}},
+                    {"result",
+                     {{"volume_mm3", 1747490.5},
+                      {"b_mm", 152.5},
+                      {"fer_3d", 1.9926},
+                      {"sphericity", 0.8123},
+                      {"mass_g", 4630.85},
+                      {"confident", true},
+                      {"quality_flags", json::array()}}}},
+                   {{"id", "rock-2"},
+                    {"state", "captured"},
+                    {"created_utc", "2026-01-01T10:05:00.000Z"},
+                    {"views", 60},
+                    {"reconstruction", {{"state", "reconstructing"}}}},
+                   {{"id", "rock-3"},
+                    {"state", "captured"},
+                    {"created_utc", "2026-01-01T10:10:00.000Z"},
+                    {"views", 60},
+                    {"reconstruction", {{"state", "failed"}, {"error", "bad image"}}}}});
+  ASSERT_EQ(Run({"samples"}), kClientExitOk) << err_.str();
+  std::istringstream lines(out_.str());
+  std::string header, r1, r2, r3;
+  std::getline(lines, header);
+  std::getline(lines, r1);
+  std::getline(lines, r2);
+  std::getline(lines, r3);
+  EXPECT_EQ(r1.substr(header.find("STATE"), 4), "done") << out_.str();
+  EXPECT_EQ(r2.substr(header.find("STATE"), 14), "reconstructing") << out_.str();
+  EXPECT_EQ(r3.substr(header.find("STATE"), 6), "failed") << out_.str();
+  EXPECT_EQ(r1.substr(header.find("LOT"), 3), "L-7") << out_.str();
+  EXPECT_EQ(r1.substr(header.find("V cm3"), 6), "1747.5") << out_.str();
+  EXPECT_EQ(r1.substr(header.find("MASS kg"), 5), "4.631") << out_.str();
+  EXPECT_EQ(r1.substr(header.find("QUALITY"), 9), "confident") << out_.str();
+  EXPECT_EQ(r2.substr(header.find("V cm3"), 1), "-") << out_.str();
+}
+
+// meta edits the description through PATCH, clears a field with null, and
+// refuses what it cannot send.
+TEST_F(ClientTest, MetaPatchesTheDescription) {
+  ASSERT_EQ(Run({"meta", "rock-11", "--lot", "L-12", "--sg", "2.7", "--sg-basis", "oven-dry",
+                 "--clear", "notes"}),
+            kClientExitOk)
+      << err_.str();
+  ASSERT_EQ(fake_.Calls(), std::vector<std::string>{"meta:rock-11:api"});
+  EXPECT_EQ(fake_.last_meta_doc,
+            (json{{"lot", "L-12"},
+                  {"notes", nullptr},
+                  {"material", {{"specific_gravity", 2.7}, {"basis", "oven-dry"}}}}));
+  EXPECT_EQ(Run({"meta", "rock-11"}), kClientExitUsage);
+  EXPECT_NE(err_.str().find("needs something to change"), std::string::npos) << err_.str();
+  EXPECT_EQ(Run({"meta", "rock-11", "--sg", "heavy"}), kClientExitUsage);
+  EXPECT_NE(err_.str().find("--sg expects a number"), std::string::npos) << err_.str();
+  EXPECT_EQ(Run({"meta", "rock-11", "--clear", "volume"}), kClientExitUsage);
+  EXPECT_EQ(Run({"arm", "rock-12", "--clear", "lot"}), kClientExitUsage);
+  EXPECT_EQ(Run({"status", "--lot", "x"}), kClientExitUsage);
+  // The daemon's refusal reaches the user with its message.
+  fake_.fail =
+      MakeError(ErrorClass::kInvalidArgument, "\"material.specific_gravity\" needs its basis");
+  EXPECT_EQ(Run({"meta", "rock-11", "--sg", "2.7"}), kClientExitDaemonError);
+  EXPECT_NE(err_.str().find("needs its basis"), std::string::npos) << err_.str();
+}
+
+// batch set sends its criteria with PUT, show lists the members as samples
+// does, list and delete say what they did; misuse is a usage error.
+TEST_F(ClientTest, BatchCommands) {
+  ASSERT_EQ(Run({"batch", "set", "week-49", "--lot", "L-7", "--from", "2026-12-01", "--to",
+                 "2026-12-05", "--samples", "rock-1,rock-2", "--notes", "north face"}),
+            kClientExitOk)
+      << err_.str();
+  EXPECT_EQ(fake_.batches["week-49"]["lot"], "L-7");
+  EXPECT_EQ(fake_.batches["week-49"]["samples"], (json{"rock-1", "rock-2"}));
+  EXPECT_EQ(fake_.batches["week-49"]["notes"], "north face");
+  fake_.batches["week-49"]["members"] = json::array(
+      {{{"id", "rock-1"}, {"state", "captured"}, {"reconstruction", {{"state", "done"}}}}});
+  fake_.batches["week-49"]["missing"] = json::array({"rock-2"});
+  ASSERT_EQ(Run({"batch", "show", "week-49"}), kClientExitOk) << err_.str();
+  EXPECT_NE(out_.str().find("1 sample(s):\n"), std::string::npos) << out_.str();
+  EXPECT_NE(out_.str().find("\nrock-1  "), std::string::npos) << out_.str();
+  EXPECT_NE(out_.str().find("listed but not on this rig: rock-2"), std::string::npos) << out_.str();
+  ASSERT_EQ(Run({"batch", "list"}), kClientExitOk) << err_.str();
+  EXPECT_NE(out_.str().find("week-49: "), std::string::npos) << out_.str();
+  ASSERT_EQ(Run({"batch", "delete", "week-49"}), kClientExitOk) << err_.str();
+  EXPECT_FALSE(fake_.batches.contains("week-49"));
+  EXPECT_EQ(Run({"batch", "show", "week-49"}), kClientExitDaemonError);
+  EXPECT_EQ(Run({"batch"}), kClientExitUsage);
+  EXPECT_EQ(Run({"batch", "set", "b"}), kClientExitUsage);
+  EXPECT_NE(err_.str().find("needs its samples"), std::string::npos) << err_.str();
+  EXPECT_EQ(Run({"batch", "show", "../b"}), kClientExitUsage);
+  EXPECT_EQ(Run({"batch", "list", "--lot", "L"}), kClientExitUsage);
+  EXPECT_EQ(Run({"samples", "--from", "2026-01-01"}), kClientExitUsage);
 }
 
 TEST_F(ClientTest, StatusListsFailedJobsWithWhatToDo) {

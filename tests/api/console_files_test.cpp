@@ -151,10 +151,21 @@ TEST_F(ConsoleFiles, ArmDescriptionIsPassedOnAndChecked) {
   {
     const ArmRequest a = fake_.LastArm();
     EXPECT_EQ(a.id, "rock-7");
-    EXPECT_EQ(a.operator_name, "M. Rossi");
-    EXPECT_EQ(a.lot, "lot-7");
-    EXPECT_EQ(a.notes, "wet\nchipped");
+    EXPECT_EQ(a.meta.value("operator", ""), "M. Rossi");
+    EXPECT_EQ(a.meta.value("lot", ""), "lot-7");
+    EXPECT_EQ(a.meta.value("notes", ""), "wet\nchipped");
+    EXPECT_FALSE(a.meta.contains("id"));
   }
+  r = client_->Post(
+      "/api/v1/samples",
+      json{{"id", "rock-9"},
+           {"material", {{"name", "basalt"}, {"specific_gravity", 2.9}, {"basis", "oven-dry"}}}}
+          .dump(),
+      "application/json");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 200) << r->body;
+  EXPECT_EQ(fake_.LastArm().meta["material"],
+            (json{{"name", "basalt"}, {"specific_gravity", 2.9}, {"basis", "oven-dry"}}));
   const struct {
     json body;
     std::string says;
@@ -164,6 +175,10 @@ TEST_F(ConsoleFiles, ArmDescriptionIsPassedOnAndChecked) {
       {{{"id", "rock-8"}, {"notes", std::string("bell\x07")}}, "\"notes\" contains a control"},
       {{{"id", "rock-8"}, {"notes", std::string(2001, 'n')}}, "\"notes\" is 2001 bytes long"},
       {{{"id", "rock-8"}, {"operator", std::string(81, 'o')}}, "at most 80"},
+      {{{"id", "rock-8"}, {"material", {{"specific_gravity", 2.65}}}}, "needs its basis"},
+      {{{"id", "rock-8"}, {"material", {{"specific_gravity", 2650}, {"basis", "bulk-ssd"}}}},
+       "kg/m3"},
+      {{{"id", "rock-8"}, {"material", {{"basis", "wet"}}}}, "\"material.basis\" must be"},
   };
   for (const auto& b : bad) {
     auto e = client_->Post("/api/v1/samples", b.body.dump(), "application/json");
@@ -174,7 +189,7 @@ TEST_F(ConsoleFiles, ArmDescriptionIsPassedOnAndChecked) {
     EXPECT_NE(err["error"]["message"].get<std::string>().find(b.says), std::string::npos)
         << e->body;
   }
-  EXPECT_EQ(fake_.CallCount(), 1u);
+  EXPECT_EQ(fake_.CallCount(), 2u);
 }
 
 }  // namespace

@@ -112,6 +112,8 @@ class FakeControl : public DaemonControl {
     return nlohmann::json{{"state", "idle"}};
   }
   nlohmann::json sample_result;  // GetSample's "result" when set
+  nlohmann::json sample_meta;    // GetSample's "meta" when set
+  nlohmann::json last_meta_doc;  // the last EditMeta's request body (under mu_)
   Result<nlohmann::json> ListSamples() override {
     Record("list");
     if (fail) return *fail;
@@ -127,6 +129,7 @@ class FakeControl : public DaemonControl {
                        {"created_utc", "2026-01-01T10:00:00.000Z"},
                        {"sides", {{{"side", 1}, {"job", "done"}, {"views", views}}}}};
     if (!sample_result.is_null()) out["result"] = sample_result;
+    if (!sample_meta.is_null()) out["meta"] = sample_meta;
     return out;
   }
   Result<nlohmann::json> Retry(const std::string& id) override {
@@ -136,6 +139,46 @@ class FakeControl : public DaemonControl {
         {"sample_id", id},
         {"requeued", 1},
         {"jobs", {{{"side", 1}, {"state", "queued"}, {"attempts", 0}, {"error", ""}}}}};
+  }
+  Result<nlohmann::json> EditMeta(const std::string& id, const nlohmann::json& doc,
+                                  const std::string& by, const CallContext& ctx) override {
+    Record("meta:" + id + ":" + by, &ctx);
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      last_meta_doc = doc;
+    }
+    if (fail) return *fail;
+    return nlohmann::json{{"id", id}, {"meta", doc}, {"changed", nlohmann::json::object()}};
+  }
+  nlohmann::json batches = nlohmann::json::object();  // name -> GetBatch's answer
+  Result<nlohmann::json> ListBatches() override {
+    Record("batches");
+    if (fail) return *fail;
+    nlohmann::json out = {{"batches", nlohmann::json::array()}};
+    for (const auto& [name, b] : batches.items()) out["batches"].push_back(b);
+    return out;
+  }
+  Result<nlohmann::json> GetBatch(const std::string& name) override {
+    Record("batch:" + name);
+    if (fail) return *fail;
+    if (!batches.contains(name))
+      return MakeError(ErrorClass::kNotFound, "no batch \"" + name + "\"");
+    return batches[name];
+  }
+  Result<nlohmann::json> PutBatch(const std::string& name, const nlohmann::json& doc) override {
+    Record("put-batch:" + name);
+    if (fail) return *fail;
+    nlohmann::json b = doc;
+    b["name"] = name;
+    b["members"] = nlohmann::json::array();
+    batches[name] = b;
+    return b;
+  }
+  Result<nlohmann::json> DeleteBatch(const std::string& name) override {
+    Record("delete-batch:" + name);
+    if (fail) return *fail;
+    batches.erase(name);
+    return nlohmann::json{{"deleted", name}};
   }
   std::map<std::string, std::string> result_files;  // "id/name" -> path
   Result<std::string> ResultFile(const std::string& id, const std::string& name) override {

@@ -87,6 +87,7 @@ class CaptureSteps : public ::testing::Test {
     config_.camera.height = 240;
     config_.capture.settle = 0;  // t0 is the end of the side's first settle: now
     config_.capture.interval = 2 * kNsPerSec;
+    config_.material = {"granite", 2.65, "bulk-ssd"};
     store_ = std::make_unique<SampleStore>(config_.daemon.state_dir);
     ASSERT_TRUE(store_->Init().ok());
     loop_ = std::make_unique<EventLoop>(clock_);
@@ -200,4 +201,64 @@ TEST_F(CaptureSteps, RecordFaultCountsItByClass) {
 }
 
 }  // namespace
+// The sample's description: the config's material is a new sample's
+// default; an edit through the service changes sample.json and the library's
+// row, and the answers carry the mass from it; a batch by lot lists it.
+TEST_F(CaptureSteps, DescriptionEditMassLibraryRowAndBatch) {
+  EXPECT_EQ(peer_->Run(capture::CreateSample{"rock-1"}), Names{});
+  auto rec = store_->LoadRecord("rock-1");
+  ASSERT_TRUE(rec);
+  EXPECT_EQ((*rec)["meta"]["material"], (json{{"name", "granite"},
+                                              {"specific_gravity", 2.65},
+                                              {"basis", "bulk-ssd"},
+                                              {"source", "config"}}));
+  // The worker's figures, as it writes them (a record of the earlier release).
+  Result<std::string> text =
+      ReadFile(std::string(AGGSCAN_SOURCE_DIR) + "/tests/core/data/morphology_v1.json");
+  ASSERT_TRUE(text);
+  json m = json::parse(*text);
+  m["sample_id"] = "rock-1";
+  ASSERT_TRUE(MakeDirsDurable(store_->SampleDir("rock-1") + "/results"));
+  ASSERT_TRUE(WriteFileAtomic(layout::ResultsPath(store_->SampleDir("rock-1"), layout::kMorphology),
+                              std::string_view(m.dump())));
+  const auto ctx = [] { return CallContext::Within(std::chrono::seconds(5)); };
+  Result<json> edited = service_->EditMeta(
+      "rock-1", {{"lot", "L-7"}, {"material", {{"specific_gravity", 2.7}}}}, "qa", ctx());
+  ASSERT_TRUE(edited) << edited.error().ToString();
+  EXPECT_EQ(
+      (*edited)["changed"],
+      (json{{"lot", nullptr}, {"material.specific_gravity", 2.65}, {"material.source", "config"}}));
+  // 155.7465 cm3 x 2.7.
+  Result<json> got = service_->GetSample("rock-1");
+  ASSERT_TRUE(got);
+  EXPECT_NEAR((*got)["result"].value("mass_g", 0.0), 420.516, 1e-3) << got->dump();
+  EXPECT_EQ((*got)["result"]["mass_basis"], "bulk-ssd");
+  Result<std::string> csv = ReadFile(config_.daemon.state_dir + "/" + layout::kLibraryCsv);
+  ASSERT_TRUE(csv);
+  EXPECT_NE(csv->find("\nrock-1,"), std::string::npos) << *csv;
+  EXPECT_NE(csv->find(",420.5,2.700,bulk-ssd,granite,,L-7,"), std::string::npos) << *csv;
+  // A wrong edit is refused with what to do, and changes nothing.
+  Result<json> bad =
+      service_->EditMeta("rock-1", {{"material", {{"specific_gravity", 2700}}}}, "qa", ctx());
+  ASSERT_FALSE(bad);
+  EXPECT_NE(bad.error().message.find("kg/m3"), std::string::npos) << bad.error().message;
+  // Without a specific gravity the answer says why there is no mass.
+  ASSERT_TRUE(service_->EditMeta("rock-1", {{"material", nullptr}}, "qa", ctx()));
+  got = service_->GetSample("rock-1");
+  EXPECT_FALSE((*got)["result"].contains("mass_g"));
+  EXPECT_NE((*got)["result"].value("mass_none", "").find("no specific gravity"), std::string::npos);
+  // A batch by lot holds the sample, with its figures.
+  Result<json> batch = service_->PutBatch("lot-7", {{"lot", "L-7"}});
+  ASSERT_TRUE(batch) << batch.error().ToString();
+  ASSERT_EQ((*batch)["members"].size(), 1u) << batch->dump();
+  EXPECT_EQ((*batch)["members"][0]["id"], "rock-1");
+  EXPECT_TRUE((*batch)["members"][0]["result"].contains("volume_mm3"));
+  Result<json> batches = service_->ListBatches();
+  ASSERT_TRUE(batches);
+  EXPECT_EQ((*batches)["batches"][0]["members"], 1);
+  EXPECT_EQ(service_->GetBatch("nope").error().cls, ErrorClass::kNotFound);
+  ASSERT_TRUE(service_->DeleteBatch("lot-7"));
+  EXPECT_FALSE(service_->GetBatch("lot-7"));
+}
+
 }  // namespace aggscan

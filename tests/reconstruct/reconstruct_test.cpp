@@ -17,6 +17,7 @@
 #include "config/config.h"
 #include "drivers/sim/world.h"
 #include "pipeline/worker/worker_config.h"
+#include "store/library_csv.h"
 #include "tests/reconstruct/sim_sample.h"
 #include "tests/util/temp_dir.h"
 
@@ -95,7 +96,7 @@ TEST(Reconstruct, OneSideGivesAClosedMeshAndResults) {
   // The library has one row; a second run changes nothing.
   auto csv = ReadFile(tmp.path() + "/library.csv");
   ASSERT_TRUE(csv);
-  EXPECT_EQ(csv->substr(0, csv->find('\n') + 1), LibraryCsvHeader());
+  EXPECT_EQ(csv->substr(0, csv->find('\n') + 1), library_csv::Header());
   {
     auto st = ReconstructSample(sample, opts);
     ASSERT_TRUE(st) << st.error().ToString();
