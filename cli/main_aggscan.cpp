@@ -1,6 +1,7 @@
 // aggscan: the command-line tool. Talks to a running aggscand (status, arm,
 // press, ...) and runs offline work (2D morphology of an image or mask,
 // simulated captures).
+#include <algorithm>
 #include <cstdlib>
 #include <iostream>
 #include <string>
@@ -13,46 +14,71 @@
 #include "cli/morph2d_command.h"
 #include "cli/morph_command.h"
 #include "cli/reconstruct_command.h"
+#include "cli/report_command.h"
 #include "cli/selftest_command.h"
 #include "cli/sim_capture.h"
 #include "cli/user_command.h"
 #include "cli/validate_command.h"
+#include "common/version.h"
 #include "pipeline/core/image_io.h"
 
 namespace {
 
-void Usage(std::ostream& o) {
-  o << "usage: aggscan COMMAND [ARGS]\n\n"
-       "Daemon commands (talk to aggscand over its HTTP API):\n";
-  aggscan::PrintClientUsage(o);
-  o << "\nOffline commands:\n"
-       "  aggscan selftest --config FILE [--json]\n"
+void PrintSelftestUsage(std::ostream& o) {
+  o << "  aggscan selftest --config FILE [--json]\n"
        "      open each device of FILE, exercise it briefly (camera: open+configure, turntable:\n"
-       "      read status, button: open), report and close; stop aggscand first (it holds them)\n"
-       "  aggscan calibrate board --out FILE.png|FILE.pgm [--dpi N] [--margin-mm M] [--config "
+       "      read status, button: open), report and close; stop aggscand first (it holds them)\n";
+}
+
+void PrintCalibrateBoardUsage(std::ostream& o) {
+  o << "  aggscan calibrate board --out FILE.png|FILE.pgm [--dpi N] [--margin-mm M] [--config "
        "FILE]\n"
-       "      the printable ChArUco board of [calibration] (default 7x5 squares of 30 mm)\n"
-       "  aggscan calibrate aruco --out FILE.pgm|FILE.png --config FILE [--dpi N]\n"
-       "      the ArUco scale markers of [[rig.aruco_markers]] side by side ([sim] aruco_image)\n"
-       "  aggscan calibrate SAMPLE_DIR [--side N] [--state-dir DIR | --out FILE] [--config FILE]\n"
+       "      the printable ChArUco board of [calibration] (default 7x5 squares of 30 mm)\n";
+}
+
+void PrintCalibrateArucoUsage(std::ostream& o) {
+  o << "  aggscan calibrate aruco --out FILE.pgm|FILE.png --config FILE [--dpi N]\n"
+       "      the ArUco scale markers of [[rig.aruco_markers]] side by side ([sim] aruco_image)\n";
+}
+
+void PrintCalibrateSolveUsage(std::ostream& o) {
+  o << "  aggscan calibrate SAMPLE_DIR [--side N] [--state-dir DIR | --out FILE] [--config FILE]\n"
        "                    [--json]\n"
        "      rig calibration (lens, turntable axis, camera pose) from a side captured with the\n"
-       "      board lying on the turntable; writes calibration.json, keeps the previous one\n"
-       "  aggscan reconstruct SAMPLE_DIR [--state-dir DIR] [--config FILE] [--surface "
+       "      board lying on the turntable; writes calibration.json, keeps the previous one\n";
+}
+
+void PrintCalibrateUsage(std::ostream& o) {
+  PrintCalibrateBoardUsage(o);
+  PrintCalibrateArucoUsage(o);
+  PrintCalibrateSolveUsage(o);
+}
+
+void PrintReconstructUsage(std::ostream& o) {
+  o << "  aggscan reconstruct SAMPLE_DIR [--state-dir DIR] [--config FILE] [--surface "
        "hull|hull+photo]\n"
        "                      [--poses turntable|turntable+ba|sfm|auto] [--from STAGE]\n"
        "      run the worker's stages on a sample now (masks, 2d, calibration, poses, stitch,\n"
        "      surface, morphology) and print results/morphology.json; a stage finished with\n"
        "      the same options and inputs is kept, a changed one runs again with all after\n"
        "      it; --from runs STAGE and every later one again. Without --config: the config\n"
-       "      the sample was armed with (SAMPLE_DIR/config.toml), as the worker used it\n"
-       "  aggscan morph MESH [--unit mm|cm|m] [--json]\n"
+       "      the sample was armed with (SAMPLE_DIR/config.toml), as the worker used it\n";
+}
+
+void PrintMorphUsage(std::ostream& o) {
+  o << "  aggscan morph MESH [--unit mm|cm|m] [--json]\n"
        "      3D morphology of a closed mesh (PLY/OBJ/STL): volume, area, a<=b<=c of the\n"
-       "      minimum-volume box, FER, sphericity; open or non-manifold meshes are refused\n"
-       "  aggscan morph2d IMAGE_OR_MASK [--text] [--max-megapixels N (100)]\n"
+       "      minimum-volume box, FER, sphericity; open or non-manifold meshes are refused\n";
+}
+
+void PrintMorph2dUsage(std::ostream& o) {
+  o << "  aggscan morph2d IMAGE_OR_MASK [--text] [--max-megapixels N (100)]\n"
        "      2D morphology of the largest silhouette (JSON: l_max_px, l_min_px, fer_2d,\n"
-       "      area_px, perimeter_px, circularity); a photo is segmented first\n"
-       "  aggscan sim capture (--seed N | --mesh FILE --unit mm|cm|m) --out DIR\n"
+       "      area_px, perimeter_px, circularity); a photo is segmented first\n";
+}
+
+void PrintSimUsage(std::ostream& o) {
+  o << "  aggscan sim capture (--seed N | --mesh FILE --unit mm|cm|m) --out DIR\n"
        "                      [--profile paper|full-turn] [--views N] [--width W --height H]\n"
        "                      [--config FILE] [--scene rock|charuco] [--calibration FILE]\n"
        "      capture a simulated rock into a new sample directory, as aggscand would,\n"
@@ -60,13 +86,44 @@ void Usage(std::ostream& o) {
        "      [calibration] board on the disc instead of a rock (one side over a full turn),\n"
        "      input for `aggscan calibrate`; --calibration: recorded in the sample as\n"
        "      aggscand records state_dir/calibration.json\n";
+}
+
+void Usage(std::ostream& o) {
+  o << "usage: aggscan COMMAND [ARGS]\n"
+       "       aggscan COMMAND --help\n"
+       "       aggscan --version\n\n"
+       "Daemon commands (talk to aggscand over its HTTP API):\n";
+  aggscan::PrintClientUsage(o);
+  o << "\nOffline commands:\n";
+  PrintSelftestUsage(o);
+  PrintCalibrateUsage(o);
+  PrintReconstructUsage(o);
+  PrintMorphUsage(o);
+  PrintMorph2dUsage(o);
+  PrintSimUsage(o);
   aggscan::PrintEmptyTurntableUsage(o);
   aggscan::PrintUserUsage(o);
   aggscan::PrintMasksUsage(o);
   aggscan::PrintValidateUsage(o);
+  aggscan::PrintReportUsage(o);
+}
+
+// --help anywhere after the command word wins over the rest of the line: a
+// half-typed command asking for its usage must not start work or fail on the
+// options it has so far.
+bool AsksForHelp(const std::vector<std::string>& a) {
+  return std::any_of(a.begin() + (a.empty() ? 0 : 1), a.end(),
+                     [](const std::string& s) { return s == "--help" || s == "-h"; });
+}
+
+int Help(void (*print)(std::ostream&)) {
+  std::cout << "usage:\n";
+  print(std::cout);
+  return 0;
 }
 
 int SimCommand(const std::vector<std::string>& a) {
+  if (AsksForHelp(a)) return Help(PrintSimUsage);
   if (a.size() < 2 || a[1] != "capture") {
     std::cerr << "aggscan sim: expected 'aggscan sim capture ...'\n";
     return 2;
@@ -141,6 +198,10 @@ int main(int argc, char** argv) {
       ++i;
       continue;
     }
+    if (args[i] == "--version") {
+      std::cout << "aggscan " << aggscan::SoftwareVersion() << "\n";
+      return 0;
+    }
     if (args[i].rfind("--", 0) == 0) continue;
     cmd = args[i];
     break;
@@ -150,10 +211,12 @@ int main(int argc, char** argv) {
     return args.empty() ? 2 : 0;
   }
   if (cmd == "selftest" && aggscan::IsOfflineSelftest(args)) {
+    if (AsksForHelp(args)) return Help(PrintSelftestUsage);
     return aggscan::RunOfflineSelftest(args, std::cout, std::cerr);
   }
   if (aggscan::IsClientCommand(cmd)) return aggscan::RunClientCommand(args, std::cout, std::cerr);
   if (cmd == "morph2d") {
+    if (AsksForHelp(args)) return Help(PrintMorph2dUsage);
     std::string path;
     bool json = true;
     aggscan::ImageLimits limits;
@@ -185,6 +248,7 @@ int main(int argc, char** argv) {
     return aggscan::RunMorph2dCommand(path, json, std::cout, std::cerr, limits);
   }
   if (cmd == "morph") {
+    if (AsksForHelp(args)) return Help(PrintMorphUsage);
     std::string path, unit = "mm";
     bool json = false;
     for (size_t i = 1; i < args.size(); ++i) {
@@ -208,8 +272,10 @@ int main(int argc, char** argv) {
     }
     return aggscan::RunMorphCommand(path, unit, json, std::cout, std::cerr);
   }
-  if (cmd == "reconstruct")
+  if (cmd == "reconstruct") {
+    if (AsksForHelp(args)) return Help(PrintReconstructUsage);
     return aggscan::RunReconstructCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
+  }
   if (cmd == "sim") return SimCommand(args);
   if (cmd == "user")
     return aggscan::RunUserCommand({args.begin() + 1, args.end()}, std::cin, std::cout, std::cerr);
@@ -219,8 +285,18 @@ int main(int argc, char** argv) {
     return aggscan::RunMasksCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
   if (cmd == "validate")
     return aggscan::RunValidateCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
-  if (cmd == "calibrate")
+  if (cmd == "report")
+    return aggscan::RunReportCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
+  if (cmd == "calibrate") {
+    if (AsksForHelp(args)) {
+      const std::string form = args.size() > 1 ? args[1] : "";
+      if (form == "board") return Help(PrintCalibrateBoardUsage);
+      if (form == "aruco") return Help(PrintCalibrateArucoUsage);
+      if (!form.empty() && form[0] != '-') return Help(PrintCalibrateSolveUsage);
+      return Help(PrintCalibrateUsage);
+    }
     return aggscan::RunCalibrateCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
+  }
   std::cerr << "aggscan: unknown command '" << cmd << "'\n\n";
   Usage(std::cerr);
   return 2;

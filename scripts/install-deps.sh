@@ -82,6 +82,10 @@ PACKAGES=(
   # `aggscan validate --renderer blender` and its test: Blender's Cycles path
   # tracer (CPU, headless) redraws simulated captures as an independent renderer
   blender
+  # `aggscan report` (scripts/report/): plots by matplotlib (Pillow reads the
+  # photos), the PDF laid out from the same HTML by WeasyPrint; tests only:
+  # poppler-utils (pdftotext, pdftoppm) reads the PDFs back
+  python3-matplotlib python3-pil weasyprint poppler-utils
   # USB turntable controllers (libusb), start buttons (libgpiod v1, evdev),
   # the libcamera camera backend (and its IPA modules, which vimc needs)
   libusb-1.0-0-dev libgpiod-dev libevdev-dev libcamera-dev libcamera-ipa
