@@ -319,7 +319,13 @@ def batch_report(doc, spec_path):
         for sr in spec_rows:
             band = (f"{'' if sr['min'] is None else num(sr['min'], 0)}"
                     f"–{'' if sr['max'] is None else num(sr['max'], 0)}")
-            if sr["quantity"] == "mean mass":
+            if sr["quantity"].startswith("range"):
+                unit = "kg" if sr["quantity"] == "range mass" else "mm"
+                name = ("W" if unit == "kg" else "D") + f"{sr['percent_of']:g}"
+                lim = (f"{name} by {sr['basis']} in {sr['min']:g}–{sr['max']:g} {unit}")
+                shown = (num(sr["value"], 3 if unit == "kg" else 1, unit)
+                         if sr["value"] is not None else sr["why"])
+            elif sr["quantity"] == "mean mass":
                 shown, lim = num(sr["value"], 2, "kg"), f"{num(sr['min'], 1)}–{num(sr['max'], 1)} kg"
             else:
                 unit = "kg" if sr["quantity"] == "mass" else "mm (b)"

@@ -91,8 +91,12 @@ def characteristic_points(masses_kg, b_mm):
 
 def load_spec(path):
     """A gradation specification (scripts/report/specs/*.toml): name, source,
-    and control points, each {label, quantity ("mass" in kg or "b" in mm),
-    value, min_percent_lighter and/or max_percent_lighter}; optional
+    and its checks. [[point]]: a limit and the share of the batch's mass
+    below it, {label, quantity ("mass" in kg or "b" in mm), value,
+    min_percent_lighter and/or max_percent_lighter}. [[range]]: the value at
+    which a share of the batch is reached must lie in a range, {label,
+    percent, basis ("count" or "mass"), quantity ("mass" or "b"), min, max}
+    (FHWA FP-14's form: D15..D100 and W15..W100 by count). Optional
     mean_mass_kg = [min, max]."""
     try:
         with open(path, "rb") as f:
@@ -103,9 +107,22 @@ def load_spec(path):
         raise ReportError(f"gradation specification {path} is not valid TOML: {e}")
     if not isinstance(spec.get("name"), str) or not spec["name"]:
         raise ReportError(f"{path}: give the specification a name = \"...\"")
-    points = spec.get("point")
-    if not isinstance(points, list) or not points:
-        raise ReportError(f"{path}: no [[point]] control points")
+    points = spec.get("point", [])
+    ranges = spec.get("range", [])
+    if not isinstance(points, list) or not isinstance(ranges, list) or not (points or ranges):
+        raise ReportError(f"{path}: no [[point]] or [[range]] checks")
+    for i, r in enumerate(ranges):
+        where = f"{path}: range {i + 1}"
+        if r.get("quantity", "b") not in ("mass", "b"):
+            raise ReportError(f"{where}: quantity must be \"mass\" (kg) or \"b\" (mm)")
+        if r.get("basis", "count") not in ("count", "mass"):
+            raise ReportError(f"{where}: basis must be \"count\" or \"mass\"")
+        pct = r.get("percent")
+        if not isinstance(pct, (int, float)) or not 0 < pct <= 100:
+            raise ReportError(f"{where}: percent must be above 0 and at most 100")
+        lo, hi = r.get("min"), r.get("max")
+        if not all(isinstance(x, (int, float)) and x > 0 for x in (lo, hi)) or lo > hi:
+            raise ReportError(f"{where}: give min and max, positive, min <= max")
     for i, p in enumerate(points):
         where = f"{path}: point {i + 1}"
         if p.get("quantity", "mass") not in ("mass", "b"):
@@ -131,7 +148,16 @@ def check_spec(spec, masses_kg, b_mm):
     """Each control point with the batch's percentage lighter (by mass) and
     pass/fail; the mean mass against its range. Returns (rows, passed)."""
     rows = []
-    for p in spec["point"]:
+    for r in spec.get("range", []):
+        quantity = r.get("quantity", "b")
+        values = masses_kg if quantity == "mass" else b_mm
+        weights = [1.0] * len(values) if r.get("basis", "count") == "count" else masses_kg
+        v, why = value_at_percent(cumulative_curve(values, weights), r["percent"])
+        ok = v is not None and r["min"] <= v <= r["max"]
+        rows.append({"label": r.get("label", ""), "quantity": "range " + quantity,
+                     "basis": r.get("basis", "count"), "percent_of": r["percent"], "value": v,
+                     "why": why, "min": r["min"], "max": r["max"], "percent": None, "pass": ok})
+    for p in spec.get("point", []):
         quantity = p.get("quantity", "mass")
         if quantity == "mass":
             pct = percent_lighter_than(masses_kg, p["value"])

@@ -90,9 +90,39 @@ class Specification(unittest.TestCase):
         self.assertEqual(got["mean mass"], (None, True))  # 4 kg
         self.assertFalse(passed)
 
+    def test_ranges_by_count(self):
+        # By count the five stones are 20 % each: sorted by b (100, 120, 150,
+        # 160, 230 mm) D50 lies halfway between the 2nd (40 %) and the 3rd
+        # (60 %): sqrt(120 x 150) = 134.16 mm; D100 is 230 mm. By mass W50
+        # by count: sqrt(2 x 3) = 2.449 kg.
+        path = self.write(
+            'name = "fp"\n'
+            '[[range]]\nlabel = "D50"\npercent = 50\nbasis = "count"\nquantity = "b"\n'
+            'min = 130\nmax = 200\n'
+            '[[range]]\nlabel = "D100"\npercent = 100\nquantity = "b"\nmin = 240\nmax = 380\n'
+            '[[range]]\nlabel = "W50"\npercent = 50\nquantity = "mass"\nmin = 2\nmax = 3\n'
+            '[[range]]\nlabel = "W10"\npercent = 10\nquantity = "mass"\nmin = 0.5\nmax = 3\n')
+        rows, passed = rm.check_spec(rm.load_spec(path), MASSES, B_MM)
+        got = {r["label"]: r for r in rows}
+        self.assertAlmostEqual(got["D50"]["value"], math.sqrt(120.0 * 150.0))
+        self.assertTrue(got["D50"]["pass"])
+        self.assertAlmostEqual(got["D100"]["value"], 230.0)
+        self.assertFalse(got["D100"]["pass"])
+        self.assertAlmostEqual(got["W50"]["value"], math.sqrt(6.0))
+        self.assertTrue(got["W50"]["pass"])
+        # 10 % by count is below the first stone's 20 %: not determined, fails.
+        self.assertIsNone(got["W10"]["value"])
+        self.assertIn("too small", got["W10"]["why"])
+        self.assertFalse(got["W10"]["pass"])
+        self.assertFalse(passed)
+
     def test_bad_specification_is_named(self):
         for text, says in [
-            ('name = "x"\n', "no [[point]]"),
+            ('name = "x"\n', "no [[point]] or [[range]]"),
+            ('name = "x"\n[[range]]\npercent = 50\nmin = 3\nmax = 2\n', "min <= max"),
+            ('name = "x"\n[[range]]\npercent = 0\nmin = 1\nmax = 2\n', "percent"),
+            ('name = "x"\n[[range]]\nbasis = "volume"\npercent = 5\nmin = 1\nmax = 2\n',
+             "basis"),
             ('[[point]]\nvalue = 1\nmax_percent_lighter = 5\n', "name"),
             ('name = "x"\n[[point]]\nvalue = -1\nmax_percent_lighter = 5\n', "positive"),
             ('name = "x"\n[[point]]\nvalue = 1\n', "min_percent_lighter"),
@@ -114,7 +144,9 @@ class Specification(unittest.TestCase):
         self.assertTrue(names)
         for n in names:
             spec = rm.load_spec(os.path.join(spec_dir, n))
-            self.assertTrue(spec["point"], n)
+            self.assertTrue(spec.get("point") or spec.get("range"), n)
+        self.assertIn("fp14-class1.toml", names)
+        self.assertIn("en13383-lma10-60.toml", names)
 
 
 class FlatAndElongated(unittest.TestCase):
