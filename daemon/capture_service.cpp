@@ -133,6 +133,7 @@ CaptureService::CaptureService(EventLoop& loop, Config config, std::string effec
       dev_(std::move(devices)),
       store_(store),
       cal_store_(store.state_dir(), layout::kCalibrationCollection),
+      reports_(store.state_dir()),
       queue_(queue) {
   started_real_ = MonotonicNs();
   // The status shows the latest calibration capture, also after a restart.
@@ -1658,6 +1659,16 @@ Result<json> CaptureService::DeleteBatch(const std::string& name) {
   if (Status s = BatchStore(store_.state_dir()).Remove(name); !s) return s.error();
   LogLine(LogLevel::kNotice, "capture", "", "batch " + name + " deleted");
   return json{{"deleted", name}};
+}
+
+Result<std::string> CaptureService::MakeReport(const ReportRequest& request) {
+  // Off the loop: the report runs for seconds in a process of its own.
+  Result<std::string> r = reports_.Make(request);
+  if (r) {
+    LogLine(LogLevel::kInfo, "capture", request.kind == "rock" ? request.name : "",
+            request.kind + " report " + request.name + " (" + request.format + ") made");
+  }
+  return r;
 }
 
 Result<json> CaptureService::Abort(const CallContext& ctx) {

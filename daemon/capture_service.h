@@ -94,6 +94,7 @@ class CaptureService final : public DaemonControl {
   Result<nlohmann::json> GetBatch(const std::string& name) override;
   Result<nlohmann::json> PutBatch(const std::string& name, const nlohmann::json& doc) override;
   Result<nlohmann::json> DeleteBatch(const std::string& name) override;
+  Result<std::string> MakeReport(const ReportRequest& request) override;
   Result<nlohmann::json> ListSamples() override;
   Result<nlohmann::json> GetSample(const std::string& sample_id) override;
   Result<std::string> ResultFile(const std::string& sample_id, const std::string& name) override;
@@ -271,6 +272,7 @@ class CaptureService final : public DaemonControl {
   SampleStore& store_;
   SampleStore cal_store_;  // state_dir/calibration-captures
   std::mutex batches_mu_;  // one writer of state_dir/batches at a time
+  ReportMaker reports_;    // one report at a time
   JobQueue* queue_;
   bool calibration_capture_ = false;  // the armed (or last) capture is of the board
   std::string cal_last_id_;           // the latest calibration capture

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "common/error.h"
+#include "daemon/report_maker.h"
 #include "store/layout.h"
 
 namespace aggscan {
@@ -121,6 +122,9 @@ class DaemonControl {
   /// "notes"} (checked by BatchFromRequest); answers as GetBatch.
   virtual Result<nlohmann::json> PutBatch(const std::string& name, const nlohmann::json& doc) = 0;
   virtual Result<nlohmann::json> DeleteBatch(const std::string& name) = 0;
+  /// Makes a rock's or a batch's QA report (daemon/report_maker.h) and
+  /// returns its file, which the caller serves and then removes.
+  virtual Result<std::string> MakeReport(const ReportRequest& request) = 0;
   /// Path of one of a sample's result files, written by the worker: name is
   /// "morphology.json", "mesh.ply", "mesh.obj" or "mesh.stl" (ResultFileNames()).
   /// kNotFound when the sample does not exist or has no such result yet.

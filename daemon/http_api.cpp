@@ -188,6 +188,7 @@ enum class Endpoint {
   kSampleMeta,
   kBatches,
   kBatch,
+  kReport,
   kButton,
   kCalibration,
   kAbort,
@@ -225,6 +226,7 @@ const char* AllowedMethods(Endpoint ep) {
     case Endpoint::kSampleMeta:
       return "PATCH";
     case Endpoint::kBatches:
+    case Endpoint::kReport:
       return "GET, HEAD";
     case Endpoint::kBatch:
       return "GET, HEAD, PUT, DELETE";
@@ -262,6 +264,15 @@ Endpoint Match(const std::string& path, std::string* id, std::string* file) {
   if (path == "/api/v1/batches") return Endpoint::kBatches;
   if (path.rfind(kBatchesPrefix, 0) == 0) {
     *id = path.substr(std::strlen(kBatchesPrefix));
+    const size_t slash = id->find('/');
+    if (slash != std::string::npos) {
+      const std::string rest = id->substr(slash + 1);
+      if (rest == "report.pdf" || rest == "report.html") {
+        *file = "batch/" + rest;
+        id->resize(slash);
+        return Endpoint::kReport;
+      }
+    }
     return Endpoint::kBatch;
   }
   if (path == "/api/v1/button") return Endpoint::kButton;
@@ -295,6 +306,10 @@ Endpoint Match(const std::string& path, std::string* id, std::string* file) {
       return Endpoint::kSampleFile;
     if (*file == "retry") return Endpoint::kSampleRetry;
     if (*file == "meta") return Endpoint::kSampleMeta;
+    if (*file == "report.pdf" || *file == "report.html") {
+      *file = "rock/" + *file;
+      return Endpoint::kReport;
+    }
     if (*file == "images.zip") return Endpoint::kImageArchive;
     if (file->rfind("sides/", 0) == 0) return Endpoint::kView;  // checked by ServeView
     // Anything else is not a sub-resource: the whole rest is the (invalid) id.
@@ -631,6 +646,8 @@ ApiResponse ApiRouter::HandleUnsafe(const ApiRequest& req) {
     }
     case Endpoint::kBatches:
       return Reply(control_.ListBatches());
+    case Endpoint::kReport:
+      return ServeReport(req, id, file);
     case Endpoint::kBatch: {
       if (!layout::IsValidSampleId(id)) {
         return ErrorResponse(400, ErrorClass::kInvalidArgument,
@@ -691,6 +708,50 @@ ApiResponse ApiRouter::HandleUnsafe(const ApiRequest& req) {
       break;
   }
   return ErrorResponse(500, ErrorClass::kInternal, "unrouted endpoint; report it");
+}
+
+ApiResponse ApiRouter::ServeReport(const ApiRequest& req, const std::string& name,
+                                   const std::string& what) {
+  if (!layout::IsValidSampleId(name))
+    return ErrorResponse(400, ErrorClass::kInvalidArgument, InvalidIdMessage(name));
+  ReportRequest r;
+  const size_t slash = what.find('/');
+  r.kind = what.substr(0, slash);
+  r.format = what.substr(what.rfind('.') + 1);
+  r.name = name;
+  // ?spec=NAME (the transport appends the decoded query to the target).
+  if (const size_t q = req.target.find('?'); q != std::string::npos) {
+    std::string query = req.target.substr(q + 1);
+    for (size_t b = 0; b <= query.size();) {
+      size_t e = query.find('&', b);
+      if (e == std::string::npos) e = query.size();
+      const std::string kv = query.substr(b, e - b);
+      if (kv.rfind("spec=", 0) == 0) r.spec = kv.substr(5);
+      b = e + 1;
+    }
+  }
+  Result<std::string> path = control_.MakeReport(r);
+  if (!path) {
+    // Two at once is a moment's wait, not a fault.
+    if (path.error().cls == ErrorClass::kConflict) {
+      ApiResponse busy = ErrorResponse(503, ErrorClass::kConflict, path.error().message);
+      busy.headers.emplace_back("Retry-After", "5");
+      return busy;
+    }
+    return ErrorFrom(path.error());
+  }
+  Result<std::string> body = ReadFile(*path);
+  ::unlink(path->c_str());
+  ::rmdir(path->substr(0, path->rfind('/')).c_str());
+  if (!body) return ErrorFrom(body.error());
+  ApiResponse resp;
+  resp.status = 200;
+  resp.content_type = r.format == "pdf" ? "application/pdf" : "text/html; charset=utf-8";
+  resp.body = std::move(*body);
+  resp.headers.emplace_back("Content-Disposition",
+                            "attachment; filename=\"" + name + "-report." + r.format + "\"");
+  resp.headers.emplace_back("Cache-Control", "no-store");
+  return resp;
 }
 
 ApiResponse ApiRouter::ServeImageArchive(const std::string& id) {

@@ -171,6 +171,7 @@ class ApiRouter {
   ApiResponse ServeResultFile(const std::string& id, const std::string& name);
   ApiResponse ServeView(const std::string& id, const std::string& sub);
   ApiResponse ServeImageArchive(const std::string& id);
+  ApiResponse ServeReport(const ApiRequest& req, const std::string& name, const std::string& what);
   ApiResponse ArmFromBody(const std::string& body, const CallContext& ctx);
   ApiResponse ServeConsoleFile(const ApiRequest& req, const std::string& file);
 

@@ -4,10 +4,12 @@
 
 #include <arpa/inet.h>
 #include <netinet/in.h>
+#include <stdlib.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
 #include <atomic>
+#include <fstream>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -179,6 +181,25 @@ class FakeControl : public DaemonControl {
     if (fail) return *fail;
     batches.erase(name);
     return nlohmann::json{{"deleted", name}};
+  }
+  std::vector<ReportRequest> reports;     // every MakeReport's request
+  std::vector<std::string> reports_made;  // the files it made
+  std::optional<Error> report_fail;       // MakeReport's answer when set
+  Result<std::string> MakeReport(const ReportRequest& r) override {
+    Record("report:" + r.kind + ":" + r.name + ":" + r.format + ":" + r.spec);
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      reports.push_back(r);
+    }
+    if (report_fail) return *report_fail;
+    // As the real one: a file in a folder of its own, which the caller removes.
+    char tmpl[] = "/tmp/aggscan-fake-report-XXXXXX";
+    if (::mkdtemp(tmpl) == nullptr) return MakeError(ErrorClass::kIo, "mkdtemp");
+    const std::string path = std::string(tmpl) + "/report." + r.format;
+    std::ofstream(path) << (r.format == "pdf" ? "%PDF-1.7 fake" : "<html>fake</html>");
+    std::lock_guard<std::mutex> lock(mu_);
+    reports_made.push_back(path);
+    return path;
   }
   std::map<std::string, std::string> result_files;  // "id/name" -> path
   Result<std::string> ResultFile(const std::string& id, const std::string& name) override {

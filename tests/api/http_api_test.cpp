@@ -11,6 +11,7 @@
 #include <cctype>
 #include <chrono>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <memory>
 #include <set>
@@ -127,6 +128,46 @@ TEST_F(HttpApiTest, ListAndShowSamples) {
   EXPECT_EQ(one->status, 200);
   EXPECT_EQ(Body(one)["id"], "rock-11");
   EXPECT_EQ(fake_.Calls(), (std::vector<std::string>{"list", "get:rock-11"}));
+}
+
+// Reports: made by the control for a rock or a batch (with a shipped
+// specification by name), served as a download and their file removed; one
+// at a time (503 with Retry-After), an unknown rock is a 404.
+TEST_F(HttpApiTest, ReportsAreServedAsDownloads) {
+  auto r = client_->Get("/api/v1/samples/rock-11/report.pdf");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 200) << r->body;
+  EXPECT_EQ(r->get_header_value("Content-Type"), "application/pdf");
+  EXPECT_EQ(r->body.rfind("%PDF", 0), 0u);
+  EXPECT_NE(r->get_header_value("Content-Disposition").find("rock-11-report.pdf"),
+            std::string::npos);
+  r = client_->Get("/api/v1/batches/week-49/report.html?spec=fp14-class1");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 200) << r->body;
+  EXPECT_EQ(r->get_header_value("Content-Type").rfind("text/html", 0), 0u);
+  ASSERT_EQ(fake_.reports.size(), 2u);
+  EXPECT_EQ(fake_.reports[0].kind, "rock");
+  EXPECT_EQ(fake_.reports[1].kind, "batch");
+  EXPECT_EQ(fake_.reports[1].name, "week-49");
+  EXPECT_EQ(fake_.reports[1].spec, "fp14-class1");
+  fake_.report_fail = MakeError(ErrorClass::kConflict, "another report is being made");
+  r = client_->Get("/api/v1/samples/rock-11/report.html");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 503);
+  EXPECT_EQ(r->get_header_value("Retry-After"), "5");
+  fake_.report_fail = MakeError(ErrorClass::kNotFound, "no sample rock-99");
+  r = client_->Get("/api/v1/samples/rock-99/report.pdf");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 404);
+  r = client_->Post("/api/v1/samples/rock-11/report.pdf", "", "application/json");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 405);
+  // The made files are gone once served.
+  ASSERT_EQ(fake_.reports_made.size(), 2u);
+  for (const std::string& p : fake_.reports_made) {
+    EXPECT_FALSE(std::filesystem::exists(p)) << p;
+    EXPECT_FALSE(std::filesystem::exists(p.substr(0, p.rfind('/')))) << p;
+  }
 }
 
 TEST_F(HttpApiTest, ResultsAndMeshFiles) {

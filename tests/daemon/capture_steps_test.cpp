@@ -5,6 +5,8 @@
 #include <gtest/gtest.h>
 
 #include <chrono>
+#include <cstdlib>
+#include <filesystem>
 #include <future>
 #include <memory>
 #include <string>
@@ -257,6 +259,25 @@ TEST_F(CaptureSteps, DescriptionEditMassLibraryRowAndBatch) {
   ASSERT_TRUE(batches);
   EXPECT_EQ((*batches)["batches"][0]["members"], 1);
   EXPECT_EQ(service_->GetBatch("nope").error().cls, ErrorClass::kNotFound);
+  // The rock's report, made by the aggscan program as the API serves it.
+  ::setenv("AGGSCAN_CLI", (std::string(AGGSCAN_BINARY_DIR) + "/cli/aggscan").c_str(), 1);
+  Result<std::string> pdf = service_->MakeReport({"rock", "rock-1", "pdf", ""});
+  ASSERT_TRUE(pdf) << pdf.error().ToString();
+  Result<std::string> head = ReadFile(*pdf);
+  ASSERT_TRUE(head);
+  EXPECT_EQ(head->rfind("%PDF", 0), 0u);
+  std::filesystem::remove_all(std::filesystem::path(*pdf).parent_path());
+  // A batch report needs every rock's mass: rock-1 has none now; said so.
+  Result<std::string> no_mass = service_->MakeReport({"batch", "lot-7", "html", "fp14-class1"});
+  ASSERT_FALSE(no_mass);
+  EXPECT_EQ(no_mass.error().cls, ErrorClass::kInvalidState);
+  EXPECT_NE(no_mass.error().message.find("no specific gravity for rock-1"), std::string::npos)
+      << no_mass.error().message;
+  // Over the network a specification is a shipped name, never a path.
+  Result<std::string> path_spec = service_->MakeReport({"batch", "lot-7", "pdf", "../x.toml"});
+  ASSERT_FALSE(path_spec);
+  EXPECT_EQ(path_spec.error().cls, ErrorClass::kInvalidArgument);
+  EXPECT_EQ(service_->MakeReport({"rock", "rock-9", "pdf", ""}).error().cls, ErrorClass::kNotFound);
   ASSERT_TRUE(service_->DeleteBatch("lot-7"));
   EXPECT_FALSE(service_->GetBatch("lot-7"));
 }

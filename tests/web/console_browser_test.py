@@ -430,6 +430,12 @@ def part_open(build, art, work, binary):
         head = _read_bytes(path)[:400].decode("latin-1")
         check("element vertex" in head and "element face" in head,
               "the download is the mesh (%d bytes)" % os.path.getsize(path))
+        b.click("#downloads a[href$='report.pdf']")
+        path = os.path.join(b.downloads, "rock-b1-report.pdf")
+        wait_for(lambda: os.path.exists(path) and _read_bytes(path)[:5] == b"%PDF-", 120,
+                 "the rock's report (PDF) download")
+        check(os.path.getsize(path) > 20000,
+              "the report is a whole document (%d bytes)" % os.path.getsize(path))
         b.click("#downloads a[href$='images.zip']")
         path = os.path.join(b.downloads, "rock-b1_images.zip")
         wait_for(lambda: os.path.exists(path) and zipfile.is_zipfile(path), 60,

@@ -653,6 +653,8 @@
       ['Mesh (OBJ)', '/mesh.obj', id + '_mesh.obj'],
       ['Mesh (STL)', '/mesh.stl', id + '_mesh.stl'],
       ['morphology.json', '/results', id + '_morphology.json'],
+      ['Report (PDF)', '/report.pdf', id + '-report.pdf'],
+      ['Report (HTML)', '/report.html', id + '-report.html'],
     ] : [];
     files.push(['Images (ZIP)', '/images.zip', id + '_images.zip']);
     for (const [label, path, name] of files) {
