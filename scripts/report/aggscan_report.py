@@ -361,10 +361,15 @@ def batch_report(doc, spec_path):
                         "Figure 8: mean 2D FER against c/b and b/a (sorted by mean 2D FER)"))
         ratio = rm.stats([r["fer_3d"] / r["fer_2d"]["mean"] for r in with_2d
                           if r["fer_2d"]["mean"]])
+        f3 = rm.stats([r["fer_3d"] for r in with_2d])
+        f2 = rm.stats([r["fer_2d"]["mean"] for r in with_2d])
         body.append("<h3>Correction factor: 3D FER over mean 2D FER</h3>" + table(
-            ["rocks", "mean", "std", "min", "max", "CoV (%)"],
-            [[str(ratio["n"]), num(ratio["mean"], 3), num(ratio["std"], 3), num(ratio["min"], 3),
-              num(ratio["max"], 3), num(100 * (ratio["cov"] or 0), 1)]]))
+            ["", "rocks", "value", "std", "min", "max", "CoV (%)"],
+            [["mean 3D FER / mean 2D FER of the batch", str(f3["n"]),
+              num(f3["mean"] / f2["mean"] if f2["mean"] else None, 3), "", "", "", ""],
+             ["per rock: 3D FER / its views' mean 2D FER", str(ratio["n"]), num(ratio["mean"], 3),
+              num(ratio["std"], 3), num(ratio["min"], 3), num(ratio["max"], 3),
+              num(100 * (ratio["cov"] or 0), 1)]], left=1))
     ref = [r for r in rows if r["reference_mm3"]]
     body.append("<h2>Reconstructed against reference volumes (the study's Figure 6)</h2>")
     if ref:

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 #include <stdlib.h>
 
+#include <fstream>
 #include <memory>
 #include <sstream>
 #include <string>
@@ -10,6 +11,7 @@
 
 #include "daemon/http_api.h"
 #include "tests/api/fake_control.h"
+#include "tests/util/temp_dir.h"
 
 namespace aggscan {
 namespace {
@@ -295,6 +297,39 @@ TEST_F(ClientTest, BatchCommands) {
   EXPECT_EQ(Run({"batch", "show", "../b"}), kClientExitUsage);
   EXPECT_EQ(Run({"batch", "list", "--lot", "L"}), kClientExitUsage);
   EXPECT_EQ(Run({"samples", "--from", "2026-01-01"}), kClientExitUsage);
+}
+
+// reference import: every line checked before anything is sent, then one
+// description edit per rock with its volume in mm3; a refused rock is named.
+TEST_F(ClientTest, ReferenceImportPatchesEachRock) {
+  test::TempDir t;
+  const std::string csv = t.path() + "/volumes.csv";
+  std::ofstream(csv) << "sample_id,volume_cm3,method\r\nrock-1,155.7,water displacement\r\n"
+                        "\"rock-2\", 1747.5 ,\"displacement, ASTM D6473\"\n\n";
+  ASSERT_EQ(Run({"reference", "import", csv}), kClientExitOk) << err_.str();
+  EXPECT_EQ(out_.str(), "2 reference volume(s) imported\n");
+  ASSERT_EQ(fake_.Calls(), (std::vector<std::string>{"meta:rock-1:api", "meta:rock-2:api"}));
+  EXPECT_EQ(fake_.last_meta_doc["reference"], (json{{"volume_mm3", 1747500.0},
+                                                    {"method", "displacement, ASTM D6473"},
+                                                    {"source", "volumes.csv"}}));
+  // A bad line anywhere: nothing is sent.
+  for (const std::string& bad :
+       {std::string("sample,volume_cm3\nrock-1,1\n"),
+        std::string("sample_id,volume_cm3\nrock-1,-3\n"),
+        std::string("sample_id,volume_cm3\nrock-1,12 cm3\n"),
+        std::string("sample_id,volume_cm3\n../x,1\n"), std::string("sample_id,volume_cm3\n")}) {
+    std::ofstream(csv) << bad;
+    const size_t before = fake_.CallCount();
+    EXPECT_EQ(Run({"reference", "import", csv}), kClientExitUsage) << bad;
+    EXPECT_EQ(fake_.CallCount(), before) << bad;
+  }
+  EXPECT_EQ(Run({"reference", "import", t.path() + "/none.csv"}), kClientExitUsage);
+  EXPECT_EQ(Run({"reference", "export", csv}), kClientExitUsage);
+  // A rock the daemon refuses is named, the others imported.
+  std::ofstream(csv) << "sample_id,volume_mm3\nrock-1,155700\n";
+  fake_.fail = MakeError(ErrorClass::kNotFound, "no sample \"rock-1\"");
+  EXPECT_EQ(Run({"reference", "import", csv}), kClientExitDaemonError);
+  EXPECT_NE(err_.str().find("rock-1: no sample"), std::string::npos) << err_.str();
 }
 
 TEST_F(ClientTest, StatusListsFailedJobsWithWhatToDo) {
