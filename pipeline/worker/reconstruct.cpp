@@ -1345,12 +1345,12 @@ Status MorphologyStage(SampleRun& r) {
   out.quality = quality;
   out.timings_s = r.timings;
   out.software = {{"version", SoftwareVersion()}};
-  if (r.sample_cfg) {
-    // The config in effect, defaults included, as one text: two results
-    // with the same hash were computed with the same settings.
-    out.software["config_sha256"] = Sha256Hex(ConfigToToml(*r.sample_cfg));
-    out.software["config_source"] = std::string("sample ") + layout::kConfigCopy;
-  }
+  // The config in effect, defaults included, as one text: two results with
+  // the same hash were computed with the same settings. A sample without its
+  // config.toml (made by hand) was computed with the defaults.
+  out.software["config_sha256"] = Sha256Hex(ConfigToToml(r.sample_cfg ? *r.sample_cfg : Config{}));
+  out.software["config_source"] =
+      r.sample_cfg ? std::string("sample ") + layout::kConfigCopy : std::string("defaults");
   out.files = {{"mesh_ply", layout::kMeshPly},
                {"mesh_obj", layout::kMeshObj},
                {"mesh_stl", layout::kMeshStl},

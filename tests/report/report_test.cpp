@@ -86,7 +86,7 @@ int Count(const std::string& s, const std::string& what) {
 }
 
 class Reports : public ::testing::Test {
- protected:
+ public:
   static void SetUpTestSuite() {
     dir_ = new test::TempDir();
     state_ = dir_->path() + "/state";
@@ -153,9 +153,10 @@ class Reports : public ::testing::Test {
 test::TempDir* Reports::dir_ = nullptr;
 std::string Reports::state_;
 
-TEST_F(Reports, BatchReportCarriesTheFiguresAndEveryFigureHasItsPoints) {
-  const std::string html = dir_->path() + "/batch.html", pdf = dir_->path() + "/batch.pdf";
-  const Ran r = Shell(Aggscan() + " report --batch lot-1 --state-dir " + state_ +
+void BatchReportCarriesTheFiguresAndEveryFigureHasItsPoints(const test::TempDir& work,
+                                                            const std::string& state) {
+  const std::string html = work.path() + "/batch.html", pdf = work.path() + "/batch.pdf";
+  const Ran r = Shell(Aggscan() + " report --batch lot-1 --state-dir " + state +
                       " --spec en13383-lma5-40 --html " + html + " --pdf " + pdf);
   ASSERT_EQ(r.rc, 0) << r.out;
   std::printf("%s", r.out.c_str());
@@ -168,7 +169,7 @@ TEST_F(Reports, BatchReportCarriesTheFiguresAndEveryFigureHasItsPoints) {
   ASSERT_EQ(text.rc, 0) << text.out;
   // Every rock's Table 1 row: the numbers of its morphology file.
   for (int i = 1; i <= kRocks; ++i) {
-    const json d = Morphology(i)["morphology_3d"];
+    const json d = Reports::Morphology(i)["morphology_3d"];
     const std::string id = "rock-" + std::to_string(i);
     EXPECT_NE(text.out.find(id), std::string::npos) << id;
     const double v_cm3 = d["volume_mm3"].get<double>() / 1000.0;
@@ -186,10 +187,10 @@ TEST_F(Reports, BatchReportCarriesTheFiguresAndEveryFigureHasItsPoints) {
   // Ten rocks of ~0.1-1 kg: too light for LMA 5-40, and the report says so.
   EXPECT_NE(text.out.find("does NOT meet"), std::string::npos);
   // Every page drawn, none blank.
-  const Ran pages = Shell("pdftoppm -r 30 -png " + pdf + " " + dir_->path() + "/page");
+  const Ran pages = Shell("pdftoppm -r 30 -png " + pdf + " " + work.path() + "/page");
   ASSERT_EQ(pages.rc, 0) << pages.out;
   int n_pages = 0;
-  for (const auto& e : fs::directory_iterator(dir_->path())) {
+  for (const auto& e : fs::directory_iterator(work.path())) {
     const std::string n = e.path().filename().string();
     if (n.rfind("page", 0) != 0 || e.path().extension() != ".png") continue;
     ++n_pages;
@@ -217,14 +218,14 @@ TEST_F(Reports, BatchReportCarriesTheFiguresAndEveryFigureHasItsPoints) {
   }
 }
 
-TEST_F(Reports, RockReportHasItsFiguresPhotosAndModel) {
-  const std::string html = dir_->path() + "/rock.html", pdf = dir_->path() + "/rock.pdf";
-  const Ran r = Shell(Aggscan() + " report rock-3 --state-dir " + state_ + " --html " + html +
+void RockReportHasItsFiguresPhotosAndModel(const test::TempDir& work, const std::string& state) {
+  const std::string html = work.path() + "/rock.html", pdf = work.path() + "/rock.pdf";
+  const Ran r = Shell(Aggscan() + " report rock-3 --state-dir " + state + " --html " + html +
                       " --pdf " + pdf);
   ASSERT_EQ(r.rc, 0) << r.out;
   const Ran text = Shell("pdftotext -layout " + pdf + " -");
   ASSERT_EQ(text.rc, 0);
-  const json m = Morphology(3);
+  const json m = Reports::Morphology(3);
   const json& d = m["morphology_3d"];
   for (const std::string& want :
        {std::string("rock-3"), std::string("L-1"), std::string("M. Rossi"),
@@ -239,29 +240,45 @@ TEST_F(Reports, RockReportHasItsFiguresPhotosAndModel) {
   EXPECT_EQ(Svgs(page).size(), 2u);  // Figures 7 and 8
 }
 
-TEST_F(Reports, WhatCannotMakeAReportIsAClearError) {
-  SampleStore store(state_);
+void WhatCannotMakeAReportIsAClearError(const test::TempDir& work, const std::string& state) {
+  SampleStore store(state);
   // A rock without a specific gravity: no mass, no gradation.
   ASSERT_TRUE(store.EditMeta("rock-10", {{"material", nullptr}}, "test"));
-  Ran r = Shell(Aggscan() + " report --batch lot-1 --state-dir " + state_ + " --pdf " +
-                dir_->path() + "/x.pdf");
+  Ran r = Shell(Aggscan() + " report --batch lot-1 --state-dir " + state + " --pdf " + work.path() +
+                "/x.pdf");
   EXPECT_EQ(r.rc, 1) << r.out;
   EXPECT_NE(r.out.find("no specific gravity for rock-10"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("aggscan meta"), std::string::npos) << r.out;
-  EXPECT_FALSE(fs::exists(dir_->path() + "/x.pdf"));
+  EXPECT_FALSE(fs::exists(work.path() + "/x.pdf"));
   ASSERT_TRUE(store.EditMeta(
       "rock-10", {{"material", {{"specific_gravity", 2.65}, {"basis", "bulk-ssd"}}}}, "test"));
-  r = Shell(Aggscan() + " report --batch lot-1 --state-dir " + state_ + " --spec no-such-spec");
+  r = Shell(Aggscan() + " report --batch lot-1 --state-dir " + state + " --spec no-such-spec");
   EXPECT_EQ(r.rc, 1) << r.out;
   EXPECT_NE(r.out.find("unknown gradation specification 'no-such-spec'"), std::string::npos)
       << r.out;
   EXPECT_NE(r.out.find("en13383-lma10-60"), std::string::npos) << r.out;
-  r = Shell(Aggscan() + " report --batch nope --state-dir " + state_);
+  r = Shell(Aggscan() + " report --batch nope --state-dir " + state);
   EXPECT_EQ(r.rc, 1) << r.out;
   EXPECT_NE(r.out.find("no batch \"nope\""), std::string::npos) << r.out;
-  r = Shell(Aggscan() + " report rock-99 --state-dir " + state_);
+  r = Shell(Aggscan() + " report rock-99 --state-dir " + state);
   EXPECT_EQ(r.rc, 1) << r.out;
   EXPECT_NE(r.out.find("no sample rock-99"), std::string::npos) << r.out;
+}
+
+// One test: its ten reconstructed rocks (about three minutes) are made once.
+TEST_F(Reports, BatchAndRockReportsAndWhatCannotMakeOne) {
+  {
+    SCOPED_TRACE("batch report");
+    BatchReportCarriesTheFiguresAndEveryFigureHasItsPoints(*dir_, state_);
+  }
+  {
+    SCOPED_TRACE("rock report");
+    RockReportHasItsFiguresPhotosAndModel(*dir_, state_);
+  }
+  {
+    SCOPED_TRACE("errors");
+    WhatCannotMakeAReportIsAClearError(*dir_, state_);
+  }
 }
 
 }  // namespace
