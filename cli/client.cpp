@@ -367,7 +367,7 @@ std::string Fixed(const json& obj, const char* key, int decimals, double scale =
 // Where a sample stands, in one word: its capture state until it is
 // captured, then its reconstruction's (queued, reconstructing, done, failed).
 std::string SampleState(const json& s) {
-  const std::string state = FieldText(s, "state");
+  std::string state = FieldText(s, "state");
   if (state == "captured" && s.contains("reconstruction") && s["reconstruction"].is_object() &&
       HasText(s["reconstruction"], "state"))
     return FieldText(s["reconstruction"], "state");

@@ -38,7 +38,7 @@ constexpr int kScriptMissingLibrary = 3;
 
 std::string ReportDir() {
   if (const char* e = std::getenv("AGGSCAN_REPORT_DIR"); e && *e) return e;
-  const std::string installed = ExecutableDir() + "/../share/aggscan/report";
+  std::string installed = ExecutableDir() + "/../share/aggscan/report";
   if (PathExists(installed + "/" + kScript)) return installed;
   return std::string(AGGSCAN_SOURCE_DIR) + "/scripts/report";
 }

@@ -45,7 +45,7 @@ std::string Num(const json& v, int decimals) {
 // RFC 4180: a field with a comma, quote or line break is quoted, quotes doubled.
 std::string Text(const json& v) {
   if (!v.is_string()) return "";
-  const std::string s = v.get<std::string>();
+  std::string s = v.get<std::string>();
   if (s.find_first_of(",\"\r\n") == std::string::npos) return s;
   std::string q = "\"";
   for (char c : s) q += c == '"' ? std::string("\"\"") : std::string(1, c);

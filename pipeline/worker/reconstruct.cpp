@@ -912,7 +912,7 @@ std::string Sha256Hex(const std::string& text) {
   unsigned int len = 0;
   if (EVP_Digest(text.data(), text.size(), digest, &len, EVP_sha256(), nullptr) != 1) return "";
   std::string hex;
-  hex.reserve(2 * len);
+  hex.reserve(size_t{2} * len);
   static const char* const kHex = "0123456789abcdef";
   for (unsigned int i = 0; i < len; ++i) {
     hex += kHex[digest[i] >> 4];
