@@ -94,5 +94,8 @@ print("volume %.1f cm3, area %.1f cm2, a/b/c %.1f/%.1f/%.1f mm, FER %.2f, spheri
     d["sphericity"], d["watertight"]))
 print("quality:", json.dumps(m["quality"]))
 print("methods:", json.dumps(m["methods"]), " total %.1f s" % m["timings_s"]["total"])'
+echo "== the rock's QA report (GET /api/v1/samples/$SAMPLE/report.pdf, made by aggscan report)"
+curl -fsS -o "$STATE_DIR/$SAMPLE-report.pdf" "$AGGSCAN_URL/api/v1/samples/$SAMPLE/report.pdf"
+echo "report: $STATE_DIR/$SAMPLE-report.pdf ($(stat -c %s "$STATE_DIR/$SAMPLE-report.pdf") bytes)"
 echo "mesh: $RES/mesh.ply (also mesh.obj, mesh.stl); library: $STATE_DIR/library.csv"
 echo "sample directory: $STATE_DIR/samples/$SAMPLE"
