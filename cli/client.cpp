@@ -23,6 +23,7 @@
 
 #include "common/error.h"
 #include "store/layout.h"
+#include "store/library_csv.h"
 
 namespace aggscan {
 
@@ -539,29 +540,9 @@ void PrintSample(const json& s, std::ostream& out) {
   PrintTree(rest, 0, out);
 }
 
-// One line of a CSV file as RFC 4180 reads it (quoted fields, doubled quotes).
+// A CSV line's fields, blanks around each trimmed (a spreadsheet's export).
 std::vector<std::string> CsvFields(const std::string& line) {
-  std::vector<std::string> out(1);
-  bool quoted = false;
-  for (size_t i = 0; i < line.size(); ++i) {
-    const char c = line[i];
-    if (quoted) {
-      if (c == '"' && i + 1 < line.size() && line[i + 1] == '"') {
-        out.back() += '"';
-        ++i;
-      } else if (c == '"') {
-        quoted = false;
-      } else {
-        out.back() += c;
-      }
-    } else if (c == '"') {
-      quoted = true;
-    } else if (c == ',') {
-      out.emplace_back();
-    } else if (c != '\r') {
-      out.back() += c;
-    }
-  }
+  std::vector<std::string> out = library_csv::SplitLine(line);
   for (std::string& f : out) {
     const size_t b = f.find_first_not_of(" \t");
     const size_t e = f.find_last_not_of(" \t");

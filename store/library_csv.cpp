@@ -54,6 +54,31 @@ std::string Text(const json& v) {
 
 }  // namespace
 
+std::vector<std::string> SplitLine(const std::string& line) {
+  std::vector<std::string> out(1);
+  bool quoted = false;
+  for (size_t i = 0; i < line.size(); ++i) {
+    const char c = line[i];
+    if (quoted) {
+      if (c == '"' && i + 1 < line.size() && line[i + 1] == '"') {
+        out.back() += '"';
+        ++i;
+      } else if (c == '"') {
+        quoted = false;
+      } else {
+        out.back() += c;
+      }
+    } else if (c == '"') {
+      quoted = true;
+    } else if (c == ',') {
+      out.emplace_back();
+    } else if (c != '\r' && c != '\n') {
+      out.back() += c;
+    }
+  }
+  return out;
+}
+
 std::string Header() {
   return "sample_id,created_utc,volume_mm3,surface_area_mm2,a_mm,b_mm,c_mm,fer_3d,ratio_c_b,"
          "ratio_b_a,sphericity,mass_g,specific_gravity,sg_basis,material,operator,lot,"

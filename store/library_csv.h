@@ -10,12 +10,17 @@
 
 #include <nlohmann/json.hpp>
 #include <string>
+#include <vector>
 
 #include "common/error.h"
 
 namespace aggscan::library_csv {
 
 std::string Header();
+/// The fields of one line of a CSV file as RFC 4180 reads it (quoted fields,
+/// doubled quotes, a trailing CR or LF dropped): the reader of what Row
+/// writes, and of the CSV files people give the rig (reference volumes).
+std::vector<std::string> SplitLine(const std::string& line);
 /// The row of one rock from its morphology.json (as written) and its
 /// sample.json "meta" (mass from the specific gravity there). A figure the
 /// record lacks is an empty field.

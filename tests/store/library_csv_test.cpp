@@ -31,31 +31,7 @@ json Morphology() {
   return json::parse(s.str());
 }
 
-// RFC 4180 fields of one line (quotes doubled inside quoted fields).
-std::vector<std::string> Fields(const std::string& line) {
-  std::vector<std::string> out(1);
-  bool quoted = false;
-  for (size_t i = 0; i < line.size(); ++i) {
-    const char c = line[i];
-    if (quoted) {
-      if (c == '"' && i + 1 < line.size() && line[i + 1] == '"') {
-        out.back() += '"';
-        ++i;
-      } else if (c == '"') {
-        quoted = false;
-      } else {
-        out.back() += c;
-      }
-    } else if (c == '"') {
-      quoted = true;
-    } else if (c == ',') {
-      out.emplace_back();
-    } else if (c != '\n') {
-      out.back() += c;
-    }
-  }
-  return out;
-}
+std::vector<std::string> Fields(const std::string& line) { return library_csv::SplitLine(line); }
 
 std::string Column(const std::string& row, const std::string& name) {
   const std::vector<std::string> h = Fields(library_csv::Header());
@@ -64,6 +40,12 @@ std::string Column(const std::string& row, const std::string& name) {
   const std::vector<std::string> f = Fields(row);
   const size_t i = static_cast<size_t>(it - h.begin());
   return i < f.size() ? f[i] : "<missing>";
+}
+
+TEST(LibraryCsv, SplitLineReadsQuotedFields) {
+  EXPECT_EQ(library_csv::SplitLine("a,\"b, \"\"c\"\"\",,d\r\n"),
+            (std::vector<std::string>{"a", "b, \"c\"", "", "d"}));
+  EXPECT_EQ(library_csv::SplitLine(""), (std::vector<std::string>{""}));
 }
 
 TEST(LibraryCsv, RowHasPlainNumbersMassAndTheDescription) {
