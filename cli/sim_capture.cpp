@@ -41,7 +41,9 @@ int RunSimCapture(const SimCaptureOptions& opt, std::ostream& out, std::ostream&
     Result<Config> c = LoadConfigFile(opt.config_path, &problems);
     if (c) config = *c;
   }
-  config.camera.backend = config.turntable.backend = config.button.backend = "sim";
+  // A hand-turned table stays one: the sim's hand turns the sim platter.
+  config.camera.backend = config.button.backend = "sim";
+  if (config.turntable.backend != "manual") config.turntable.backend = "sim";
   if (opt.seed) config.sim.seed = *opt.seed;
   if (!opt.mesh.empty()) {
     config.sim.rock_mesh = opt.mesh;

@@ -232,7 +232,9 @@ const std::vector<Field<Config>>& Fields() {
         "refuse to configure when the camera lacks a control for a locked setting"),
 
       F(turntable.backend, Backend("turntable"),
-        "turntable backend: sim | modbus-tcp | modbus-rtu | usb-tic"),
+        "turntable backend: sim | modbus-tcp | modbus-rtu | usb-tic | manual (turned by hand)"),
+      D(turntable.manual_hands_off, Range(0, 60 * kSec),
+        "manual: the prompt to turn ends this long before the next view is due"),
       F(turntable.max_speed_deg_s, Above(0, 3600), "trapezoidal profile speed limit, degrees/s"),
       F(turntable.accel_deg_s2, Above(0, 36000),
         "trapezoidal profile acceleration limit, degrees/s^2"),
@@ -359,6 +361,14 @@ const std::vector<Field<Config>>& Fields() {
       F(sim.k2, Range(-1, 1), "radial distortion (Brown) coefficient k2"),
       F(sim.noise_sigma, Range(0, 64), "sensor noise, 8-bit levels"),
       F(sim.write_truth, Any(), "write ground-truth masks/poses next to the sample (tests)"),
+      F(sim.hand_angle_error_deg, Range(0, 60),
+        "hand-turned table: each turn is the step plus a uniform error within +-this, degrees"),
+      D(sim.hand_reaction_min, Range(0, 60 * kSec), "hand-turned table: shortest reaction time"),
+      D(sim.hand_reaction_max, Range(0, 60 * kSec), "hand-turned table: longest reaction time"),
+      D(sim.hand_turn_min, Above(0, 60 * kSec), "hand-turned table: shortest turn"),
+      D(sim.hand_turn_max, Above(0, 60 * kSec), "hand-turned table: longest turn"),
+      F(sim.hand_late_every, Range(0, 1000),
+        "hand-turned table: every n-th view is turned while exposed (blurred); 0 = never"),
       F(sim.scene, OneOf({"rock", "charuco"}),
         "what lies on the disc: rock | charuco (the [calibration] board, no rock)"),
       F(sim.board_image, Any(),
@@ -991,7 +1001,11 @@ class Validator {
         if (backend != simulated) real.push_back(std::string(key) + " = \"" + backend + "\"");
       };
       device("camera.backend", c.camera.backend, "sim");
-      device("turntable.backend", c.turntable.backend, "sim");
+      // A hand-turned table before the sim camera is the sim's hand, which
+      // keeps any clock; before a real camera it is a person.
+      if (c.turntable.backend != "manual" || c.camera.backend != "sim") {
+        device("turntable.backend", c.turntable.backend, "sim");
+      }
       device("button.backend", c.button.backend, "sim");
       device("light.backend", c.light.backend, "none");
       if (!real.empty()) {
@@ -1023,8 +1037,25 @@ class Validator {
     // One step (trapezoidal profile) plus the settle wait must fit in the
     // interval, and the move deadline must allow the move itself.
     const TurntableConfig& tt = c.turntable;
-    if (tt.max_speed_deg_s > 0 && tt.accel_deg_s2 > 0 && cap.step_deg > 0 &&
-        std::isfinite(cap.step_deg)) {
+    if (tt.backend == "manual") {
+      // A person turns the table between the hands-off moment and the
+      // previous shot: the interval must leave them time to do it.
+      if (cap.views_per_side > 1 && cap.interval > 0 &&
+          tt.manual_hands_off + kNsPerSec > cap.interval) {
+        Add("turntable.manual_hands_off",
+            FormatDuration(tt.manual_hands_off) + " leaves less than 1s of capture.interval (" +
+                FormatDuration(cap.interval) +
+                ") to turn the table by hand; lengthen the interval or shorten the hands-off time");
+      }
+      const SimConfig& h = c.sim;
+      if (h.hand_reaction_max < h.hand_reaction_min) {
+        Add("sim.hand_reaction_max", "is shorter than sim.hand_reaction_min");
+      }
+      if (h.hand_turn_max < h.hand_turn_min) {
+        Add("sim.hand_turn_max", "is shorter than sim.hand_turn_min");
+      }
+    } else if (tt.max_speed_deg_s > 0 && tt.accel_deg_s2 > 0 && cap.step_deg > 0 &&
+               std::isfinite(cap.step_deg)) {
       double v = tt.max_speed_deg_s, a = tt.accel_deg_s2, d = cap.step_deg;
       double move_s = d >= v * v / a ? d / v + v / a : 2.0 * std::sqrt(d / a);
       // Rounded up to whole milliseconds: exact enough, and readable in messages.
@@ -1565,7 +1596,7 @@ const std::vector<std::string>& KnownBackends(const std::string& kind) {
   // Add a real backend's name here when its driver lands in the factory.
   static const std::map<std::string, std::vector<std::string>> kBackends = {
       {"camera", {"sim", "v4l2", "libcamera"}},
-      {"turntable", {"sim", "modbus-tcp", "modbus-rtu", "usb-tic"}},
+      {"turntable", {"sim", "modbus-tcp", "modbus-rtu", "usb-tic", "manual"}},
       {"button", {"sim", "gpio", "evdev", "modbus"}},
   };
   static const std::vector<std::string> kNone;

@@ -224,7 +224,11 @@ struct UsbTicConfig {
 };
 
 struct TurntableConfig {
-  std::string backend = "sim";    // sim | modbus-tcp | modbus-rtu | usb-tic
+  std::string backend = "sim";  // sim | modbus-tcp | modbus-rtu | usb-tic | manual
+  // manual (a table turned by hand, the study's own protocol): the prompt to
+  // turn ends this long before the next view is due, and the status light
+  // goes steady (hands off) so the table is still when the camera shoots.
+  TimeNs manual_hands_off = 500 * kNsPerMs;
   double max_speed_deg_s = 60.0;  // trapezoidal profile speed limit
   double accel_deg_s2 = 180.0;    // and acceleration limit
   // Sim model of a real platter:
@@ -320,6 +324,17 @@ struct SimConfig {
   double k2 = 0.02;
   double noise_sigma = 2.0;  // sensor noise, 8-bit levels
   bool write_truth = false;  // write ground-truth masks/poses next to the sample (tests)
+  // The sim's operator at a hand-turned table (turntable.backend = "manual"):
+  // after each prompt the hand waits a reaction time, then turns the table by
+  // the plan's step plus a uniform error within +-hand_angle_error_deg over a
+  // turn time (a smooth start and stop). Every hand_late_every-th view the hand
+  // is late and turns while the camera exposes it: a blurred view.
+  double hand_angle_error_deg = 5.0;
+  TimeNs hand_reaction_min = 200 * kNsPerMs;
+  TimeNs hand_reaction_max = 600 * kNsPerMs;
+  TimeNs hand_turn_min = 300 * kNsPerMs;
+  TimeNs hand_turn_max = 700 * kNsPerMs;
+  int hand_late_every = 0;  // 0 = never late
   // What lies on the turntable: "rock" (the procedural or mesh rock) or
   // "charuco" (the [calibration] board, printed on paper, lying flat on the
   // disc; no rock), for rendering a rig calibration capture.

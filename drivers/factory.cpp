@@ -9,10 +9,12 @@
 #include "drivers/evdev/evdev_button.h"
 #include "drivers/gpio/gpio_button.h"
 #include "drivers/gpio/gpio_light.h"
+#include "drivers/manual_turntable.h"
 #include "drivers/modbus/modbus_io.h"
 #include "drivers/modbus/modbus_turntable.h"
 #include "drivers/sim/sim_button.h"
 #include "drivers/sim/sim_camera.h"
+#include "drivers/sim/sim_hand.h"
 #include "drivers/sim/sim_turntable.h"
 #include "drivers/sim/world.h"
 #include "drivers/usb/usb_tic_turntable.h"
@@ -166,11 +168,26 @@ Result<std::unique_ptr<StatusLight>> MakeModbusLight(Context& ctx) {
       ctx.config.light.modbus, BitLinkFor(ctx, modbus::LightLinkSettings(ctx.config))));
 }
 
+// A table turned by hand. With the sim camera, the sim's hand turns the sim
+// platter at each prompt, so the whole protocol runs on the simulated rig.
+Result<std::unique_ptr<Turntable>> MakeManualTurntable(Context& ctx) {
+  if (ctx.config.camera.backend != "sim") {
+    return std::unique_ptr<Turntable>(std::make_unique<ManualTurntable>());
+  }
+  Status s = EnsureWorld(ctx);
+  if (!s) return s.error();
+  auto hand = std::make_shared<sim::SimHand>(ctx.clock, ctx.config);
+  ctx.platter_angle_at = hand->AngleFunction();
+  return std::unique_ptr<Turntable>(std::make_unique<ManualTurntable>(
+      [hand](double from_deg, double to_deg) { hand->Turn(from_deg, to_deg); }));
+}
+
 // Real backends (modbus-rtu, usb, v4l2, gpio, ...) join these tables.
 const Backend<Turntable> kTurntables[] = {{"sim", MakeSimTurntable},
                                           {"modbus-tcp", MakeModbusTcpTurntable},
                                           {"modbus-rtu", MakeModbusRtuTurntable},
-                                          {"usb-tic", MakeUsbTicTurntable}};
+                                          {"usb-tic", MakeUsbTicTurntable},
+                                          {"manual", MakeManualTurntable}};
 const Backend<Camera> kCameras[] = {
     {"sim", MakeSimCamera}, {"v4l2", MakeV4l2Camera}, {"libcamera", MakeLibcameraCamera}};
 const Backend<Button> kButtons[] = {{"sim", MakeSimButton},

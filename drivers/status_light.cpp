@@ -16,6 +16,8 @@ const char* LightPatternName(LightPattern p) {
       return "flip";
     case LightPattern::kFault:
       return "fault";
+    case LightPattern::kTurn:
+      return "turn";
   }
   return "?";
 }
@@ -30,6 +32,9 @@ const std::vector<LightStep>& PatternSteps(LightPattern p) {
                                                 {false, 150 * kNsPerMs},
                                                 {true, 150 * kNsPerMs},
                                                 {false, 1050 * kNsPerMs}};
+  // A hand-turned table: "turn it now", faster than any other pattern; the
+  // side's slow blink comes back when the hands must be off.
+  static const std::vector<LightStep> kTurn = {{true, 70 * kNsPerMs}, {false, 70 * kNsPerMs}};
   switch (p) {
     case LightPattern::kReady:
       return kReady;
@@ -39,6 +44,8 @@ const std::vector<LightStep>& PatternSteps(LightPattern p) {
       return kFlip;
     case LightPattern::kFault:
       return kFault;
+    case LightPattern::kTurn:
+      return kTurn;
     case LightPattern::kOff:
       break;
   }

@@ -7,6 +7,8 @@
 //   capturing  a side is being shot (homing .. storing)      slow blink, 0.5 s on / 0.5 s off
 //   flip       waiting for the operator to flip the rock     fast blink, 0.15 s on / 0.15 s off
 //   fault      faulted, or a device is unhealthy             double flash, then 1.05 s dark
+//   turn       a hand-turned table: turn it to the next view  very fast, 0.07 s on / 0.07 s off
+//              (then back to capturing: hands off, the camera shoots)
 //
 // The base runs the pattern on its own thread in real time (a lamp is for
 // people, not for the daemon's clock); backends only switch the output.
@@ -24,7 +26,7 @@
 
 namespace aggscan {
 
-enum class LightPattern { kOff, kReady, kCapturing, kFlip, kFault };
+enum class LightPattern { kOff, kReady, kCapturing, kFlip, kFault, kTurn };
 const char* LightPatternName(LightPattern p);
 
 /// One step of a pattern: the output level held for `duration` (real time).

@@ -26,6 +26,10 @@ struct TurntableStatus {
   int alarm_code = 0;
   std::string alarm_text;
   double angle_deg = 0.0;  // measured (encoder/step count) absolute angle
+  // False where nothing measures the angle (a table turned by hand): angle_deg
+  // is then the plan's, and the worker measures each view's angle from the
+  // labels on the disc.
+  bool angle_measured = true;
 };
 
 struct TurntableInfo {

@@ -1,5 +1,7 @@
 #include "drivers/sim/sim_camera.h"
 
+#include <algorithm>
+#include <cmath>
 #include <future>
 #include <utility>
 
@@ -160,6 +162,26 @@ void SimCamera::Serve(Job& job) {
   if (job.req.board) sink = nullptr;
   opt.want_mask = static_cast<bool>(sink);
   RenderedImage img = renderer.Render(job.req.side, angle, opt);
+  // A platter turning during the exposure (a table turned by hand, late)
+  // smears the photo: the average of sub-frames over the exposure, one per
+  // ~0.1 deg of turn. The truth stays the mid-exposure pose.
+  if (!job.req.board) {
+    const auto exposure = static_cast<TimeNs>(exposure_us * 1000.0);
+    const double swept = std::abs(angle_at_(start + exposure) - angle_at_(start));
+    if (swept > 0.05) {
+      const int k = std::min(32, static_cast<int>(std::ceil(swept / 0.1)) + 1);
+      std::vector<float> sum(img.rgb.size(), 0.0f);
+      RenderOptions sub = opt;
+      sub.want_mask = false;
+      for (int i = 0; i < k; ++i) {
+        const TimeNs t = start + static_cast<TimeNs>((i + 0.5) / k * static_cast<double>(exposure));
+        const RenderedImage f = renderer.Render(job.req.side, angle_at_(t), sub);
+        for (size_t p = 0; p < sum.size(); ++p) sum[p] += f.rgb[p];
+      }
+      for (size_t p = 0; p < sum.size(); ++p)
+        img.rgb[p] = static_cast<uint8_t>(std::lround(sum[p] / static_cast<float>(k)));
+    }
+  }
 
   Result<std::vector<unsigned char>> jpeg =
       EncodeJpeg(img.rgb.data(), img.width, img.height, s.jpeg_quality);

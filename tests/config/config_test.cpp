@@ -240,6 +240,34 @@ TEST(Config, TimeScaleIsRefusedWithARealDevice) {
   EXPECT_EQ(problems[0].key, "daemon.time_scale");
 }
 
+// A hand-turned table: the person needs time to turn between the prompt and
+// the hands-off moment; a person is not sped up by time_scale, the sim's hand is.
+TEST(Config, ManualTurntableNeedsTimeToTurn) {
+  Config c;
+  c.turntable.backend = "manual";
+  std::vector<ConfigProblem> problems;
+  ValidateConfig(c, "struct", &problems);
+  EXPECT_TRUE(problems.empty()) << Dump(problems);
+  c.turntable.manual_hands_off = 1500 * kNsPerMs;  // of a 2 s interval
+  c.sim.hand_reaction_max = 100 * kNsPerMs;        // shorter than the minimum
+  ValidateConfig(c, "struct", &problems);
+  ASSERT_EQ(problems.size(), 2u) << Dump(problems);
+  EXPECT_EQ(problems[0].key, "turntable.manual_hands_off");
+  EXPECT_NE(problems[0].message.find("to turn the table by hand"), std::string::npos);
+  EXPECT_EQ(problems[1].key, "sim.hand_reaction_max");
+  problems.clear();
+  Config fast;
+  fast.turntable.backend = "manual";
+  fast.daemon.time_scale = 10;
+  ValidateConfig(fast, "struct", &problems);
+  EXPECT_TRUE(problems.empty()) << Dump(problems);
+  fast.camera.backend = "v4l2";
+  ValidateConfig(fast, "struct", &problems);
+  ASSERT_EQ(problems.size(), 1u) << Dump(problems);
+  EXPECT_NE(problems[0].message.find("turntable.backend = \"manual\""), std::string::npos)
+      << Dump(problems);
+}
+
 TEST(Config, OutOfRangeHasLine) {
   const RangeCase cases[] = {
       {"[capture]\nviews_per_side = 0\nprofile = \"custom\"\n", "capture.views_per_side",
@@ -851,7 +879,7 @@ TEST(Config, ButtonAndLightDevicesMustBeNamedAndLinksShareable) {
 TEST(Config, KnownBackends) {
   EXPECT_EQ(KnownBackends("camera"), (std::vector<std::string>{"sim", "v4l2", "libcamera"}));
   EXPECT_EQ(KnownBackends("turntable"),
-            (std::vector<std::string>{"sim", "modbus-tcp", "modbus-rtu", "usb-tic"}));
+            (std::vector<std::string>{"sim", "modbus-tcp", "modbus-rtu", "usb-tic", "manual"}));
   EXPECT_EQ(KnownBackends("button"), (std::vector<std::string>{"sim", "gpio", "evdev", "modbus"}));
   EXPECT_TRUE(KnownBackends("toaster").empty());
 }

@@ -3,6 +3,7 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 
@@ -10,6 +11,7 @@
 #include "config/config.h"
 #include "drivers/sim/sim_button.h"
 #include "drivers/sim/sim_camera.h"
+#include "drivers/sim/sim_hand.h"
 #include "drivers/sim/sim_turntable.h"
 
 namespace aggscan {
@@ -30,10 +32,64 @@ TEST(Factory, UnknownBackendNamesTheKeyAndTheKnownOnes) {
   c.button.backend = "knob";
   r = CreateRig(c, clock);
   ASSERT_FALSE(r.ok());
-  EXPECT_EQ(
-      r.error().message,
-      "turntable.backend \"usb\" is not known; available: sim, modbus-tcp, modbus-rtu, usb-tic; "
-      "button.backend \"knob\" is not known; available: sim, gpio, evdev, modbus");
+  EXPECT_EQ(r.error().message,
+            "turntable.backend \"usb\" is not known; available: sim, modbus-tcp, modbus-rtu, "
+            "usb-tic, manual; "
+            "button.backend \"knob\" is not known; available: sim, gpio, evdev, modbus");
+}
+
+// A table turned by hand: every move completes at once and nothing is
+// measured; with the sim camera, the sim's hand turns the platter it draws.
+TEST(Factory, ManualTurntableCompletesAtOnceAndMeasuresNothing) {
+  VirtualClock clock;
+  Config c;
+  c.turntable.backend = "manual";
+  Result<RigDevices> r = CreateRig(c, clock);
+  ASSERT_TRUE(r) << r.error().ToString();
+  Turntable& t = *r->turntable;
+  EXPECT_EQ(t.Info().backend, "manual");
+  ASSERT_TRUE(t.Open().ok());
+  ASSERT_TRUE(t.StartHome().ok());
+  ASSERT_TRUE(t.StartMoveTo(30.0).ok());
+  auto st = t.ReadStatus();
+  ASSERT_TRUE(st);
+  EXPECT_TRUE(st->in_position && st->homed && !st->moving);
+  EXPECT_FALSE(st->angle_measured);
+  EXPECT_DOUBLE_EQ(st->angle_deg, 30.0);
+  t.Close();
+}
+
+// The sim's hand: reaction, a smooth turn by the step +- the error, and a
+// late turn whose middle falls on the next view's mid-exposure.
+TEST(SimHand, TurnsByTheStepWithinTheErrorAndIsLateWhenTold) {
+  VirtualClock clock;
+  Config c;
+  c.sim.hand_angle_error_deg = 5.0;
+  c.sim.hand_late_every = 2;
+  sim::SimHand hand(clock, c);
+  const double start = hand.AngleAt(0);
+  EXPECT_LE(std::abs(start), 15.0);
+  hand.Turn(0.0, 30.0);
+  EXPECT_DOUBLE_EQ(hand.AngleAt(c.sim.hand_reaction_min - 1), start) << "not before its reaction";
+  const TimeNs done = c.sim.hand_reaction_max + c.sim.hand_turn_max;
+  const double first = hand.AngleAt(done) - start;
+  EXPECT_GE(first, 25.0);
+  EXPECT_LE(first, 35.0);
+  // The second turn is late: prompted 2 s later, it is under way at the next
+  // view's mid-exposure (4 s + half the shutter), not before.
+  clock.AdvanceTo(2 * kNsPerSec);
+  hand.Turn(30.0, 60.0);
+  const TimeNs mid = 2 * kNsPerSec + c.capture.interval +
+                     static_cast<TimeNs>(c.camera.exposure.exposure_us * 500.0);
+  EXPECT_DOUBLE_EQ(hand.AngleAt(mid - c.sim.hand_turn_max / 2 - 1), start + first);
+  const double during = hand.AngleAt(mid) - (start + first);
+  EXPECT_GT(during, 5.0);
+  EXPECT_LT(during, 30.0);
+  EXPECT_EQ(hand.turns(), 2);
+  EXPECT_EQ(hand.late_turns(), 1);
+  // The function the camera keeps outlives the hand.
+  auto f = hand.AngleFunction();
+  EXPECT_DOUBLE_EQ(f(mid), hand.AngleAt(mid));
 }
 
 TEST(Factory, ModbusTurntableFromConfigAndProfile) {

@@ -51,11 +51,14 @@ TEST(StatusLight, PatternTable) {
   // Capturing blinks slower than the flip request; fault is a double flash.
   EXPECT_GT(PatternSteps(LightPattern::kCapturing)[0].duration,
             PatternSteps(LightPattern::kFlip)[0].duration);
+  // "Turn the table now" is faster still, so it is not taken for a flip.
+  EXPECT_LT(PatternSteps(LightPattern::kTurn)[0].duration,
+            PatternSteps(LightPattern::kFlip)[0].duration);
   const auto& fault = PatternSteps(LightPattern::kFault);
   ASSERT_EQ(fault.size(), 4u);
   EXPECT_TRUE(fault[0].on && !fault[1].on && fault[2].on && !fault[3].on);
   for (LightPattern p : {LightPattern::kOff, LightPattern::kReady, LightPattern::kCapturing,
-                         LightPattern::kFlip, LightPattern::kFault}) {
+                         LightPattern::kFlip, LightPattern::kFault, LightPattern::kTurn}) {
     for (const LightStep& s : PatternSteps(p)) EXPECT_GT(s.duration, 0) << LightPatternName(p);
   }
 }
