@@ -774,6 +774,7 @@ void CaptureService::Run(const cs::CreateSample& e) {
 
 void CaptureService::Run(const cs::Home& /*e*/) {
   Clock& clock = loop_.clock();
+  turn_prompt_ = false;  // a side starts with the table where it is
   Status s = dev_.turntable->StartHome();
   if (!s) {
     pending_events_.push_back(
@@ -786,8 +787,49 @@ void CaptureService::Run(const cs::Home& /*e*/) {
                 [this, ep = epoch_] { PollMotion(ep); });
 }
 
+bool CaptureService::ManualTurntable() const {
+  return dev_.turntable && dev_.turntable->Info().backend == "manual";
+}
+
+// The study's protocol without a motor: right after a shot the operator is
+// told to turn the table by the step (event stream, the console's beep, the
+// light's fast blink) until the hands-off moment before the next view is due.
+void CaptureService::PromptTurn(int side, int view, double from_deg, double to_deg) {
+  const TimeNs due = side_t0_ + static_cast<TimeNs>(view) * config_.capture.interval;
+  const TimeNs hands_off = due - config_.turntable.manual_hands_off;
+  const TimeNs now = loop_.clock().Now();
+  const double by = to_deg - from_deg;
+  Publish("turn", {{"sample_id", state_.sample_id},
+                   {"side", side},
+                   {"view", view},
+                   {"number", view + 1},
+                   {"views_per_side", config_.capture.views_per_side},
+                   {"by_deg", by},
+                   {"hands_off_in_ms", std::max<TimeNs>(0, hands_off - now) / kNsPerMs},
+                   {"due_in_ms", std::max<TimeNs>(0, due - now) / kNsPerMs}});
+  LogLine(LogLevel::kInfo, "capture", state_.sample_id,
+          "turn the table by " + Deg(by) + " deg now for view " + std::to_string(view + 1) +
+              " (hands off in " + FormatDuration(std::max<TimeNs>(0, hands_off - now)) + ")");
+  turn_prompt_ = true;
+  const uint64_t my = ++turn_epoch_;
+  NotifyStatus();
+  auto end_prompt = [this, my] {
+    if (turn_epoch_ != my || !turn_prompt_) return;
+    turn_prompt_ = false;
+    NotifyStatus();
+  };
+  if (hands_off <= now) {
+    end_prompt();
+  } else {
+    AddEpochTimer(hands_off, end_prompt);
+  }
+}
+
 void CaptureService::Run(const cs::MoveTo& e) {
   Clock& clock = loop_.clock();
+  if (ManualTurntable() && e.angle_deg != dev_.turntable->target_deg()) {
+    PromptTurn(e.side, e.view, dev_.turntable->target_deg(), e.angle_deg);
+  }
   Status s = dev_.turntable->StartMoveTo(e.angle_deg);
   if (!s) {
     pending_events_.push_back(cs::DeviceFault{
@@ -845,7 +887,11 @@ void CaptureService::Run(const cs::TriggerCapture& e) {
   pending_.side = e.side;
   pending_.view = e.view;
   pending_.commanded_deg = e.commanded_deg;
-  pending_.measured_deg = st->angle_deg;
+  if (st->angle_measured) {
+    pending_.measured_deg = st->angle_deg;
+  } else {
+    pending_.measured_deg.reset();
+  }
   pending_.trigger = clock.Now();
   pending_.frame.reset();
   pending_.request_id = next_request_id_++;
@@ -884,7 +930,6 @@ void CaptureService::Run(const cs::StoreView& e) {
               {"view", e.view},
               {"image", layout::ViewImageName(e.view)},
               {"commanded_angle_deg", pending_.commanded_deg},
-              {"measured_angle_deg", pending_.measured_deg},
               {"due_monotonic_ns", pending_.due},
               {"trigger_monotonic_ns", pending_.trigger},
               {"capture_monotonic_ns", f->exposure_start},
@@ -901,6 +946,13 @@ void CaptureService::Run(const cs::StoreView& e) {
               {"height", f->height},
               {"frame_sequence", f->sequence},
               {"time_scale", loop_.clock().Scale()}};
+  // Nothing measured a hand-turned table's angle: the field is absent and the
+  // worker measures it from the labels on the disc.
+  if (pending_.measured_deg) {
+    car["measured_angle_deg"] = *pending_.measured_deg;
+  } else {
+    car["turntable_backend"] = dev_.turntable->Info().backend;
+  }
   // A real camera without a control for a locked setting (V4L2
   // strict_controls = false): say so rather than let its value pass as measured.
   if (!f->missing_controls.empty()) car["missing_controls"] = f->missing_controls;
@@ -993,6 +1045,7 @@ void CaptureService::Run(const cs::FinishSide& e) {
 void CaptureService::Run(const cs::StopMotion& /*e*/) {
   ++epoch_;  // cancels every pending timer and late callback of this capture
   shot_waits_for_preview_ = false;
+  turn_prompt_ = false;  // its hands-off timer was one of them
   motion_.active = false;
   if (holding_) {
     holding_ = false;
@@ -1148,6 +1201,9 @@ LightPattern CaptureService::LightPatternFor() const {
   }
   // Not under a running side: the light must not cost the schedule a directory scan.
   if (!SideRunning() && !CheckStorage().healthy) return LightPattern::kFault;
+  // Set from a hand-turned table's prompt to its hands-off moment; a fault
+  // or an abort (StopMotion) clears it.
+  if (turn_prompt_) return LightPattern::kTurn;
   switch (state_.phase) {
     case cs::Phase::kIdle:
     case cs::Phase::kArmed:

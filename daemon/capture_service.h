@@ -152,10 +152,19 @@ class CaptureService final : public DaemonControl {
     int comm_errors = 0;
     std::optional<TurntableStatus> last_status;  // the latest status read, for the time-out message
   };
+  // A hand-turned table (turntable.backend = "manual"): true from the prompt
+  // to turn until the hands-off moment before the next view is due (the
+  // light blinks "turn"); turn_epoch_ drops a stale hands-off timer.
+  bool turn_prompt_ = false;
+  uint64_t turn_epoch_ = 0;
+  bool ManualTurntable() const;
+  void PromptTurn(int side, int view, double from_deg, double to_deg);
+
   struct PendingView {
     int side = 0, view = 0;
     uint64_t request_id = 0;
-    double commanded_deg = 0, measured_deg = 0;
+    double commanded_deg = 0;
+    std::optional<double> measured_deg;  // none: a hand-turned table (the worker measures it)
     TimeNs due = 0, trigger = 0;
     FramePtr frame;
   };

@@ -166,7 +166,7 @@ StepResult Step(const State& s, const Event& e) {
             if (s.view + 1 < s.plan.views_per_side) {
               n.view = s.view + 1;
               n.phase = Phase::kRotating;
-              return Go(n, {MoveTo{n.view * s.plan.step_deg}});
+              return Go(n, {MoveTo{n.view * s.plan.step_deg, n.side, n.view}});
             }
             n.phase = Phase::kFinishing;
             return Go(n, {FinishSide{s.side, s.side >= s.plan.sides}});

@@ -120,6 +120,7 @@ struct CreateSample {
 struct Home {};
 struct MoveTo {
   double angle_deg;
+  int side = 0, view = 0;  // the view it is for (a hand-turned table's prompt names it)
 };
 struct StartSettle {};
 struct BeginSide {

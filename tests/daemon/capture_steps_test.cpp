@@ -16,6 +16,7 @@
 #include "common/fsutil.h"
 #include "config/config.h"
 #include "daemon/capture_service.h"
+#include "daemon/event_hub.h"
 #include "daemon/event_loop.h"
 #include "drivers/factory.h"
 #include "store/layout.h"
@@ -57,6 +58,18 @@ class CaptureServiceTestPeer {
       return st ? st->angle_deg : -1.0;
     });
   }
+  LightPattern light_pattern() {
+    return OnLoop([&] { return s_.LightPatternFor(); });
+  }
+  void set_events(EventHub* hub) {
+    OnLoop([&] {
+      s_.SetEventHub(hub);
+      return 0;
+    });
+  }
+  bool has_frame() {
+    return OnLoop([&] { return static_cast<bool>(s_.pending_.frame); });
+  }
   int faults(const std::string& cls) {
     return OnLoop([&] {
       auto it = s_.faults_by_class_.find(cls);
@@ -83,7 +96,9 @@ using Names = std::vector<std::string>;
 
 class CaptureSteps : public ::testing::Test {
  protected:
+  virtual void Configure() {}
   void SetUp() override {
+    Configure();
     config_.daemon.state_dir = dir_.path() + "/state";
     config_.camera.width = 320;
     config_.camera.height = 240;
@@ -202,7 +217,68 @@ TEST_F(CaptureSteps, RecordFaultCountsItByClass) {
   EXPECT_EQ(peer_->Run(capture::ClearFault{}), Names{});
 }
 
+// A table turned by hand: the move is a prompt to the operator (the "turn"
+// event, the light's fast blink until the hands-off moment), completes at
+// once, and the view's sidecar carries no measured angle.
+class ManualCaptureSteps : public CaptureSteps {
+ protected:
+  void Configure() override {
+    config_.turntable.backend = "manual";
+    config_.turntable.manual_hands_off = 1500 * kNsPerMs;  // the prompt lasts 0.5 s of the 2 s
+  }
+};
+
+TEST_F(ManualCaptureSteps, TheMoveIsAPromptToTurnAndTheAngleIsLeftToTheLabels) {
+  EventHub hub;
+  peer_->set_events(&hub);
+  EXPECT_EQ(peer_->Run(capture::CreateSample{"rock-1"}), Names{});
+  EXPECT_EQ(peer_->Run(capture::Home{}), Names{});
+  ASSERT_TRUE(WaitMotionDone(*peer_));
+  EXPECT_EQ(peer_->Run(capture::BeginSide{1}), Names{});
+  EXPECT_EQ(peer_->Run(capture::MoveTo{30.0, 1, 1}), Names{});
+  ASSERT_TRUE(WaitMotionDone(*peer_)) << "nothing to wait for: the table is turned by hand";
+  bool gap = false;
+  std::vector<LiveEvent> ev;
+  for (const LiveEvent& e : hub.Since(0, &gap))
+    if (e.type == "turn") ev.push_back(e);
+  ASSERT_EQ(ev.size(), 1u);
+  const json d = json::parse(ev[0].data);
+  EXPECT_EQ(d["side"], 1);
+  EXPECT_EQ(d["number"], 2);
+  EXPECT_DOUBLE_EQ(d["by_deg"].get<double>(), 30.0);
+  // View 1 is due 2 s after t0, hands off 1.5 s before that.
+  EXPECT_LE(d["hands_off_in_ms"].get<int64_t>(), 500);
+  EXPECT_GT(d["hands_off_in_ms"].get<int64_t>(), 200);
+  EXPECT_EQ(peer_->light_pattern(), LightPattern::kTurn);
+  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(5);
+  while (std::chrono::steady_clock::now() < until &&
+         peer_->light_pattern() == LightPattern::kTurn) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  EXPECT_NE(peer_->light_pattern(), LightPattern::kTurn) << "hands off before the shot";
+  // The same angle again is no turn.
+  EXPECT_EQ(peer_->Run(capture::MoveTo{30.0, 1, 1}), Names{});
+  int turns = 0;
+  for (const LiveEvent& e : hub.Since(0, &gap)) turns += e.type == "turn";
+  EXPECT_EQ(turns, 1);
+  // The view is shot and stored without a measured angle.
+  EXPECT_EQ(peer_->Run(capture::TriggerCapture{1, 1, 30.0}), Names{});
+  const auto shot = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+  while (std::chrono::steady_clock::now() < shot && !peer_->has_frame()) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  ASSERT_TRUE(peer_->has_frame());
+  EXPECT_EQ(peer_->Run(capture::StoreView{1, 1}), Names{"view_stored"});
+  auto car = ReadFile(store_->SampleDir("rock-1") + "/side1/view_001.json");
+  ASSERT_TRUE(car) << car.error().ToString();
+  const json c = json::parse(*car);
+  EXPECT_FALSE(c.contains("measured_angle_deg")) << c.dump();
+  EXPECT_EQ(c["turntable_backend"], "manual");
+  EXPECT_DOUBLE_EQ(c["commanded_angle_deg"].get<double>(), 30.0);
+}
+
 }  // namespace
+
 // The sample's description: the config's material is a new sample's
 // default; an edit through the service changes sample.json and the library's
 // row, and the answers carry the mass from it; a batch by lot lists it.

@@ -244,7 +244,13 @@
         sub = s.status_line || '';
         break;
       default:
-        if (kRunning.includes(s.state)) {
+        if (kRunning.includes(s.state) && ui.turn && Date.now() < ui.turn.handsOffAt) {
+          // A hand-turned table: the operator turns it now, and lets go in time.
+          main = 'Turn the table by ' + Math.abs(ui.turn.by).toFixed(0) + '° now';
+          sub = 'Side ' + s.side + ' — view ' + ui.turn.number + ' of ' + s.views_per_side +
+              '. Hands off in ' +
+              Math.max(0, (ui.turn.handsOffAt - Date.now()) / 1000).toFixed(1) + ' s.';
+        } else if (kRunning.includes(s.state)) {
           const what = board ? 'Calibration' : 'Side ' + s.side;
           main = s.state === 'homing' ? what + ' — homing'
                                       : what + ' — view ' + Math.max(1, s.view || 0) + ' of ' + s.views_per_side;
@@ -384,6 +390,21 @@
       o.stop(t + i * 0.25 + 0.24);
     }
   }
+  // One short beep: turn the hand-turned table now (the study's phone beeped
+  // at each shot; here the beep is the cue to turn).
+  function beep() {
+    if (!$('sound').checked) return;
+    audio = audio || new AudioContext();
+    const t = audio.currentTime;
+    const o = audio.createOscillator();
+    const g = audio.createGain();
+    o.frequency.value = 1320;
+    g.gain.setValueAtTime(0.3, t);
+    g.gain.exponentialRampToValueAtTime(0.001, t + 0.12);
+    o.connect(g).connect(audio.destination);
+    o.start(t);
+    o.stop(t + 0.14);
+  }
   $('sound').checked = localStorage.getItem('aggscan.sound') === '1';
   $('sound').addEventListener('change', () => {
     localStorage.setItem('aggscan.sound', $('sound').checked ? '1' : '0');
@@ -444,6 +465,13 @@
     on('fault', (d) => {
       ui.status = Object.assign(ui.status || {}, {fault: d});
       renderRig();
+    });
+    on('turn', (d) => {
+      ui.turn = {by: d.by_deg, number: d.number, handsOffAt: Date.now() + d.hands_off_in_ms};
+      beep();
+      renderPrompt();
+      // The prompt changes back to the view count at the hands-off moment.
+      setTimeout(renderPrompt, d.hands_off_in_ms + 10);
     });
     on('view', (d) => {
       probe.views++;
