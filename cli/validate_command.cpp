@@ -49,29 +49,6 @@ double Seconds(std::chrono::steady_clock::time_point t0) {
 
 double Pct(double rec, double truth) { return truth != 0 ? 100.0 * (rec - truth) / truth : 0.0; }
 
-RockFigures FiguresFrom(const json& j) {
-  RockFigures f;
-  f.volume_mm3 = j.value("volume_mm3", 0.0);
-  f.area_mm2 = j.value("surface_area_mm2", 0.0);
-  f.a_mm = j.value("a_mm", 0.0);
-  f.b_mm = j.value("b_mm", 0.0);
-  f.c_mm = j.value("c_mm", 0.0);
-  f.sphericity = j.value("sphericity", 0.0);
-  if (const auto it = j.find("near_minimal_boxes"); it != j.end() && it->is_array()) {
-    for (const json& b : *it) {
-      if (!b.is_object()) continue;
-      f.near_boxes.push_back({b.value("a_mm", 0.0), b.value("b_mm", 0.0), b.value("c_mm", 0.0),
-                              b.value("volume_ratio", 1.0)});
-    }
-  } else if (const auto sb = j.find("second_box"); sb != j.end() && sb->is_object()) {
-    // Figures written before near_minimal_boxes: the second box, if near.
-    const BoxDims b{sb->value("a_mm", 0.0), sb->value("b_mm", 0.0), sb->value("c_mm", 0.0),
-                    sb->value("volume_ratio", 0.0)};
-    if (b.volume_ratio > 0 && b.volume_ratio <= 1 + kBoxAmbiguousVolume) f.near_boxes.push_back(b);
-  }
-  return f;
-}
-
 json BoxJson(const BoxDims& b) {
   return {{"a_mm", b.a_mm}, {"b_mm", b.b_mm}, {"c_mm", b.c_mm}, {"volume_ratio", b.volume_ratio}};
 }
@@ -387,7 +364,7 @@ void RunRock(const RockInput& in, int index, const ValidateOptions& o, const std
     row->message = "capture: no readable truth.json in " + cap.out;
     return;
   }
-  row->truth = FiguresFrom(truth);
+  row->truth = RockFiguresFromJson(truth);
   if (o.render_only) {
     row->status = "rendered";
     row->seconds = Seconds(t0);
@@ -412,7 +389,7 @@ void RunRock(const RockInput& in, int index, const ValidateOptions& o, const std
     row->message = "reconstruction: " + m.error().ToString();
     return;
   }
-  row->rec = FiguresFrom(m->value("morphology_3d", json::object()));
+  row->rec = RockFiguresFromJson(m->value("morphology_3d", json::object()));
   for (const json& f : m->value("quality", json::object()).value("flags", json::array())) {
     if (f.is_object()) row->quality_flags.push_back(f.value("code", ""));
   }
@@ -451,6 +428,29 @@ void TransformError(const Eigen::Isometry3d& est, const Eigen::Isometry3d& truth
 }
 
 }  // namespace
+
+RockFigures RockFiguresFromJson(const json& j) {
+  RockFigures f;
+  f.volume_mm3 = j.value("volume_mm3", 0.0);
+  f.area_mm2 = j.value("surface_area_mm2", 0.0);
+  f.a_mm = j.value("a_mm", 0.0);
+  f.b_mm = j.value("b_mm", 0.0);
+  f.c_mm = j.value("c_mm", 0.0);
+  f.sphericity = j.value("sphericity", 0.0);
+  if (const auto it = j.find("near_minimal_boxes"); it != j.end() && it->is_array()) {
+    for (const json& b : *it) {
+      if (!b.is_object()) continue;
+      f.near_boxes.push_back({b.value("a_mm", 0.0), b.value("b_mm", 0.0), b.value("c_mm", 0.0),
+                              b.value("volume_ratio", 1.0)});
+    }
+  } else if (const auto sb = j.find("second_box"); sb != j.end() && sb->is_object()) {
+    // Figures written before near_minimal_boxes: the second box, if near.
+    const BoxDims b{sb->value("a_mm", 0.0), sb->value("b_mm", 0.0), sb->value("c_mm", 0.0),
+                    sb->value("volume_ratio", 0.0)};
+    if (b.volume_ratio > 0 && b.volume_ratio <= 1 + kBoxAmbiguousVolume) f.near_boxes.push_back(b);
+  }
+  return f;
+}
 
 StitchTruthError StitchAgainstTruth(const std::string& sample_dir, const json& truth) {
   StitchTruthError e;

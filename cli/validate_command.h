@@ -84,6 +84,9 @@ struct DimErrors {
   double MaxAbs() const;
 };
 DimErrors DimsAgainstTruth(const RockFigures& truth, const RockFigures& rec);
+/// The figures of a truth.json or a morphology_3d object (near-minimal boxes
+/// included; older files' second box when it is near).
+RockFigures RockFiguresFromJson(const nlohmann::json& j);
 /// The same against the truth's minimum-volume box only.
 DimErrors DimsAgainstMinimumBox(const RockFigures& truth, const RockFigures& rec);
 

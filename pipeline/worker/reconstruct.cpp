@@ -193,7 +193,11 @@ Result<records::PosesRecord> SfmPosesRecord(const std::string& sample_dir, int s
   in.side = side;
   for (const records::View2D& v : side_result.views) {
     if (!v.ok) continue;
-    auto angle = MeasuredAngle(v, side);
+    // SfM poses the views itself; a hand-turned table's plan angle only
+    // orders them.
+    auto angle = v.measured_angle_deg || !v.commanded_angle_deg
+                     ? MeasuredAngle(v, side)
+                     : Result<double>(*v.commanded_angle_deg);
     if (!angle) return angle.error();
     SampleView sv;
     sv.side = side;
@@ -207,6 +211,106 @@ Result<records::PosesRecord> SfmPosesRecord(const std::string& sample_dir, int s
   }
   in.cancel = opts.cancel;
   return RunSfmPoses(in, opts.sfm);
+}
+
+// A table turned by hand: the views of a side that carry no measured angle
+// get theirs from the disc's labels and ArUco markers (hand_turned.h). Views
+// shot while the table turned (sharpness below the limit against the side's
+// median) and views whose references give no angle are left out, each named
+// with what to do in `left_out`. Angles are unwrapped along the capture
+// order: each near the previous one plus the plan's step.
+struct HandAngles {
+  std::map<int, double> angle_deg;  // by view number
+  std::map<int, json> detail;       // the fit, by view number
+  json left_out = json::array();    // [{view, reason}]
+};
+
+Result<HandAngles> MeasureHandTurnedAngles(const std::string& sample_dir, int side,
+                                           const std::vector<const records::View2D*>& views,
+                                           const RigCalibration& cal,
+                                           const ReconstructOptions& opts,
+                                           ViewEvidenceCache* evidence) {
+  if (!evidence) {
+    return MakeError(ErrorClass::kInternal, "poses stage: no view evidence for a hand-turned side");
+  }
+  const std::string side_dir = sample_dir + "/" + layout::SideDirName(side);
+  struct One {
+    TableAngleFit fit;
+    double sharpness = 0;
+    std::string problem;  // the photo or mask could not be read
+  };
+  std::vector<One> out(views.size());
+  const cv::Point2d turn = TurnDirection(cal);
+  ParallelFor(views.size(), kWorkerThreads, [&](size_t i) {
+    const std::string image = side_dir + "/" + views[i]->image;
+    auto img = LoadImage(image, ImageMode::kColor, opts.worker.image_limits);
+    auto m = LoadImage(ResultsPath(sample_dir, views[i]->mask), ImageMode::kGray,
+                       opts.worker.image_limits);
+    if (!img || !m || img->size() != m->size()) {
+      out[i].problem = !img ? img.error().message
+                            : (!m ? m.error().message : "the photo and its mask differ in size");
+      return;
+    }
+    evidence->Add(image, *img, *m);
+    const std::shared_ptr<const ViewEvidence> e = evidence->Find(image);
+    out[i].sharpness = RockSharpness(*img, *m, turn);
+    if (!e || !e->markers_found) {
+      out[i].fit.problem = "the disc's labels could not be searched for in this photo";
+      return;
+    }
+    out[i].fit = FitTableAngle(e->markers, e->aruco_found ? &e->aruco : nullptr, cal,
+                               evidence->options().rig, opts.hand);
+  });
+  std::vector<double> sharp;
+  for (const One& o : out)
+    if (o.sharpness > 0) sharp.push_back(o.sharpness);
+  double median = 0;
+  if (!sharp.empty()) {
+    std::nth_element(sharp.begin(), sharp.begin() + static_cast<long>(sharp.size() / 2),
+                     sharp.end());
+    median = sharp[sharp.size() / 2];
+  }
+  HandAngles h;
+  std::optional<double> prev_angle, prev_plan;
+  for (size_t i = 0; i < views.size(); ++i) {
+    const records::View2D& v = *views[i];
+    const One& o = out[i];
+    const double ratio = median > 0 ? o.sharpness / median : 1.0;
+    auto leave_out = [&](const std::string& reason) {
+      h.left_out.push_back({{"view", v.view}, {"reason", reason}});
+    };
+    if (!o.problem.empty()) {
+      leave_out("cannot be read: " + o.problem);
+      continue;
+    }
+    if (ratio < opts.hand_min_sharpness_ratio) {
+      char buf[96];
+      std::snprintf(buf, sizeof buf, "%.0f %% of the side's median", 100.0 * ratio);
+      leave_out(std::string("shot while the table was turning (sharpness inside the rock ") + buf +
+                "): turn the table as soon as the rig prompts and let go before the hands-off "
+                "moment, or lengthen capture.interval");
+      continue;
+    }
+    if (!o.fit.ok) {
+      leave_out("no turntable angle from the disc: " + o.fit.problem);
+      continue;
+    }
+    const double plan = v.commanded_angle_deg.value_or(0.0);
+    const double near = prev_angle ? *prev_angle + (plan - *prev_plan) : plan;
+    const double angle = UnwrapNear(o.fit.angle_deg, near);
+    prev_angle = angle;
+    prev_plan = plan;
+    h.angle_deg[v.view] = angle;
+    json d = {{"angle_source", "labels"},
+              {"angle_fit_rms_px", o.fit.rms_px},
+              {"angle_fit_max_px", o.fit.max_px},
+              {"angle_fit_labels", o.fit.labels},
+              {"angle_fit_aruco_markers", o.fit.aruco_markers},
+              {"sharpness_ratio", ratio}};
+    if (!o.fit.dropped.empty()) d["angle_fit_dropped"] = o.fit.dropped;
+    h.detail[v.view] = std::move(d);
+  }
+  return h;
 }
 
 Result<std::vector<SampleView>> PosesStage(const std::string& sample_dir, int side,
@@ -239,27 +343,61 @@ Result<std::vector<SampleView>> PosesStage(const std::string& sample_dir, int si
     }
     records::PosesRecord rec;
     std::vector<records::PosedViewRecord>& jviews = rec.views;
+    // Views without a measured angle come from a table turned by hand.
+    std::vector<const records::View2D*> unmeasured;
+    for (const records::View2D& v : side_result->views) {
+      if (v.ok && !v.measured_angle_deg) unmeasured.push_back(&v);
+    }
+    std::optional<HandAngles> hand;
+    if (!unmeasured.empty()) {
+      auto h = MeasureHandTurnedAngles(sample_dir, side, unmeasured, *cal, opts, evidence);
+      if (!h) return h.error();
+      hand = std::move(*h);
+    }
     for (const records::View2D& v : side_result->views) {
       if (!v.ok) continue;  // no rock in this view: it cannot bound the hull
-      auto measured = MeasuredAngle(v, side);
-      if (!measured) return measured.error();
       records::PosedViewRecord pv;
+      if (v.measured_angle_deg) {
+        pv.angle_deg = *v.measured_angle_deg;
+      } else if (hand && hand->angle_deg.count(v.view)) {
+        pv.angle_deg = hand->angle_deg.at(v.view);
+        pv.extra = hand->detail.at(v.view);
+      } else {
+        continue;  // named in the hand-turned views left out
+      }
       pv.view = v.view;
       pv.image = v.image;
       pv.mask = v.mask;
-      pv.angle_deg = *measured;
       pv.cam_from_table = geom::IsoFromRowMajor(cal->CamFromTable(pv.angle_deg));
       jviews.push_back(std::move(pv));
     }
     if (jviews.size() < 3) {
-      return MakeError(ErrorClass::kCorrupt,
-                       "poses stage: " + layout::SideDirName(side) + " has only " +
-                           std::to_string(jviews.size()) +
-                           " views with a rock; at least 3 are needed: re-capture the side");
+      std::string why;
+      if (hand && !hand->left_out.empty()) {
+        why = " (" + std::to_string(hand->left_out.size()) + " left out, first: view " +
+              std::to_string(hand->left_out[0].value("view", 0)) + " " +
+              hand->left_out[0].value("reason", "") + ")";
+      }
+      return MakeError(ErrorClass::kCorrupt, "poses stage: " + layout::SideDirName(side) +
+                                                 " has only " + std::to_string(jviews.size()) +
+                                                 " posed views with a rock" + why +
+                                                 "; at least 3 are needed: re-capture the side");
     }
     rec.side = side;
     rec.method = "turntable";
     rec.method_detail = "calibrated turntable: cam_from_table0 * Rz(measured angle)";
+    if (hand) {
+      rec.method_detail =
+          "calibrated turntable turned by hand: cam_from_table0 * Rz(angle measured from the "
+          "disc's labels and markers)";
+      rec.extra["hand_turned"] = true;
+      rec.extra["views_left_out"] = hand->left_out;
+      for (const json& l : hand->left_out) {
+        StageLog(LogLevel::kWarning, kCat, layout::SampleIdOfDir(sample_dir),
+                 layout::SideDirName(side) + " view " + std::to_string(l.value("view", 0)) +
+                     " left out: " + l.value("reason", ""));
+      }
+    }
     if (opts.bundle_adjust) {
       // Eq. 2 of the study: only the features inside the rock masks refine the
       // poses; the photos are read one at a time.
@@ -1308,6 +1446,15 @@ Status MorphologyStage(SampleRun& r) {
   for (const auto& [side, sr] : side_results) {
     for (const std::string* w : {&sr.image_problems, &sr.mask_problems}) {
       if (!w->empty()) warnings.push_back(layout::SideDirName(side) + ": " + *w);
+    }
+  }
+  for (const int side : r.sides) {
+    auto pj = ReadPoses(r.dir, side);
+    if (!pj) continue;
+    const json left = pj->extra.value("views_left_out", json::array());
+    for (const json& l : left) {
+      warnings.push_back(layout::SideDirName(side) + " view " + std::to_string(l.value("view", 0)) +
+                         " left out of the poses: " + l.value("reason", ""));
     }
   }
   for (const records::ViewNote& v : r.surface.views_left_out) {

@@ -30,6 +30,7 @@
 
 #include "common/error.h"
 #include "pipeline/poses/bundle_adjust.h"
+#include "pipeline/poses/hand_turned.h"
 #include "pipeline/sfm/sfm_poses.h"
 #include "pipeline/surface/photo_refine.h"
 #include "pipeline/surface/visual_hull.h"
@@ -73,6 +74,13 @@ struct ReconstructOptions {
     o.features.distinct_viewpoints_only = false;
     return o;
   }();
+  /// A table turned by hand (views without a measured angle): each view's
+  /// angle from the disc's labels and ArUco markers (pipeline/poses/
+  /// hand_turned.h), and a view whose sharpness inside the rock is below
+  /// this fraction of its side's median is named as shot while the table
+  /// turned and left out.
+  TableAngleOptions hand;
+  double hand_min_sharpness_ratio = 0.75;
   VisualHullOptions hull;  // surface
   bool photo_refine =
       true;  // refine the hull by photo-consistency (concavities the silhouettes miss)
