@@ -653,7 +653,9 @@ Result<json> SampleStore::Describe(const std::string& id) const {
           {"image", layout::SideDirName(sd.value("side", 0)) + "/" + layout::ViewImageName(v)}};
       if (Result<ViewSidecar> car = ReadViewSidecar(side_dir, v)) {
         view["commanded_angle_deg"] = car->commanded_angle_deg.value_or(0.0);
-        view["measured_angle_deg"] = car->measured_angle_deg.value_or(0.0);
+        // A hand-turned table measures no angle: null, not a 0 that reads as one.
+        view["measured_angle_deg"] =
+            car->measured_angle_deg ? json(*car->measured_angle_deg) : json(nullptr);
         view["capture_utc"] = car->capture_utc.value_or("");
         view["schedule_error_ms"] = car->schedule_error_ms.value_or(0.0);
       } else {
