@@ -10,6 +10,7 @@
 #include "cli/calibrate_command.h"
 #include "cli/client.h"
 #include "cli/empty_turntable_command.h"
+#include "cli/import_command.h"
 #include "cli/masks_command.h"
 #include "cli/morph2d_command.h"
 #include "cli/morph_command.h"
@@ -102,6 +103,7 @@ void Usage(std::ostream& o) {
   PrintMorph2dUsage(o);
   PrintSimUsage(o);
   aggscan::PrintEmptyTurntableUsage(o);
+  aggscan::PrintImportUsage(o);
   aggscan::PrintUserUsage(o);
   aggscan::PrintMasksUsage(o);
   aggscan::PrintValidateUsage(o);
@@ -281,6 +283,8 @@ int main(int argc, char** argv) {
     return aggscan::RunUserCommand({args.begin() + 1, args.end()}, std::cin, std::cout, std::cerr);
   if (cmd == "empty-turntable")
     return aggscan::RunEmptyTurntableCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
+  if (cmd == "import")
+    return aggscan::RunImportCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
   if (cmd == "masks")
     return aggscan::RunMasksCommand({args.begin() + 1, args.end()}, std::cout, std::cerr);
   if (cmd == "validate")

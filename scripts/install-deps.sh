@@ -23,7 +23,7 @@ PACKAGES=(
   nlohmann-json3-dev libtomlplusplus-dev libcpp-httplib-dev
   # the daemon's HTTP server (cpp-httplib stays for the CLI and the test clients)
   libmicrohttpd-dev
-  libsystemd-dev libsqlite3-dev libturbojpeg0-dev
+  libsystemd-dev libsqlite3-dev libturbojpeg0-dev libexif-dev
   # a sample's images as one ZIP, streamed to the client (the API)
   libarchive-dev
   # the API's accounts (crypt(3) yescrypt hashes) and the CLI's https:// client

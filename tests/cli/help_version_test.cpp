@@ -164,6 +164,7 @@ const std::vector<HelpCase> kCases = {
     {{"user", "list"}, {"--file", "users"}},
     {{"empty-turntable"}, {}},
     {{"empty-turntable"}, {"sample", "--state-dir", "state"}},
+    {{"import"}, {"photos", "--id", "rock-1", "--out", "rock-1"}},
     {{"masks"}, {}},
     {{"masks", "dataset"}, {"--out", "set", "sample"}},
     {{"masks", "train"}, {"--dataset", "set", "--out", "model.onnx"}},
