@@ -164,7 +164,7 @@ std::vector<std::vector<Photo*>> SplitByTime(std::vector<Photo>& photos,
 }
 
 int Usage(std::ostream& err, const std::string& what) {
-  err << kCmd << ": " << what << "\n";
+  err << kCmd << ": " << what << "\nusage:\n";
   PrintImportUsage(err);
   return 2;
 }
@@ -183,10 +183,18 @@ void PrintImportUsage(std::ostream& o) {
        "      camera (the disc's labels then give each view's angle). Refused, with what\n"
        "      to do: too few views, photos out of focus or badly exposed (--skip-bad\n"
        "      leaves them out), mixed cameras without a calibration, no scale reference\n"
-       "      in enough views (--no-scale: no metric size)\n";
+       "      in enough views (--no-scale imports anyway: the views can be posed, not\n"
+       "      measured)\n";
 }
 
 int RunImportCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {
+  // Before anything else, wherever it stands: help does nothing else.
+  if (std::any_of(args.begin(), args.end(),
+                  [](const std::string& a) { return a == "--help" || a == "-h"; })) {
+    out << "usage:\n";
+    PrintImportUsage(out);
+    return 0;
+  }
   Options o;
   for (size_t i = 0; i < args.size(); ++i) {
     const std::string& a = args[i];
@@ -198,10 +206,7 @@ int RunImportCommand(const std::vector<std::string>& args, std::ostream& out, st
       *v = x;
       return true;
     };
-    if (a == "--help" || a == "-h") {
-      PrintImportUsage(out);
-      return 0;
-    } else if (a == "--id" && has) {
+    if (a == "--id" && has) {
       o.id = args[++i];
     } else if (a == "--out" && has) {
       o.out = args[++i];
@@ -236,6 +241,12 @@ int RunImportCommand(const std::vector<std::string>& args, std::ostream& out, st
   if (o.focal_mm.has_value() != o.sensor_mm.has_value())
     return Usage(err, "--focal-mm and --sensor-mm go together (the lens and the sensor's width)");
   if (o.out.empty()) o.out = o.id;
+  // The worker knows a sample by its directory's name.
+  if (fs::path(o.out).lexically_normal().filename() != o.id &&
+      fs::path(o.out).lexically_normal().parent_path().filename() != o.id) {
+    return Usage(err, "--out " + o.out + ": a sample directory is named after its id; use " +
+                          (fs::path(o.out).parent_path() / o.id).string());
+  }
   std::error_code ec;
   if (!fs::is_directory(o.dir, ec)) {
     err << kCmd << ": " << o.dir << " is not a folder\n";
@@ -400,8 +411,9 @@ int RunImportCommand(const std::vector<std::string>& args, std::ostream& out, st
       refuse.push_back(side + ": a scale reference (two or more of the disc's labels or [rig] " +
                        "ArUco markers) shows in " + std::to_string(with_scale) + " photo(s), " +
                        std::to_string(kMinScaleViews) +
-                       " are needed: keep the labels in view, or pass --no-scale for a result "
-                       "without a metric size");
+                       " are needed: keep the labels in view, or pass --no-scale to import the "
+                       "photos anyway (the worker then poses the views but has no size to "
+                       "measure with)");
     }
   }
   if (!refuse.empty()) {
@@ -447,6 +459,8 @@ int RunImportCommand(const std::vector<std::string>& args, std::ostream& out, st
   config.camera.lens_focal_mm = lens_mm;
   config.camera.sensor_width_mm = sensor_mm;
   config.turntable.backend = "manual";  // nothing measured the angles
+  // Without a calibration of this camera only SfM can pose the views.
+  if (!cal) config.worker.poses = "auto";
 
   const fs::path out_path = fs::absolute(o.out);
   const std::string staging = (out_path.parent_path() / (".aggscan-import-" + o.id)).string();

@@ -20,8 +20,8 @@
 // few views, photos out of focus or over- or under-exposed (--skip-bad leaves
 // them out instead), mixed cameras or sizes without a calibration, a
 // calibration of another size, no scale reference (the disc's labels or the
-// [rig] ArUco markers) in enough views of a side (--no-scale accepts a result
-// without a metric size).
+// [rig] ArUco markers) in enough views of a side (--no-scale imports anyway:
+// the worker can pose such views, but stops before measuring, having no size).
 #pragma once
 
 #include <ostream>

@@ -51,7 +51,7 @@ Result<records::PosesRecord> RunSfmPoses(const SfmPosesInput& in, const SfmPoses
   for (const SampleView& v : in.views) {
     o.images.push_back(v.image);
     o.masks.push_back(v.mask);
-    o.angles_deg.push_back(v.angle_deg);
+    if (in.angles_measured) o.angles_deg.push_back(v.angle_deg);
   }
   o.fixed_camera = in.fixed_camera;
   if (!in.fixed_camera) {

@@ -71,6 +71,10 @@ struct SfmPosesInput {
   std::string sample_dir;
   int side = 1;
   std::vector<SampleView> views;  // capture order; the views with a rock mask, not yet posed
+  /// False when nothing measured the views' angles (a hand-turned table, an
+  /// import): their angle_deg is the plan's, which orders them but is no
+  /// check of the model's camera ring (ring_angles is then not applied).
+  bool angles_measured = true;
   /// Known intrinsics (full image size), held fixed; nullopt: COLMAP
   /// estimates them (free_camera_model).
   std::optional<CameraModel> fixed_camera;

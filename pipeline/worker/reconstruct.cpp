@@ -194,7 +194,8 @@ Result<records::PosesRecord> SfmPosesRecord(const std::string& sample_dir, int s
   for (const records::View2D& v : side_result.views) {
     if (!v.ok) continue;
     // SfM poses the views itself; a hand-turned table's plan angle only
-    // orders them.
+    // orders them, and is no check of the model.
+    if (!v.measured_angle_deg) in.angles_measured = false;
     auto angle = v.measured_angle_deg || !v.commanded_angle_deg
                      ? MeasuredAngle(v, side)
                      : Result<double>(*v.commanded_angle_deg);
