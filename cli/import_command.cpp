@@ -128,6 +128,7 @@ void Measure(Photo* p, const RigConfig& rig) {
 std::vector<std::vector<Photo*>> SplitByTime(std::vector<Photo>& photos,
                                              std::optional<double> gap_s, std::string* how) {
   std::vector<Photo*> order;
+  order.reserve(photos.size());
   for (Photo& p : photos) order.push_back(&p);
   const bool timed = std::all_of(order.begin(), order.end(),
                                  [](const Photo* p) { return p->exif.time_s.has_value(); });

@@ -216,16 +216,16 @@ void TexturedPhotos(const std::string& dir, int n, bool labels, int width = 640)
 
 TEST(Import, WhatCannotWorkIsRefusedBeforeAnythingIsWritten) {
   test::TempDir tmp;
-  const std::string out = tmp.path() + "/out";
   // Too few views, and no scale reference.
   TexturedPhotos(tmp.path() + "/few", 5, false);
-  Outcome r = Import({tmp.path() + "/few", "--id", "r1", "--out", out});
+  Outcome r = Import({tmp.path() + "/few", "--id", "r1", "--out", tmp.path() + "/r1"});
   EXPECT_EQ(r.rc, 1);
   EXPECT_NE(r.err.find("side 1 has 5 usable photo(s); at least 8 are needed"), std::string::npos)
       << r.err;
   EXPECT_NE(r.err.find("a scale reference"), std::string::npos) << r.err;
   EXPECT_NE(r.err.find("--no-scale"), std::string::npos) << r.err;
-  EXPECT_FALSE(PathExists(out));
+  EXPECT_FALSE(PathExists(tmp.path() + "/r1"));
+  const std::string out = tmp.path() + "/r2";
 
   // Out of focus and over-exposed photos are named; --skip-bad leaves them out.
   TexturedPhotos(tmp.path() + "/bad", 10, false);
@@ -258,22 +258,26 @@ TEST(Import, WhatCannotWorkIsRefusedBeforeAnythingIsWritten) {
   TexturedPhotos(tmp.path() + "/mixed", 9, true);
   TexturedPhotos(tmp.path() + "/mixed2", 1, true, 800);
   fs::rename(tmp.path() + "/mixed2/p00.png", tmp.path() + "/mixed/z.png");
-  r = Import({tmp.path() + "/mixed", "--id", "r3", "--out", tmp.path() + "/o3"});
+  r = Import({tmp.path() + "/mixed", "--id", "r3", "--out", tmp.path() + "/r3"});
   EXPECT_EQ(r.rc, 1);
   EXPECT_NE(r.err.find("more than one camera or size"), std::string::npos) << r.err;
   EXPECT_NE(r.err.find("640x480"), std::string::npos) << r.err;
   EXPECT_NE(r.err.find("800x600"), std::string::npos) << r.err;
-  EXPECT_FALSE(PathExists(tmp.path() + "/o3"));
+  EXPECT_FALSE(PathExists(tmp.path() + "/r3"));
 
   // Sub-folders and loose photos together; a lone focal hint; a bad id.
   TexturedPhotos(tmp.path() + "/both/side1", 8, true);
   TexturedPhotos(tmp.path() + "/both", 1, true);
-  r = Import({tmp.path() + "/both", "--id", "r4", "--out", tmp.path() + "/o4"});
+  r = Import({tmp.path() + "/both", "--id", "r4", "--out", tmp.path() + "/r4"});
   EXPECT_EQ(r.rc, 1);
   EXPECT_NE(r.err.find("both in sub-folders and beside them"), std::string::npos) << r.err;
   EXPECT_EQ(Import({tmp.path() + "/both", "--id", "r4", "--focal-mm", "4.2"}).rc, 2);
   EXPECT_EQ(Import({tmp.path() + "/both", "--id", "../r4"}).rc, 2);
   EXPECT_EQ(Import({tmp.path() + "/both"}).rc, 2);
+  // The worker knows a sample by its directory's name.
+  r = Import({tmp.path() + "/both/side1", "--id", "r6", "--out", tmp.path() + "/elsewhere"});
+  EXPECT_EQ(r.rc, 2);
+  EXPECT_NE(r.err.find("named after its id"), std::string::npos) << r.err;
 }
 
 // One side per sub-folder, PNG photos, the focal from the user's hint.
@@ -281,7 +285,7 @@ TEST(Import, SidesFromSubFoldersAndTheFocalFromAHint) {
   test::TempDir tmp;
   TexturedPhotos(tmp.path() + "/rock/a-first", 8, true);
   TexturedPhotos(tmp.path() + "/rock/b-flipped", 9, true);
-  const std::string out = tmp.path() + "/s";
+  const std::string out = tmp.path() + "/r5";
   const Outcome r = Import({tmp.path() + "/rock", "--id", "r5", "--out", out, "--focal-mm", "6",
                             "--sensor-mm", "7.2", "--no-scale"});
   ASSERT_EQ(r.rc, 0) << r.err;
