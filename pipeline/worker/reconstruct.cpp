@@ -1562,6 +1562,11 @@ Result<SampleFingerprints> SampleJobFingerprints(const SampleRun& r,
     } else {
       f.Add("bundle_adjust", json(r.opts.bundle_adjust));
       if (r.opts.bundle_adjust) f.Add("ba", OptionsJson(r.opts.ba));
+      // A hand-turned side's angles come from these.
+      f.Add("hand", json{{"min_references", r.opts.hand.min_references},
+                         {"max_rms_px", r.opts.hand.max_rms_px},
+                         {"grid_step_deg", r.opts.hand.grid_step_deg},
+                         {"min_sharpness_ratio", r.opts.hand_min_sharpness_ratio}});
     }
     f.Add("calibration", std::string_view(fp.calibration));
     fp.poses[side] = f.Hex();
