@@ -14,6 +14,7 @@
 #include "common/rig_calibration.h"
 #include "config/config.h"
 #include "pipeline/core/exif.h"
+#include "pipeline/core/stats.h"
 #include "pipeline/markers/aruco_scale.h"
 #include "pipeline/markers/markers.h"
 #include "store/layout.h"
@@ -146,13 +147,7 @@ std::vector<std::vector<Photo*>> SplitByTime(std::vector<Photo>& photos,
   if (gap_s) {
     limit = *gap_s;
   } else {
-    std::vector<double> s = steps;
-    double median = 0;
-    if (!s.empty()) {
-      std::nth_element(s.begin(), s.begin() + static_cast<long>(s.size() / 2), s.end());
-      median = s[s.size() / 2];
-    }
-    limit = std::max(30.0, 5.0 * median);
+    limit = std::max(30.0, 5.0 * Median(steps));
   }
   std::vector<std::vector<Photo*>> sides(1);
   for (size_t i = 0; i < order.size(); ++i) {
@@ -371,12 +366,7 @@ int RunImportCommand(const std::vector<std::string>& args, std::ostream& out, st
     std::vector<double> focus;
     for (const Photo* p : sides[s])
       if (p->problem.empty()) focus.push_back(p->focus);
-    double median = 0;
-    if (!focus.empty()) {
-      std::nth_element(focus.begin(), focus.begin() + static_cast<long>(focus.size() / 2),
-                       focus.end());
-      median = focus[focus.size() / 2];
-    }
+    const double median = Median(std::move(focus));
     std::vector<Photo*> kept;
     for (Photo* p : sides[s]) {
       if (!p->problem.empty()) continue;

@@ -20,4 +20,8 @@ struct Stats {
 /// Stats over `values`; all zero (n = 0) for an empty vector.
 Stats ComputeStats(const std::vector<double>& values);
 
+/// The median: the middle value, the mean of the two middle ones for an even
+/// count; 0 for an empty vector.
+double Median(std::vector<double> values);
+
 }  // namespace aggscan

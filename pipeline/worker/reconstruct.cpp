@@ -26,6 +26,7 @@
 #include "pipeline/core/records.h"
 #include "pipeline/core/stage.h"
 #include "pipeline/core/stage_runner.h"
+#include "pipeline/core/stats.h"
 #include "pipeline/markers/markers.h"
 #include "pipeline/markers/view_evidence.h"
 #include "pipeline/masks/mask_dataset.h"
@@ -265,12 +266,7 @@ Result<HandAngles> MeasureHandTurnedAngles(const std::string& sample_dir, int si
   std::vector<double> sharp;
   for (const One& o : out)
     if (o.sharpness > 0) sharp.push_back(o.sharpness);
-  double median = 0;
-  if (!sharp.empty()) {
-    std::nth_element(sharp.begin(), sharp.begin() + static_cast<long>(sharp.size() / 2),
-                     sharp.end());
-    median = sharp[sharp.size() / 2];
-  }
+  const double median = Median(std::move(sharp));
   HandAngles h;
   std::optional<double> prev_angle, prev_plan;
   for (size_t i = 0; i < views.size(); ++i) {
@@ -612,13 +608,6 @@ struct SurfaceOut {
   Mesh mesh;
   json record;
 };
-
-double Median(std::vector<double> v) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  const size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
 
 // Per view, the volume that view alone carves away from what every other view
 // (and the floors) holds to be rock, sampled on a grid over the hull's region
