@@ -14,7 +14,6 @@
 #include <set>
 #include <string>
 
-#include "cli/validate_command.h"
 #include "common/fsutil.h"
 #include "common/rig_calibration.h"
 #include "config/config.h"
@@ -22,6 +21,7 @@
 #include "pipeline/markers/markers.h"
 #include "pipeline/worker/reconstruct.h"
 #include "tests/reconstruct/sim_sample.h"
+#include "tests/reconstruct/truth_check.h"
 #include "tests/util/temp_dir.h"
 
 namespace aggscan {
@@ -56,10 +56,7 @@ TEST(HandTurnedCapture, AnglesFromTheLabelsBlurredViewsNamedRockMeasured) {
   ASSERT_TRUE(st) << st.error().ToString();
 
   const json truth = ReadJsonFile(sample + "/truth.json");
-  std::map<std::pair<int, int>, double> true_deg;
-  for (const json& t : truth["views"]) {
-    true_deg[{t["side"].get<int>(), t["view"].get<int>()}] = t["platter_deg"].get<double>();
-  }
+  const auto true_deg = test::TruePlatterDeg(truth);
   // The hand's 11 turns a side continue their count across the flip: late
   // turns 5, 10 (side 1's views 5, 10) and 15, 20 (side 2's views 4, 9).
   const std::map<int, std::set<int>> late = {{1, {5, 10}}, {2, {4, 9}}};
@@ -94,18 +91,9 @@ TEST(HandTurnedCapture, AnglesFromTheLabelsBlurredViewsNamedRockMeasured) {
   EXPECT_GT(worst_plan, 4.0) << "the hand must stray from the plan for this test to mean anything";
   EXPECT_LT(worst_err, 0.15);
 
+  test::ExpectRockMatchesTruth(sample, truth, "hand +-5 deg");
   auto m = ReadMorphology(sample);
   ASSERT_TRUE(m) << m.error().ToString();
-  const json& d = (*m)["morphology_3d"];
-  const double dv = d["volume_mm3"].get<double>() / truth["volume_mm3"].get<double>() - 1.0;
-  // a, b, c against the truth's box, or the nearest of its near-minimal boxes
-  // where two boxes are within 1 % in volume (which is the minimum then turns
-  // on less than the volume's error): validate's rule.
-  const DimErrors e = DimsAgainstTruth(RockFiguresFromJson(truth), RockFiguresFromJson(d));
-  std::printf("V %+.2f %%, a %+.2f %%, b %+.2f %%, c %+.2f %% (truth box %d, result box %d)\n",
-              100 * dv, e.a_pct, e.b_pct, e.c_pct, e.truth_box, e.rec_box);
-  EXPECT_LT(std::abs(dv), 0.01);
-  EXPECT_LT(e.MaxAbs(), 2.0);
   // The four views left out are in the result's warnings, by side and view.
   int named = 0;
   for (const json& w : (*m)["warnings"]) {
@@ -160,10 +148,7 @@ TEST(HandTurnedCapture, TurnsFarFromThePlanAndCoveredLabels) {
   const std::string sample =
       test::CaptureSimSample(tmp.path(), 2, 2, true, false, 12, 1008, 756, 30.0, extra);
   const json truth = ReadJsonFile(sample + "/truth.json");
-  std::map<std::pair<int, int>, double> true_deg;
-  for (const json& t : truth["views"]) {
-    true_deg[{t["side"].get<int>(), t["view"].get<int>()}] = t["platter_deg"].get<double>();
-  }
+  const auto true_deg = test::TruePlatterDeg(truth);
   CoverLabels(sample, 1, 7, true_deg.at({1, 7}));
   auto st = ReconstructSample(sample, ReconstructOptions{});
   ASSERT_TRUE(st) << st.error().ToString();
@@ -194,15 +179,7 @@ TEST(HandTurnedCapture, TurnsFarFromThePlanAndCoveredLabels) {
   EXPECT_LT(smallest, 15.0);
   EXPECT_GT(largest, 45.0);
   EXPECT_LT(worst_err, 0.15);
-  auto m = ReadMorphology(sample);
-  ASSERT_TRUE(m) << m.error().ToString();
-  const json& d = (*m)["morphology_3d"];
-  const double dv = d["volume_mm3"].get<double>() / truth["volume_mm3"].get<double>() - 1.0;
-  const DimErrors e = DimsAgainstTruth(RockFiguresFromJson(truth), RockFiguresFromJson(d));
-  std::printf("V %+.2f %%, a %+.2f %%, b %+.2f %%, c %+.2f %%\n", 100 * dv, e.a_pct, e.b_pct,
-              e.c_pct);
-  EXPECT_LT(std::abs(dv), 0.01);
-  EXPECT_LT(e.MaxAbs(), 2.0);
+  test::ExpectRockMatchesTruth(sample, truth, "hand +-25 deg, labels covered");
 }
 
 }  // namespace
