@@ -59,11 +59,14 @@ void PrintReconstructUsage(std::ostream& o) {
   o << "  aggscan reconstruct SAMPLE_DIR [--state-dir DIR] [--config FILE] [--surface "
        "hull|hull+photo]\n"
        "                      [--poses turntable|turntable+ba|sfm|auto] [--from STAGE]\n"
+       "                      [--sfm-whole-frame]\n"
        "      run the worker's stages on a sample now (masks, 2d, calibration, poses, stitch,\n"
        "      surface, morphology) and print results/morphology.json; a stage finished with\n"
        "      the same options and inputs is kept, a changed one runs again with all after\n"
        "      it; --from runs STAGE and every later one again. Without --config: the config\n"
-       "      the sample was armed with (SAMPLE_DIR/config.toml), as the worker used it\n";
+       "      the sample was armed with (SAMPLE_DIR/config.toml), as the worker used it;\n"
+       "      --sfm-whole-frame: SfM's features on the whole photos, not the rock's window\n"
+       "      (slower; for comparison)\n";
 }
 
 void PrintMorphUsage(std::ostream& o) {

@@ -20,6 +20,7 @@ int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& ou
     *v = args[++*i];
     return true;
   };
+  bool sfm_whole_frame = false;
   for (size_t i = 0; i < args.size(); ++i) {
     if (args[i] == "--poses") {
       PosesChoice unused;
@@ -58,6 +59,8 @@ int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& ou
         return 2;
       }
       state_dir = args[++i];
+    } else if (args[i] == "--sfm-whole-frame") {
+      sfm_whole_frame = true;
     } else if (!args[i].empty() && args[i][0] == '-') {
       err << "aggscan reconstruct: unknown option '" << args[i] << "'\n";
       return 2;
@@ -114,6 +117,7 @@ int RunReconstructCommand(const std::vector<std::string>& args, std::ostream& ou
   opts->state_dir = state_dir;
   opts->photo_refine = surface == "hull+photo";
   opts->from_stage = from;
+  if (sfm_whole_frame) opts->sfm.crop_to_masks = false;
   if (Status s = ReconstructSample(sample_dir, *opts); !s) {
     err << "aggscan reconstruct: " << s.error().ToString() << "\n";
     return 1;

@@ -16,6 +16,7 @@
 #include <functional>
 #include <map>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 #include <set>
 #include <sstream>
 
@@ -1025,7 +1026,9 @@ class SfmRun {
  private:
   std::string P(const std::string& rel) const { return ws_ + "/" + rel; }
   Status PrepareWorkspace();
+  Status ChooseCrop();
   Status ResolveCamera();
+  void Uncrop(SfmModel* m) const;
   // Runs one COLMAP command; `step` names the log and the messages.
   Status Colmap(const std::string& step, const std::string& log_name, std::vector<std::string> args,
                 double* wall_s);
@@ -1046,6 +1049,9 @@ class SfmRun {
   std::vector<SfmStepTiming> timings_;
   std::string camera_model_, camera_params_;  // --ImageReader flags
   SfmCamera fixed_colmap_;                    // when fixed
+  std::vector<double> fixed_params_;          // the fixed camera as passed (the window's)
+  cv::Size frame_;                            // the input images' size
+  cv::Rect crop_;                             // the window every image is cut to; empty: none
   int verified_pairs_ = 0;
 };
 
@@ -1097,14 +1103,44 @@ Status SfmRun::PrepareWorkspace() {
     if (e2) return MakeError(ErrorClass::kIo, "cannot link " + at + " -> " + abs, e2.message());
     return OkStatus();
   };
+  if (auto st = ChooseCrop(); !st) return st;
+  // A cut image replaces the link: written again on every run (cheap next
+  // to SIFT), the extraction's fingerprint holds the window.
+  auto cut = [&](const std::string& src, const std::string& at, ImageMode mode) -> Status {
+    std::error_code e2;
+    if (fs::is_symlink(at, e2)) fs::remove(at, e2);
+    auto img = LoadImage(src, mode);
+    if (!img)
+      return MakeError(ErrorClass::kCorrupt, "cannot read " + src + ": " + img.error().message);
+    if (img->size() != frame_) {
+      return MakeError(ErrorClass::kInvalidArgument,
+                       src + " is " + std::to_string(img->cols) + "x" + std::to_string(img->rows) +
+                           ", the first image " + std::to_string(frame_.width) + "x" +
+                           std::to_string(frame_.height) +
+                           ": every image of a side must be one size");
+    }
+    std::vector<unsigned char> bytes;
+    const bool png = mode == ImageMode::kGray;
+    if (!cv::imencode(png ? ".png" : ".jpg", (*img)(crop_), bytes,
+                      png ? std::vector<int>{} : std::vector<int>{cv::IMWRITE_JPEG_QUALITY, 97})) {
+      return MakeError(ErrorClass::kIo, "cannot encode the window of " + src);
+    }
+    return WriteFileAtomic(at, bytes);
+  };
   for (size_t i = 0; i < o_.images.size(); ++i) {
     const std::string name = fs::path(o_.images[i]).filename().string();
     names_.push_back(name);
     want_images.insert(name);
-    if (auto st = link(o_.images[i], P("images/" + name)); !st) return st;
-    if (!o_.masks.empty()) {
-      want_masks.insert(name + ".png");  // COLMAP ignores masks named otherwise, silently
-      if (auto st = link(o_.masks[i], P("masks/" + name + ".png")); !st) return st;
+    if (!o_.masks.empty())
+      want_masks.insert(name + ".png");  // COLMAP ignores other names, silently
+    if (crop_.empty()) {
+      if (auto st = link(o_.images[i], P("images/" + name)); !st) return st;
+      if (!o_.masks.empty()) {
+        if (auto st = link(o_.masks[i], P("masks/" + name + ".png")); !st) return st;
+      }
+    } else {
+      if (auto st = cut(o_.images[i], P("images/" + name), ImageMode::kColor); !st) return st;
+      if (auto st = cut(o_.masks[i], P("masks/" + name + ".png"), ImageMode::kGray); !st) return st;
     }
   }
   // COLMAP reads every file in images/: drop what an earlier run left.
@@ -1117,6 +1153,60 @@ Status SfmRun::PrepareWorkspace() {
   return FsyncDir(P("images"));
 }
 
+// The union of the masks' boxes, grown by 4 % of the frame's long side (at
+// least 32 px) for the features' support, with even corners; empty when it
+// would gain little or the camera's focal is unknown.
+Status SfmRun::ChooseCrop() {
+  auto first = LoadImage(o_.images[0], ImageMode::kUnchanged);
+  if (!first)
+    return MakeError(ErrorClass::kCorrupt,
+                     "cannot read image " + o_.images[0] + ": " + first.error().message);
+  frame_ = first->size();
+  crop_ = cv::Rect();
+  if (!o_.crop_to_masks || o_.masks.empty() || (!o_.fixed_camera && !o_.expected_focal_px))
+    return OkStatus();
+  cv::Rect box;
+  for (const std::string& m : o_.masks) {
+    auto mask = LoadImage(m, ImageMode::kGray);
+    if (!mask)
+      return MakeError(ErrorClass::kCorrupt, "cannot read mask " + m + ": " + mask.error().message);
+    if (mask->size() != frame_) return OkStatus();  // the extraction names the mismatch
+    const cv::Rect b = cv::boundingRect(*mask);
+    if (b.area() > 0) box = box.area() > 0 ? (box | b) : b;
+  }
+  if (box.area() == 0) return OkStatus();
+  const int margin = std::max(32, static_cast<int>(0.04 * std::max(frame_.width, frame_.height)));
+  int x0 = std::max(0, box.x - margin) & ~1, y0 = std::max(0, box.y - margin) & ~1;
+  int x1 = std::min(frame_.width, box.br().x + margin),
+      y1 = std::min(frame_.height, box.br().y + margin);
+  const cv::Rect w(x0, y0, x1 - x0, y1 - y0);
+  if (2.0 * w.area() > static_cast<double>(frame_.area())) return OkStatus();
+  crop_ = w;
+  return OkStatus();
+}
+
+// A model found on the windows, in whole-frame pixels: the principal point
+// and every observation move back by the window's corner (the poses and the
+// points do not change).
+void SfmRun::Uncrop(SfmModel* m) const {
+  if (crop_.empty()) return;
+  for (SfmCamera& c : m->cameras) {
+    const bool one_focal = c.model == "SIMPLE_PINHOLE" || c.model == "SIMPLE_RADIAL" ||
+                           c.model == "RADIAL" || c.model == "SIMPLE_RADIAL_FISHEYE" ||
+                           c.model == "RADIAL_FISHEYE";
+    const size_t k = one_focal ? 1 : 2;
+    if (c.params.size() > k + 1) {
+      c.params[k] += crop_.x;
+      c.params[k + 1] += crop_.y;
+    }
+    c.width = frame_.width;
+    c.height = frame_.height;
+  }
+  for (SfmImage& im : m->images) {
+    for (Eigen::Vector2d& p : im.points2d) p += Eigen::Vector2d(crop_.x, crop_.y);
+  }
+}
+
 Status SfmRun::ResolveCamera() {
   auto loaded = LoadImage(o_.images[0], ImageMode::kUnchanged);
   if (!loaded)
@@ -1124,6 +1214,8 @@ Status SfmRun::ResolveCamera() {
                      "cannot read image " + o_.images[0] + ": " + loaded.error().message);
   const cv::Mat first = std::move(*loaded);
   const int w = first.cols, h = first.rows;
+  // On windows the principal point moves by the window's corner.
+  const double dx = crop_.empty() ? 0.0 : crop_.x, dy = crop_.empty() ? 0.0 : crop_.y;
   if (o_.fixed_camera) {
     CameraModel cam = *o_.fixed_camera;
     if (cam.width != w || cam.height != h) {
@@ -1139,12 +1231,17 @@ Status SfmRun::ResolveCamera() {
     }
     fixed_colmap_ = ColmapCameraFromOpenCv(cam);
     camera_model_ = fixed_colmap_.model;
-    camera_params_ = JoinParams(fixed_colmap_.params);
+    fixed_params_ =
+        crop_.empty()
+            ? fixed_colmap_.params
+            : ColmapCameraFromOpenCv(cam.Cropped(crop_.x, crop_.y, crop_.width, crop_.height))
+                  .params;
+    camera_params_ = JoinParams(fixed_params_);
     return OkStatus();
   }
   camera_model_ = o_.free_camera_model;
   if (o_.expected_focal_px) {  // a prior: COLMAP starts from it and refines it
-    const double f = *o_.expected_focal_px, cx = w / 2.0, cy = h / 2.0;
+    const double f = *o_.expected_focal_px, cx = w / 2.0 - dx, cy = h / 2.0 - dy;
     std::vector<double> p;
     if (camera_model_ == "SIMPLE_PINHOLE") p = {f, cx, cy};
     if (camera_model_ == "PINHOLE") p = {f, f, cx, cy};
@@ -1232,13 +1329,12 @@ Status SfmRun::CheckExtraction() {
       const int bytes = sqlite3_column_bytes(s, 1);
       const auto* p = static_cast<const double*>(sqlite3_column_blob(s, 1));
       if (model != ModelId(fixed_colmap_.model) ||
-          bytes != static_cast<int>(fixed_colmap_.params.size() * 8)) {
+          bytes != static_cast<int>(fixed_params_.size() * 8)) {
         same = false;
         return;
       }
-      for (size_t k = 0; k < fixed_colmap_.params.size(); ++k) {
-        if (std::abs(p[k] - fixed_colmap_.params[k]) >
-            1e-9 * std::max(1.0, std::abs(fixed_colmap_.params[k])))
+      for (size_t k = 0; k < fixed_params_.size(); ++k) {
+        if (std::abs(p[k] - fixed_params_[k]) > 1e-9 * std::max(1.0, std::abs(fixed_params_[k])))
           same = false;
       }
     });
@@ -1361,6 +1457,7 @@ Result<SfmResult> SfmRun::Run() {
   nlohmann::json fp_extract{{"images", inputs},
                             {"camera_model", camera_model_},
                             {"camera_params", camera_params_},
+                            {"crop", {crop_.x, crop_.y, crop_.width, crop_.height}},
                             {"max_image_size", s.max_image_size},
                             {"max_num_features", s.max_num_features},
                             {"peak_threshold", s.peak_threshold},
@@ -1477,7 +1574,8 @@ Result<SfmResult> SfmRun::Run() {
                         {"init_min_tri_angle", mp.init_min_tri_angle_deg},
                         {"init_min_num_inliers", mp.init_min_num_inliers},
                         {"abs_pose_min_num_inliers", mp.abs_pose_min_num_inliers},
-                        {"multiple_models", mp.multiple_models}};
+                        {"multiple_models", mp.multiple_models},
+                        {"min_model_size", mp.min_model_size}};
   st = Stage(
       "mapper", fp_map,
       [&]() -> Status {
@@ -1502,7 +1600,8 @@ Result<SfmResult> SfmRun::Run() {
              Fmt("%.9g", mp.init_min_tri_angle_deg), "--Mapper.init_min_num_inliers",
              std::to_string(mp.init_min_num_inliers), "--Mapper.abs_pose_min_num_inliers",
              std::to_string(mp.abs_pose_min_num_inliers), "--Mapper.multiple_models",
-             mp.multiple_models ? "1" : "0",
+             mp.multiple_models ? "1" : "0", "--Mapper.min_model_size",
+             std::to_string(mp.min_model_size),
              // Known intrinsics and a focal hint stay fixed; otherwise COLMAP refines focal and
              // distortion (its default).
              "--Mapper.ba_refine_focal_length", hold ? "0" : "1",
@@ -1568,6 +1667,8 @@ Result<SfmResult> SfmRun::Run() {
       res.other_models_registered.push_back(static_cast<int>(models[i].second.images.size()));
   }
   res.model = std::move(models[best].second);
+  Uncrop(&res.model);
+  if (!crop_.empty()) res.window = {crop_.x, crop_.y, crop_.width, crop_.height};
   res.model_index = std::stoi(models[best].first);
   res.model_dir = P("model_txt/" + models[best].first);
   for (auto& im : res.model.images) {

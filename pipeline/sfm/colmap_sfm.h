@@ -256,6 +256,12 @@ struct SfmMapperOptions {
   int init_min_num_inliers = 100;  // verified matches of the initial pair (COLMAP's default)
   int abs_pose_min_num_inliers = 30;
   bool multiple_models = true;  // let COLMAP start new sub-models; the largest is used
+  /// Sub-models with fewer views are dropped. COLMAP's default (10) drops a
+  /// model that stalls part-way round a ring, and its next tries restart from
+  /// the same well-matched views and stall at the same weak link; kept, the
+  /// next try starts from the views it left out and can go round the other
+  /// way. The largest model is used either way.
+  int min_model_size = 3;
 };
 
 struct ColmapSfmOptions {
@@ -273,6 +279,14 @@ struct ColmapSfmOptions {
   std::string free_camera_model =
       "SIMPLE_RADIAL";  // COLMAP model when not fixed (one shared camera)
   SiftOptions sift;
+  /// Extract features on the masks' union window only (every image cut to
+  /// the same window, the camera's principal point moved by its corner, the
+  /// model put back into whole-frame pixels): the rock fills a few per cent
+  /// of a turntable photo, and SIFT's cost is the pixels it reads. Done when
+  /// masks are given and the camera is fixed or has a focal hint (without
+  /// one COLMAP's focal guess is from the image size, which a window would
+  /// change), and when the window is under half the frame.
+  bool crop_to_masks = true;
   SfmMatchingOptions matching;
   SfmMapperOptions mapper;
   bool expect_ring = false;        // turntable capture: run the ring checks
@@ -303,6 +317,9 @@ struct SfmResult {
   std::vector<int> other_models_registered;  // registered images of the other sub-models
   std::vector<std::string> unregistered;     // names of the input images not in the model
   int num_verified_pairs = 0;                // image pairs with verified matches
+  /// The window (x, y, width, height; px) the features were found in
+  /// (crop_to_masks); width 0: the whole photos.
+  std::array<int, 4> window{};
   SfmCheckReport checks;
   std::vector<SfmStepTiming> timings;
   /// The camera (intrinsics) the model used for input image i, nullptr if not registered.

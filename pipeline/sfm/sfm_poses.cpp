@@ -61,6 +61,7 @@ Result<records::PosesRecord> RunSfmPoses(const SfmPosesInput& in, const SfmPoses
   }
   o.free_camera_model = opts.free_camera_model;
   o.sift.max_image_size = opts.max_image_size;
+  o.crop_to_masks = opts.crop_to_masks;
   o.matching.circular_neighbours = opts.circular_neighbours;
   o.mapper.init_min_num_inliers = opts.init_min_num_inliers;
   o.mapper.init_min_tri_angle_deg = opts.init_min_tri_angle_deg;
@@ -303,6 +304,7 @@ Result<records::PosesRecord> RunSfmPoses(const SfmPosesInput& in, const SfmPoses
                {"camera_model", in.fixed_camera ? "fixed" : opts.free_camera_model},
                {"max_image_size_px", opts.max_image_size},
                {"circular_neighbours", opts.circular_neighbours},
+               {"window_px", sfm->window[2] == 0 ? json(nullptr) : json(sfm->window)},
                {"workspace", "work/" + side_name + "/sfm"},
                {"model_dir", SfmModelDirName(in.side)},
                {"timings_s", jtimings},
@@ -315,10 +317,11 @@ Result<records::PosesRecord> RunSfmPoses(const SfmPosesInput& in, const SfmPoses
   }
   rec.side = in.side;
   rec.method = "sfm";
-  rec.method_detail =
-      "full SfM through COLMAP (masked SIFT, circular pair list, mapper), scaled into the "
-      "turntable frame by a similarity onto the configured " +
-      reference;
+  rec.method_detail = std::string("full SfM through COLMAP (masked SIFT") +
+                      (sfm->window[2] == 0 ? "" : " on the masks' window") +
+                      ", circular pair list, mapper), scaled into the turntable frame by a "
+                      "similarity onto the configured " +
+                      reference;
   rec.sfm = std::move(jsfm);
   rec.scale = {{"reference", reference},
                {"scale", sim->scale},

@@ -62,6 +62,9 @@ struct SfmPosesOptions {
   double init_min_tri_angle_deg = 8;
   int abs_pose_min_num_inliers = 15;
   int num_threads = 2;
+  /// SIFT on the masks' union window only (ColmapSfmOptions::crop_to_masks);
+  /// false: on the whole photos, as COLMAP alone does (for comparison).
+  bool crop_to_masks = true;
   /// RMS of the label/ArUco similarity fit (mm) above which the side is
   /// rejected: the located references do not fit the configured layout.
   double max_scale_residual_mm = 2.0;

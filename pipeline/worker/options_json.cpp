@@ -13,7 +13,7 @@ static_assert(sizeof(VisualHullOptions) == 40,
               "VisualHullOptions changed: add the new field to OptionsJson");
 static_assert(sizeof(BundleAdjustOptions) == 192,
               "BundleAdjustOptions changed: add the new field to OptionsJson");
-static_assert(sizeof(SfmPosesOptions) == 104,
+static_assert(sizeof(SfmPosesOptions) == 112,
               "SfmPosesOptions changed: add the new field to OptionsJson");
 static_assert(sizeof(FeatureCloudOptions) == 96,
               "FeatureCloudOptions changed: add the new field to OptionsJson");
@@ -109,7 +109,8 @@ json OptionsJson(const SfmPosesOptions& o) {
           {"init_min_num_inliers", o.init_min_num_inliers},
           {"init_min_tri_angle_deg", o.init_min_tri_angle_deg},
           {"abs_pose_min_num_inliers", o.abs_pose_min_num_inliers},
-          {"max_scale_residual_mm", o.max_scale_residual_mm}};
+          {"max_scale_residual_mm", o.max_scale_residual_mm},
+          {"crop_to_masks", o.crop_to_masks}};
 }
 
 json OptionsJson(const FeatureCloudOptions& o) {
