@@ -46,7 +46,7 @@ struct Options {
   std::string dir, id, out, config, calibration;
   std::optional<double> focal_mm, sensor_mm, gap_s;
   int min_views = 8;
-  bool no_scale = false, skip_bad = false;
+  bool no_scale = false, skip_bad = false, moving_camera = false;
 };
 
 struct Photo {
@@ -170,7 +170,7 @@ int Usage(std::ostream& err, const std::string& what) {
 void PrintImportUsage(std::ostream& o) {
   o << "  aggscan import DIR --id ID [--out SAMPLE_DIR] [--config FILE] [--calibration FILE]\n"
        "                 [--focal-mm F --sensor-mm W] [--gap SECONDS] [--min-views N]\n"
-       "                 [--no-scale] [--skip-bad]\n"
+       "                 [--no-scale] [--skip-bad] [--moving-camera]\n"
        "      photos from a phone or a DSLR (JPEG, PNG, TIFF) made into a sample directory\n"
        "      (SAMPLE_DIR, default ./ID) for `aggscan reconstruct`: one side per sub-folder,\n"
        "      else split at pauses in the EXIF times; EXIF orientation applied; the focal\n"
@@ -180,7 +180,9 @@ void PrintImportUsage(std::ostream& o) {
        "      to do: too few views, photos out of focus or badly exposed (--skip-bad\n"
        "      leaves them out), mixed cameras without a calibration, no scale reference\n"
        "      in enough views (--no-scale imports anyway: the views can be posed, not\n"
-       "      measured)\n";
+       "      measured). --moving-camera: the rock lay still and the camera was walked\n"
+       "      round it (photos in any order): SfM poses every view, the labels or ArUco\n"
+       "      markers round the rock give the scale\n";
 }
 
 int RunImportCommand(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {
@@ -224,6 +226,8 @@ int RunImportCommand(const std::vector<std::string>& args, std::ostream& out, st
       o.no_scale = true;
     } else if (a == "--skip-bad") {
       o.skip_bad = true;
+    } else if (a == "--moving-camera") {
+      o.moving_camera = true;
     } else if (!a.empty() && a[0] != '-' && o.dir.empty()) {
       o.dir = a;
     } else {
@@ -450,8 +454,13 @@ int RunImportCommand(const std::vector<std::string>& args, std::ostream& out, st
   config.camera.lens_focal_mm = lens_mm;
   config.camera.sensor_width_mm = sensor_mm;
   config.turntable.backend = "manual";  // nothing measured the angles
-  // Without a calibration of this camera only SfM can pose the views.
+  // Without a calibration of this camera only SfM can pose the views; a
+  // walked camera only SfM, calibrated or not.
   if (!cal) config.worker.poses = "auto";
+  if (o.moving_camera) {
+    config.capture.mode = "moving_camera";
+    config.worker.poses = "auto";
+  }
 
   const fs::path out_path = fs::absolute(o.out);
   const std::string staging = (out_path.parent_path() / (".aggscan-import-" + o.id)).string();
@@ -503,6 +512,7 @@ int RunImportCommand(const std::vector<std::string>& args, std::ostream& out, st
                   {"camera_backend", "import"},
                   {"turntable_backend", "manual"},
                   {"source_file", p.name}};
+      if (o.moving_camera) car["capture_mode"] = "moving_camera";
       if (p.exif.datetime_original) car["capture_utc"] = *p.exif.datetime_original;
       if (p.exif.orientation) car["exif_orientation"] = *p.exif.orientation;
       if (p.exif.focal_mm) car["exif_focal_mm"] = *p.exif.focal_mm;
@@ -524,6 +534,7 @@ int RunImportCommand(const std::vector<std::string>& args, std::ostream& out, st
       {"lens_focal_mm", lens_mm},
       {"sensor_width_mm", sensor_mm},
       {"calibration", o.calibration.empty() ? json(nullptr) : json(o.calibration)},
+      {"capture_mode", config.capture.mode},
       {"left_out", left_out}};
   if (Status s = WriteFileAtomic(store.SampleDir(o.id) + "/import.json", how_json.dump(2) + "\n");
       !s) {
@@ -542,8 +553,9 @@ int RunImportCommand(const std::vector<std::string>& args, std::ostream& out, st
   if (lens_mm > 0)
     out << " (" << Fmt("%.2f", lens_mm) << " mm on " << Fmt("%.2f", sensor_mm) << " mm)";
   out << "\n  poses: "
-      << (cal ? "the rig calibration; each view's angle from the disc's labels"
-              : "SfM (no calibration given)")
+      << (o.moving_camera ? "SfM (a camera walked round the rock), every pair of views matched"
+          : cal           ? "the rig calibration; each view's angle from the disc's labels"
+                          : "SfM (no calibration given)")
       << "\n";
   for (const std::string& l : left_out) out << "  left out: " << l << "\n";
   out << "next: aggscan reconstruct " << out_path.string() << "\n";

@@ -166,6 +166,9 @@ const std::vector<Field<Config>>& Fields() {
       F(capture.profile, OneOf(Profiles()),
         "paper (fixes sides 2, views_per_side 30, step_deg 30, interval 2s) | "
         "full-turn (step_deg = 360/views_per_side) | custom (every value as given)"),
+      F(capture.mode, OneOf({"turntable", "moving_camera"}),
+        "turntable (the rock turns before a fixed camera) | moving_camera (the rock lies still "
+        "and the operator walks the camera round it; turntable.backend = \"manual\")"),
       F(capture.sides, Range(1, 4), "poses of the rock (operator flips between sides)"),
       F(capture.views_per_side, Range(1, 360), "photos per side"),
       F(capture.step_deg, Above(0, 360),
@@ -369,6 +372,9 @@ const std::vector<Field<Config>>& Fields() {
       D(sim.hand_turn_max, Above(0, 60 * kSec), "hand-turned table: longest turn"),
       F(sim.hand_late_every, Range(0, 1000),
         "hand-turned table: every n-th view is turned while exposed (blurred); 0 = never"),
+      F(sim.walk_elevation_spread_deg, Range(0, 60),
+        "moving camera: the walked views' elevations alternate over this range, degrees"),
+      F(sim.walk_shuffle, Any(), "moving camera: the walker visits the positions in random order"),
       F(sim.scene, OneOf({"rock", "charuco"}),
         "what lies on the disc: rock | charuco (the [calibration] board, no rock)"),
       F(sim.board_image, Any(),
@@ -1037,6 +1043,12 @@ class Validator {
     // One step (trapezoidal profile) plus the settle wait must fit in the
     // interval, and the move deadline must allow the move itself.
     const TurntableConfig& tt = c.turntable;
+    if (cap.mode == "moving_camera" && tt.backend != "manual") {
+      Add("capture.mode",
+          "moving_camera leaves the rock still and the camera is walked round it: nothing is "
+          "driven; set turntable.backend = \"manual\" (now \"" +
+              tt.backend + "\")");
+    }
     if (tt.backend == "manual") {
       // A person turns the table between the hands-off moment and the
       // previous shot: the interval must leave them time to do it.

@@ -64,7 +64,13 @@ struct DaemonConfig {
 //             other than 360/views_per_side is a problem.
 //   custom    every value as given.
 struct CaptureConfig {
-  std::string profile = "paper";    // paper | full-turn | custom
+  std::string profile = "paper";  // paper | full-turn | custom
+  // turntable: the rock turns before a camera on a tripod. moving_camera: the
+  // rock lies still among the disc's labels (or ArUco markers) and the
+  // operator walks the camera round it, a view at each prompt; the worker
+  // poses the views by SfM and scales them by the markers. Needs
+  // turntable.backend = "manual" (nothing is driven).
+  std::string mode = "turntable";
   int sides = 2;                    // poses of the rock (operator flips between sides)
   int views_per_side = 30;          // photos per side
   double step_deg = 30.0;           // turntable step between views (full-turn: 360/views_per_side)
@@ -335,6 +341,15 @@ struct SimConfig {
   TimeNs hand_turn_min = 300 * kNsPerMs;
   TimeNs hand_turn_max = 700 * kNsPerMs;
   int hand_late_every = 0;  // 0 = never late
+  // The sim's operator walking the camera round a still rock (capture.mode =
+  // "moving_camera"): at each prompt, after a reaction and a walk time (the
+  // hand_* ranges), the camera stands at the next position of a rough ring:
+  // the plan's angle as azimuth, the elevation alternating by
+  // walk_elevation_spread_deg about camera_elevation_deg, with random
+  // offsets of azimuth, elevation, distance, aim point and roll.
+  // walk_shuffle: the positions are visited in a random order.
+  double walk_elevation_spread_deg = 24.0;
+  bool walk_shuffle = false;
   // What lies on the turntable: "rock" (the procedural or mesh rock) or
   // "charuco" (the [calibration] board, printed on paper, lying flat on the
   // disc; no rock), for rendering a rig calibration capture.

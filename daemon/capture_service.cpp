@@ -799,17 +799,24 @@ void CaptureService::PromptTurn(int side, int view, double from_deg, double to_d
   const TimeNs hands_off = due - config_.turntable.manual_hands_off;
   const TimeNs now = loop_.clock().Now();
   const double by = to_deg - from_deg;
+  // A still rock and a walked camera: the same prompt, to move the camera.
+  const bool walk = config_.capture.mode == "moving_camera";
   Publish("turn", {{"sample_id", state_.sample_id},
                    {"side", side},
                    {"view", view},
                    {"number", view + 1},
                    {"views_per_side", config_.capture.views_per_side},
+                   {"move", walk ? "camera" : "table"},
                    {"by_deg", by},
                    {"hands_off_in_ms", std::max<TimeNs>(0, hands_off - now) / kNsPerMs},
                    {"due_in_ms", std::max<TimeNs>(0, due - now) / kNsPerMs}});
+  const std::string what =
+      walk ? "move the camera on round the rock (about " + Deg(std::abs(by)) +
+                 " deg, another height than the last view; keep the rock and the labels in view)"
+           : "turn the table by " + Deg(by) + " deg";
   LogLine(LogLevel::kInfo, "capture", state_.sample_id,
-          "turn the table by " + Deg(by) + " deg now for view " + std::to_string(view + 1) +
-              " (hands off in " + FormatDuration(std::max<TimeNs>(0, hands_off - now)) + ")");
+          what + " now for view " + std::to_string(view + 1) + " (hands off in " +
+              FormatDuration(std::max<TimeNs>(0, hands_off - now)) + ")");
   turn_prompt_ = true;
   const uint64_t my = ++turn_epoch_;
   NotifyStatus();
@@ -953,6 +960,8 @@ void CaptureService::Run(const cs::StoreView& e) {
   } else {
     car["turntable_backend"] = dev_.turntable->Info().backend;
   }
+  // The worker poses a walked camera's views by SfM alone.
+  if (config_.capture.mode != "turntable") car["capture_mode"] = config_.capture.mode;
   // A real camera without a control for a locked setting (V4L2
   // strict_controls = false): say so rather than let its value pass as measured.
   if (!f->missing_controls.empty()) car["missing_controls"] = f->missing_controls;

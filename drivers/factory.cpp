@@ -16,6 +16,7 @@
 #include "drivers/sim/sim_camera.h"
 #include "drivers/sim/sim_hand.h"
 #include "drivers/sim/sim_turntable.h"
+#include "drivers/sim/sim_walker.h"
 #include "drivers/sim/world.h"
 #include "drivers/usb/usb_tic_turntable.h"
 #include "drivers/v4l2/v4l2_camera.h"
@@ -34,6 +35,9 @@ struct Context {
   // Physical platter angle for the sim camera; empty when the turntable is
   // real (the sim camera then sees the platter at 0).
   std::function<double(TimeNs)> platter_angle_at;
+  // Where the sim camera stands, for a camera walked round a still rock;
+  // empty: the rig's fixed camera.
+  std::function<sim::Rigid(TimeNs)> camera_pose_at;
   // The Modbus connection of the button, shared with a light on the same link.
   std::shared_ptr<modbus::BitLink> bit_link;
 };
@@ -111,8 +115,10 @@ Result<std::unique_ptr<Camera>> MakeSimCamera(Context& ctx) {
   Status s = EnsureWorld(ctx);
   if (!s) return s.error();
   if (Status b = EnsureBoardWorld(ctx); !b) return b.error();
-  return std::unique_ptr<Camera>(std::make_unique<sim::SimCamera>(
-      ctx.rig->world, ctx.clock, ctx.config.camera, ctx.platter_angle_at, ctx.rig->board_world));
+  auto cam = std::make_unique<sim::SimCamera>(ctx.rig->world, ctx.clock, ctx.config.camera,
+                                              ctx.platter_angle_at, ctx.rig->board_world);
+  if (ctx.camera_pose_at) cam->SetCameraPath(ctx.camera_pose_at);
+  return std::unique_ptr<Camera>(std::move(cam));
 }
 
 // Nothing is opened here: a missing camera is reported by Open(), so the
@@ -176,6 +182,13 @@ Result<std::unique_ptr<Turntable>> MakeManualTurntable(Context& ctx) {
   }
   Status s = EnsureWorld(ctx);
   if (!s) return s.error();
+  if (ctx.config.capture.mode == "moving_camera") {
+    // The table stays put; the sim's operator walks the sim camera round it.
+    auto walker = std::make_shared<sim::SimWalker>(ctx.clock, ctx.config);
+    ctx.camera_pose_at = walker->CameraFunction();
+    return std::unique_ptr<Turntable>(std::make_unique<ManualTurntable>(
+        [walker](double, double) { walker->Step(); }, [walker] { walker->Home(); }));
+  }
   auto hand = std::make_shared<sim::SimHand>(ctx.clock, ctx.config);
   ctx.platter_angle_at = hand->AngleFunction();
   return std::unique_ptr<Turntable>(std::make_unique<ManualTurntable>(
@@ -233,7 +246,7 @@ Result<RigDevices> CreateRig(const Config& config, Clock& clock) {
   }
 
   RigDevices rig;
-  Context ctx{config, clock, &rig, {}, {}};
+  Context ctx{config, clock, &rig, {}, {}, {}};
   // The turntable first: the sim camera needs its platter angle.
   auto t = turntable->make(ctx);
   if (!t) return t.error();

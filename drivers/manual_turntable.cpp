@@ -4,7 +4,8 @@
 
 namespace aggscan {
 
-ManualTurntable::ManualTurntable(TurnPrompt on_turn) : on_turn_(std::move(on_turn)) {}
+ManualTurntable::ManualTurntable(TurnPrompt on_turn, HomeNote on_home)
+    : on_turn_(std::move(on_turn)), on_home_(std::move(on_home)) {}
 
 ManualTurntable::~ManualTurntable() { Close(); }
 
@@ -22,9 +23,12 @@ Status ManualTurntable::DoOpen() {
 // Wherever the person left the table is the side's first view: the labels
 // give its angle, so there is nothing to turn to.
 Status ManualTurntable::DoStartHome() {
-  std::lock_guard<std::mutex> l(mu_);
-  angle_deg_ = 0.0;
-  homed_ = true;
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    angle_deg_ = 0.0;
+    homed_ = true;
+  }
+  if (on_home_) on_home_();
   return OkStatus();
 }
 

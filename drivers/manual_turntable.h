@@ -21,8 +21,10 @@ class ManualTurntable final : public Turntable {
  public:
   /// Called from StartMoveTo with the plan's previous and new angle (deg).
   using TurnPrompt = std::function<void(double from_deg, double to_deg)>;
+  /// Called from StartHome: a side begins (the sim's walker starts a round).
+  using HomeNote = std::function<void()>;
 
-  explicit ManualTurntable(TurnPrompt on_turn = {});
+  explicit ManualTurntable(TurnPrompt on_turn = {}, HomeNote on_home = {});
   ~ManualTurntable() override;
 
   TurntableInfo Info() const override;
@@ -37,6 +39,7 @@ class ManualTurntable final : public Turntable {
 
  private:
   TurnPrompt on_turn_;
+  HomeNote on_home_;
   mutable std::mutex mu_;   // the health probe reads while the capture loop moves
   double angle_deg_ = 0.0;  // the plan's angle of the view being shot
   bool homed_ = false;

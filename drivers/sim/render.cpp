@@ -469,7 +469,8 @@ Renderer::Renderer(const SimWorld& world, int width, int height)
     m.srgb[i] = static_cast<float>(255.0 * s);
   }
   m.world = &world;
-  m.cam_to_world = world.world_to_camera().Inverse();
+  w2c_ = world.world_to_camera();
+  m.cam_to_world = w2c_.Inverse();
   m.intr = intr_;
   m.light = world.lighting();
   m.disc_r = static_cast<float>(world.config().rig.turntable_diameter_mm / 2);
@@ -566,7 +567,7 @@ void Renderer::RenderInto(int side, double platter_deg, const RenderOptions& opt
   // ---- 1. visibility buffer of the rock (undistorted pixel space) ----
   // The "charuco" scene has no rock: no visibility buffer, no shadow map.
   const bool draw_rock = !m.has_board;
-  const Rigid rock_to_cam = world_.RockToCamera(side, platter_deg);
+  const Rigid rock_to_cam = w2c_ * world_.RockToWorld(side, platter_deg);
   double bx0 = 1e300, bx1 = -1e300, by0 = 1e300, by1 = -1e300;
   for (int i = 0; i < (draw_rock ? nv : 0); ++i) {
     const Vec3 p = rock_to_cam.Apply(ToVec3(rock.vertices[i]));
@@ -697,7 +698,7 @@ void Renderer::RenderInto(int side, double platter_deg, const RenderOptions& opt
   // Output-pixel boxes of everything that changes per frame, found by
   // distorting sampled outlines (distortion bends straight edges).
   std::vector<Box> boxes;
-  const Rigid& w2c = world_.world_to_camera();
+  const Rigid& w2c = w2c_;
   auto box_of_world_quad = [&](const std::array<Vec3, 4>& q) {
     Box b;
     for (int e = 0; e < 4; ++e)
@@ -807,6 +808,12 @@ void Renderer::RenderInto(int side, double platter_deg, const RenderOptions& opt
       }
     }
   }
+}
+
+void Renderer::SetCamera(const Rigid& world_to_camera) {
+  w2c_ = world_to_camera;
+  impl_->cam_to_world = w2c_.Inverse();
+  impl_->base_valid = false;
 }
 
 RenderedImage Render(const SimWorld& world, int side, double platter_deg,

@@ -62,6 +62,11 @@ class Renderer {
   /// Same, reusing `out`'s storage.
   void RenderInto(int side, double platter_deg, const RenderOptions& options, RenderedImage* out);
 
+  /// Moves the camera (world -> camera; the world's own pose until called):
+  /// a camera walked round a still rock. The next frame is drawn whole.
+  void SetCamera(const Rigid& world_to_camera);
+  const Rigid& camera() const { return w2c_; }
+
   const Intrinsics& intrinsics() const { return intr_; }
   int width() const { return intr_.width; }
   int height() const { return intr_.height; }
@@ -73,6 +78,7 @@ class Renderer {
 
   const SimWorld& world_;
   Intrinsics intr_;
+  Rigid w2c_;
   std::unique_ptr<Impl> impl_;
 };
 

@@ -42,6 +42,11 @@ void SimCamera::SetTruthSink(TruthSink sink) {
   truth_sink_ = std::move(sink);
 }
 
+void SimCamera::SetCameraPath(PoseFn pose_at) {
+  std::lock_guard<std::mutex> l(mu_);
+  pose_at_ = std::move(pose_at);
+}
+
 uint64_t SimCamera::frames_rendered() const {
   std::lock_guard<std::mutex> l(mu_);
   return sequence_;
@@ -112,10 +117,12 @@ void SimCamera::WorkerLoop() {
 void SimCamera::Serve(Job& job) {
   CameraSettings s;
   TruthSink sink;
+  PoseFn pose_at;
   {
     std::lock_guard<std::mutex> l(mu_);
     s = active_;
     sink = truth_sink_;
+    pose_at = pose_at_;
   }
   // Trigger: the exposure starts now; the platter angle is taken mid-exposure.
   const TimeNs start = clock_.Now();
@@ -161,6 +168,9 @@ void SimCamera::Serve(Job& job) {
   // No rock, no rock truth on a board.
   if (job.req.board) sink = nullptr;
   opt.want_mask = static_cast<bool>(sink);
+  if (pose_at && !job.req.board) {
+    renderer.SetCamera(pose_at(start + static_cast<TimeNs>(exposure_us * 500.0)));
+  }
   RenderedImage img = renderer.Render(job.req.side, angle, opt);
   // A platter turning during the exposure (a table turned by hand, late)
   // smears the photo: the average of sub-frames over the exposure, one per
@@ -214,7 +224,7 @@ void SimCamera::Serve(Job& job) {
     truth.width = img.width;
     truth.height = img.height;
     truth.mask = std::move(img.mask);
-    truth.rock_to_camera = world_->RockToCamera(job.req.side, angle);
+    truth.rock_to_camera = renderer.camera() * world_->RockToWorld(job.req.side, angle);
     truth.rock_to_camera_4x4 = truth.rock_to_camera.Matrix4();
     truth.intrinsics = renderer_->intrinsics();
     sink(job.req, truth);

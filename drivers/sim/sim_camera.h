@@ -57,6 +57,11 @@ class SimCamera final : public Camera {
   /// Installs (or clears, with an empty function) the ground-truth sink. With
   /// a sink the renderer also produces the rock mask.
   void SetTruthSink(TruthSink sink);
+  /// A camera walked round a still rock (capture.mode = "moving_camera"):
+  /// where it stands (world -> camera) at clock time t, read mid-exposure.
+  /// Empty (the default): the rig's fixed camera.
+  using PoseFn = std::function<Rigid(TimeNs)>;
+  void SetCameraPath(PoseFn pose_at);
   /// Frames rendered since construction.
   uint64_t frames_rendered() const;
 
@@ -87,6 +92,7 @@ class SimCamera final : public Camera {
   bool stop_ = false;
   CameraSettings active_;  // settings from the last Configure()
   TruthSink truth_sink_;
+  PoseFn pose_at_;
   uint64_t sequence_ = 0;
   std::thread worker_;
 

@@ -51,7 +51,7 @@ Result<records::PosesRecord> RunSfmPoses(const SfmPosesInput& in, const SfmPoses
   for (const SampleView& v : in.views) {
     o.images.push_back(v.image);
     o.masks.push_back(v.mask);
-    if (in.angles_measured) o.angles_deg.push_back(v.angle_deg);
+    if (in.angles_measured && !in.moving_camera) o.angles_deg.push_back(v.angle_deg);
   }
   o.fixed_camera = in.fixed_camera;
   if (!in.fixed_camera) {
@@ -66,7 +66,8 @@ Result<records::PosesRecord> RunSfmPoses(const SfmPosesInput& in, const SfmPoses
   o.mapper.init_min_num_inliers = opts.init_min_num_inliers;
   o.mapper.init_min_tri_angle_deg = opts.init_min_tri_angle_deg;
   o.mapper.abs_pose_min_num_inliers = opts.abs_pose_min_num_inliers;
-  o.expect_ring = true;
+  o.expect_ring = !in.moving_camera;
+  if (in.moving_camera) o.matching.mode = SfmMatching::kExhaustive;
   o.num_threads = opts.num_threads;
   o.cancel = in.cancel;
   auto sfm = RunColmapSfm(o);
@@ -303,7 +304,9 @@ Result<records::PosesRecord> RunSfmPoses(const SfmPosesInput& in, const SfmPoses
                {"camera_source", in.camera_source},
                {"camera_model", in.fixed_camera ? "fixed" : opts.free_camera_model},
                {"max_image_size_px", opts.max_image_size},
+               {"pairs", in.moving_camera ? "exhaustive" : "circular"},
                {"circular_neighbours", opts.circular_neighbours},
+               {"capture_mode", in.moving_camera ? "moving_camera" : "turntable"},
                {"window_px", sfm->window[2] == 0 ? json(nullptr) : json(sfm->window)},
                {"workspace", "work/" + side_name + "/sfm"},
                {"model_dir", SfmModelDirName(in.side)},
@@ -317,11 +320,12 @@ Result<records::PosesRecord> RunSfmPoses(const SfmPosesInput& in, const SfmPoses
   }
   rec.side = in.side;
   rec.method = "sfm";
-  rec.method_detail = std::string("full SfM through COLMAP (masked SIFT") +
-                      (sfm->window[2] == 0 ? "" : " on the masks' window") +
-                      ", circular pair list, mapper), scaled into the turntable frame by a "
-                      "similarity onto the configured " +
-                      reference;
+  rec.method_detail =
+      std::string("full SfM through COLMAP (masked SIFT") +
+      (sfm->window[2] == 0 ? "" : " on the masks' window") +
+      (in.moving_camera ? ", every pair matched (a camera walked round a still rock)"
+                        : ", circular pair list") +
+      ", mapper), scaled into the turntable frame by a similarity onto the configured " + reference;
   rec.sfm = std::move(jsfm);
   rec.scale = {{"reference", reference},
                {"scale", sim->scale},

@@ -78,6 +78,10 @@ struct SfmPosesInput {
   /// import): their angle_deg is the plan's, which orders them but is no
   /// check of the model's camera ring (ring_angles is then not applied).
   bool angles_measured = true;
+  /// The camera was walked round a still rock (capture.mode =
+  /// "moving_camera"): the views come in any order, so every pair is matched,
+  /// and there is no camera ring to check; the angles are not used.
+  bool moving_camera = false;
   /// Known intrinsics (full image size), held fixed; nullopt: COLMAP
   /// estimates them (free_camera_model).
   std::optional<CameraModel> fixed_camera;

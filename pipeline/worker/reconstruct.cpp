@@ -124,7 +124,11 @@ bool HasCalibration(const std::string& sample_dir, const ReconstructOptions& opt
 // True for the SfM path. "auto" takes the turntable whenever there is a rig
 // calibration; a sample posed by SfM before one was installed is then posed
 // again (the stages' fingerprints name the path).
-Result<bool> ChoosePosesPath(const std::string& sample_dir, const ReconstructOptions& opts) {
+// A camera walked round a still rock has no turntable to pose it by: SfM,
+// whatever the rig's poses setting (made for its turntable captures) says.
+Result<bool> ChoosePosesPath(const std::string& sample_dir, const ReconstructOptions& opts,
+                             bool moving_camera) {
+  if (moving_camera) return true;
   switch (opts.poses) {
     case PosesPath::kSfm:
       return true;
@@ -1650,7 +1654,9 @@ Status ReconstructSampleStages(const std::string& sample_dir, const ReconstructO
     r.sample_cfg = std::move(*c);
     r.rig = r.sample_cfg->rig;
   }
-  auto use_sfm = ChoosePosesPath(sample_dir, opts);
+  const bool moving_camera = r.sample_cfg && r.sample_cfg->capture.mode == "moving_camera";
+  r.sfm_setup.moving_camera = moving_camera;
+  auto use_sfm = ChoosePosesPath(sample_dir, opts, moving_camera);
   if (!use_sfm) return use_sfm.error();
   r.use_sfm = *use_sfm;
   WorkerOptions wo = opts.worker;

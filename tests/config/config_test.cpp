@@ -268,6 +268,26 @@ TEST(Config, ManualTurntableNeedsTimeToTurn) {
       << Dump(problems);
 }
 
+TEST(Config, MovingCameraDrivesNothing) {
+  Config c;
+  c.capture.mode = "moving_camera";
+  std::vector<ConfigProblem> problems;
+  ValidateConfig(c, "struct", &problems);
+  ASSERT_EQ(problems.size(), 1u) << Dump(problems);
+  EXPECT_EQ(problems[0].key, "capture.mode");
+  EXPECT_NE(problems[0].message.find("set turntable.backend = \"manual\" (now \"sim\")"),
+            std::string::npos)
+      << Dump(problems);
+  problems.clear();
+  c.turntable.backend = "manual";
+  ValidateConfig(c, "struct", &problems);
+  EXPECT_TRUE(problems.empty()) << Dump(problems);
+  auto bad = LoadConfigString("[capture]\nmode = \"walking\"\n", "test.toml", &problems);
+  EXPECT_FALSE(bad.ok());
+  ASSERT_FALSE(problems.empty());
+  EXPECT_EQ(problems[0].key, "capture.mode");
+}
+
 TEST(Config, OutOfRangeHasLine) {
   const RangeCase cases[] = {
       {"[capture]\nviews_per_side = 0\nprofile = \"custom\"\n", "capture.views_per_side",

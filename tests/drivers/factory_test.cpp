@@ -6,6 +6,8 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <set>
+#include <vector>
 
 #include "common/clock.h"
 #include "config/config.h"
@@ -13,6 +15,7 @@
 #include "drivers/sim/sim_camera.h"
 #include "drivers/sim/sim_hand.h"
 #include "drivers/sim/sim_turntable.h"
+#include "drivers/sim/sim_walker.h"
 
 namespace aggscan {
 namespace {
@@ -90,6 +93,63 @@ TEST(SimHand, TurnsByTheStepWithinTheErrorAndIsLateWhenTold) {
   // The function the camera keeps outlives the hand.
   auto f = hand.AngleFunction();
   EXPECT_DOUBLE_EQ(f(mid), hand.AngleAt(mid));
+}
+
+// The sim's walker: a rough ring of camera positions round the still disc,
+// elevations alternating about the tripod's, a new round at each homing,
+// shuffled when asked, each taken after the reaction and walk times.
+TEST(SimWalker, WalksARoughRingInAShuffledOrder) {
+  VirtualClock clock;
+  Config c;
+  c.capture.views_per_side = 12;
+  c.capture.step_deg = 30;
+  c.sim.walk_shuffle = true;
+  sim::SimWalker walker(clock, c);
+  walker.Home();
+  auto centre = [](const sim::Rigid& w2c) { return w2c.Inverse().t; };
+  auto polar = [&](const sim::Rigid& w2c, double* az, double* el, double* dist) {
+    const sim::Vec3 C = w2c.Inverse().t - sim::Vec3{0, 0, sim::kAimHeightMm};
+    *dist = sim::Norm(C);
+    *el = std::atan2(C.z, std::hypot(C.x, C.y)) * 180 / M_PI;
+    *az = std::atan2(C.x, -C.y) * 180 / M_PI;
+  };
+  std::set<int> seen;
+  std::vector<sim::Rigid> ring;
+  for (int j = 0; j < 12; ++j) ring.push_back(walker.PositionOfCurrentSide(j));
+  for (int j = 0; j < 12; ++j) {
+    double az = 0, el = 0, dist = 0;
+    polar(ring[j], &az, &el, &dist);
+    // The plan's angle turned the other way round, +-6 deg.
+    EXPECT_LT(std::abs(std::remainder(az + 30.0 * j, 360.0)), 6.5) << j;
+    const double want_el = c.sim.camera_elevation_deg + (j % 2 ? 12.0 : -12.0);
+    EXPECT_LT(std::abs(el - want_el), 6.0) << j;  // the aim point moves the centre's elevation too
+    // +-8 %, and the aim point's +-12 mm.
+    EXPECT_LT(std::abs(dist / c.sim.camera_distance_mm - 1.0), 0.08 + 20.0 / 650) << j;
+  }
+  EXPECT_DOUBLE_EQ(centre(walker.CameraAt(clock.Now())).z, centre(ring[0]).z);
+  int out_of_order = 0;
+  for (int k = 1; k < 12; ++k) {
+    clock.AdvanceTo(k * 2 * kNsPerSec);
+    walker.Step();
+    const TimeNs before = clock.Now() + c.sim.hand_reaction_min - 1;
+    const TimeNs after = clock.Now() + c.sim.hand_reaction_max + c.sim.hand_turn_max;
+    const sim::Rigid at = walker.CameraAt(after);
+    EXPECT_NE(centre(walker.CameraAt(before)).x, centre(at).x) << "moved before the reaction";
+    int which = -1;
+    for (int j = 0; j < 12; ++j)
+      if (centre(ring[j]).x == centre(at).x && centre(ring[j]).y == centre(at).y) which = j;
+    ASSERT_GE(which, 1) << k;
+    seen.insert(which);
+    if (which != k) ++out_of_order;
+  }
+  EXPECT_EQ(seen.size(), 11u) << "every position once";
+  EXPECT_GT(out_of_order, 5);
+  // A new side: a new round.
+  const sim::Vec3 before = centre(walker.PositionOfCurrentSide(3));
+  walker.Home();
+  EXPECT_NE(centre(walker.PositionOfCurrentSide(3)).x, before.x);
+  auto f = walker.CameraFunction();
+  EXPECT_EQ(centre(f(clock.Now())).x, centre(walker.CameraAt(clock.Now())).x);
 }
 
 TEST(Factory, ModbusTurntableFromConfigAndProfile) {

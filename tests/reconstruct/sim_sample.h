@@ -41,16 +41,18 @@ inline void PlaceTruthMasks(const std::string& sample, int sides, int views) {
 /// calibration: the sim's exact rig calibration is recorded in the sample.
 /// truth_masks: the sim's ground-truth masks are put where the side stage
 /// keeps its masks (it reuses them), to test the geometric stages alone.
-/// extra_config: more TOML for the capture's config (e.g. a [rig] table).
+/// extra_config: more TOML for the capture's config (e.g. a [rig] table);
+/// capture_extra: more keys of its [capture] table.
 inline std::string CaptureSimSample(const std::string& dir, uint64_t seed, int sides,
                                     bool calibration, bool truth_masks, int views, int width,
                                     int height, double step_deg,
-                                    const std::string& extra_config = "") {
+                                    const std::string& extra_config = "",
+                                    const std::string& capture_extra = "") {
   namespace fs = std::filesystem;
   const std::string cfg = dir + "/cfg.toml";
   std::ofstream(cfg) << "[capture]\nprofile = \"custom\"\nsides = " << sides
                      << "\nviews_per_side = " << views << "\nstep_deg = " << step_deg << "\n"
-                     << extra_config;
+                     << capture_extra << extra_config;
   SimCaptureOptions o;
   o.seed = seed;
   o.out = dir + "/sample";

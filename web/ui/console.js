@@ -246,7 +246,8 @@
       default:
         if (kRunning.includes(s.state) && ui.turn && Date.now() < ui.turn.handsOffAt) {
           // A hand-turned table: the operator turns it now, and lets go in time.
-          main = 'Turn the table by ' + Math.abs(ui.turn.by).toFixed(0) + '° now';
+          main = ui.turn.camera ? 'Move the camera on round the rock now'
+                                : 'Turn the table by ' + Math.abs(ui.turn.by).toFixed(0) + '° now';
           sub = 'Side ' + s.side + ' — view ' + ui.turn.number + ' of ' + s.views_per_side +
               '. Hands off in ' +
               Math.max(0, (ui.turn.handsOffAt - Date.now()) / 1000).toFixed(1) + ' s.';
@@ -467,7 +468,8 @@
       renderRig();
     });
     on('turn', (d) => {
-      ui.turn = {by: d.by_deg, number: d.number, handsOffAt: Date.now() + d.hands_off_in_ms};
+      ui.turn = {by: d.by_deg, number: d.number, camera: d.move === 'camera',
+                 handsOffAt: Date.now() + d.hands_off_in_ms};
       beep();
       renderPrompt();
       // The prompt changes back to the view count at the hands-off moment.
