@@ -1,6 +1,7 @@
 #include "pipeline/masks/mask.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <opencv2/imgproc.hpp>
 #include <vector>
@@ -258,6 +259,28 @@ cv::Mat BorderStrip(cv::Size size, const MaskOptions& o) {
   return strip;
 }
 
+// A quantile of `m` on the border strip, side by side: the median of the four
+// sides' values. A busy background raises all four; the disc's rim or a label
+// crossing one side of the frame (a camera walked round the rock, closer or
+// higher than the tripod) raises that side's alone, and must not lift the bar
+// above the rock.
+float StripQuantile(const cv::Mat& m, const MaskOptions& o, double q) {
+  const cv::Size size = m.size();
+  const int b = std::max(
+      2, static_cast<int>(std::lround(o.border_fraction * std::min(size.width, size.height))));
+  const cv::Rect sides[4] = {
+      cv::Rect(0, 0, size.width, b), cv::Rect(0, size.height - b, size.width, b),
+      cv::Rect(0, 0, b, size.height), cv::Rect(size.width - b, 0, b, size.height)};
+  std::array<float, 4> v{};
+  for (int i = 0; i < 4; ++i) {
+    cv::Mat sel = cv::Mat::zeros(size, CV_8UC1);
+    sel(sides[i] & cv::Rect(0, 0, size.width, size.height)).setTo(255);
+    v[static_cast<size_t>(i)] = Quantile(m, sel, q);
+  }
+  std::sort(v.begin(), v.end());
+  return 0.5f * (v[1] + v[2]);
+}
+
 cv::Mat AbOf(const cv::Mat& bgr, double smooth_sigma) {
   const cv::Mat lab = ToLab(bgr, smooth_sigma);
   cv::Mat ab;
@@ -368,9 +391,8 @@ cv::Mat CoarseMask(Scene& s, const MaskOptions& o) {
   const cv::Mat& tex = s.texture;
   // A busy background (cloth, wood grain) raises the bar until the border
   // itself is not "textured"; the rig's plain table leaves it at the floor.
-  const cv::Mat strip = BorderStrip(tex.size(), o);
   const double tex_threshold =
-      std::max(o.texture_threshold, o.texture_border_factor * Quantile(tex, strip, 0.99));
+      std::max(o.texture_threshold, o.texture_border_factor * StripQuantile(tex, o, 0.99));
   cv::Mat evidence = (tex > tex_threshold) | (s.color_distance > o.color_threshold);
   // A busy background (stone2: a patterned cloth) widens its colour clusters,
   // which shrinks every distance measured in their spread: the rock may lie
@@ -380,7 +402,7 @@ cv::Mat CoarseMask(Scene& s, const MaskOptions& o) {
   // the lower threshold never drops into the border's own distances.
   const double weak_threshold =
       std::max(o.color_weak_ratio * o.color_threshold,
-               o.color_border_factor * Quantile(s.color_distance, strip, 0.99));
+               o.color_border_factor * StripQuantile(s.color_distance, o, 0.99));
   if (weak_threshold < o.color_threshold)
     evidence = Hysteresis(evidence, s.color_distance > weak_threshold);
   // First estimate with everything, for the rock's colour. The graph cut takes
