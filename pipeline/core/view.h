@@ -19,6 +19,9 @@ struct SampleView {
   std::string image_rel;  // as the records name them: relative to the side directory
   std::string mask_rel;   // ... and to results/
   Pose cam_from_table = Pose::Identity();  // mm; identity until posed
+  /// The rock reaches the photo's edge: SfM poses the view with the rest (its
+  /// features are sound) but its cut silhouette carves nothing.
+  bool pose_only = false;
 };
 
 }  // namespace aggscan

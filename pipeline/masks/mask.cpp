@@ -308,6 +308,32 @@ cv::Mat PaintMap(const cv::Mat& ab, const cv::Mat& color_distance, cv::Vec2f roc
   return Hysteresis(strong, weak);
 }
 
+// The border strip without the places where an object crosses one side of
+// the frame (a figure's head at the top edge, a rock framed tightly by a
+// walked camera): pixels of a side that the colours of the other three sides
+// do not explain, where they are a minority of that side. A background that
+// changes along one side (the table far, the disc near) is seen across by
+// the sides that meet it, and stays. Without these pixels the object's
+// colours do not join the background model.
+cv::Mat StripWithoutCrossings(const cv::Mat& f, const cv::Mat& strip, const MaskOptions& o) {
+  constexpr double kMaxCrossing = 0.35;  // of a side's pixels: more is that side's background
+  const int w = f.cols, h = f.rows;
+  const int b = std::max(2, static_cast<int>(std::lround(o.border_fraction * std::min(w, h))));
+  if (2 * b >= std::min(w, h)) return strip;
+  const cv::Rect sides[4] = {cv::Rect(0, 0, w, b), cv::Rect(0, h - b, w, b),
+                             cv::Rect(0, b, b, h - 2 * b), cv::Rect(w - b, b, b, h - 2 * b)};
+  cv::Mat out = strip.clone();
+  for (const cv::Rect& side : sides) {
+    cv::Mat others = strip.clone();
+    others(side).setTo(0);
+    const std::vector<Cluster> bg = FitBackground(f, others, o);
+    const cv::Mat foreign = ColorDistanceMap(f(side), bg, o) > o.color_threshold;
+    const int n = cv::countNonZero(foreign);
+    if (n > 0 && n <= kMaxCrossing * side.area()) out(side).setTo(0, foreign);
+  }
+  return out;
+}
+
 Scene PrepareScene(const cv::Mat& bgr, const cv::Mat& empty, const MaskOptions& o) {
   Scene s;
   const int long_side = std::max(bgr.cols, bgr.rows);
@@ -318,7 +344,7 @@ Scene PrepareScene(const cv::Mat& bgr, const cv::Mat& empty, const MaskOptions& 
   if (s.scale < 1.0) cv::resize(bgr, s.small, cv::Size(), s.scale, s.scale, cv::INTER_AREA);
   const cv::Mat f = ToFloatSmoothed(s.small);
   const cv::Mat strip = BorderStrip(f.size(), o);
-  s.background = FitBackground(f, strip, o);
+  s.background = FitBackground(f, empty.empty() ? StripWithoutCrossings(f, strip, o) : strip, o);
   s.ab = AbOf(s.small, 0.8);
   if (!empty.empty()) {
     cv::Mat small_empty = empty;

@@ -57,7 +57,8 @@ Result<records::PosesRecord> RunSfmPoses(const SfmPosesInput& in, const SfmPoses
   if (!in.fixed_camera) {
     o.expected_focal_px = in.expected_focal_px;
     o.hold_focal_hint =
-        in.expected_focal_px.has_value();  // the worker's hint is a lens's nominal focal
+        in.expected_focal_px.has_value();  // the worker's hint is a lens's nominal focal  // the
+                                           // worker's hint is a lens's nominal focal
   }
   o.free_camera_model = opts.free_camera_model;
   o.sift.max_image_size = opts.max_image_size;
@@ -261,9 +262,15 @@ Result<records::PosesRecord> RunSfmPoses(const SfmPosesInput& in, const SfmPoses
   }
   records::PosesRecord rec;
   std::optional<RigCalibration> cal;
+  json pose_only = json::array();
   for (int i : registered) {
     const SampleView& v = in.views[static_cast<size_t>(i)];
     const SfmImage* img = model.FindImage(sfm->ImageForInput(i)->id);
+    if (v.pose_only) {
+      // Registered with the rest, its cut silhouette kept out of the surface.
+      pose_only.push_back(v.view);
+      continue;
+    }
     records::PosedViewRecord pv;
     pv.view = v.view;
     pv.image = v.image_rel;
@@ -308,6 +315,7 @@ Result<records::PosesRecord> RunSfmPoses(const SfmPosesInput& in, const SfmPoses
                {"circular_neighbours", opts.circular_neighbours},
                {"capture_mode", in.moving_camera ? "moving_camera" : "turntable"},
                {"window_px", sfm->window[2] == 0 ? json(nullptr) : json(sfm->window)},
+               {"posed_not_carved", pose_only},
                {"workspace", "work/" + side_name + "/sfm"},
                {"model_dir", SfmModelDirName(in.side)},
                {"timings_s", jtimings},

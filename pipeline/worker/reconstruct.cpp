@@ -197,7 +197,8 @@ Result<records::PosesRecord> SfmPosesRecord(const std::string& sample_dir, int s
   in.sample_dir = sample_dir;
   in.side = side;
   for (const records::View2D& v : side_result.views) {
-    if (!v.ok) continue;
+    const bool cut = !v.ok && v.extra.value("cut_by_frame", false) && !v.mask.empty();
+    if (!v.ok && !cut) continue;
     // SfM poses the views itself; a hand-turned table's plan angle only
     // orders them, and is no check of the model.
     if (!v.measured_angle_deg) in.angles_measured = false;
@@ -213,6 +214,7 @@ Result<records::PosesRecord> SfmPosesRecord(const std::string& sample_dir, int s
     sv.mask_rel = v.mask;
     sv.image = sample_dir + "/" + layout::SideDirName(side) + "/" + sv.image_rel;
     sv.mask = ResultsPath(sample_dir, sv.mask_rel);
+    sv.pose_only = cut;
     in.views.push_back(std::move(sv));
   }
   in.cancel = opts.cancel;

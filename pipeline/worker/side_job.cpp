@@ -133,6 +133,8 @@ std::string CheckSideMasks(std::vector<records::View2D>* views) {
     if (frame_px >= kMaskFrameMinPx) {
       cut.push_back(view);
       v.ok = false;
+      // Its silhouette is cut, its features are not: SfM may still pose it.
+      v.extra["cut_by_frame"] = true;
       v.error = "the rock reaches the edge of the photo (" + std::to_string(frame_px) +
                 " px on its border): its silhouette is cut";
     } else if (area < kMaskMinAreaOfLargest * largest) {
