@@ -1,6 +1,7 @@
 // A rock too big for the turntable, the study's advice: it lies still and the
 // operator walks the camera round it. On the simulated rig the rock rests on
-// the disc among its four labels, which do not turn; the sim's walker carries
+// the ground, a 1.2 m mat, among the four labels as ground control points;
+// nothing turns. The sim's walker carries
 // the camera to a rough ring of positions (elevations alternating about
 // 23 and 47 deg, azimuth, distance, aim and roll off the plan by a person's
 // amounts) in a shuffled order. The worker masks the views (classical
@@ -57,7 +58,8 @@ TEST(MovingCamera, WalkedRoundAStillRockPosedByColmapScaledByTheLabels) {
   const uint64_t seed = 1;
   const std::string sample =
       test::CaptureSimSample(tmp.path(), seed, 2, true, true, kViews, kWidth, kHeight, 30.0,
-                             "[turntable]\nbackend = \"manual\"\n[sim]\nwalk_shuffle = true\n",
+                             "[turntable]\nbackend = \"manual\"\n[sim]\nwalk_shuffle = true\n"
+                             "[rig]\nturntable_diameter_mm = 1200.0\n",
                              "mode = \"moving_camera\"\n");
   const json car = ReadJsonFile(sample + "/side1/view_004.json");
   EXPECT_EQ(car.value("capture_mode", ""), "moving_camera") << car.dump();
