@@ -247,6 +247,7 @@ TEST_F(ManualCaptureSteps, TheMoveIsAPromptToTurnAndTheAngleIsLeftToTheLabels) {
   ASSERT_EQ(ev.size(), 1u);
   const json d = json::parse(ev[0].data);
   EXPECT_EQ(d["side"], 1);
+  EXPECT_EQ(d["move"], "table");
   EXPECT_EQ(d["number"], 2);
   EXPECT_DOUBLE_EQ(d["by_deg"].get<double>(), 30.0);
   // View 1 is due 10 s after t0, hands off 7 s before that.
@@ -280,6 +281,46 @@ TEST_F(ManualCaptureSteps, TheMoveIsAPromptToTurnAndTheAngleIsLeftToTheLabels) {
   EXPECT_FALSE(c.contains("measured_angle_deg")) << c.dump();
   EXPECT_EQ(c["turntable_backend"], "manual");
   EXPECT_DOUBLE_EQ(c["commanded_angle_deg"].get<double>(), 30.0);
+}
+
+// A camera walked round a still rock: the same prompt, to move the camera;
+// the sidecar says how the view was taken.
+class MovingCameraCaptureSteps : public ManualCaptureSteps {
+ protected:
+  void Configure() override {
+    ManualCaptureSteps::Configure();
+    config_.capture.mode = "moving_camera";
+  }
+};
+
+TEST_F(MovingCameraCaptureSteps, TheMoveIsAPromptToCarryTheCameraOn) {
+  EventHub& hub = hub_;
+  peer_->set_events(&hub);
+  EXPECT_EQ(peer_->Run(capture::CreateSample{"rock-1"}), Names{});
+  EXPECT_EQ(peer_->Run(capture::Home{}), Names{});
+  ASSERT_TRUE(WaitMotionDone(*peer_));
+  EXPECT_EQ(peer_->Run(capture::BeginSide{1}), Names{});
+  EXPECT_EQ(peer_->Run(capture::MoveTo{30.0, 1, 1}), Names{});
+  ASSERT_TRUE(WaitMotionDone(*peer_));
+  bool gap = false;
+  std::vector<LiveEvent> ev;
+  for (const LiveEvent& e : hub.Since(0, &gap))
+    if (e.type == "turn") ev.push_back(e);
+  ASSERT_EQ(ev.size(), 1u);
+  EXPECT_EQ(json::parse(ev[0].data)["move"], "camera");
+  EXPECT_EQ(peer_->light_pattern(), LightPattern::kTurn);
+  EXPECT_EQ(peer_->Run(capture::TriggerCapture{1, 1, 30.0}), Names{});
+  const auto shot = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+  while (std::chrono::steady_clock::now() < shot && !peer_->has_frame()) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  ASSERT_TRUE(peer_->has_frame());
+  EXPECT_EQ(peer_->Run(capture::StoreView{1, 1}), Names{"view_stored"});
+  auto car = ReadFile(store_->SampleDir("rock-1") + "/side1/view_001.json");
+  ASSERT_TRUE(car) << car.error().ToString();
+  const json c = json::parse(*car);
+  EXPECT_EQ(c["capture_mode"], "moving_camera") << c.dump();
+  EXPECT_FALSE(c.contains("measured_angle_deg")) << c.dump();
 }
 
 }  // namespace
