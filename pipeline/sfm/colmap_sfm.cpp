@@ -1375,6 +1375,20 @@ Status SfmRun::CheckMatching() {
   return OkStatus();
 }
 
+// The registered views of the largest model under `dir` (COLMAP's binary
+// images.bin starts with their count, a little-endian uint64); 0 when none.
+int64_t LargestModelViews(const std::string& dir) {
+  int64_t best = 0;
+  std::error_code ec;
+  for (const auto& ent : fs::directory_iterator(dir, ec)) {
+    std::ifstream f(ent.path() / "images.bin", std::ios::binary);
+    uint64_t count = 0;
+    if (f.read(reinterpret_cast<char*>(&count), sizeof count) && count < (1u << 20))
+      best = std::max(best, static_cast<int64_t>(count));
+  }
+  return best;
+}
+
 std::vector<std::string> SfmRun::ModelDirs() const {
   std::vector<std::pair<int, std::string>> dirs;
   std::error_code ec;
@@ -1575,7 +1589,8 @@ Result<SfmResult> SfmRun::Run() {
                         {"init_min_num_inliers", mp.init_min_num_inliers},
                         {"abs_pose_min_num_inliers", mp.abs_pose_min_num_inliers},
                         {"multiple_models", mp.multiple_models},
-                        {"min_model_size", mp.min_model_size}};
+                        {"min_model_size", mp.min_model_size},
+                        {"retry_abs_pose_min_num_inliers", mp.retry_abs_pose_min_num_inliers}};
   st = Stage(
       "mapper", fp_map,
       [&]() -> Status {
@@ -1584,6 +1599,22 @@ Result<SfmResult> SfmRun::Run() {
         return MakeDirsDurable(P("sparse"));
       },
       [&](double* wall) -> Status {
+        auto args = [&](const std::string& out, int abs_pose_min_num_inliers) {
+          return std::vector<std::string>{
+              "--database_path", P("database.db"), "--image_path", P("images"), "--output_path",
+              out, "--Mapper.num_threads", std::to_string(t), "--Mapper.min_num_matches",
+              std::to_string(mp.min_num_matches), "--Mapper.init_min_tri_angle",
+              Fmt("%.9g", mp.init_min_tri_angle_deg), "--Mapper.init_min_num_inliers",
+              std::to_string(mp.init_min_num_inliers), "--Mapper.abs_pose_min_num_inliers",
+              std::to_string(abs_pose_min_num_inliers), "--Mapper.multiple_models",
+              mp.multiple_models ? "1" : "0", "--Mapper.min_model_size",
+              std::to_string(mp.min_model_size),
+              // Known intrinsics and a focal hint stay fixed; otherwise COLMAP refines focal
+              // and distortion (its default).
+              "--Mapper.ba_refine_focal_length", hold ? "0" : "1",
+              "--Mapper.ba_refine_principal_point", "0", "--Mapper.ba_refine_extra_params",
+              hold ? "0" : "1"};
+        };
         // COLMAP's mapper exits 1 when it finds no initial pair: report that as
         // "no model" with what to do, not as a crash.
         auto failed_empty = [&](Status st) -> Status {
@@ -1592,22 +1623,41 @@ Result<SfmResult> SfmRun::Run() {
           e.detail = st.error().detail;
           return e;
         };
-        return failed_empty(Colmap(
-            "mapper", "mapper",
-            {"--database_path", P("database.db"), "--image_path", P("images"), "--output_path",
-             P("sparse"), "--Mapper.num_threads", std::to_string(t), "--Mapper.min_num_matches",
-             std::to_string(mp.min_num_matches), "--Mapper.init_min_tri_angle",
-             Fmt("%.9g", mp.init_min_tri_angle_deg), "--Mapper.init_min_num_inliers",
-             std::to_string(mp.init_min_num_inliers), "--Mapper.abs_pose_min_num_inliers",
-             std::to_string(mp.abs_pose_min_num_inliers), "--Mapper.multiple_models",
-             mp.multiple_models ? "1" : "0", "--Mapper.min_model_size",
-             std::to_string(mp.min_model_size),
-             // Known intrinsics and a focal hint stay fixed; otherwise COLMAP refines focal and
-             // distortion (its default).
-             "--Mapper.ba_refine_focal_length", hold ? "0" : "1",
-             "--Mapper.ba_refine_principal_point", "0", "--Mapper.ba_refine_extra_params",
-             hold ? "0" : "1"},
-            wall));
+        Status first = failed_empty(
+            Colmap("mapper", "mapper", args(P("sparse"), mp.abs_pose_min_num_inliers), wall));
+        if (!first) return first;
+        // A ring that stalled part-way round from both ends: the view past its
+        // weak link sees a few of the model's points, fewer than asked. Once
+        // more with a lower bar, the larger model kept; the checks judge it.
+        const int64_t got = LargestModelViews(P("sparse"));
+        if (mp.retry_abs_pose_min_num_inliers <= 0 ||
+            mp.retry_abs_pose_min_num_inliers >= mp.abs_pose_min_num_inliers ||
+            got >= static_cast<int64_t>(o_.images.size())) {
+          return first;
+        }
+        std::error_code ec;
+        fs::remove_all(P("sparse_retry"), ec);
+        if (Status d = MakeDirsDurable(P("sparse_retry")); !d) return d;
+        double w2 = 0;
+        Status again = Colmap("mapper", "mapper_retry",
+                              args(P("sparse_retry"), mp.retry_abs_pose_min_num_inliers), &w2);
+        *wall += w2;
+        const int64_t other = again.ok() ? LargestModelViews(P("sparse_retry")) : 0;
+        AGG_LOGI(
+            kLog,
+            "mapper: largest model %lld of %zu views; again with abs_pose_min_num_inliers %d: %lld",
+            static_cast<long long>(got), o_.images.size(), mp.retry_abs_pose_min_num_inliers,
+            static_cast<long long>(other));
+        if (other > got) {
+          fs::remove_all(P("sparse"), ec);
+          fs::rename(P("sparse_retry"), P("sparse"), ec);
+          if (ec)
+            return MakeError(ErrorClass::kIo, "cannot keep the mapper's second model",
+                             ec.message());
+        } else {
+          fs::remove_all(P("sparse_retry"), ec);
+        }
+        return OkStatus();
       },
       [&] { return CheckMapper(); });
   if (!st) return st.error();

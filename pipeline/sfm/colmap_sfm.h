@@ -262,6 +262,12 @@ struct SfmMapperOptions {
   /// next try starts from the views it left out and can go round the other
   /// way. The largest model is used either way.
   int min_model_size = 3;
+  /// When the largest model leaves views out, the mapper runs once more with
+  /// abs_pose_min_num_inliers this low (0: never) and the larger model is
+  /// kept, for the checks to judge: past a ring's weak link (pairs 30 deg
+  /// apart that COLMAP takes for planar) the next view sees a few of the
+  /// model's points, under 15 on the sim's seed 1, side 2.
+  int retry_abs_pose_min_num_inliers = 10;
 };
 
 struct ColmapSfmOptions {

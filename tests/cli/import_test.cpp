@@ -293,6 +293,26 @@ TEST(Import, SidesFromSubFoldersAndTheFocalFromAHint) {
   EXPECT_EQ(cfg->capture.views_per_side, 9);
 }
 
+// A phone walked round a rock: --moving-camera makes the sample one the
+// worker poses by SfM alone, and says so in its config, sidecars and
+// import.json.
+TEST(Import, AWalkedCameraIsRecordedAsSuch) {
+  test::TempDir tmp;
+  TexturedPhotos(tmp.path() + "/walk/1", 8, true);
+  const std::string out = tmp.path() + "/w1";
+  const Outcome r = Import({tmp.path() + "/walk", "--id", "w1", "--out", out, "--focal-mm", "6",
+                            "--sensor-mm", "7.2", "--no-scale", "--moving-camera"});
+  ASSERT_EQ(r.rc, 0) << r.err;
+  EXPECT_NE(r.out.find("SfM (a camera walked round the rock)"), std::string::npos) << r.out;
+  auto cfg = LoadConfigFile(out + "/config.toml", nullptr);
+  ASSERT_TRUE(cfg);
+  EXPECT_EQ(cfg->capture.mode, "moving_camera");
+  EXPECT_EQ(cfg->turntable.backend, "manual");
+  EXPECT_EQ(cfg->worker.poses, "auto");
+  EXPECT_EQ(ReadJsonFile(out + "/side1/view_003.json")["capture_mode"], "moving_camera");
+  EXPECT_EQ(ReadJsonFile(out + "/import.json")["capture_mode"], "moving_camera");
+}
+
 // Real photos: Oxford VGG's dino, 37 frames of a figure on a turntable
 // (720x576 PNG, no EXIF, no scale reference). Imported without a focal (its
 // P matrices' intrinsics are not a pinhole's: a hint taken from them, held,
