@@ -7,15 +7,10 @@
 #include <random>
 #include <vector>
 
+#include "drivers/sim/scramble.h"
+
 namespace aggscan::sim {
 namespace {
-
-uint64_t Scramble(uint64_t x) {
-  x += 0x9E3779B97F4A7C15ULL;
-  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ULL;
-  x = (x ^ (x >> 27)) * 0x94D049BB133111EBULL;
-  return x ^ (x >> 31);
-}
 
 struct Motion {
   TimeNs start = 0, end = 0;

@@ -8,17 +8,12 @@
 #include <random>
 #include <vector>
 
+#include "drivers/sim/scramble.h"
+
 namespace aggscan::sim {
 namespace {
 
 constexpr double kDeg = std::numbers::pi / 180.0;
-
-uint64_t Scramble(uint64_t x) {
-  x += 0x9E3779B97F4A7C15ULL;
-  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ULL;
-  x = (x ^ (x >> 27)) * 0x94D049BB133111EBULL;
-  return x ^ (x >> 31);
-}
 
 struct Switch {
   TimeNs at = 0;

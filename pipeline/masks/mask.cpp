@@ -251,9 +251,23 @@ cv::Mat Hysteresis(const cv::Mat& strong, const cv::Mat& weak) {
   return out;
 }
 
-cv::Mat BorderStrip(cv::Size size, const MaskOptions& o) {
-  const int b = std::max(
+// The border strip's width (px) at this size.
+int BorderWidth(cv::Size size, const MaskOptions& o) {
+  return std::max(
       2, static_cast<int>(std::lround(o.border_fraction * std::min(size.width, size.height))));
+}
+
+// The strip's four sides, apart: top and bottom whole, left and right
+// between them. Empty when the strip would fill the frame.
+std::vector<cv::Rect> BorderSides(cv::Size size, const MaskOptions& o) {
+  const int b = BorderWidth(size, o), w = size.width, h = size.height;
+  if (2 * b >= std::min(w, h)) return {};
+  return {cv::Rect(0, 0, w, b), cv::Rect(0, h - b, w, b), cv::Rect(0, b, b, h - 2 * b),
+          cv::Rect(w - b, b, b, h - 2 * b)};
+}
+
+cv::Mat BorderStrip(cv::Size size, const MaskOptions& o) {
+  const int b = BorderWidth(size, o);
   cv::Mat strip(size, CV_8UC1, cv::Scalar(255));
   strip(cv::Rect(b, b, std::max(0, size.width - 2 * b), std::max(0, size.height - 2 * b))).setTo(0);
   return strip;
@@ -265,17 +279,13 @@ cv::Mat BorderStrip(cv::Size size, const MaskOptions& o) {
 // higher than the tripod) raises that side's alone, and must not lift the bar
 // above the rock.
 float StripQuantile(const cv::Mat& m, const MaskOptions& o, double q) {
-  const cv::Size size = m.size();
-  const int b = std::max(
-      2, static_cast<int>(std::lround(o.border_fraction * std::min(size.width, size.height))));
-  const cv::Rect sides[4] = {
-      cv::Rect(0, 0, size.width, b), cv::Rect(0, size.height - b, size.width, b),
-      cv::Rect(0, 0, b, size.height), cv::Rect(size.width - b, 0, b, size.height)};
+  const std::vector<cv::Rect> sides = BorderSides(m.size(), o);
+  if (sides.empty()) return Quantile(m, BorderStrip(m.size(), o), q);
   std::array<float, 4> v{};
-  for (int i = 0; i < 4; ++i) {
-    cv::Mat sel = cv::Mat::zeros(size, CV_8UC1);
-    sel(sides[i] & cv::Rect(0, 0, size.width, size.height)).setTo(255);
-    v[static_cast<size_t>(i)] = Quantile(m, sel, q);
+  for (size_t i = 0; i < sides.size(); ++i) {
+    cv::Mat sel = cv::Mat::zeros(m.size(), CV_8UC1);
+    sel(sides[i]).setTo(255);
+    v[i] = Quantile(m, sel, q);
   }
   std::sort(v.begin(), v.end());
   return 0.5f * (v[1] + v[2]);
@@ -317,13 +327,8 @@ cv::Mat PaintMap(const cv::Mat& ab, const cv::Mat& color_distance, cv::Vec2f roc
 // colours do not join the background model.
 cv::Mat StripWithoutCrossings(const cv::Mat& f, const cv::Mat& strip, const MaskOptions& o) {
   constexpr double kMaxCrossing = 0.35;  // of a side's pixels: more is that side's background
-  const int w = f.cols, h = f.rows;
-  const int b = std::max(2, static_cast<int>(std::lround(o.border_fraction * std::min(w, h))));
-  if (2 * b >= std::min(w, h)) return strip;
-  const cv::Rect sides[4] = {cv::Rect(0, 0, w, b), cv::Rect(0, h - b, w, b),
-                             cv::Rect(0, b, b, h - 2 * b), cv::Rect(w - b, b, b, h - 2 * b)};
   cv::Mat out = strip.clone();
-  for (const cv::Rect& side : sides) {
+  for (const cv::Rect& side : BorderSides(f.size(), o)) {
     cv::Mat others = strip.clone();
     others(side).setTo(0);
     const std::vector<Cluster> bg = FitBackground(f, others, o);

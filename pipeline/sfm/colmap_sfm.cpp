@@ -1207,13 +1207,9 @@ void SfmRun::Uncrop(SfmModel* m) const {
   }
 }
 
+// After PrepareWorkspace: frame_ is the first image's size.
 Status SfmRun::ResolveCamera() {
-  auto loaded = LoadImage(o_.images[0], ImageMode::kUnchanged);
-  if (!loaded)
-    return MakeError(ErrorClass::kCorrupt,
-                     "cannot read image " + o_.images[0] + ": " + loaded.error().message);
-  const cv::Mat first = std::move(*loaded);
-  const int w = first.cols, h = first.rows;
+  const int w = frame_.width, h = frame_.height;
   // On windows the principal point moves by the window's corner.
   const double dx = crop_.empty() ? 0.0 : crop_.x, dy = crop_.empty() ? 0.0 : crop_.y;
   if (o_.fixed_camera) {

@@ -229,23 +229,48 @@ class ManualCaptureSteps : public CaptureSteps {
     config_.capture.interval = 10 * kNsPerSec;
     config_.turntable.manual_hands_off = 7 * kNsPerSec;
   }
+
+  // A new sample, homed, side 1 begun, the move to view 1 at `angle`: the
+  // "turn" events published so far.
+  std::vector<json> StartAndPromptView1(double angle) {
+    peer_->set_events(&hub_);
+    EXPECT_EQ(peer_->Run(capture::CreateSample{"rock-1"}), Names{});
+    EXPECT_EQ(peer_->Run(capture::Home{}), Names{});
+    EXPECT_TRUE(WaitMotionDone(*peer_));
+    EXPECT_EQ(peer_->Run(capture::BeginSide{1}), Names{});
+    EXPECT_EQ(peer_->Run(capture::MoveTo{angle, 1, 1}), Names{});
+    EXPECT_TRUE(WaitMotionDone(*peer_)) << "nothing to wait for: nothing is driven";
+    return TurnEvents();
+  }
+
+  std::vector<json> TurnEvents() {
+    bool gap = false;
+    std::vector<json> out;
+    for (const LiveEvent& e : hub_.Since(0, &gap))
+      if (e.type == "turn") out.push_back(json::parse(e.data));
+    return out;
+  }
+
+  // Shoots and stores view 1 of side 1; its sidecar (null when it failed).
+  json ShootAndStoreView1(double angle) {
+    EXPECT_EQ(peer_->Run(capture::TriggerCapture{1, 1, angle}), Names{});
+    const auto shot = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+    while (std::chrono::steady_clock::now() < shot && !peer_->has_frame()) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    EXPECT_TRUE(peer_->has_frame());
+    if (!peer_->has_frame()) return json();
+    EXPECT_EQ(peer_->Run(capture::StoreView{1, 1}), Names{"view_stored"});
+    auto car = ReadFile(store_->SampleDir("rock-1") + "/side1/view_001.json");
+    EXPECT_TRUE(car) << car.error().ToString();
+    return car ? json::parse(*car) : json();
+  }
 };
 
 TEST_F(ManualCaptureSteps, TheMoveIsAPromptToTurnAndTheAngleIsLeftToTheLabels) {
-  EventHub& hub = hub_;
-  peer_->set_events(&hub);
-  EXPECT_EQ(peer_->Run(capture::CreateSample{"rock-1"}), Names{});
-  EXPECT_EQ(peer_->Run(capture::Home{}), Names{});
-  ASSERT_TRUE(WaitMotionDone(*peer_));
-  EXPECT_EQ(peer_->Run(capture::BeginSide{1}), Names{});
-  EXPECT_EQ(peer_->Run(capture::MoveTo{30.0, 1, 1}), Names{});
-  ASSERT_TRUE(WaitMotionDone(*peer_)) << "nothing to wait for: the table is turned by hand";
-  bool gap = false;
-  std::vector<LiveEvent> ev;
-  for (const LiveEvent& e : hub.Since(0, &gap))
-    if (e.type == "turn") ev.push_back(e);
+  const std::vector<json> ev = StartAndPromptView1(30.0);
   ASSERT_EQ(ev.size(), 1u);
-  const json d = json::parse(ev[0].data);
+  const json& d = ev[0];
   EXPECT_EQ(d["side"], 1);
   EXPECT_EQ(d["move"], "table");
   EXPECT_EQ(d["number"], 2);
@@ -264,20 +289,10 @@ TEST_F(ManualCaptureSteps, TheMoveIsAPromptToTurnAndTheAngleIsLeftToTheLabels) {
   EXPECT_NE(peer_->light_pattern(), LightPattern::kTurn) << "hands off before the shot";
   // The same angle again is no turn.
   EXPECT_EQ(peer_->Run(capture::MoveTo{30.0, 1, 1}), Names{});
-  int turns = 0;
-  for (const LiveEvent& e : hub.Since(0, &gap)) turns += e.type == "turn";
-  EXPECT_EQ(turns, 1);
+  EXPECT_EQ(TurnEvents().size(), 1u);
   // The view is shot and stored without a measured angle.
-  EXPECT_EQ(peer_->Run(capture::TriggerCapture{1, 1, 30.0}), Names{});
-  const auto shot = std::chrono::steady_clock::now() + std::chrono::seconds(20);
-  while (std::chrono::steady_clock::now() < shot && !peer_->has_frame()) {
-    std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  }
-  ASSERT_TRUE(peer_->has_frame());
-  EXPECT_EQ(peer_->Run(capture::StoreView{1, 1}), Names{"view_stored"});
-  auto car = ReadFile(store_->SampleDir("rock-1") + "/side1/view_001.json");
-  ASSERT_TRUE(car) << car.error().ToString();
-  const json c = json::parse(*car);
+  const json c = ShootAndStoreView1(30.0);
+  ASSERT_TRUE(c.is_object());
   EXPECT_FALSE(c.contains("measured_angle_deg")) << c.dump();
   EXPECT_EQ(c["turntable_backend"], "manual");
   EXPECT_DOUBLE_EQ(c["commanded_angle_deg"].get<double>(), 30.0);
@@ -294,31 +309,12 @@ class MovingCameraCaptureSteps : public ManualCaptureSteps {
 };
 
 TEST_F(MovingCameraCaptureSteps, TheMoveIsAPromptToCarryTheCameraOn) {
-  EventHub& hub = hub_;
-  peer_->set_events(&hub);
-  EXPECT_EQ(peer_->Run(capture::CreateSample{"rock-1"}), Names{});
-  EXPECT_EQ(peer_->Run(capture::Home{}), Names{});
-  ASSERT_TRUE(WaitMotionDone(*peer_));
-  EXPECT_EQ(peer_->Run(capture::BeginSide{1}), Names{});
-  EXPECT_EQ(peer_->Run(capture::MoveTo{30.0, 1, 1}), Names{});
-  ASSERT_TRUE(WaitMotionDone(*peer_));
-  bool gap = false;
-  std::vector<LiveEvent> ev;
-  for (const LiveEvent& e : hub.Since(0, &gap))
-    if (e.type == "turn") ev.push_back(e);
+  const std::vector<json> ev = StartAndPromptView1(30.0);
   ASSERT_EQ(ev.size(), 1u);
-  EXPECT_EQ(json::parse(ev[0].data)["move"], "camera");
+  EXPECT_EQ(ev[0]["move"], "camera");
   EXPECT_EQ(peer_->light_pattern(), LightPattern::kTurn);
-  EXPECT_EQ(peer_->Run(capture::TriggerCapture{1, 1, 30.0}), Names{});
-  const auto shot = std::chrono::steady_clock::now() + std::chrono::seconds(20);
-  while (std::chrono::steady_clock::now() < shot && !peer_->has_frame()) {
-    std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  }
-  ASSERT_TRUE(peer_->has_frame());
-  EXPECT_EQ(peer_->Run(capture::StoreView{1, 1}), Names{"view_stored"});
-  auto car = ReadFile(store_->SampleDir("rock-1") + "/side1/view_001.json");
-  ASSERT_TRUE(car) << car.error().ToString();
-  const json c = json::parse(*car);
+  const json c = ShootAndStoreView1(30.0);
+  ASSERT_TRUE(c.is_object());
   EXPECT_EQ(c["capture_mode"], "moving_camera") << c.dump();
   EXPECT_FALSE(c.contains("measured_angle_deg")) << c.dump();
 }
