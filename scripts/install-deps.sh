@@ -55,6 +55,9 @@ PACKAGES=(
   # export, the export checked in OpenCV DNN) and tests/masks/masks_train_test
   # (its training case skips without them)
   python3-torch python3-opencv
+  # the Blender frames' denoiser (scripts/blender/denoise.py, inside Blender's
+  # Python) and its test tests/validate/denoise_test.py
+  python3-numpy
   # tests only: an independent Modbus implementation acting as the turntable
   # controller in the interoperability test (skipped, 77, without it).
   # pymodbus.server imports serial and serial_asyncio, which Debian's

@@ -31,7 +31,12 @@ import sys
 import time
 
 import bpy
+import numpy as np
 from mathutils import Matrix, Vector
+
+sys.dont_write_bytecode = True  # no __pycache__ next to an installed script
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import denoise  # noqa: E402  (beside this script, found through sys.path)
 
 MM = 0.001  # metres per millimetre
 
@@ -542,8 +547,8 @@ def build_scene(scene_dir, s):
     target = Vector((0.0, 0.0, 0.04))
     build_lights(look["light"], rng, c2w.translation, target)
 
-    # Render settings: Cycles on the CPU, a fixed sample count, no denoiser
-    # (its smoothing would be ours, not a camera's).
+    # Render settings: Cycles on the CPU, a fixed sample count, Cycles' own
+    # denoiser off (not in Debian's build; see denoise.py for ours).
     r = scene.render
     r.engine = "CYCLES"
     scene.cycles.device = "CPU"
@@ -594,6 +599,8 @@ def build_scene(scene_dir, s):
         mask_out.format.color_mode = "BW"
         mask_out.format.color_depth = "8"
         tree.links.new(idm.outputs["Alpha"], mask_out.inputs[0])
+    if s["render"].get("denoise", False):
+        denoise.add_pass_output(scene, tree, rl, os.path.join(scene_dir, "passes"))
     return scene, platter, rock, disc, mask_out
 
 
@@ -647,6 +654,42 @@ def pose(platter, rock, view):
         rock.matrix_world = mm_to_m(matrix4(view["rock_to_world_4x4"])) @ Matrix.Diagonal((MM, MM, MM, 1.0))
 
 
+class FrameRenderer:
+    """Renders the scene's current pose to an 8-bit PNG: Cycles' frame as it
+    comes, or (render.denoise) two half-sample renders through denoise.py
+    with a camera's noise put in."""
+
+    def __init__(self, scene, scene_dir, s, exposure):
+        self.scene = scene
+        self.on = bool(s["render"].get("denoise", False))
+        self.tmp = os.path.join(scene_dir, "passes")
+        self.samples = scene.cycles.samples
+        self.seed = scene.cycles.seed
+        self.sigma = float(s["render"].get("camera_noise_levels", 2.0))
+        self.exposure = exposure
+        self.rng = np.random.default_rng(self.seed)
+        self.count = 0
+
+    def render(self, path):
+        sc = self.scene
+        sc.render.filepath = path
+        if not self.on:
+            bpy.ops.render.render(write_still=True)
+            return
+        half = max(1, (self.samples + 1) // 2)
+        w, h = sc.render.resolution_x, sc.render.resolution_y
+        runs = []
+        for k in range(2):
+            sc.cycles.samples = half
+            sc.cycles.seed = self.seed + 7919 * (2 * self.count + k + 1)
+            bpy.ops.render.render(write_still=False)
+            runs.append(denoise.load_passes(self.tmp, w, h))
+        sc.cycles.samples, sc.cycles.seed = self.samples, self.seed
+        self.count += 1
+        lin = denoise.combine(runs[0], runs[1], self.sigma, self.exposure, self.rng)
+        denoise.save_png(sc, lin, path)
+
+
 def main():
     argv = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else []
     if len(argv) != 1:
@@ -667,19 +710,19 @@ def main():
     if exposure is None:
         exposure = auto_exposure(scene, scene_dir, platter, rock, disc, views[0])
     scene.view_settings.exposure = exposure
+    frames = FrameRenderer(scene, scene_dir, s, exposure)
     times = []
     for v in views:
         pose(platter, rock, v)
         image = os.path.join(scene_dir, v["image"])
         os.makedirs(os.path.dirname(image), exist_ok=True)
-        scene.render.filepath = image
         if mask_out is not None:
             mask = os.path.join(scene_dir, v["mask"])
             mask_out.base_path = os.path.dirname(mask)
             mask_out.file_slots[0].path = os.path.basename(mask)[:-len(".png")] + "-frame"
         scene.frame_set(1)
         t0 = time.monotonic()
-        bpy.ops.render.render(write_still=True)
+        frames.render(image)
         times.append(time.monotonic() - t0)
         if mask_out is not None:
             os.replace(os.path.join(os.path.dirname(mask), os.path.basename(mask)[:-len(".png")] + "-frame0001.png"),
@@ -692,19 +735,21 @@ def main():
             rock.hide_render = True
             empty = os.path.join(scene_dir, v["empty_image"])
             os.makedirs(os.path.dirname(empty), exist_ok=True)
-            scene.render.filepath = empty
             if mask_out is not None:
                 mask_out.mute = True
-            bpy.ops.render.render(write_still=True)
+            frames.render(empty)
             if mask_out is not None:
                 mask_out.mute = False
                 stray = os.path.join(mask_out.base_path, mask_out.file_slots[0].path + "0001.png")
                 if os.path.exists(stray):
                     os.remove(stray)
             rock.hide_render = False
+    if frames.on and os.path.isdir(frames.tmp) and not os.listdir(frames.tmp):
+        os.rmdir(frames.tmp)
     report = {
         "renderer": "blender " + bpy.app.version_string + " cycles cpu",
         "samples": scene.cycles.samples,
+        "denoise": frames.on,
         "exposure_ev": exposure,
         "width": scene.render.resolution_x,
         "height": scene.render.resolution_y,
