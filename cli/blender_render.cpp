@@ -87,7 +87,11 @@ Result<json> SceneJson(const std::string& sample_dir, const std::string& scene_d
                  {{"radius_mm", config.rig.turntable_diameter_mm / 2},
                   {"thickness_mm", sim::kDiscThicknessMm}}},
                 {"look", look.ToJson()},
-                {"render", {{"samples", o.samples}, {"threads", o.threads}}}};
+                {"render",
+                 {{"samples", o.samples},
+                  {"threads", o.threads},
+                  {"denoise", o.denoise},
+                  {"camera_noise_levels", config.sim.noise_sigma}}}};
   json labels = json::array();
   for (const RigMarker& m : config.rig.markers) {
     std::array<float, 3> a{};
@@ -433,7 +437,7 @@ Result<BlenderRenderReport> RerenderWithBlender(const std::string& sample_dir,
   so.log_path = scene_dir + "/blender.log";
   so.timeout_s = 120 + opts.frame_timeout_s * static_cast<double>(frames);
   log << "blender: rendering " << frames << " frames of " << sample_dir << " (" << look.Name()
-      << ", " << opts.samples << " samples/px)\n"
+      << ", " << opts.samples << " samples/px" << (opts.denoise ? ", denoised" : "") << ")\n"
       << std::flush;
   auto run = RunSubprocess({opts.blender, "-b", "--factory-startup", "-noaudio",
                             "--python-exit-code", "3", "--python", script, "--", scene_dir},
@@ -495,6 +499,7 @@ Result<BlenderRenderReport> RerenderWithBlender(const std::string& sample_dir,
   truth["renderer"] = rep.ToJson();
   truth["renderer"]["look"] = look.ToJson();
   truth["renderer"]["samples_per_pixel"] = opts.samples;
+  truth["renderer"]["denoise"] = opts.denoise;
   truth["renderer"]["exposure_ev"] = rj.value("exposure_ev", 0.0);
   if (Status s = WriteFileAtomic(sample_dir + "/truth.json", truth.dump(1) + "\n"); !s)
     return s.error();

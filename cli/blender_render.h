@@ -62,6 +62,10 @@ struct BlenderOptions {
   // their background, and `aggscan masks train --backgrounds` composites the
   // rig's own rocks onto them.
   bool empty_plates = false;
+  // Take the path tracer's noise out and a camera's in (scripts/blender/
+  // denoise.py): at a few samples per pixel a soft shadow's penumbra is far
+  // noisier than any camera's photo of it.
+  bool denoise = false;
 };
 
 /// The render script: $AGGSCAN_BLENDER_SCRIPT, else the installed copy next

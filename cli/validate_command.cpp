@@ -119,6 +119,7 @@ BlenderOptions BlenderOpts(const ValidateOptions& o) {
   BlenderOptions b;
   b.samples = o.samples;
   b.empty_plates = o.backgrounds;
+  b.denoise = o.denoise;
   return b;
 }
 
@@ -633,6 +634,7 @@ Result<ValidateReport> RunValidation(const ValidateOptions& o, std::ostream& log
        o.renderer == "blender"
            ? json{{"name", "blender"},
                   {"samples_per_pixel", o.samples},
+                  {"denoise", o.denoise},
                   {"look", o.look.empty() ? json("the batch's variety (BatchLook)") : json(o.look)},
                   {"lens_distortion", "none (pinhole)"}}
            : json{{"name", "sim"}}},
@@ -678,9 +680,10 @@ void PrintValidateReport(const ValidateReport& r, std::ostream& out) {
       r.options.mesh_dir.empty() ? "procedural rocks" : ("meshes in " + r.options.mesh_dir).c_str(),
       r.options.sides, r.options.views_per_side, st.value("width", 0), st.value("height", 0),
       st["calibration"].value("method", "").c_str(),
-      r.options.renderer == "blender"
-          ? ("Blender Cycles, " + std::to_string(r.options.samples) + " samples/px").c_str()
-          : "the sim renderer");
+      r.options.renderer == "blender" ? ("Blender Cycles, " + std::to_string(r.options.samples) +
+                                         " samples/px" + (r.options.denoise ? ", denoised" : ""))
+                                            .c_str()
+                                      : "the sim renderer");
   out << b;
   const json& re = st["sim_realism"];
   std::snprintf(
@@ -909,7 +912,7 @@ void PrintValidateUsage(std::ostream& o) {
        "charuco|truth]\n"
        "                   [--camera-distance-mm D] [--renderer sim|blender [--look "
        "SPEC|--look-index K]\n"
-       "                   [--samples N] [--backgrounds]] [--render-only]\n"
+       "                   [--samples N] [--no-denoise] [--backgrounds]] [--render-only]\n"
        "                   [--json] [--keep DIR]\n"
        "      accuracy harness: simulated two-side captures (noise, distortion, JPEG, turntable\n"
        "      errors, flip) of N procedural rocks (default 20, seeds S..S+N-1) or of every mesh "
@@ -928,6 +931,10 @@ void PrintValidateUsage(std::ostream& o) {
        "      object markers drawn like coloured pencil;\n"
        "      --samples: Cycles samples per pixel (default 16); render time per frame is "
        "reported;\n"
+       "      the path tracer's noise is taken out (two half-sample renders, the light passes\n"
+       "      smoothed in units of their own noise, the colours kept) and a camera's shot and\n"
+       "      read noise ([sim] noise_sigma levels at mid-grey) put in; --no-denoise: Cycles'\n"
+       "      frames as they come;\n"
        "      --backgrounds: also side 1's views with the rock taken away, the look's\n"
        "      empty-turntable photos, as the sample's set (SAMPLE/empty/): the worker masks every\n"
        "      view against the one of its angle (and aggscan masks train --backgrounds takes "
@@ -945,7 +952,7 @@ int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, 
     return 0;
   }
   ValidateOptions o;
-  bool json_out = false, count_given = false, seed_given = false;
+  bool json_out = false, count_given = false, seed_given = false, denoise_given = false;
   for (size_t i = 0; i < args.size(); ++i) {
     const std::string& a = args[i];
     const bool has_value = i + 1 < args.size();
@@ -1033,6 +1040,9 @@ int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, 
       o.look_index = static_cast<int>(n);
     } else if (a == "--backgrounds") {
       o.backgrounds = true;
+    } else if (a == "--no-denoise") {
+      o.denoise = false;
+      denoise_given = true;
     } else if (a == "--render-only") {
       o.render_only = true;
     } else if (a == "--keep") {
@@ -1053,6 +1063,11 @@ int RunValidateCommand(const std::vector<std::string>& args, std::ostream& out, 
   }
   if (o.backgrounds && o.renderer != "blender") {
     err << "aggscan validate: --backgrounds (empty-turntable photos) needs --renderer blender\n";
+    return 2;
+  }
+  if (denoise_given && o.renderer != "blender") {
+    err << "aggscan validate: --no-denoise applies to --renderer blender only (the sim "
+           "renderer's noise is already a camera's)\n";
     return 2;
   }
   if (o.render_only && o.keep.empty()) {

@@ -43,6 +43,8 @@ struct ValidateOptions {
   int samples = 16;          // blender: Cycles samples per pixel
   int look_index = 0;        // blender: BatchLook index of the first rock (to continue a batch)
   bool backgrounds = false;  // blender: also each view's empty-turntable photo (SAMPLE/empty/)
+  bool denoise = true;       // blender: the path tracer's noise out, a camera's in
+                             // (scripts/blender/denoise.py)
   bool render_only = false;  // capture (and render) the samples into --keep, reconstruct nothing:
                              // test sets for `aggscan masks eval`
 };

@@ -139,6 +139,8 @@ TEST(ValidateCommand, UsageErrorsExit2) {
   EXPECT_NE(err.find("--backgrounds (empty-turntable photos) needs --renderer blender"),
             std::string::npos)
       << err;
+  EXPECT_EQ(RunCmd({"--no-denoise"}, nullptr, &err), 2);
+  EXPECT_NE(err.find("--no-denoise applies to --renderer blender only"), std::string::npos) << err;
   EXPECT_EQ(RunCmd({"--render-only"}, nullptr, &err), 2);
   EXPECT_NE(err.find("--render-only keeps the samples and needs --keep DIR"), std::string::npos)
       << err;
