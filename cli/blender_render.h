@@ -65,7 +65,7 @@ struct BlenderOptions {
   // Take the path tracer's noise out and a camera's in (scripts/blender/
   // denoise.py): at a few samples per pixel a soft shadow's penumbra is far
   // noisier than any camera's photo of it.
-  bool denoise = false;
+  bool denoise = true;
 };
 
 /// The render script: $AGGSCAN_BLENDER_SCRIPT, else the installed copy next

@@ -599,9 +599,10 @@ def build_scene(scene_dir, s):
         mask_out.format.color_mode = "BW"
         mask_out.format.color_depth = "8"
         tree.links.new(idm.outputs["Alpha"], mask_out.inputs[0])
+    passes_out = None
     if s["render"].get("denoise", False):
-        denoise.add_pass_output(scene, tree, rl, os.path.join(scene_dir, "passes"))
-    return scene, platter, rock, disc, mask_out
+        passes_out = denoise.add_pass_output(scene, tree, rl, os.path.join(scene_dir, "passes"))
+    return scene, platter, rock, disc, mask_out, passes_out
 
 
 def auto_exposure(scene, scene_dir, platter, rock, disc, view):
@@ -656,13 +657,14 @@ def pose(platter, rock, view):
 
 class FrameRenderer:
     """Renders the scene's current pose to an 8-bit PNG: Cycles' frame as it
-    comes, or (render.denoise) two half-sample renders through denoise.py
-    with a camera's noise put in."""
+    comes, or (with the passes' output node build_scene added for
+    render.denoise) two half-sample renders through denoise.py with a
+    camera's noise put in."""
 
-    def __init__(self, scene, scene_dir, s, exposure):
+    def __init__(self, scene, passes_out, s, exposure):
         self.scene = scene
-        self.on = bool(s["render"].get("denoise", False))
-        self.tmp = os.path.join(scene_dir, "passes")
+        self.on = passes_out is not None
+        self.tmp = passes_out.base_path if self.on else None
         self.samples = scene.cycles.samples
         self.seed = scene.cycles.seed
         self.sigma = float(s["render"].get("camera_noise_levels", 2.0))
@@ -705,12 +707,12 @@ def main():
     views = s.get("views", [])
     if not views:
         fail("scene.json has no views")
-    scene, platter, rock, disc, mask_out = build_scene(scene_dir, s)
+    scene, platter, rock, disc, mask_out, passes_out = build_scene(scene_dir, s)
     exposure = s["render"].get("exposure")
     if exposure is None:
         exposure = auto_exposure(scene, scene_dir, platter, rock, disc, views[0])
     scene.view_settings.exposure = exposure
-    frames = FrameRenderer(scene, scene_dir, s, exposure)
+    frames = FrameRenderer(scene, passes_out, s, exposure)
     times = []
     for v in views:
         pose(platter, rock, v)
