@@ -4,6 +4,7 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <map>
 #include <numeric>
 #include <opencv2/features2d.hpp>
@@ -386,11 +387,101 @@ StitchEstimate StitchFromFeatures(const FeatureCloud& ref, const FeatureCloud& m
   }
   e.T = r->T;
   e.inliers = static_cast<int>(r->inliers.size());
+  e.unguided_inliers = e.inliers;
   e.rms_mm = r->rms_mm;
   e.max_mm = r->max_mm;
   if (e.inliers < opts.min_feature_inliers) {
+    // Too few: the fit from the global matches guides a second matching,
+    // which finds the true matches the global ratio test lost to
+    // look-alikes. A fit with enough inliers is kept as it is: the guided
+    // one takes looser matches in, and on the sim's renders it came out no
+    // closer to the truth.
+    StitchEstimate g = GuidedFeatureFit(ref, mov, r->T, opts);
+    if (g.valid) {
+      g.unguided_inliers = e.inliers;
+      g.guided_from = "features";
+      return g;
+    }
     e.note = "only " + std::to_string(e.inliers) + " of " + std::to_string(e.pairs) +
-             " feature matches consistent (need " + std::to_string(opts.min_feature_inliers) + ")";
+             " feature matches consistent (need " + std::to_string(opts.min_feature_inliers) +
+             "); guided by that fit, " + std::to_string(g.inliers) + " of " +
+             std::to_string(g.pairs) + " consistent";
+    return e;
+  }
+  e.valid = true;
+  return e;
+}
+
+StitchEstimate GuidedFeatureFit(const FeatureCloud& ref, const FeatureCloud& mov,
+                                const geom::Rigid3& start, const StitchOptions& opts) {
+  StitchEstimate e;
+  e.T = start;
+  if (ref.points.empty() || mov.points.empty() || ref.descriptors.empty() ||
+      mov.descriptors.empty()) {
+    e.note = "no triangulated features on one side";
+    return e;
+  }
+  std::vector<std::vector<int>> rows_mov(mov.points.size()), rows_ref(ref.points.size());
+  for (int i = 0; i < mov.descriptors.rows; ++i) rows_mov[mov.point_of_row[i]].push_back(i);
+  for (int j = 0; j < ref.descriptors.rows; ++j) rows_ref[ref.point_of_row[j]].push_back(j);
+  // Two points' descriptor distance: the closest of their sightings (a
+  // point seen from a similar angle on both sides matches best there).
+  auto distance = [&](size_t p_mov, size_t p_ref) {
+    double d = std::numeric_limits<double>::infinity();
+    for (int i : rows_mov[p_mov]) {
+      for (int j : rows_ref[p_ref]) {
+        d = std::min(d, cv::norm(mov.descriptors.row(i), ref.descriptors.row(j), cv::NORM_L2));
+      }
+    }
+    return d;
+  };
+  const double r2 = opts.guided_radius_mm * opts.guided_radius_mm;
+  for (int round = 0; round < std::max(1, opts.guided_rounds); ++round) {
+    std::map<size_t, std::pair<size_t, double>> best_of_ref;  // ref point -> (moving, distance)
+    for (size_t pm = 0; pm < mov.points.size(); ++pm) {
+      const Vector3d x = e.T.Apply(mov.points[pm]);
+      double d1 = std::numeric_limits<double>::infinity(), d2 = d1;
+      size_t best = ref.points.size();
+      for (size_t pr = 0; pr < ref.points.size(); ++pr) {
+        if ((ref.points[pr] - x).squaredNorm() > r2) continue;
+        const double d = distance(pm, pr);
+        if (d < d1) {
+          d2 = d1, d1 = d, best = pr;
+        } else if (d < d2) {
+          d2 = d;
+        }
+      }
+      // A lone candidate has no rival to be told from: its descriptor is
+      // untested, and taking it would turn the matching into a nearest-point
+      // search that a wrong start can settle on.
+      if (best == ref.points.size() || std::isinf(d2) || !(d1 < opts.feature_ratio * d2)) continue;
+      auto it = best_of_ref.find(best);
+      if (it == best_of_ref.end() || d1 < it->second.second) best_of_ref[best] = {pm, d1};
+    }
+    std::vector<Vector3d> a, b;
+    for (const auto& [pr, md] : best_of_ref) {
+      a.push_back(mov.points[md.first]);
+      b.push_back(ref.points[pr]);
+    }
+    e.pairs = static_cast<int>(a.size());
+    const std::optional<geom::RansacRigidResult> r = geom::RansacRigid(a, b, opts.ransac);
+    if (!r) {
+      e.inliers = 0;
+      e.note = std::to_string(e.pairs) + " guided matches, no consistent triple";
+      return e;
+    }
+    const bool same = static_cast<int>(r->inliers.size()) == e.inliers &&
+                      geom::RotationAngleDeg(r->T.R * e.T.R.transpose()) < 1e-3;
+    e.T = r->T;
+    e.inliers = static_cast<int>(r->inliers.size());
+    e.rms_mm = r->rms_mm;
+    e.max_mm = r->max_mm;
+    if (same) break;
+  }
+  if (e.inliers < opts.min_feature_inliers) {
+    e.note = "only " + std::to_string(e.inliers) + " of " + std::to_string(e.pairs) +
+             " guided feature matches consistent (need " +
+             std::to_string(opts.min_feature_inliers) + ")";
     return e;
   }
   e.valid = true;
@@ -405,6 +496,19 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
   out.markers = StitchFromMarkers(ref, mov, opts);
   if (clouds) {
     out.features = StitchFromFeatures(*ref_features, *mov_features, opts);
+    // No feature fit of its own: the marker fit, even one that failed its
+    // residual test, may be close enough to guide the matching.
+    if (!out.features.valid && out.markers.pairs >= 3 && out.markers.inliers >= 3) {
+      StitchEstimate g = GuidedFeatureFit(*ref_features, *mov_features, out.markers.T, opts);
+      if (g.valid) {
+        g.unguided_inliers = out.features.unguided_inliers;
+        g.guided_from = "markers";
+        out.features = g;
+      } else {
+        out.features.note += "; guided by the marker fit, " + std::to_string(g.inliers) + " of " +
+                             std::to_string(g.pairs) + " consistent";
+      }
+    }
   } else {
     out.features.note = "no feature clouds given";
   }

@@ -106,6 +106,17 @@ struct StitchOptions {
   geom::RansacRigidOptions ransac{
       .inlier_mm = 2.0, .iterations = 4000, .seed = 1, .min_spread_mm = 10};
   int min_feature_inliers = 12;  // fewer consistent matches: no feature estimate
+  /// Guided matching: once a motion is roughly known (a feature fit with few
+  /// inliers, the marker fit), each moving point is matched only among the
+  /// reference points within this distance of where the motion puts it, the
+  /// ratio test among those alone. Across the flip a surface patch is seen
+  /// from far apart, its descriptors change, and a ratio test over the whole
+  /// rock loses most true matches to look-alike grain elsewhere; among a few
+  /// neighbours the true one still stands out. A start a few degrees off
+  /// converges in a round or two; a far one finds too few consistent matches
+  /// to pass min_feature_inliers (docs/validation.md has the figures).
+  double guided_radius_mm = 8.0;
+  int guided_rounds = 4;  // match, fit, match again with the new motion
   double marker_sigma_mm =
       0.5;  // typical marker point error (sim: 0.05-1.4 mm), for the rotation uncertainty
   double agree_deg =
@@ -140,6 +151,12 @@ struct StitchEstimate {
   /// mm apart and the two markers' axes are parallel, so the rotation about
   /// the line joining the markers is weak: 1-3 deg on the sim.
   double rotation_sigma_deg = 0;
+  /// Features: what guided the matching ("" none: the global ratio test's
+  /// RANSAC fit stood; "features": its own first fit; "markers": the marker
+  /// fit, the global matches having no consistent fit), and the inliers the
+  /// global matching had.
+  std::string guided_from;
+  int unguided_inliers = 0;
   std::string note;  // why not valid, or what was dropped
 };
 
@@ -187,6 +204,14 @@ StitchEstimate StitchFromMarkers(const SideMarkers& reference, const SideMarkers
 /// RANSAC rigid fit of descriptor matches between the two sides' clouds.
 StitchEstimate StitchFromFeatures(const FeatureCloud& reference, const FeatureCloud& moving,
                                   const StitchOptions& opts = {});
+
+/// Feature estimate by guided matching from `start` (moving -> reference):
+/// opts.guided_rounds rounds of matching each moving point among the
+/// reference points within opts.guided_radius_mm of start's image of it (one
+/// to one, the ratio test among those candidates), then a RANSAC rigid fit,
+/// whose motion guides the next round. Valid with min_feature_inliers.
+StitchEstimate GuidedFeatureFit(const FeatureCloud& reference, const FeatureCloud& moving,
+                                const geom::Rigid3& start, const StitchOptions& opts = {});
 
 /// Both estimates, compared, and the choice. `reference_features` and
 /// `moving_features` may be null (no cross-check). With `silhouettes`, a

@@ -29,6 +29,10 @@ records::SourceEstimate EstimateRecord(const StitchEstimate& e) {
   r.detail = {{"pairs", e.pairs},   {"inliers", e.inliers}, {"rms_mm", e.rms_mm},
               {"max_mm", e.max_mm}, {"points", e.points},   {"note", e.note}};
   if (e.rotation_sigma_deg > 0) r.detail["rotation_sigma_deg"] = e.rotation_sigma_deg;
+  if (!e.guided_from.empty()) {
+    r.detail["guided_from"] = e.guided_from;
+    r.detail["unguided_inliers"] = e.unguided_inliers;
+  }
   return r;
 }
 
