@@ -213,7 +213,68 @@ struct SilhouetteStitcher::Impl {
   std::vector<P3> ref_points;  // reference grid nodes that may be inside
   std::vector<float> ref_values;
   Vector3d centre = Vector3d::Zero();
+  double own_deficit = 0;  // each side's hull in its own views (OwnDeficit)
 };
+
+namespace {
+
+// Grid nodes of a side's hull field that may be inside, with their values.
+void NodesInside(const Grid& g, double h, std::vector<P3>* points, std::vector<float>* values) {
+  for (int k = 0; k < g.nz; ++k) {
+    for (int j = 0; j < g.ny; ++j) {
+      for (int i = 0; i < g.nx; ++i) {
+        const float f = g.f[g.Index(i, j, k)];
+        if (f > -0.5 * h) {
+          const Vector3d p = g.Node(i, j, k);
+          points->push_back({p.x(), p.y(), p.z()});
+          values->push_back(f);
+        }
+      }
+    }
+  }
+}
+
+// Soft voxel occupancy of a field value: 0.5 on the surface, 1 half a voxel inside.
+float Occupancy(double f, double h) {
+  return static_cast<float>(std::clamp(0.5 + f / h, 0.0, 1.0));
+}
+
+// The fraction of one view's rock pixels that voxels `pts` (occupancies
+// `occ`, in the frame `pose` maps into the camera) leave uncovered.
+// `splat`: half-width of a voxel's footprint in the working camera `cam`, px.
+double ViewDeficit(const Pinhole& cam, int splat, const WorkView& w, const Pose& pose,
+                   const std::vector<P3>& pts, const std::vector<float>& occ, cv::Mat* cov) {
+  cov->create(w.roi.height, w.roi.width, CV_32F);
+  cov->setTo(0);
+  const int r = splat;
+  const double fx = cam.fx, fy = cam.fy, cx = cam.cx - w.roi.x, cy = cam.cy - w.roi.y;
+  const int W = w.roi.width, H = w.roi.height;
+  for (size_t i = 0; i < pts.size(); ++i) {
+    double c[3];
+    pose.Apply(&pts[i].x, c);
+    if (c[2] <= 1) continue;
+    const int u = static_cast<int>(std::floor(fx * c[0] / c[2] + cx + 0.5));
+    const int v = static_cast<int>(std::floor(fy * c[1] / c[2] + cy + 0.5));
+    if (u < -r || v < -r || u >= W + r || v >= H + r) continue;
+    const float o = occ[i];
+    for (int y = std::max(0, v - r); y <= std::min(H - 1, v + r); ++y) {
+      float* row = cov->ptr<float>(y);
+      for (int x = std::max(0, u - r); x <= std::min(W - 1, u + r); ++x)
+        row[x] = std::max(row[x], o);
+    }
+  }
+  double miss = 0;
+  for (int y = 0; y < H; ++y) {
+    const uchar* mk = w.mask.ptr<uchar>(y + w.roi.y) + w.roi.x;
+    const float* row = cov->ptr<float>(y);
+    for (int x = 0; x < W; ++x) {
+      if (mk[x]) miss += 1.0 - row[x];
+    }
+  }
+  return miss / w.pixels;
+}
+
+}  // namespace
 
 Result<SilhouetteStitcher> SilhouetteStitcher::Create(const SilhouetteSideInput& reference,
                                                       const SilhouetteSideInput& moving,
@@ -277,23 +338,35 @@ Result<SilhouetteStitcher> SilhouetteStitcher::Create(const SilhouetteSideInput&
     box.min().z() = std::max(box.min().z(), -impl->h);
     side.grid = SampleGrid(side.views, impl->cam, box, impl->h, -2 * impl->h);
   }
-  const Grid& g = impl->ref.grid;
-  for (int k = 0; k < g.nz; ++k) {
-    for (int j = 0; j < g.ny; ++j) {
-      for (int i = 0; i < g.nx; ++i) {
-        const float f = g.f[g.Index(i, j, k)];
-        if (f > -0.5 * impl->h) {
-          const Vector3d p = g.Node(i, j, k);
-          impl->ref_points.push_back({p.x(), p.y(), p.z()});
-          impl->ref_values.push_back(f);
-        }
+  NodesInside(impl->ref.grid, impl->h, &impl->ref_points, &impl->ref_values);
+  {
+    // What the masks leave uncovered before the sides meet: each side's
+    // own hull in its own views (shadows and backdrop the side's other views
+    // carve away, a mask's missing rock).
+    std::vector<P3> mov_points;
+    std::vector<float> mov_values;
+    NodesInside(impl->mov.grid, impl->h, &mov_points, &mov_values);
+    cv::Mat cov;
+    double sum = 0;
+    int n = 0;
+    for (int si = 0; si < 2; ++si) {
+      const std::vector<P3>& pts = si == 0 ? impl->ref_points : mov_points;
+      const std::vector<float>& vals = si == 0 ? impl->ref_values : mov_values;
+      std::vector<float> occ(vals.size());
+      for (size_t i = 0; i < vals.size(); ++i) occ[i] = Occupancy(vals[i], impl->h);
+      for (const WorkView& w : (si == 0 ? impl->ref : impl->mov).views) {
+        sum += ViewDeficit(impl->cam, impl->splat, w, Pose(w.pose), pts, occ, &cov);
+        ++n;
       }
     }
+    impl->own_deficit = n > 0 ? sum / n : 0.0;
   }
   SilhouetteStitcher s;
   s.impl_ = std::move(impl);
   return s;
 }
+
+double SilhouetteStitcher::OwnDeficit() const { return impl_->own_deficit; }
 
 double SilhouetteStitcher::Deficit(const geom::Rigid3& T) const {
   const Impl& m = *impl_;
@@ -309,48 +382,20 @@ double SilhouetteStitcher::Deficit(const geom::Rigid3& T) const {
     double q[3];
     ti.Apply(&m.ref_points[i].x, q);
     const double f = std::min<double>(m.ref_values[i], m.mov.grid.Interp(q));
-    const double o = std::clamp(0.5 + f / m.h, 0.0, 1.0);
+    const float o = Occupancy(f, m.h);
     if (o > 0) {
       pts.push_back(m.ref_points[i]);
-      occ.push_back(static_cast<float>(o));
+      occ.push_back(o);
     }
   }
   if (pts.empty()) return 1.0;
   double sum = 0;
   int n = 0;
   cv::Mat cov;
-  auto view_deficit = [&](const WorkView& w, const Pose& pose) {
-    cov.create(w.roi.height, w.roi.width, CV_32F);
-    cov.setTo(0);
-    const int r = m.splat;
-    const double fx = m.cam.fx, fy = m.cam.fy, cx = m.cam.cx - w.roi.x, cy = m.cam.cy - w.roi.y;
-    const int W = w.roi.width, H = w.roi.height;
-    for (size_t i = 0; i < pts.size(); ++i) {
-      double c[3];
-      pose.Apply(&pts[i].x, c);
-      if (c[2] <= 1) continue;
-      const int u = static_cast<int>(std::floor(fx * c[0] / c[2] + cx + 0.5));
-      const int v = static_cast<int>(std::floor(fy * c[1] / c[2] + cy + 0.5));
-      if (u < -r || v < -r || u >= W + r || v >= H + r) continue;
-      const float o = occ[i];
-      for (int y = std::max(0, v - r); y <= std::min(H - 1, v + r); ++y) {
-        float* row = cov.ptr<float>(y);
-        for (int x = std::max(0, u - r); x <= std::min(W - 1, u + r); ++x)
-          row[x] = std::max(row[x], o);
-      }
-    }
-    double miss = 0;
-    for (int y = 0; y < H; ++y) {
-      const uchar* mk = w.mask.ptr<uchar>(y + w.roi.y) + w.roi.x;
-      const float* row = cov.ptr<float>(y);
-      for (int x = 0; x < W; ++x) {
-        if (mk[x]) miss += 1.0 - row[x];
-      }
-    }
-    return miss / w.pixels;
-  };
-  for (const WorkView& w : m.ref.views) sum += view_deficit(w, Pose(w.pose)), ++n;
-  for (const WorkView& w : m.mov.views) sum += view_deficit(w, Pose(w.pose * Ti)), ++n;
+  for (const WorkView& w : m.ref.views)
+    sum += ViewDeficit(m.cam, m.splat, w, Pose(w.pose), pts, occ, &cov), ++n;
+  for (const WorkView& w : m.mov.views)
+    sum += ViewDeficit(m.cam, m.splat, w, Pose(w.pose * Ti), pts, occ, &cov), ++n;
   return sum / n;
 }
 

@@ -67,6 +67,11 @@ class SilhouetteStitcher {
   /// intersection under `moving_to_reference` (0 = perfectly coherent, 1 =
   /// the hulls do not meet).
   double Deficit(const geom::Rigid3& moving_to_reference) const;
+  /// The deficit before the sides meet: each side's own hull in its own
+  /// views. What the masks disagree on within a side (a shadow one view took
+  /// for rock that the others carve away, rock a mask missed) is uncovered
+  /// whatever the motion; a stitch is judged by what it leaves beyond this.
+  double OwnDeficit() const;
 
   /// Nelder-Mead over rotation (about side 1's hull centre) and translation
   /// from `start`, initial steps step_deg and step_mm, then a finer pass.

@@ -545,6 +545,10 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
   }
   if (silhouettes) {
     SilhouetteRefinement& sr = out.silhouettes;
+    // A motion is judged by what it leaves uncovered beyond what each side's
+    // own masks disagree on.
+    sr.own_deficit = silhouettes->OwnDeficit();
+    const double accept = sr.own_deficit + opts.silhouette_accept;
     auto refine = [&](const geom::Rigid3& start, double step_deg) {
       SilhouetteFit fit = silhouettes->Refine(start, step_deg, step_deg);
       sr.evaluations += fit.evaluations;
@@ -563,7 +567,7 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
       // The markers' weak axis: refine by the silhouettes, keep it when they confirm.
       const SilhouetteFit fit = refine(m.T, std::max(2.0, 2 * m.rotation_sigma_deg));
       record("markers", m.T, fit);
-      if (fit.deficit <= opts.silhouette_accept) {
+      if (fit.deficit <= accept) {
         sr.used = true;
         out.T = fit.T;
         out.source = "markers+silhouettes";
@@ -580,20 +584,19 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
       // silhouette_accept: few or clustered inliers) is replaced by its
       // refinement when that is coherent; a coherent one is only checked
       // (refined too with refine_features).
-      const bool contradicted = d0 > opts.silhouette_accept;
+      const bool contradicted = d0 > accept;
       if (contradicted || opts.refine_features) {
         const SilhouetteFit fit = refine(f.T, 2.0);
         record("features", f.T, fit);
         const bool small_move = sr.moved_deg <= opts.agree_deg && sr.moved_mm <= opts.agree_mm;
-        if ((contradicted || small_move) && fit.deficit <= opts.silhouette_accept &&
+        if ((contradicted || small_move) && fit.deficit <= accept &&
             fit.deficit < 0.9 * fit.deficit_start) {
           sr.used = true;
           out.T = fit.T;
           out.source = "features+silhouettes";
         } else if (contradicted) {
           sr.note = "the feature estimate leaves " + std::to_string(d0) +
-                    " of the silhouettes uncovered (more than " +
-                    std::to_string(opts.silhouette_accept) +
+                    " of the silhouettes uncovered (more than " + std::to_string(accept) +
                     ") and its refinement is no better; the feature estimate is kept";
         }
       } else {
@@ -654,13 +657,13 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
           out.T = fit.T;
         }
       }
-      if (sr.tried && sr.deficit <= opts.silhouette_accept) {
+      if (sr.tried && sr.deficit <= accept) {
         sr.used = true;
         out.source = "silhouettes";
       } else if (sr.tried) {
         sr.note = "best silhouette-refined start (" + sr.start + ") leaves " +
                   std::to_string(sr.deficit) + " of the silhouettes uncovered (accepted up to " +
-                  std::to_string(opts.silhouette_accept) + ")";
+                  std::to_string(accept) + ")";
       } else {
         sr.note =
             "no partial estimate to start from (fewer than 2 marker points on both sides and fewer "

@@ -408,6 +408,8 @@ Result<records::StitchRecord> RunStitchStage(const StitchStageInput& in) {
         sil_record["start"] = sr.start;
         sil_record["deficit_start"] = sr.deficit_start;
         sil_record["deficit"] = sr.deficit;
+        sil_record["own_deficit"] = sr.own_deficit;
+        sil_record["accept_above_own"] = so.silhouette_accept;
         sil_record["moved_deg"] = sr.moved_deg;
         sil_record["moved_mm"] = sr.moved_mm;
         sil_record["evaluations"] = sr.evaluations;

@@ -58,13 +58,16 @@ json QualityFlags(const json& quality, const json& stitch, const json& silhouett
     const std::string source = s.value("source", "");
     const json& sil = s.value("silhouettes", json::object());
     const double deficit = Num(sil, "deficit", -1);
-    if (sil.value("available", false) && deficit > lim.stitch_deficit) {
+    // What each side's own masks leave uncovered whatever the motion (0 in
+    // records written before it was measured).
+    const double own = Num(sil, "own_deficit", 0);
+    if (sil.value("available", false) && deficit - own > lim.stitch_deficit) {
       std::snprintf(
           b, sizeof b,
           "side %d's stitch onto side %d (by %s) is not confirmed by the silhouettes: the stitched "
-          "model "
-          "leaves %.3f of them uncovered (accepted: %.4f); the sides may be joined wrongly",
-          side, onto, source.c_str(), deficit, lim.stitch_deficit);
+          "model leaves %.3f of them uncovered, %.3f more than each side's own masks do (accepted: "
+          "%.4f more); the sides may be joined wrongly",
+          side, onto, source.c_str(), deficit, deficit - own, lim.stitch_deficit);
       Add(&flags, "stitch_unconfirmed", b);
     }
     if (!s.value("consistent", true)) {

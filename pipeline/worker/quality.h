@@ -20,8 +20,9 @@ struct QualityLimits {
   double silhouette_iou_mean = 0.97;  // masks vs the model's silhouettes, mean over the views ...
   double silhouette_iou_min = 0.95;   // ... and the worst view
   double stitch_rms_mm = 1.0;         // residual of the stitch's points (markers or features)
-  double stitch_deficit =
-      0.0125;  // silhouettes uncovered by the stitched model (StitchOptions::silhouette_accept)
+  /// Silhouettes uncovered by the stitched model beyond what each side's own
+  /// hull leaves (StitchOptions::silhouette_accept).
+  double stitch_deficit = 0.011;
   double scale_residual_mm =
       0.5;  // scale references (labels, ArUco) against their configured distances
 };

@@ -22,7 +22,9 @@ json SoundQuality() {
           {"watertight", true}};
 }
 
-json Stitch(double deficit, bool consistent, double rms) {
+json Stitch(double deficit, bool consistent, double rms, double own_deficit = -1) {
+  json sil = {{"available", true}, {"deficit", deficit}};
+  if (own_deficit >= 0) sil["own_deficit"] = own_deficit;
   return {{"rms_mm", rms},
           {"max_mm", 2 * rms},
           {"stitches",
@@ -33,7 +35,7 @@ json Stitch(double deficit, bool consistent, double rms) {
              {"disagreement_deg", consistent ? 0.1 : 3.4},
              {"disagreement_mm", consistent ? 0.1 : 4.2},
              {"warning", consistent ? "" : "markers and features disagree"},
-             {"silhouettes", {{"available", true}, {"deficit", deficit}}}}}}};
+             {"silhouettes", sil}}}}};
 }
 
 std::set<std::string> Codes(const json& flags) {
@@ -69,6 +71,19 @@ TEST(QualityFlags, ShadowedMasksAndAnUnconfirmedStitchAreFlaggedWithTheirFigures
   const std::string stitch_reason = flags[1]["reason"];
   EXPECT_NE(stitch_reason.find("by features"), std::string::npos) << stitch_reason;
   EXPECT_NE(stitch_reason.find("0.083 of them uncovered"), std::string::npos) << stitch_reason;
+}
+
+TEST(QualityFlags, TheStitchIsJudgedBeyondWhatEachSidesOwnMasksLeaveUncovered) {
+  // A Blender capture's figures: shadows in the masks leave 0.027 of them
+  // uncovered by each side's own hull; the right stitch leaves 0.035.
+  const json iou = json::array({{{"side", 1}, {"view", 0}, {"iou", 0.99}}});
+  EXPECT_TRUE(QualityFlags(SoundQuality(), Stitch(0.035, true, 0.46, 0.0265), iou).empty());
+  const json flags = QualityFlags(SoundQuality(), Stitch(0.060, true, 0.46, 0.0265), iou);
+  EXPECT_EQ(Codes(flags), std::set<std::string>{"stitch_unconfirmed"});
+  const std::string reason = flags[0]["reason"];
+  EXPECT_NE(reason.find("leaves 0.060 of them uncovered, 0.034 more than each side's own"),
+            std::string::npos)
+      << reason;
 }
 
 TEST(QualityFlags, EachLimitGivesItsOwnFlag) {

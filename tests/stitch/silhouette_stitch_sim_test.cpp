@@ -4,9 +4,11 @@
 #include <gtest/gtest.h>
 
 #include <cstdio>
+#include <opencv2/imgproc.hpp>
 
 #include "pipeline/masks/mask.h"
 #include "pipeline/stitch/silhouette_stitch.h"
+#include "pipeline/stitch/stitch.h"
 #include "tests/markers/sim_capture.h"
 
 namespace aggscan {
@@ -100,6 +102,45 @@ TEST(SilhouetteStitchSim, RefinesPerturbedMotionsBackToTheTruth) {
       EXPECT_LT(e1.rms_mm, 0.6);   // measured 0.13-0.38
     }
   }
+}
+
+// Masks that take a contact shadow in (a dark band on the floor below the
+// rock, in every view) leave it uncovered whatever the motion: the other
+// views carve most of it away. The deficit each side's own hull leaves
+// measures that floor, and a motion is judged by what it adds: the true one
+// stays within silhouette_accept of it, one 3 deg off does not.
+TEST(SilhouetteStitchSim, TheOwnDeficitMeasuresWhatShadowsInTheMasksLeaveUncovered) {
+  Rig rig = Capture(1, 1008, 756);
+  const geom::Rigid3 truth = testing::TruthStitch(*rig.world);
+  auto clean = SilhouetteStitcher::Create(rig.sil[0], rig.sil[1], rig.cal.camera);
+  ASSERT_TRUE(clean.ok()) << clean.error().ToString();
+  std::array<SilhouetteSideInput, 2> shadowed = rig.sil;
+  for (SilhouetteSideInput& side : shadowed) {
+    for (cv::Mat& m : side.masks) {
+      m = m.clone();
+      const cv::Rect box = cv::boundingRect(m);
+      // A third of the rock's width wide, at its foot, a twentieth of its height deep.
+      cv::ellipse(m, cv::Point(box.x + box.width / 2, box.y + box.height),
+                  cv::Size(box.width / 3, box.height / 20 + 2), 0, 0, 360, cv::Scalar(255),
+                  cv::FILLED);
+    }
+  }
+  auto st = SilhouetteStitcher::Create(shadowed[0], shadowed[1], rig.cal.camera);
+  ASSERT_TRUE(st.ok()) << st.error().ToString();
+  const geom::Rigid3 off = Perturb(truth, st->reference_centre(), Eigen::Vector3d(1, 0, 0), 3.0,
+                                   Eigen::Vector3d(1.5, -0.9, 0));
+  const double accept = StitchOptions{}.silhouette_accept;
+  std::printf(
+      "clean masks: own %.4f, at truth %.4f, 3 deg off %.4f; shadowed: own %.4f, at truth %.4f, "
+      "3 deg off %.4f\n",
+      clean->OwnDeficit(), clean->Deficit(truth), clean->Deficit(off), st->OwnDeficit(),
+      st->Deficit(truth), st->Deficit(off));
+  EXPECT_LT(clean->OwnDeficit(), 0.003);
+  EXPECT_LE(clean->OwnDeficit(), clean->Deficit(truth));
+  EXPECT_GT(st->OwnDeficit(), 0.01);
+  EXPECT_GT(st->Deficit(truth), clean->Deficit(truth) + accept);  // an absolute limit would fail it
+  EXPECT_LT(st->Deficit(truth) - st->OwnDeficit(), accept);
+  EXPECT_GT(st->Deficit(off) - st->OwnDeficit(), accept);
 }
 
 // Seed 2: the red marker lies under the rock on side 2, so only the purple
