@@ -404,8 +404,7 @@ StitchEstimate StitchFromFeatures(const FeatureCloud& ref, const FeatureCloud& m
     }
     e.note = "only " + std::to_string(e.inliers) + " of " + std::to_string(e.pairs) +
              " feature matches consistent (need " + std::to_string(opts.min_feature_inliers) +
-             "); guided by that fit, " + std::to_string(g.inliers) + " of " +
-             std::to_string(g.pairs) + " consistent";
+             "); guided by that fit: " + g.note;
     return e;
   }
   e.valid = true;
@@ -484,6 +483,13 @@ StitchEstimate GuidedFeatureFit(const FeatureCloud& ref, const FeatureCloud& mov
              std::to_string(opts.min_feature_inliers) + ")";
     return e;
   }
+  if (e.rms_mm > opts.guided_max_rms_mm) {
+    e.note = std::to_string(e.inliers) + " of " + std::to_string(e.pairs) +
+             " guided feature matches consistent, but spread over the whole gate (RMS " +
+             Mm(e.rms_mm) + ", a true fit's is under " + Mm(opts.guided_max_rms_mm) +
+             "): a chance alignment";
+    return e;
+  }
   e.valid = true;
   return e;
 }
@@ -505,8 +511,7 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
         g.guided_from = "markers";
         out.features = g;
       } else {
-        out.features.note += "; guided by the marker fit, " + std::to_string(g.inliers) + " of " +
-                             std::to_string(g.pairs) + " consistent";
+        out.features.note += "; guided by the marker fit: " + g.note;
       }
     }
   } else {

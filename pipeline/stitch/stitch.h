@@ -117,6 +117,12 @@ struct StitchOptions {
   /// to pass min_feature_inliers (docs/validation.md has the figures).
   double guided_radius_mm = 8.0;
   int guided_rounds = 4;  // match, fit, match again with the new motion
+  /// A guided fit whose inliers' residual RMS exceeds this is a chance
+  /// alignment: with matches taken near where a wrong motion puts the points,
+  /// some always fall inside the RANSAC gate, spread over it (RMS near
+  /// 0.55 x ransac.inlier_mm), where a true fit's residuals are the
+  /// triangulation's noise (0.3-0.6 mm on the sim and on Blender renders).
+  double guided_max_rms_mm = 0.8;
   double marker_sigma_mm =
       0.5;  // typical marker point error (sim: 0.05-1.4 mm), for the rotation uncertainty
   double agree_deg =
