@@ -614,12 +614,11 @@ std::vector<int> Support(const Eigen::Vector3d& X, const std::vector<Obs>& obs,
 }
 
 // The best-supported 3D point among the two-view triangulations of untaken
-// observations (optionally within [min_d, max_d] of `other`); with
-// `split_only`, of observations from views that showed head and tail apart.
+// observations (optionally within [min_d, max_d] of `other`).
 std::optional<Eigen::Vector3d> BestSeed(const std::vector<Obs>& obs, const std::vector<bool>& taken,
                                         const std::vector<geom::Rigid3>& poses,
                                         const CameraModel& cam, const MarkerLocateOptions& opts,
-                                        const Eigen::Vector3d* other, bool split_only) {
+                                        const Eigen::Vector3d* other) {
   std::vector<geom::Sighting> s;
   s.reserve(obs.size());
   for (const Obs& o : obs)
@@ -632,7 +631,6 @@ std::optional<Eigen::Vector3d> BestSeed(const std::vector<Obs>& obs, const std::
   for (size_t i = 0; i < obs.size(); ++i) {
     for (size_t j = i + 1; j < obs.size(); ++j) {
       if (taken[i] || taken[j] || obs[i].view == obs[j].view) continue;
-      if (split_only && (obs[i].hint == 0 || obs[j].hint == 0)) continue;
       Result<geom::TriangulatedPoint> t = geom::TriangulatePoint({s[i], s[j]}, two);
       if (!t.ok() || t->max_px > opts.triangulation.inlier_px) continue;
       if (other) {
@@ -688,13 +686,8 @@ SideMarkers LocateObjectMarkers(const std::vector<ViewMarkers>& views,
     for (int k = 0; k < 2; ++k) {
       const Eigen::Vector3d* other = k == 1 && found[0] ? &found[0]->X : nullptr;
       if (k == 1 && !other) break;
-      // Seeds from views that showed the two segments apart first. Where a
-      // pencil's gap closes at an angle, head and tail show as one segment
-      // whose centre, a point between them, agrees from view to view too,
-      // and from more views than the true segments may.
-      std::optional<Eigen::Vector3d> seed =
-          BestSeed(obs, taken, cam_from_frame, camera, opts, other, true);
-      if (!seed) seed = BestSeed(obs, taken, cam_from_frame, camera, opts, other, false);
+      const std::optional<Eigen::Vector3d> seed =
+          BestSeed(obs, taken, cam_from_frame, camera, opts, other);
       if (!seed) {
         why = "no two views of its segments agree within " +
               std::to_string(opts.triangulation.inlier_px) + " px";

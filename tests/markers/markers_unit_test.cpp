@@ -326,46 +326,6 @@ TEST(StitchUnit, GuidedMatchingFindsTheMatchesLookAlikesHideFromTheGlobalRatioTe
   EXPECT_LT(rot_err(r->T), 0.2);
 }
 
-// A pencil's gap between head and tail closes at some angles: there the
-// marker shows as one segment, whose centre (a point between head and tail)
-// agrees from view to view like a segment's would. Seen so in more views than
-// head and tail are seen apart, it must not be taken for either.
-TEST(MarkersUnit, AHeadAndTailSeenAsOneSegmentAreNotTakenForAPoint) {
-  const CameraModel cam = RigLikeCamera();
-  const Vector3d head(20, -30, 25), tail(36, -21, 24), between = 0.5 * (head + tail);
-  std::vector<geom::Rigid3> poses;
-  std::vector<ViewMarkers> views(12);
-  auto blob = [&](const geom::Rigid3& pose, const Vector3d& X, double area) {
-    SegmentBlob b;
-    b.center_px = *geom::ProjectPoint(cam, pose, X);
-    b.area_px = area;
-    b.length_px = std::sqrt(area) * 2;
-    b.width_px = std::sqrt(area) / 2;
-    return b;
-  };
-  for (int v = 0; v < 12; ++v) {
-    poses.push_back(LookAtOrigin(30.0 * v));
-    ObjectMarkerSighting s;
-    s.color = "purple";
-    if (v == 0 || v == 11) {  // apart: head and tail
-      s.head = blob(poses[v], head, 40);
-      s.tail = blob(poses[v], tail, 120);
-    } else if (v >= 7 && v <= 10) {  // one segment
-      s.unassigned.push_back(blob(poses[v], between, 170));
-    }
-    views[v].objects.push_back(s);
-  }
-  const SideMarkers m = LocateObjectMarkers(views, poses, cam, {"purple"});
-  const MarkerPoint* h = m.Find("purple", "head");
-  const MarkerPoint* t = m.Find("purple", "tail");
-  ASSERT_TRUE(h && t);
-  ASSERT_TRUE(h->located) << h->problem;
-  ASSERT_TRUE(t->located) << t->problem;
-  EXPECT_LT((h->position - head).norm(), 0.1);
-  EXPECT_LT((t->position - tail).norm(), 0.1);
-  EXPECT_EQ(h->views_seen, 2);
-}
-
 TEST(MarkersUnit, OptionsAreChecked) {
   MarkerDetectOptions o;
   EXPECT_EQ(o.Check(), "");
