@@ -579,6 +579,28 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
       } else {
         sr.note = "the silhouettes do not confirm the marker estimate (deficit " +
                   std::to_string(fit.deficit) + " after refinement); the marker estimate is kept";
+        // Marker points misnamed (a head taken for its tail) can still fit one
+        // rigid motion, a wrong one. A partial feature fit the silhouettes
+        // confirm is then taken instead, and the two are reported as
+        // disagreeing.
+        if (!f.valid && f.inliers >= 3) {
+          const SilhouetteFit ff = refine(f.T, 3.0);
+          if (ff.deficit <= accept) {
+            const double marker_deficit = fit.deficit;
+            record("features (" + std::to_string(f.inliers) + " consistent matches)", f.T, ff);
+            sr.used = true;
+            out.T = ff.T;
+            out.source = "silhouettes";
+            out.cross_checked = true;
+            out.consistent = false;
+            out.disagreement_deg = geom::RotationAngleDeg(m.T.R * ff.T.R.transpose());
+            out.disagreement_mm = DisplacementRms(m.T, ff.T, rock);
+            sr.note = "the marker estimate leaves " + std::to_string(marker_deficit) +
+                      " of the silhouettes uncovered after refinement (accepted up to " +
+                      std::to_string(accept) + "); " + std::to_string(f.inliers) +
+                      " consistent feature matches, refined by the silhouettes, are taken";
+          }
+        }
       }
     } else if (out.source == "features") {
       // The feature fit is the more precise when its inliers are many and

@@ -5,6 +5,7 @@
 
 #include <cstdio>
 #include <opencv2/imgproc.hpp>
+#include <random>
 
 #include "pipeline/masks/mask.h"
 #include "pipeline/stitch/silhouette_stitch.h"
@@ -171,6 +172,67 @@ TEST(SilhouetteStitchSim, RescuesTwoMarkerPointsWithoutFeatures) {
 
 // Seed 6: a small rock stitched by its markers alone, whose rotation about
 // the line joining them is weak; the silhouettes refine it.
+// Marker points misnamed on one side (a head taken for its tail) can still
+// fit one rigid motion, a wrong one. The silhouettes contradict it; a partial
+// feature fit they confirm is taken instead, and the stitch says that its
+// sources disagree.
+TEST(SilhouetteStitchSim, AMarkerFitTheSilhouettesContradictGivesWayToOneTheyConfirm) {
+  Rig rig = Capture(1, 1008, 756);
+  const geom::Rigid3 truth = testing::TruthStitch(*rig.world);
+  auto sil = SilhouetteStitcher::Create(rig.sil[0], rig.sil[1], rig.cal.camera);
+  ASSERT_TRUE(sil.ok()) << sil.error().ToString();
+  // Side 2's marker points where a motion 150 deg off the truth puts them:
+  // they fit it exactly.
+  const geom::Rigid3 wrong =
+      Perturb(truth, sil->reference_centre(), Eigen::Vector3d(0, 0, 1), 150.0, {0, 0, 0});
+  const SideMarkers& m1 = rig.markers[0];
+  SideMarkers m2 = m1;
+  for (MarkerPoint& p : m2.points) p.position = wrong.Inverse().Apply(p.position);
+  ASSERT_GE(m1.located(), 3);
+  // Five feature matches, too few alone, at the true motion.
+  FeatureCloud ref, mov;
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> d(0, 100);
+  std::normal_distribution<double> noise(0, 0.2);
+  const std::vector<Eigen::Vector3d> pts = {
+      {10, 5, 30}, {-20, 12, 25}, {15, -25, 20}, {-8, -15, 40}, {25, 20, 15}};
+  std::vector<cv::Mat> rows;
+  for (size_t i = 0; i < pts.size(); ++i) {
+    cv::Mat desc(1, 128, CV_32F);
+    for (int k = 0; k < 128; ++k) desc.at<float>(k) = d(rng);
+    rows.push_back(desc);
+    const Eigen::Vector3d p = sil->reference_centre() + pts[i];
+    ref.points.push_back(p);
+    mov.points.push_back(truth.Inverse().Apply(p) +
+                         Eigen::Vector3d(noise(rng), noise(rng), noise(rng)));
+    ref.point_of_row.push_back(static_cast<int>(i));
+    mov.point_of_row.push_back(static_cast<int>(i));
+  }
+  cv::vconcat(rows, ref.descriptors);
+  mov.descriptors = ref.descriptors.clone();
+
+  // Without the features the marker estimate is kept, and said unconfirmed.
+  auto kept = StitchSides(m1, m2, nullptr, nullptr, {}, &*sil);
+  ASSERT_TRUE(kept.ok()) << kept.error().ToString();
+  EXPECT_EQ(kept->source, "markers");
+  EXPECT_NE(kept->silhouettes.note.find("do not confirm"), std::string::npos)
+      << kept->silhouettes.note;
+
+  auto st = StitchSides(m1, m2, &ref, &mov, {}, &*sil);
+  ASSERT_TRUE(st.ok()) << st.error().ToString();
+  Print("seed 1, misnamed markers", *rig.world, *st);
+  EXPECT_TRUE(st->markers.valid);
+  EXPECT_FALSE(st->features.valid);
+  EXPECT_EQ(st->features.inliers, 5);
+  EXPECT_EQ(st->source, "silhouettes");
+  EXPECT_FALSE(st->consistent);
+  EXPECT_GT(st->disagreement_deg, 100.0);
+  EXPECT_NE(st->warning.find("disagree"), std::string::npos) << st->warning;
+  const testing::StitchError e = testing::MeasureStitch(*rig.world, st->T);
+  EXPECT_LT(e.rot_deg, 1.2);
+  EXPECT_LT(e.rms_mm, 0.8);
+}
+
 TEST(SilhouetteStitchSim, RefinesAMarkerOnlyStitch) {
   Rig rig = Capture(6, 1008, 756);
   const SideMarkers &m1 = rig.markers[0], &m2 = rig.markers[1];
