@@ -87,7 +87,10 @@ int Count(const std::string& s, const std::string& what) {
 
 class Reports : public ::testing::Test {
  public:
-  static void SetUpTestSuite() {
+  // Per test, not per suite: a failure here then fails the test (gtest skips
+  // the tests of a suite whose SetUpTestSuite failed, and ctest counts that as
+  // a skip). There is one test.
+  void SetUp() override {
     dir_ = new test::TempDir();
     state_ = dir_->path() + "/state";
     SampleStore store(state_);
@@ -136,7 +139,7 @@ class Reports : public ::testing::Test {
     ASSERT_TRUE(
         batches.Put(*BatchFromRequest("lot-1", {{"lot", "L-1"}, {"samples", {"rock-10"}}})));
   }
-  static void TearDownTestSuite() {
+  void TearDown() override {
     delete dir_;
     dir_ = nullptr;
   }
