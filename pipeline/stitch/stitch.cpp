@@ -103,6 +103,20 @@ double RotationSigmaDeg(const std::vector<Vector3d>& pts, double sigma) {
   return lmin > 0 ? sigma / std::sqrt(lmin) * 180.0 / 3.14159265358979323846 : 180.0;
 }
 
+// The RANSAC rigid fit of one-to-one matches (reference point -> (moving
+// point, descriptor distance)); `pairs` gets their number.
+std::optional<geom::RansacRigidResult> FitMatches(const std::map<int, std::pair<int, double>>& m,
+                                                  const FeatureCloud& ref, const FeatureCloud& mov,
+                                                  const StitchOptions& opts, int* pairs) {
+  std::vector<Vector3d> a, b;
+  for (const auto& [p_ref, md] : m) {
+    a.push_back(mov.points[md.first]);
+    b.push_back(ref.points[p_ref]);
+  }
+  *pairs = static_cast<int>(a.size());
+  return geom::RansacRigid(a, b, opts.ransac);
+}
+
 }  // namespace
 
 // --- features ---
@@ -368,19 +382,14 @@ StitchEstimate StitchFromFeatures(const FeatureCloud& ref, const FeatureCloud& m
     }
   }
   // One moving point per reference point: the closest in descriptor space.
-  std::map<int, std::pair<int, float>> best_of_ref;
+  std::map<int, std::pair<int, double>> best_of_ref;
   for (const auto& [p_mov, rd] : best_of_mov) {
     auto it = best_of_ref.find(rd.first);
     if (it == best_of_ref.end() || rd.second < it->second.second)
       best_of_ref[rd.first] = {p_mov, rd.second};
   }
-  std::vector<Vector3d> a, b;
-  for (const auto& [p_ref, md] : best_of_ref) {
-    a.push_back(mov.points[md.first]);
-    b.push_back(ref.points[p_ref]);
-  }
-  e.pairs = static_cast<int>(a.size());
-  const std::optional<geom::RansacRigidResult> r = geom::RansacRigid(a, b, opts.ransac);
+  const std::optional<geom::RansacRigidResult> r =
+      FitMatches(best_of_ref, ref, mov, opts, &e.pairs);
   if (!r) {
     e.note = std::to_string(e.pairs) + " putative matches, no consistent triple";
     return e;
@@ -436,7 +445,7 @@ StitchEstimate GuidedFeatureFit(const FeatureCloud& ref, const FeatureCloud& mov
   };
   const double r2 = opts.guided_radius_mm * opts.guided_radius_mm;
   for (int round = 0; round < std::max(1, opts.guided_rounds); ++round) {
-    std::map<size_t, std::pair<size_t, double>> best_of_ref;  // ref point -> (moving, distance)
+    std::map<int, std::pair<int, double>> best_of_ref;  // ref point -> (moving, distance)
     for (size_t pm = 0; pm < mov.points.size(); ++pm) {
       const Vector3d x = e.T.Apply(mov.points[pm]);
       double d1 = std::numeric_limits<double>::infinity(), d2 = d1;
@@ -454,16 +463,13 @@ StitchEstimate GuidedFeatureFit(const FeatureCloud& ref, const FeatureCloud& mov
       // untested, and taking it would turn the matching into a nearest-point
       // search that a wrong start can settle on.
       if (best == ref.points.size() || std::isinf(d2) || !(d1 < opts.feature_ratio * d2)) continue;
-      auto it = best_of_ref.find(best);
-      if (it == best_of_ref.end() || d1 < it->second.second) best_of_ref[best] = {pm, d1};
+      const int pr = static_cast<int>(best);
+      auto it = best_of_ref.find(pr);
+      if (it == best_of_ref.end() || d1 < it->second.second)
+        best_of_ref[pr] = {static_cast<int>(pm), d1};
     }
-    std::vector<Vector3d> a, b;
-    for (const auto& [pr, md] : best_of_ref) {
-      a.push_back(mov.points[md.first]);
-      b.push_back(ref.points[pr]);
-    }
-    e.pairs = static_cast<int>(a.size());
-    const std::optional<geom::RansacRigidResult> r = geom::RansacRigid(a, b, opts.ransac);
+    const std::optional<geom::RansacRigidResult> r =
+        FitMatches(best_of_ref, ref, mov, opts, &e.pairs);
     if (!r) {
       e.inliers = 0;
       e.note = std::to_string(e.pairs) + " guided matches, no consistent triple";
