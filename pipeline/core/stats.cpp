@@ -30,4 +30,17 @@ double Median(std::vector<double> v) {
   return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
+std::vector<std::size_t> HighOutliers(const std::vector<double>& v, double floor, double mads) {
+  const double med = Median(v);
+  std::vector<double> dev;
+  dev.reserve(v.size());
+  for (double x : v) dev.push_back(std::abs(x - med));
+  const double mad = 1.4826 * Median(dev);
+  std::vector<size_t> out;
+  for (size_t i = 0; i < v.size(); ++i) {
+    if (v[i] > med + mads * mad && v[i] > floor) out.push_back(i);
+  }
+  return out;
+}
+
 }  // namespace aggscan

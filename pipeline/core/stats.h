@@ -2,6 +2,7 @@
 // range and coefficient of variation of the 2D figures).
 #pragma once
 
+#include <cstddef>
 #include <vector>
 
 namespace aggscan {
@@ -23,5 +24,11 @@ Stats ComputeStats(const std::vector<double>& values);
 /// The median: the middle value, the mean of the two middle ones for an even
 /// count; 0 for an empty vector.
 double Median(std::vector<double> values);
+
+/// Robust outliers above: the indices of the values more than `mads` scaled
+/// median absolute deviations above the median and above `floor` (so a set of
+/// near-identical good values, whose MAD is almost 0, flags nothing).
+std::vector<std::size_t> HighOutliers(const std::vector<double>& values, double floor,
+                                      double mads = 5.0);
 
 }  // namespace aggscan

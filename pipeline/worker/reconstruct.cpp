@@ -684,23 +684,6 @@ SoleCarving SoleCarvingVolumes(const std::vector<SilhouetteView>& sv,
   return out;
 }
 
-// Robust outliers above: more than kMadOutlier scaled MADs above the median
-// and more than `floor` in absolute terms (so a set of near-identical good
-// values, whose MAD is almost 0, flags nothing).
-constexpr double kMadOutlier = 5.0;
-std::vector<size_t> HighOutliers(const std::vector<double>& v, double floor) {
-  const double med = Median(v);
-  std::vector<double> dev;
-  dev.reserve(v.size());
-  for (double x : v) dev.push_back(std::abs(x - med));
-  const double mad = 1.4826 * Median(dev);
-  std::vector<size_t> out;
-  for (size_t i = 0; i < v.size(); ++i) {
-    if (v[i] > med + kMadOutlier * mad && v[i] > floor) out.push_back(i);
-  }
-  return out;
-}
-
 // A view whose carving alone removes more than this fraction of the rock the
 // other views agree on is left out.
 constexpr double kSoleCarvingMaxFraction = 0.05;

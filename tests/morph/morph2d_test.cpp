@@ -195,5 +195,19 @@ TEST(Stats, SampleStdAndCov) {
   EXPECT_EQ(none.mean, 0);
 }
 
+// Views' sole carvings: one far above the rest is an outlier; near-identical
+// values (MAD about 0) flag nothing below the floor; the floor holds back a
+// value that is far in MADs but small in absolute terms.
+TEST(Stats, HighOutliersAboveTheMedianByMadsAndTheFloor) {
+  const std::vector<double> v{10, 12, 11, 9, 10, 95, 11, 10};
+  EXPECT_EQ(HighOutliers(v, 50), std::vector<size_t>{5});
+  EXPECT_TRUE(HighOutliers(v, 100).empty());
+  EXPECT_TRUE(HighOutliers({5, 5, 5, 5}, 1).empty());
+  EXPECT_EQ(HighOutliers({5, 5, 5, 5.5}, 1), std::vector<size_t>{3});
+  EXPECT_TRUE(HighOutliers({5, 5, 5, 5.5}, 6).empty());
+  EXPECT_EQ(HighOutliers({1, 2, 3, 4, 5, 6}, 0, 1.0), std::vector<size_t>{5});
+  EXPECT_TRUE(HighOutliers({}, 0).empty());
+}
+
 }  // namespace
 }  // namespace aggscan
