@@ -8,6 +8,7 @@
 #include <opencv2/core/optim.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "pipeline/core/stats.h"
 #include "pipeline/stitch/stitch.h"
 #include "pipeline/surface/visual_hull.h"
 
@@ -26,6 +27,7 @@ struct WorkView {
   cv::Rect roi;  // the mask's bounding box with a margin
   int pixels = 0;
   geom::Rigid3 pose;  // cam_from_table
+  int input = 0;      // index into the side's input views
 };
 
 struct P3 {
@@ -121,6 +123,7 @@ std::vector<WorkView> PrepareViews(const SilhouetteSideInput& in, const std::vec
         (cv::boundingRect(w.mask) + cv::Size(2 * margin, 2 * margin) - cv::Point(margin, margin)) &
         cv::Rect(0, 0, pc.width, pc.height);
     w.pose = in.cam_from_table[i];
+    w.input = i;
     out.push_back(std::move(w));
   }
   return out;
@@ -202,6 +205,46 @@ std::vector<int> PickViews(const SilhouetteSideInput& in, int max_views) {
   return use;
 }
 
+// Views whose mask alone carves away rock the side's other views hold: per
+// view, the grid nodes above the floor that it alone projects outside its
+// silhouette, against the nodes every view holds inside. A mask that lost a
+// part of the rock (a face as bright as the disc, a highlight) cuts that part
+// out of the side's hull, and in the stitch the other side's views then miss
+// it whatever the motion. Good views carve alone only a thin shell at their
+// outline. The same rule as the surface stage's: median + 5 MAD and over
+// kSoleCarvingMaxFraction of the agreed volume.
+constexpr double kSoleCarvingMaxFraction = 0.05;
+std::vector<size_t> DisagreeingViews(const std::vector<WorkView>& views, const Pinhole& pc,
+                                     const Grid& g) {
+  std::vector<double> sole(views.size(), 0.0);
+  double agreed = 0;
+  std::vector<Pose> poses;
+  poses.reserve(views.size());
+  for (const WorkView& w : views) poses.emplace_back(w.pose);
+  for (int k = 0; k < g.nz; ++k) {
+    for (int j = 0; j < g.ny; ++j) {
+      for (int i = 0; i < g.nx; ++i) {
+        const Vector3d p = g.Node(i, j, k);
+        if (p.z() < 0) continue;
+        const double q[3] = {p.x(), p.y(), p.z()};
+        int outside = 0;
+        size_t first = 0;
+        for (size_t v = 0; v < views.size() && outside < 2; ++v) {
+          double c[3];
+          poses[v].Apply(q, c);
+          const bool out =
+              c[2] <= 1 || SampleSignedDistance(views[v].sd, pc.fx * c[0] / c[2] + pc.cx,
+                                                pc.fy * c[1] / c[2] + pc.cy) < 0;
+          if (out && outside++ == 0) first = v;
+        }
+        if (outside == 0) agreed += 1;
+        if (outside == 1) sole[first] += 1;
+      }
+    }
+  }
+  return HighOutliers(sole, kSoleCarvingMaxFraction * agreed);
+}
+
 }  // namespace
 
 struct SilhouetteStitcher::Impl {
@@ -213,7 +256,9 @@ struct SilhouetteStitcher::Impl {
   std::vector<P3> ref_points;  // reference grid nodes that may be inside
   std::vector<float> ref_values;
   Vector3d centre = Vector3d::Zero();
-  double own_deficit = 0;  // each side's hull in its own views (OwnDeficit)
+  Vector3d moving_centre = Vector3d::Zero();
+  std::vector<int> left_out_ref, left_out_mov;  // input views left out (DisagreeingViews)
+  double own_deficit = 0;                       // each side's hull in its own views (OwnDeficit)
 };
 
 namespace {
@@ -328,15 +373,40 @@ Result<SilhouetteStitcher> SilhouetteStitcher::Create(const SilhouetteSideInput&
   impl->cam = WorkingCamera(camera, impl->scale);
   impl->splat = std::max(1, static_cast<int>(std::lround(0.5 * impl->h * impl->cam.fx / depth)));
   impl->centre = occ[0].centre;
+  impl->moving_centre = occ[1].centre;
   for (int si = 0; si < 2; ++si) {
     const SilhouetteSideInput& in = si == 0 ? reference : moving;
     Side& side = si == 0 ? impl->ref : impl->mov;
     side.views = PrepareViews(in, si == 0 ? use_ref : use_mov, camera, impl->cam);
+    // The grid reaches a quarter of the hull's size beyond it (rock that one
+    // view's mask lost lies outside the hull of all the views), in whole
+    // voxels beyond a margin of two coarse cells: the nodes near the rock lie
+    // where they would with that margin alone.
     Eigen::AlignedBox3d box = occ[si].box;
-    box.min() -= Vector3d::Constant(2 * coarse);
-    box.max() += Vector3d::Constant(2 * coarse);
+    Vector3d grow;
+    for (int a = 0; a < 3; ++a) {
+      const double extra = std::max(0.0, 0.25 * box.sizes()(a) - 2 * coarse);
+      grow(a) = 2 * coarse + std::ceil(extra / impl->h) * impl->h;
+    }
+    box.min() -= grow;
+    box.max() += grow;
     box.min().z() = std::max(box.min().z(), -impl->h);
     side.grid = SampleGrid(side.views, impl->cam, box, impl->h, -2 * impl->h);
+    const std::vector<size_t> bad = DisagreeingViews(side.views, impl->cam, side.grid);
+    // Left out only while two thirds of the views stay: beyond that the masks
+    // as a whole are in doubt, and the deficits say so.
+    if (!bad.empty() && 3 * bad.size() <= side.views.size()) {
+      std::vector<WorkView> kept;
+      for (size_t v = 0; v < side.views.size(); ++v) {
+        if (std::find(bad.begin(), bad.end(), v) == bad.end()) {
+          kept.push_back(std::move(side.views[v]));
+        } else {
+          (si == 0 ? impl->left_out_ref : impl->left_out_mov).push_back(side.views[v].input);
+        }
+      }
+      side.views = std::move(kept);
+      side.grid = SampleGrid(side.views, impl->cam, box, impl->h, -2 * impl->h);
+    }
   }
   NodesInside(impl->ref.grid, impl->h, &impl->ref_points, &impl->ref_values);
   {
@@ -465,8 +535,72 @@ SilhouetteFit SilhouetteStitcher::Refine(const geom::Rigid3& start, double step_
   return fit;
 }
 
+SilhouetteSearch SilhouetteStitcher::Search(const SilhouetteSearchOptions& opts) const {
+  const auto t0 = std::chrono::steady_clock::now();
+  const Vector3d c1 = impl_->centre, c2 = impl_->moving_centre;
+  std::vector<std::pair<double, geom::Rigid3>> coarse;
+  const int nd = std::max(1, opts.directions), nt = std::max(1, opts.turns);
+  coarse.reserve(static_cast<size_t>(nd) * nt);
+  const double golden = kPi * (3 - std::sqrt(5.0));  // Fibonacci sphere: even spread
+  for (int i = 0; i < nd; ++i) {
+    const double z = 1 - 2 * (i + 0.5) / nd, r = std::sqrt(std::max(0.0, 1 - z * z));
+    const Vector3d up(r * std::cos(golden * i), r * std::sin(golden * i), z);
+    const Eigen::Matrix3d R0 =
+        Eigen::Quaterniond::FromTwoVectors(Vector3d::UnitZ(), up).toRotationMatrix();
+    for (int k = 0; k < nt; ++k) {
+      geom::Rigid3 T;
+      T.R = Eigen::AngleAxisd(2 * kPi * k / nt, up).toRotationMatrix() * R0;
+      T.t = c1 - T.R * c2;
+      coarse.emplace_back(Deficit(T), T);
+    }
+  }
+  std::sort(coarse.begin(), coarse.end(),
+            [](const auto& a, const auto& b) { return a.first < b.first; });
+  SilhouetteSearch out;
+  std::vector<SilhouetteFit>& fits = out.fits;
+  out.evaluations = static_cast<int>(coarse.size());
+  // The most coherent candidates, each at least distinct_deg from the ones
+  // already refined and from where they went; refined until `refine` have
+  // been and two motions stand apart (the runner-up tells how unique the
+  // best is), or twice that many.
+  std::vector<geom::Rigid3> starts;
+  auto far_from = [&](const geom::Rigid3& T, double deg) {
+    for (const geom::Rigid3& S : starts) {
+      if (geom::RotationAngleDeg(S.R * T.R.transpose()) < deg) return false;
+    }
+    for (const SilhouetteFit& f : fits) {
+      if (geom::RotationAngleDeg(f.T.R * T.R.transpose()) < deg) return false;
+    }
+    return true;
+  };
+  for (const auto& [d, T] : coarse) {
+    const int n = static_cast<int>(starts.size());
+    if ((n >= opts.refine && fits.size() >= 2) || n >= 2 * opts.refine) break;
+    if (!far_from(T, opts.distinct_deg)) continue;
+    starts.push_back(T);
+    SilhouetteFit f = Refine(T, opts.step_deg, opts.step_deg);
+    out.evaluations += f.evaluations;
+    bool merged = false;
+    for (SilhouetteFit& g : fits) {
+      if (geom::RotationAngleDeg(g.T.R * f.T.R.transpose()) < opts.distinct_deg / 4) {
+        if (f.deficit < g.deficit) g = f;
+        merged = true;
+      }
+    }
+    if (!merged) fits.push_back(f);
+  }
+  std::sort(fits.begin(), fits.end(),
+            [](const SilhouetteFit& a, const SilhouetteFit& b) { return a.deficit < b.deficit; });
+  out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return out;
+}
+
 double SilhouetteStitcher::voxel_mm() const { return impl_->h; }
 Eigen::Vector3d SilhouetteStitcher::reference_centre() const { return impl_->centre; }
+Eigen::Vector3d SilhouetteStitcher::moving_centre() const { return impl_->moving_centre; }
+const std::vector<int>& SilhouetteStitcher::left_out(int side) const {
+  return side == 0 ? impl_->left_out_ref : impl_->left_out_mov;
+}
 int SilhouetteStitcher::views_used() const { return static_cast<int>(impl_->ref.views.size()); }
 double SilhouetteStitcher::image_scale() const { return impl_->scale; }
 

@@ -45,11 +45,35 @@ struct SilhouetteStitchOptions {
   int max_evaluations = 400;  // per refinement (Nelder-Mead)
 };
 
+/// A search over every orientation, for a stitch with nothing to start from
+/// (no marker seen on both sides, too few feature matches): where side 2's up
+/// may point in side 1's frame (points spread evenly over the sphere) times
+/// the turns about it, each with the hulls' centres put together. The most
+/// coherent candidates, each at least `distinct_deg` from those refined before
+/// and from the motions they reached, are refined: `refine` of them, more (up
+/// to twice as many) until two distinct motions are found, so the best one has
+/// a runner-up to be judged against.
+struct SilhouetteSearchOptions {
+  int directions = 72;  // about 24 deg apart
+  int turns = 15;       // 24 deg apart
+  int refine = 4;
+  double distinct_deg = 20;
+  double step_deg = 8;  // the refinements' first steps (deg and mm)
+};
+
 struct SilhouetteFit {
   geom::Rigid3 T;            // moving -> reference, refined
   double deficit_start = 1;  // deficit of the starting motion
   double deficit = 1;        // after refinement
   int evaluations = 0;
+  double seconds = 0;
+};
+
+struct SilhouetteSearch {
+  /// The refined candidates, the most coherent first; those that converged
+  /// to the same motion (within distinct_deg / 4) merged.
+  std::vector<SilhouetteFit> fits;
+  int evaluations = 0;  // the whole search's
   double seconds = 0;
 };
 
@@ -78,9 +102,21 @@ class SilhouetteStitcher {
   SilhouetteFit Refine(const geom::Rigid3& start, double step_deg = 2.0,
                        double step_mm = 2.0) const;
 
+  /// The search from no start. Its cost is directions x turns deficits and
+  /// `refine` to 2 x `refine` refinements (at 1008 x 756 on the sim, 12 views a
+  /// side: 1080 deficits and about 2300 evaluations in all).
+  SilhouetteSearch Search(const SilhouetteSearchOptions& opts = {}) const;
+
   double voxel_mm() const;
   /// Centre of side 1's hull (table frame of side 1, mm).
   Eigen::Vector3d reference_centre() const;
+  /// Centre of side 2's hull (table frame of side 2, mm).
+  Eigen::Vector3d moving_centre() const;
+  /// The views of side `side` (0 reference, 1 moving; indices into its
+  /// input) left out because their masks alone carved away rock the side's
+  /// other views hold (median + 5 MAD of the views and over 5 % of the volume
+  /// they agree on; at most a third of the views).
+  const std::vector<int>& left_out(int side) const;
   /// Views used per side and the working image scale.
   int views_used() const;
   double image_scale() const;

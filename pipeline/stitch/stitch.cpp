@@ -690,14 +690,50 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
           out.T = fit.T;
         }
       }
-      if (sr.tried && sr.deficit <= accept) {
+      bool ambiguous = false;
+      if (!(sr.tried && sr.deficit <= accept) && opts.search) {
+        // Nothing to start from that the silhouettes accept: search every
+        // orientation.
+        const SilhouetteSearch search = silhouettes->Search(opts.search_options);
+        sr.searched = true;
+        sr.search_fits = static_cast<int>(search.fits.size());
+        sr.search_seconds = search.seconds;
+        sr.evaluations += search.evaluations;
+        sr.seconds += search.seconds;
+        if (!search.fits.empty() && (!sr.tried || search.fits[0].deficit < best)) {
+          const SilhouetteFit& b = search.fits[0];
+          sr.tried = true;
+          sr.start = "search over every orientation";
+          sr.deficit_start = b.deficit_start;
+          sr.deficit = b.deficit;
+          sr.moved_deg = sr.moved_mm = 0;
+          out.T = b.T;
+          bool unique = true;
+          if (search.fits.size() > 1) {
+            const SilhouetteFit& r = search.fits[1];
+            sr.search_runner_up = r.deficit;
+            sr.search_runner_up_deg = geom::RotationAngleDeg(r.T.R * b.T.R.transpose());
+            const double eb = b.deficit - sr.own_deficit, er = r.deficit - sr.own_deficit;
+            unique = er >= opts.search_unique_ratio * eb && er >= eb + opts.search_unique_margin;
+          }
+          if (!unique) {
+            ambiguous = true;
+            sr.note = "the silhouettes fit two motions " + std::to_string(sr.search_runner_up_deg) +
+                      " deg apart almost alike (" + std::to_string(b.deficit) + " and " +
+                      std::to_string(sr.search_runner_up) + " uncovered, own " +
+                      std::to_string(sr.own_deficit) +
+                      "): the rock's outline cannot tell them apart";
+          }
+        }
+      }
+      if (sr.tried && sr.deficit <= accept && !ambiguous) {
         sr.used = true;
         out.source = "silhouettes";
-      } else if (sr.tried) {
+      } else if (sr.tried && !ambiguous) {
         sr.note = "best silhouette-refined start (" + sr.start + ") leaves " +
                   std::to_string(sr.deficit) + " of the silhouettes uncovered (accepted up to " +
                   std::to_string(accept) + ")";
-      } else {
+      } else if (!sr.tried) {
         sr.note =
             "no partial estimate to start from (fewer than 2 marker points on both sides and fewer "
             "than 3 "

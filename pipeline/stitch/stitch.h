@@ -141,6 +141,17 @@ struct StitchOptions {
   /// deficit to 0.01-0.03 (docs/validation.md).
   double silhouette_accept = 0.011;
   double sweep_deg = 15;  // 2 marker points: trial rotations about their axis this far apart
+  /// With nothing to start from, or no start the silhouettes accept: their
+  /// search over every orientation (SilhouetteStitcher::Search). Its best
+  /// motion is taken when accepted as above and the next-best distinct one
+  /// leaves, beyond the own deficit, at least search_unique_ratio times as
+  /// much and search_unique_margin more: a rock whose silhouettes two
+  /// motions explain alike (a near-symmetric stone, masks too poor to tell)
+  /// is refused, not stitched by chance.
+  bool search = true;
+  SilhouetteSearchOptions search_options;
+  double search_unique_ratio = 2.0;
+  double search_unique_margin = 0.005;
   /// A feature estimate refined by the silhouettes when clearly more coherent.
   /// Off: on the sim at 2016 x 1512 (seed 1) it moved a 0.3 deg feature fit by
   /// 1.4 deg and the volume error grew (-0.49 -> -0.70 %); the features are
@@ -182,6 +193,14 @@ struct SilhouetteRefinement {
   double moved_mm = 0;
   int evaluations = 0;
   double seconds = 0;
+  /// The search over every orientation, when it ran: its candidates after
+  /// refinement, and the next-best distinct motion's deficit and angle from
+  /// the best (-1 / 0 without one).
+  bool searched = false;
+  int search_fits = 0;
+  double search_runner_up = -1;
+  double search_runner_up_deg = 0;
+  double search_seconds = 0;
   std::string note;
 };
 

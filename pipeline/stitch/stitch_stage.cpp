@@ -132,7 +132,8 @@ json ArucoJson(const Result<ArucoScale>& as, const RigConfig& rig, int detect_fa
 struct SideEvidence {
   SideMarkers markers;
   FeatureCloud cloud;
-  SilhouetteSideInput silhouettes;  // the distinct viewpoints' masks and poses
+  SilhouetteSideInput silhouettes;    // the distinct viewpoints' masks and poses
+  std::vector<int> silhouette_views;  // their view numbers
   json record;
 };
 
@@ -238,6 +239,7 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side,
   ParallelFor(views.size(), kWorkerThreads, work);
   int aruco_failures = 0, detect_failures = 0, decoded = 0;
   SilhouetteSideInput sil;
+  std::vector<int> sil_views;
   for (size_t i = 0; i < views.size(); ++i) {
     if (out[i].error) return *out[i].error;
     decoded += out[i].decoded ? 1 : 0;
@@ -246,6 +248,7 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side,
     if (is_distinct[i]) {
       sil.masks.push_back(out[i].mask);
       sil.cam_from_table.push_back(poses[i]);
+      sil_views.push_back(views[i].view);
     }
   }
   TimeNs decode_ns = 0, features_ns = 0;
@@ -258,6 +261,7 @@ Result<SideEvidence> GatherSide(const StitchStageInput& in, int side,
   }
   SideEvidence ev;
   ev.silhouettes = std::move(sil);
+  ev.silhouette_views = std::move(sil_views);
   ev.markers = LocateObjectMarkers(vm, poses, cam, in.object_colors);
   const Result<LabelScale> labels = LocateLabels(vm, poses, cam, in.rig);
   const TimeNs t_cloud = MonotonicNs();
@@ -415,6 +419,22 @@ Result<records::StitchRecord> RunStitchStage(const StitchStageInput& in) {
         sil_record["evaluations"] = sr.evaluations;
         sil_record["seconds"] = sr.seconds;
         sil_record["note"] = sr.note;
+        // Views whose masks alone carved away rock the side's others hold.
+        json left_out = json::array();
+        for (int k = 0; k < 2; ++k) {
+          const std::vector<int>& numbers = k == 0 ? r.silhouette_views : ev.silhouette_views;
+          for (int i : sil->left_out(k)) {
+            left_out.push_back({{"side", k == 0 ? ref : side},
+                                {"view", i < static_cast<int>(numbers.size()) ? numbers[i] : i}});
+          }
+        }
+        sil_record["left_out"] = left_out;
+        if (sr.searched) {
+          sil_record["search"] = {{"fits", sr.search_fits},
+                                  {"runner_up_deficit", sr.search_runner_up},
+                                  {"runner_up_deg", sr.search_runner_up_deg},
+                                  {"seconds", sr.search_seconds}};
+        }
         if (sr.tried) worst_deficit = std::max(worst_deficit, sr.deficit);
       }
       method = method.empty() ? st->source : (method == st->source ? method : "mixed");
