@@ -8,7 +8,6 @@
 #include <opencv2/core/optim.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "pipeline/core/stats.h"
 #include "pipeline/stitch/stitch.h"
 #include "pipeline/surface/visual_hull.h"
 
@@ -205,17 +204,13 @@ std::vector<int> PickViews(const SilhouetteSideInput& in, int max_views) {
   return use;
 }
 
-// Views whose mask alone carves away rock the side's other views hold: per
-// view, the grid nodes above the floor that it alone projects outside its
-// silhouette, against the nodes every view holds inside. A mask that lost a
-// part of the rock (a face as bright as the disc, a highlight) cuts that part
-// out of the side's hull, and in the stitch the other side's views then miss
-// it whatever the motion. Good views carve alone only a thin shell at their
-// outline. The same rule as the surface stage's: median + 5 MAD and over
-// kSoleCarvingMaxFraction of the agreed volume.
-constexpr double kSoleCarvingMaxFraction = 0.05;
-std::vector<size_t> DisagreeingViews(const std::vector<WorkView>& views, const Pinhole& pc,
-                                     const Grid& g) {
+// Per view of a side, the grid nodes above the floor that its mask alone
+// projects outside its silhouette, and the nodes every view holds inside:
+// the views whose masks lost part of the rock (DisagreeingViews). Such a
+// part is cut out of the side's hull, and in the stitch the other side's
+// views then miss it whatever the motion.
+std::vector<size_t> SoleCarvingOutliers(const std::vector<WorkView>& views, const Pinhole& pc,
+                                        const Grid& g) {
   std::vector<double> sole(views.size(), 0.0);
   double agreed = 0;
   std::vector<Pose> poses;
@@ -242,7 +237,7 @@ std::vector<size_t> DisagreeingViews(const std::vector<WorkView>& views, const P
       }
     }
   }
-  return HighOutliers(sole, kSoleCarvingMaxFraction * agreed);
+  return DisagreeingViews(sole, agreed);
 }
 
 }  // namespace
@@ -257,7 +252,7 @@ struct SilhouetteStitcher::Impl {
   std::vector<float> ref_values;
   Vector3d centre = Vector3d::Zero();
   Vector3d moving_centre = Vector3d::Zero();
-  std::vector<int> left_out_ref, left_out_mov;  // input views left out (DisagreeingViews)
+  std::vector<int> left_out_ref, left_out_mov;  // input views left out (SoleCarvingOutliers)
   double own_deficit = 0;                       // each side's hull in its own views (OwnDeficit)
 };
 
@@ -392,7 +387,9 @@ Result<SilhouetteStitcher> SilhouetteStitcher::Create(const SilhouetteSideInput&
     box.max() += grow;
     box.min().z() = std::max(box.min().z(), -impl->h);
     side.grid = SampleGrid(side.views, impl->cam, box, impl->h, -2 * impl->h);
-    const std::vector<size_t> bad = DisagreeingViews(side.views, impl->cam, side.grid);
+    const std::vector<size_t> bad = opts.leave_out_disagreeing
+                                        ? SoleCarvingOutliers(side.views, impl->cam, side.grid)
+                                        : std::vector<size_t>{};
     // Left out only while two thirds of the views stay: beyond that the masks
     // as a whole are in doubt, and the deficits say so.
     if (!bad.empty() && 3 * bad.size() <= side.views.size()) {
@@ -597,7 +594,6 @@ SilhouetteSearch SilhouetteStitcher::Search(const SilhouetteSearchOptions& opts)
 
 double SilhouetteStitcher::voxel_mm() const { return impl_->h; }
 Eigen::Vector3d SilhouetteStitcher::reference_centre() const { return impl_->centre; }
-Eigen::Vector3d SilhouetteStitcher::moving_centre() const { return impl_->moving_centre; }
 const std::vector<int>& SilhouetteStitcher::left_out(int side) const {
   return side == 0 ? impl_->left_out_ref : impl_->left_out_mov;
 }
@@ -625,7 +621,19 @@ SilhouettePolish PolishSilhouetteStitch(const SilhouetteStitcher& coarse,
   SilhouetteStitchOptions fine = coarse_opts;
   fine.target_points = 8 * coarse_opts.target_points;  // half the voxel
   fine.max_evaluations = 150;
-  auto st = SilhouetteStitcher::Create(reference, moving, camera, fine);
+  // The views the coarse stitcher left out, judged on its grid, stay out.
+  fine.leave_out_disagreeing = false;
+  auto without = [](const SilhouetteSideInput& in, const std::vector<int>& out) {
+    SilhouetteSideInput kept;
+    for (size_t i = 0; i < in.masks.size(); ++i) {
+      if (std::find(out.begin(), out.end(), static_cast<int>(i)) != out.end()) continue;
+      kept.masks.push_back(in.masks[i]);
+      kept.cam_from_table.push_back(in.cam_from_table[i]);
+    }
+    return kept;
+  };
+  auto st = SilhouetteStitcher::Create(without(reference, coarse.left_out(0)),
+                                       without(moving, coarse.left_out(1)), camera, fine);
   if (!st) {
     out.problem = st.error().message;
   } else {

@@ -43,6 +43,9 @@ struct SilhouetteStitchOptions {
   int target_points = 30000;  // voxels inside side 1's hull: sets the voxel size
   double voxel_px = 2.0;      // a voxel's size in the working images: sets their scale
   int max_evaluations = 400;  // per refinement (Nelder-Mead)
+  /// Views whose masks alone carve away rock the side's other views hold are
+  /// left out (left_out()); off where the caller already left them out.
+  bool leave_out_disagreeing = true;
 };
 
 /// A search over every orientation, for a stitch with nothing to start from
@@ -110,8 +113,6 @@ class SilhouetteStitcher {
   double voxel_mm() const;
   /// Centre of side 1's hull (table frame of side 1, mm).
   Eigen::Vector3d reference_centre() const;
-  /// Centre of side 2's hull (table frame of side 2, mm).
-  Eigen::Vector3d moving_centre() const;
   /// The views of side `side` (0 reference, 1 moving; indices into its
   /// input) left out because their masks alone carved away rock the side's
   /// other views hold (median + 5 MAD of the views and over 5 % of the volume
@@ -146,7 +147,7 @@ struct SilhouettePolish {
 };
 /// `coarse` is the stitcher that chose the motion (built with `coarse_opts`):
 /// its working image scale tells, before the fine grid is built, whether the
-/// photos resolve half its voxel.
+/// photos resolve half its voxel, and the views it left out stay out.
 SilhouettePolish PolishSilhouetteStitch(const SilhouetteStitcher& coarse,
                                         const SilhouetteSideInput& reference,
                                         const SilhouetteSideInput& moving,

@@ -9,6 +9,7 @@
 #include <unordered_map>
 
 #include "pipeline/core/parallel_for.h"
+#include "pipeline/core/stats.h"
 
 namespace aggscan {
 namespace {
@@ -359,6 +360,11 @@ Result<VisualHullResult> CarveVisualHull(const std::vector<SilhouetteView>& view
   result.field_evaluations = evals;
   result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return result;
+}
+
+std::vector<std::size_t> DisagreeingViews(const std::vector<double>& sole_carving, double agreed) {
+  constexpr double kMaxFraction = 0.05;
+  return HighOutliers(sole_carving, kMaxFraction * agreed);
 }
 
 }  // namespace aggscan

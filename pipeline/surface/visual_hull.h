@@ -23,6 +23,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <array>
+#include <cstddef>
 #include <cstdint>
 #include <opencv2/core.hpp>
 #include <vector>
@@ -69,6 +70,14 @@ cv::Mat SilhouetteSignedDistance(const cv::Mat& mask);
 /// image, the border value (at most 0) minus the distance to the border: the
 /// image edge is background on the rig.
 double SampleSignedDistance(const cv::Mat& sd, double u, double v);
+
+/// The views whose masks disagree with the others, from each view's sole
+/// carving (what its mask alone carves away of what every other view and the
+/// floor hold to be rock) and the volume they all agree on, in any one unit:
+/// those above median + 5 MAD of the views and over 5 % of the agreed volume.
+/// A mask that lost part of the rock cuts that part out of the hull; a good
+/// view carves alone only a thin shell at its outline.
+std::vector<std::size_t> DisagreeingViews(const std::vector<double>& sole_carving, double agreed);
 
 /// Carves the visual hull inside `search_box`. Errors: no views, a mask of
 /// the wrong size or type, nothing left (the silhouettes do not intersect:

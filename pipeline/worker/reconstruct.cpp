@@ -684,9 +684,6 @@ SoleCarving SoleCarvingVolumes(const std::vector<SilhouetteView>& sv,
   return out;
 }
 
-// A view whose carving alone removes more than this fraction of the rock the
-// other views agree on is left out.
-constexpr double kSoleCarvingMaxFraction = 0.05;
 // A view whose mask has an IoU with the model's silhouette below this, and
 // far below the other views', is named as disagreeing.
 constexpr double kIouFloor = 0.90;
@@ -816,8 +813,7 @@ Result<records::SurfaceRecord> SurfaceStage(
                    {"agreed_mm3", sc.agreed_mm3},
                    {"views", per_view},
                    {"seconds", Seconds(tsc)}};
-    const std::vector<size_t> bad =
-        HighOutliers(sc.volume_mm3, kSoleCarvingMaxFraction * sc.agreed_mm3);
+    const std::vector<size_t> bad = DisagreeingViews(sc.volume_mm3, sc.agreed_mm3);
     if (!bad.empty()) {
       std::map<int, int> per_side_total, per_side_bad;
       for (const SampleView& v : views) ++per_side_total[v.side];
