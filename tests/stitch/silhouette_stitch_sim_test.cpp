@@ -316,6 +316,19 @@ TEST(SilhouetteStitchSim, SearchesEveryOrientationWhenNothingElseGivesAStart) {
   for (int k = 0; k < 2; ++k) {
     EXPECT_EQ(st->left_out(k), std::vector<int>{damaged[k]}) << "side " << k + 1;
   }
+  // Kept in, the two cut masks leave their lost tops uncovered in every
+  // other view whatever the motion: the own deficit and the one at the
+  // true motion both rise.
+  SilhouetteStitchOptions keep_all;
+  keep_all.leave_out_disagreeing = false;
+  auto kept = SilhouetteStitcher::Create(sil[0], sil[1], rig.cal.camera, keep_all);
+  ASSERT_TRUE(kept.ok()) << kept.error().ToString();
+  EXPECT_TRUE(kept->left_out(0).empty() && kept->left_out(1).empty());
+  const geom::Rigid3 truth = testing::TruthStitch(*rig.world);
+  std::printf("own deficit %.4f left out, %.4f kept in; at the truth %.4f, %.4f\n",
+              st->OwnDeficit(), kept->OwnDeficit(), st->Deficit(truth), kept->Deficit(truth));
+  EXPECT_GT(kept->OwnDeficit(), 2 * st->OwnDeficit());      // measured 0.0711 against 0.0014
+  EXPECT_GT(kept->Deficit(truth), 2 * st->Deficit(truth));  // 0.1370 against 0.0031
   const SideMarkers none;
   auto result = StitchSides(none, none, nullptr, nullptr, {}, &*st);
   ASSERT_TRUE(result.ok()) << result.error().ToString();
