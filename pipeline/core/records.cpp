@@ -394,6 +394,7 @@ Result<ViewIoU> IoUFromJson(const json& j, const jsonio::Source& src) {
   f.Req("side", &v.side);
   f.Req("view", &v.view);
   f.Req("iou", &v.iou);
+  f.Opt("outline_loss", &v.outline_loss);
   if (!f.ok()) return f.error();
   return v;
 }
@@ -435,8 +436,11 @@ json SurfaceRecord::ToJson() const {
   j["voxel_mm"] = voxel_mm;
   j["files"] = files;
   json iou = json::array();
-  for (const ViewIoU& v : silhouette_iou)
-    iou.push_back({{"side", v.side}, {"view", v.view}, {"iou", v.iou}});
+  for (const ViewIoU& v : silhouette_iou) {
+    json e = {{"side", v.side}, {"view", v.view}, {"iou", v.iou}};
+    if (v.outline_loss) e["outline_loss"] = *v.outline_loss;
+    iou.push_back(std::move(e));
+  }
   j["silhouette_iou"] = std::move(iou);
   json out = json::array(), dis = json::array();
   for (const ViewNote& n : views_left_out) out.push_back(NoteToJson(n));

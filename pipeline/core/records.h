@@ -175,6 +175,9 @@ struct ViewNote {
 struct ViewIoU {
   int side = 0, view = 0;
   double iou = 0;
+  // Fraction of the carved hull's silhouette in the view that the final
+  // surface does not cover (absent in records written before it was measured).
+  std::optional<double> outline_loss;
 };
 
 struct SurfaceRecord {

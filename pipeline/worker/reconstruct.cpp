@@ -593,21 +593,41 @@ Result<VertexColors> ColourVertices(const Mesh& mesh, const std::vector<SampleVi
   return colors;
 }
 
-// IoU between each view's mask and the hull's silhouette in it: how well the masks and poses agree.
-// A visual hull's silhouette lies inside every mask; a mask that disagrees with the others (a leak,
-// a wrong pose) loses area.
-std::vector<double> SilhouetteAgreement(const Mesh& mesh,
-                                        const std::vector<Eigen::Isometry3d>& cam_from_object,
-                                        const std::vector<ViewWindow>& windows) {
-  std::vector<double> iou(windows.size(), 0.0);
+// Each view's silhouette of `mesh`, at its window's size.
+std::vector<cv::Mat> Silhouettes(const Mesh& mesh,
+                                 const std::vector<Eigen::Isometry3d>& cam_from_object,
+                                 const std::vector<ViewWindow>& windows) {
+  std::vector<cv::Mat> sil(windows.size());
   ParallelFor(windows.size(), kWorkerThreads, [&](size_t vi) {
-    const cv::Mat sil = RenderMeshSilhouette(mesh, cam_from_object[vi], windows[vi].camera);
+    sil[vi] = RenderMeshSilhouette(mesh, cam_from_object[vi], windows[vi].camera);
+  });
+  return sil;
+}
+
+struct ViewAgreement {
+  double iou = 0;
+  double outline_loss = 0;
+};
+
+// IoU between each view's mask and the surface's silhouette in it: how well the masks and poses
+// agree. A visual hull's silhouette lies inside every mask; a mask that disagrees with the others
+// (a leak, a wrong pose) loses area. And the fraction of the carved hull's silhouette the surface
+// no longer covers: the hull's outline in a view is where the true surface touches that view's
+// silhouette cone, so a surface that lies inside it there was moved in against the masks.
+std::vector<ViewAgreement> SilhouetteAgreement(const std::vector<cv::Mat>& surface,
+                                               const std::vector<cv::Mat>& hull,
+                                               const std::vector<ViewWindow>& windows) {
+  std::vector<ViewAgreement> out(windows.size());
+  ParallelFor(windows.size(), kWorkerThreads, [&](size_t vi) {
+    const cv::Mat& sil = surface[vi];
     const cv::Mat small_mask = windows[vi].mask > 127;
     const double inter = cv::countNonZero(sil & small_mask);
     const double uni = cv::countNonZero(sil | small_mask);
-    iou[vi] = uni > 0 ? inter / uni : 0.0;
+    out[vi].iou = uni > 0 ? inter / uni : 0.0;
+    const double hull_px = cv::countNonZero(hull[vi]);
+    out[vi].outline_loss = hull_px > 0 ? cv::countNonZero(hull[vi] & ~sil) / hull_px : 0.0;
   });
-  return iou;
+  return out;
 }
 
 struct SurfaceOut {
@@ -871,6 +891,7 @@ Result<records::SurfaceRecord> SurfaceStage(
   }
   const std::vector<SampleView>& used_views = kept_views;
   const double carve_s = hull->seconds;
+  const std::vector<cv::Mat> hull_silhouettes = Silhouettes(hull->mesh, cam_from_object, windows);
   // Photo-consistency: the hull is an upper bound; concavities are recovered
   // where the textured photos agree on a deeper surface.
   json photo = {{"enabled", opts.photo_refine}};
@@ -952,7 +973,10 @@ Result<records::SurfaceRecord> SurfaceStage(
   if (!colors) return colors.error();
   const double colour_s = Seconds(tc);
   const auto ti = std::chrono::steady_clock::now();
-  const std::vector<double> iou = SilhouetteAgreement(hull->mesh, cam_from_object, windows);
+  const std::vector<ViewAgreement> agreement = SilhouetteAgreement(
+      Silhouettes(hull->mesh, cam_from_object, windows), hull_silhouettes, windows);
+  std::vector<double> iou;
+  for (const ViewAgreement& a : agreement) iou.push_back(a.iou);
   const double iou_s = Seconds(ti);
   const auto te = std::chrono::steady_clock::now();
   for (auto [name, st] :
@@ -966,7 +990,7 @@ Result<records::SurfaceRecord> SurfaceStage(
   }
   std::vector<records::ViewIoU> jiou;
   for (size_t i = 0; i < used_views.size(); ++i)
-    jiou.push_back({used_views[i].side, used_views[i].view, iou[i]});
+    jiou.push_back({used_views[i].side, used_views[i].view, iou[i], agreement[i].outline_loss});
   // A mask far larger than the model's silhouette in it (a leak, a pose that
   // does not fit) does not carve the model, but it disagrees: named.
   std::vector<records::ViewNote> disagreeing;
@@ -1337,13 +1361,19 @@ Status MorphologyStage(SampleRun& r) {
   const double circ_mean = ComputeStats(overall["circularity"]).mean;
   const double lo = std::min(p.c_over_b, p.b_over_a), hi = std::max(p.c_over_b, p.b_over_a);
 
-  std::vector<double> ious;
+  std::vector<double> ious, losses;
   json iou_json = json::array();
   for (const records::ViewIoU& e : r.surface.silhouette_iou) {
     ious.push_back(e.iou);
-    iou_json.push_back({{"side", e.side}, {"view", e.view}, {"iou", e.iou}});
+    json v = {{"side", e.side}, {"view", e.view}, {"iou", e.iou}};
+    if (e.outline_loss) {
+      losses.push_back(*e.outline_loss);
+      v["outline_loss"] = *e.outline_loss;
+    }
+    iou_json.push_back(std::move(v));
   }
   const Stats iou = ComputeStats(ious);
+  const Stats loss = ComputeStats(losses);
   auto opt = [](const auto& o) { return o ? json(*o) : json(); };
   json quality = {
       {"silhouette_iou_mean", iou.mean},
@@ -1351,6 +1381,12 @@ Status MorphologyStage(SampleRun& r) {
       {"silhouette_iou_note",
        "IoU of each mask with the reconstructed surface's silhouette: an estimate of mask and pose "
        "consistency (1 = every mask agrees with all the others)"},
+      {"outline_loss_mean", losses.empty() ? json() : json(loss.mean)},
+      {"outline_loss_max", losses.empty() ? json() : json(loss.max)},
+      {"outline_loss_note",
+       "fraction of the carved hull's silhouette, per view, that the surface no longer covers: "
+       "how far the photo refinement moved the outline the masks agree on inward (0 = not at "
+       "all)"},
       {"calibration_reprojection_rms_px", r.cal->reprojection_rms_px},
       {"stitch_rms_mm", opt(r.stitch.rms_mm)},
       {"stitch_max_mm", opt(r.stitch.max_mm)},
