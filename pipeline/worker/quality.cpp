@@ -52,6 +52,26 @@ json QualityFlags(const json& quality, const json& stitch, const json& silhouett
     Add(&flags, "mask_consistency", b);
   }
 
+  // The photo refinement moves vertices inward only where the photos agree
+  // on a deeper surface. Where the masks are sound, the hull's outline in a
+  // view is where the rock touches that view's silhouette cone, so no sound
+  // move takes it in; gloss that moves with the view (a wet stone) or faint
+  // texture can mislead the depth search all round the rock. Masks that all
+  // take in the same contact shadow make a hull whose outline the
+  // refinement rightly takes in: those are flagged above, and judged there.
+  const bool masks_flagged = !flags.empty();
+  if (const double loss = Num(quality, "outline_loss_mean", 0);
+      !masks_flagged && loss > lim.outline_loss) {
+    std::snprintf(b, sizeof b,
+                  "the photo refinement took the surface inside the outline the masks agree on: "
+                  "it no longer covers %.2f %% of the carved hull's silhouettes on average (worst "
+                  "view %.2f %%; limit %.2f %%), so the volume is likely low; gloss or faint "
+                  "texture misleads the depth search: check the photos, or reconstruct with the "
+                  "hull alone (aggscan reconstruct SAMPLE --surface hull) for an upper bound",
+                  100 * loss, 100 * Num(quality, "outline_loss_max", loss), 100 * lim.outline_loss);
+    Add(&flags, "outline_loss", b);
+  }
+
   for (const json& s : stitch.value("stitches", json::array())) {
     if (!s.is_object()) continue;
     const int side = s.value("side", 0), onto = s.value("onto_side", 1);
@@ -69,6 +89,23 @@ json QualityFlags(const json& quality, const json& stitch, const json& silhouett
           "%.4f more); the sides may be joined wrongly",
           side, onto, source.c_str(), deficit, deficit - own, lim.stitch_deficit);
       Add(&flags, "stitch_unconfirmed", b);
+    }
+    // No marker point and no feature match gave a start: the motion was
+    // found by searching every orientation for the one the outlines fit,
+    // and nothing independent of the masks confirms it. Unique does not
+    // mean precise: at 1008 px wide such stitches came out 0.8-1.6 deg off
+    // on Blender and sim renders, with the volume 2-3 % off.
+    if (sil.contains("search")) {
+      std::snprintf(b, sizeof b,
+                    "side %d's stitch onto side %d rests on the silhouettes alone: no object "
+                    "marker point seen on both sides and no feature match gave a start, so the "
+                    "motion was found by searching every orientation (best %.4f uncovered, the "
+                    "runner-up %.4f at %.0f deg) and nothing but the masks confirms it; the "
+                    "figures may be off by a few per cent: re-shoot side %d with both object "
+                    "markers facing the camera in some views",
+                    side, onto, deficit, Num(sil.at("search"), "runner_up_deficit", 0),
+                    Num(sil.at("search"), "runner_up_deg", 0), side);
+      Add(&flags, "stitch_outline_only", b);
     }
     if (!s.value("consistent", true)) {
       std::snprintf(b, sizeof b,

@@ -25,13 +25,20 @@ struct QualityLimits {
   double stitch_deficit = 0.011;
   double scale_residual_mm =
       0.5;  // scale references (labels, ArUco) against their configured distances
+  /// Mean fraction of the carved hull's silhouettes that the surface no
+  /// longer covers. A surface moved in by d all round a rock of size L loses
+  /// about 2d/L of its outline and 3d/L of its volume; the Taubin smoothing
+  /// and the depth search's noise about the hull take in a little on sound
+  /// captures too.
+  double outline_loss = 0.012;
 };
 
 /// The flags, [{"code", "reason"}], of a reconstruction from its quality
 /// block (morphology.json "quality"), its stitch record (results/stitch.json)
 /// and the surface's per-view silhouette IoU ([{"side", "view", "iou"}]).
-/// Codes: mask_consistency, stitch_unconfirmed, stitch_disagreement,
-/// stitch_residual, scale_residual, not_watertight.
+/// Codes: mask_consistency, outline_loss, stitch_unconfirmed,
+/// stitch_outline_only, stitch_disagreement, stitch_residual, scale_residual,
+/// not_watertight.
 nlohmann::json QualityFlags(const nlohmann::json& quality, const nlohmann::json& stitch,
                             const nlohmann::json& silhouette_iou, const QualityLimits& limits = {});
 
