@@ -29,7 +29,8 @@ json QualityFlags(const json& quality, const json& stitch, const json& silhouett
   // the background, or loses part of the rock, disagrees with the others.
   const double iou_mean = Num(quality, "silhouette_iou_mean", 1.0);
   const double iou_min = Num(quality, "silhouette_iou_min", 1.0);
-  if (iou_mean < lim.silhouette_iou_mean || iou_min < lim.silhouette_iou_min) {
+  const bool masks_flagged = iou_mean < lim.silhouette_iou_mean || iou_min < lim.silhouette_iou_min;
+  if (masks_flagged) {
     std::string worst;
     double w = 2;
     for (const json& v : silhouette_iou) {
@@ -59,7 +60,6 @@ json QualityFlags(const json& quality, const json& stitch, const json& silhouett
   // texture can mislead the depth search all round the rock. Masks that all
   // take in the same contact shadow make a hull whose outline the
   // refinement rightly takes in: those are flagged above, and judged there.
-  const bool masks_flagged = !flags.empty();
   if (const double loss = Num(quality, "outline_loss_mean", 0);
       !masks_flagged && loss > lim.outline_loss) {
     std::snprintf(b, sizeof b,
@@ -90,16 +90,16 @@ json QualityFlags(const json& quality, const json& stitch, const json& silhouett
           side, onto, source.c_str(), deficit, deficit - own, lim.stitch_deficit);
       Add(&flags, "stitch_unconfirmed", b);
     }
-    // No marker point and no feature match gave a start: the motion was
-    // found by searching every orientation for the one the outlines fit,
-    // and nothing independent of the masks confirms it. Unique does not
-    // mean precise: at 1008 px wide such stitches came out 0.8-1.6 deg off
-    // on Blender and sim renders, with the volume 2-3 % off.
+    // No start from markers or features that the silhouettes accept: the
+    // motion was found by searching every orientation for the one the
+    // outlines fit, and nothing independent of the masks confirms it.
+    // Unique does not mean precise: at 1008 px wide such stitches came out
+    // 0.8-1.6 deg off on sim and Blender renders (docs/validation.md).
     if (sil.contains("search")) {
       std::snprintf(b, sizeof b,
-                    "side %d's stitch onto side %d rests on the silhouettes alone: no object "
-                    "marker point seen on both sides and no feature match gave a start, so the "
-                    "motion was found by searching every orientation (best %.4f uncovered, the "
+                    "side %d's stitch onto side %d rests on the silhouettes alone: no start "
+                    "from the object markers or feature matches that the silhouettes accept, so "
+                    "the motion was found by searching every orientation (best %.4f uncovered, the "
                     "runner-up %.4f at %.0f deg) and nothing but the masks confirms it; the "
                     "figures may be off by a few per cent: re-shoot side %d with both object "
                     "markers facing the camera in some views",

@@ -891,7 +891,9 @@ Result<records::SurfaceRecord> SurfaceStage(
   }
   const std::vector<SampleView>& used_views = kept_views;
   const double carve_s = hull->seconds;
+  const auto th = std::chrono::steady_clock::now();
   const std::vector<cv::Mat> hull_silhouettes = Silhouettes(hull->mesh, cam_from_object, windows);
+  const double hull_silhouettes_s = Seconds(th);
   // Photo-consistency: the hull is an upper bound; concavities are recovered
   // where the textured photos agree on a deeper surface.
   json photo = {{"enabled", opts.photo_refine}};
@@ -975,9 +977,9 @@ Result<records::SurfaceRecord> SurfaceStage(
   const auto ti = std::chrono::steady_clock::now();
   const std::vector<ViewAgreement> agreement = SilhouetteAgreement(
       Silhouettes(hull->mesh, cam_from_object, windows), hull_silhouettes, windows);
-  std::vector<double> iou;
-  for (const ViewAgreement& a : agreement) iou.push_back(a.iou);
-  const double iou_s = Seconds(ti);
+  std::vector<double> iou(agreement.size());
+  for (size_t i = 0; i < agreement.size(); ++i) iou[i] = agreement[i].iou;
+  const double iou_s = Seconds(ti) + hull_silhouettes_s;
   const auto te = std::chrono::steady_clock::now();
   for (auto [name, st] :
        {std::pair{layout::kMeshPly,

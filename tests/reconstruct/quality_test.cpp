@@ -98,6 +98,7 @@ TEST(QualityFlags, ARefinementThatTakesInTheOutlineIsFlagged) {
   q["outline_loss_mean"] = 0.0200;
   q["outline_loss_max"] = 0.0429;
   const json flags = QualityFlags(q, Stitch(0.0035, true, 0.12), iou);
+  ASSERT_EQ(flags.size(), 1u) << flags.dump();
   EXPECT_EQ(Codes(flags), std::set<std::string>{"outline_loss"});
   const std::string reason = flags[0]["reason"];
   EXPECT_NE(reason.find("no longer covers 2.00 % of the carved hull's silhouettes on average "
@@ -114,7 +115,11 @@ TEST(QualityFlags, ARefinementThatTakesInTheOutlineIsFlagged) {
   shadowed["silhouette_iou_min"] = 0.812;
   EXPECT_EQ(Codes(QualityFlags(shadowed, Stitch(0.0035, true, 0.12), iou)),
             std::set<std::string>{"mask_consistency"});
-  // A record written before the figure was measured: nothing to judge.
+  // A surface without per-view figures (null) or a record written before
+  // they were measured (absent): nothing to judge.
+  q["outline_loss_mean"] = nullptr;
+  q["outline_loss_max"] = nullptr;
+  EXPECT_TRUE(QualityFlags(q, Stitch(0.0035, true, 0.12), iou).empty());
   q.erase("outline_loss_mean");
   EXPECT_TRUE(QualityFlags(q, Stitch(0.0035, true, 0.12), iou).empty());
 }
@@ -131,6 +136,7 @@ TEST(QualityFlags, AStitchFoundBySearchingTheOutlinesAloneIsFlagged) {
   stitch["stitches"][0]["source"] = "silhouettes";
   const json iou = json::array({{{"side", 1}, {"view", 0}, {"iou", 0.98}}});
   const json flags = QualityFlags(SoundQuality(), stitch, iou);
+  ASSERT_EQ(flags.size(), 1u) << flags.dump();
   EXPECT_EQ(Codes(flags), std::set<std::string>{"stitch_outline_only"});
   const std::string reason = flags[0]["reason"];
   EXPECT_NE(reason.find("best 0.0086 uncovered, the runner-up 0.0319 at 176 deg"),
