@@ -425,6 +425,16 @@ Result<std::map<std::string, double>> NumberMap(const json& j, const char* key,
 
 }  // namespace
 
+json SurfaceRecord::SilhouetteIoUJson() const {
+  json iou = json::array();
+  for (const ViewIoU& v : silhouette_iou) {
+    json e = {{"side", v.side}, {"view", v.view}, {"iou", v.iou}};
+    if (v.outline_loss) e["outline_loss"] = *v.outline_loss;
+    iou.push_back(std::move(e));
+  }
+  return iou;
+}
+
 json SurfaceRecord::ToJson() const {
   json j = Base(extra);
   j["schema"] = kRecordSchema;
@@ -435,13 +445,7 @@ json SurfaceRecord::ToJson() const {
   j["views"] = views;
   j["voxel_mm"] = voxel_mm;
   j["files"] = files;
-  json iou = json::array();
-  for (const ViewIoU& v : silhouette_iou) {
-    json e = {{"side", v.side}, {"view", v.view}, {"iou", v.iou}};
-    if (v.outline_loss) e["outline_loss"] = *v.outline_loss;
-    iou.push_back(std::move(e));
-  }
-  j["silhouette_iou"] = std::move(iou);
+  j["silhouette_iou"] = SilhouetteIoUJson();
   json out = json::array(), dis = json::array();
   for (const ViewNote& n : views_left_out) out.push_back(NoteToJson(n));
   for (const ViewNote& n : views_disagreeing) dis.push_back(NoteToJson(n));

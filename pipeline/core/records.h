@@ -194,6 +194,8 @@ struct SurfaceRecord {
   nlohmann::json consistency = nlohmann::json::object();   // each view's sole carving
   nlohmann::json extra = nlohmann::json::object();
 
+  /// silhouette_iou as written in surface.json: [{side, view, iou[, outline_loss]}].
+  nlohmann::json SilhouetteIoUJson() const;
   nlohmann::json ToJson() const;
   static Result<SurfaceRecord> FromJson(const nlohmann::json& j, const jsonio::Source& src);
 };

@@ -1364,16 +1364,11 @@ Status MorphologyStage(SampleRun& r) {
   const double lo = std::min(p.c_over_b, p.b_over_a), hi = std::max(p.c_over_b, p.b_over_a);
 
   std::vector<double> ious, losses;
-  json iou_json = json::array();
   for (const records::ViewIoU& e : r.surface.silhouette_iou) {
     ious.push_back(e.iou);
-    json v = {{"side", e.side}, {"view", e.view}, {"iou", e.iou}};
-    if (e.outline_loss) {
-      losses.push_back(*e.outline_loss);
-      v["outline_loss"] = *e.outline_loss;
-    }
-    iou_json.push_back(std::move(v));
+    if (e.outline_loss) losses.push_back(*e.outline_loss);
   }
+  const json iou_json = r.surface.SilhouetteIoUJson();
   const Stats iou = ComputeStats(ious);
   const Stats loss = ComputeStats(losses);
   auto opt = [](const auto& o) { return o ? json(*o) : json(); };
