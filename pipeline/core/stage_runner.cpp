@@ -158,6 +158,7 @@ Result<StageRunReport> RunStages(const std::string& sample_dir,
   StageRunReport report;
   bool afresh = false;   // an earlier stage runs afresh: so does every later one
   bool resumed = false;  // an earlier stage resumes: no later one is kept
+  bool asked = false;    // the stage named by opts.from has been reached
   const int n = static_cast<int>(stages.size());
   for (int i = 0; i < n; ++i) {
     const StageDecl& d = stages[i];
@@ -167,7 +168,8 @@ Result<StageRunReport> RunStages(const std::string& sample_dir,
       return MakeError(ErrorClass::kCancelled, "job of " + sample_id + " cancelled before stage " +
                                                    d.name + "; it resumes there when run again");
     }
-    if (!opts.from.empty() && (opts.from == d.name || opts.from == family)) afresh = true;
+    const bool earlier_afresh = afresh;
+    if (!opts.from.empty() && (opts.from == d.name || opts.from == family)) asked = afresh = true;
     const json entry = recorded.value(d.name, json::object());
     const bool same = entry.value("fingerprint", "") == d.fingerprint;
     enum { kKeep, kResume, kAfresh } mode = kAfresh;
@@ -192,11 +194,12 @@ Result<StageRunReport> RunStages(const std::string& sample_dir,
         }
       }
       if (!entry.empty()) {
+        const char* why = asked            ? nullptr
+                          : !same          ? "other options or inputs"
+                          : earlier_afresh ? "an earlier stage ran again"
+                                           : "an output is missing";
         LogLine(LogLevel::kInfo, kCat, sample_id,
-                d.name + ": runs again (" +
-                    (opts.from.empty() ? (same ? "an output is missing" : "other options or inputs")
-                                       : "asked from " + opts.from) +
-                    ")");
+                d.name + ": runs again (" + (why ? why : "asked from " + opts.from) + ")");
       }
     }
     if (mode != kKeep) {

@@ -1531,9 +1531,15 @@ struct SampleFingerprints {
 Result<std::string> CalibrationFingerprint(const SampleRun& r) {
   Fingerprint f;
   f.Add("stage", std::string_view("calibration"));
+  // Which calibration (the sample's own copy or the rig's), not where the
+  // sample lies: a sample moved or copied elsewhere keeps its stages.
   std::string path = r.dir + "/" + layout::kCalibrationCopy;
-  if (!PathExists(path) && !r.opts.state_dir.empty()) path = CalibrationPath(r.opts.state_dir);
-  f.Add("source", std::string_view(path));
+  std::string source = "sample";
+  if (!PathExists(path) && !r.opts.state_dir.empty()) {
+    path = CalibrationPath(r.opts.state_dir);
+    source = "state_dir";
+  }
+  f.Add("source", std::string_view(source));
   if (Status s = f.AddFile("calibration", path); !s) return s.error();
   return f.Hex();
 }

@@ -127,6 +127,30 @@ TEST_F(StageRunnerTest, AMissingOutputOrFromRerunsFromThere) {
   EXPECT_NE(r.error().message.find("a, b-family, c"), std::string::npos) << r.error().message;
 }
 
+TEST_F(StageRunnerTest, TheLogSaysWhyEachStageRunsAgain) {
+  ASSERT_TRUE(RunStages(dir_, Job(kFp), {}).ok());
+  auto fp = kFp;
+  fp["a"] = "1'";  // a's options changed; b and c are the same but follow a
+  StageRunOptions from;
+  from.from = "c";  // asked for c only: a and b run for their own reasons
+  testing::internal::CaptureStderr();
+  auto r = RunStages(dir_, Job(fp), from);
+  const std::string log = testing::internal::GetCapturedStderr();
+  ASSERT_TRUE(r.ok()) << r.error().ToString();
+  EXPECT_EQ(r->ran, (std::vector<std::string>{"a", "b", "c"}));
+  EXPECT_NE(log.find("a: runs again (other options or inputs)"), std::string::npos) << log;
+  EXPECT_NE(log.find("b: runs again (an earlier stage ran again)"), std::string::npos) << log;
+  EXPECT_NE(log.find("c: runs again (asked from c)"), std::string::npos) << log;
+
+  fs::remove(dir_ + "/results/b.txt");
+  testing::internal::CaptureStderr();
+  r = RunStages(dir_, Job(fp), {});
+  const std::string log2 = testing::internal::GetCapturedStderr();
+  ASSERT_TRUE(r.ok()) << r.error().ToString();
+  EXPECT_NE(log2.find("b: runs again (an output is missing)"), std::string::npos) << log2;
+  EXPECT_NE(log2.find("c: runs again (an earlier stage ran again)"), std::string::npos) << log2;
+}
+
 TEST_F(StageRunnerTest, AStageThatStoppedResumesInPlaceWithItsPartialWork) {
   fail_b_ = true;
   auto r = RunStages(dir_, Job(kFp), {});

@@ -451,6 +451,18 @@ TEST(ReconstructCommand, SurfaceAndPosesOptionsChooseTheMethods) {
   const json p6 = json::parse(*ReadFile(res + "poses_side1.json"));
   EXPECT_NE(p6["bundle_adjustment"].value("reason", ""), "bundle adjustment is turned off")
       << p6.dump();
+
+  // The sample copied elsewhere (an archive, another machine): nothing runs
+  // again, the place is not an input.
+  test::TempDir elsewhere;
+  const std::string copy = elsewhere.path() + "/" + id;
+  fs::copy(sample, copy, fs::copy_options::recursive);
+  std::ostringstream out7, err7;
+  ASSERT_EQ(RunReconstructCommand({copy, "--state-dir", tmp.path(), "--poses", "turntable+ba"},
+                                  out7, err7),
+            0)
+      << err7.str();
+  EXPECT_EQ(json::parse(*ReadFile(copy + "/results/stages.json"))["stages"], sixth) << err7.str();
 }
 
 }  // namespace
