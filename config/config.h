@@ -329,7 +329,11 @@ struct SimConfig {
   double k1 = -0.08;                   // radial distortion (Brown) coefficients
   double k2 = 0.02;
   double noise_sigma = 2.0;  // sensor noise, 8-bit levels
-  bool write_truth = false;  // write ground-truth masks/poses next to the sample (tests)
+  // A wet or polished stone: the key light's specular highlight (Phong), this
+  // strong against the key's diffuse light (0 = a matte stone) ...
+  double rock_gloss = 0.0;
+  double rock_shininess = 60.0;  // ... and this sharp (Phong exponent)
+  bool write_truth = false;      // write ground-truth masks/poses next to the sample (tests)
   // The sim's operator at a hand-turned table (turntable.backend = "manual"):
   // after each prompt the hand waits a reaction time, then turns the table by
   // the plan's step plus a uniform error within +-hand_angle_error_deg over a

@@ -208,6 +208,9 @@ struct Renderer::Impl {
   // Rock faces: planes in the rock frame.
   std::vector<float> fn;  // 3 per face
   std::vector<float> fd;
+  // With gloss: smooth (area-weighted) vertex normals for the highlight, which
+  // on the flat faces alone would light whole chips at once.
+  std::vector<Vec3> vn;
   // Shadow map in light coordinates (e1, e2, key along the light).
   Vec3 e1, e2;
   int sm_w = 0, sm_h = 0;
@@ -231,6 +234,7 @@ struct Renderer::Impl {
   Intrinsics intr;
   float disc_r = 0, disc_r2 = 0;
   Lighting light;
+  float gloss = 0, shininess = 60;  // [sim] rock_gloss, rock_shininess
   Rigid cam_to_world;
   // Cached static background (8-bit, before noise) and the gains it was made with.
   std::vector<uint8_t> base;
@@ -309,6 +313,7 @@ bool Renderer::Impl::Shade(const FrameState& fs, int u, int v, float rgb[3], flo
       const Vec3 n{nx, ny, nz};
       const std::array<float, 3> alb = world->RockAlbedo(p, n);
       float lit = static_cast<float>(Dot(n, fs.Lr));
+      float key_vis = lit > 0 ? 1.0f : 0.0f;  // the key light reaches p (for the highlight)
       if (lit > 0) {
         // Self-shadow: bilinear percentage-closer test on the light depth map.
         const double su = (Dot(fs.au, p) + fs.bu - sm_u0) / sm_texel;
@@ -321,13 +326,38 @@ bool Renderer::Impl::Shade(const FrameState& fs, int u, int v, float rgb[3], flo
           const float vis = ((pk >= k[0]) * (1 - fu) + (pk >= k[1]) * fu) * (1 - fv) +
                             ((pk >= k[sm_w]) * (1 - fu) + (pk >= k[sm_w + 1]) * fu) * fv;
           lit *= vis;
+          key_vis = vis;
         }
       } else {
         lit = 0;
       }
       const float amb = amb_i * (0.8f + 0.2f * static_cast<float>(Dot(n, fs.up_r)));
       const float e = key_i * lit + amb;
-      rgb[0] = alb[0] * e, rgb[1] = alb[1] * e, rgb[2] = alb[2] * e;
+      // A wet stone's highlight (Blinn-Phong, white: the coat reflects the
+      // light's colour). The light stands still while the rock turns, so the
+      // highlight slides over the stone from view to view.
+      float spec = 0;
+      if (gloss > 0 && key_vis > 0 && !vn.empty()) {
+        // The vertex normals interpolated at p (barycentric in the face).
+        const auto& f = world->rock().faces[t];
+        const Vec3 a = ToVec3(world->rock().vertices[f[0]]);
+        const Vec3 e1f = ToVec3(world->rock().vertices[f[1]]) - a;
+        const Vec3 e2f = ToVec3(world->rock().vertices[f[2]]) - a;
+        const Vec3 q = p - a;
+        const double d00 = Dot(e1f, e1f), d01 = Dot(e1f, e2f), d11 = Dot(e2f, e2f);
+        const double det = d00 * d11 - d01 * d01;
+        double bu = 0, bv = 0;
+        if (det > 1e-12) {
+          const double q0 = Dot(q, e1f), q1 = Dot(q, e2f);
+          bu = std::clamp((d11 * q0 - d01 * q1) / det, 0.0, 1.0);
+          bv = std::clamp((d00 * q1 - d01 * q0) / det, 0.0, 1.0 - bu);
+        }
+        const Vec3 ns = Normalized(vn[f[0]] * (1 - bu - bv) + vn[f[1]] * bu + vn[f[2]] * bv);
+        const Vec3 to_cam = Normalized(Vec3{fs.ox, fs.oy, fs.oz} - p);
+        const float nh = static_cast<float>(Dot(ns, Normalized(fs.Lr + to_cam)));
+        if (nh > 0) spec = gloss * key_i * key_vis * std::pow(nh, shininess);
+      }
+      rgb[0] = alb[0] * e + spec, rgb[1] = alb[1] * e + spec, rgb[2] = alb[2] * e + spec;
       return true;
     }
   }
@@ -454,6 +484,16 @@ Renderer::Renderer(const SimWorld& world, int width, int height)
     m.fd[f] = static_cast<float>(Dot(n, ToVec3(rock.vertices[rock.faces[f][0]])));
   }
   const size_t nv = rock.vertices.size();
+  if (world.config().sim.rock_gloss > 0) {
+    m.vn.assign(nv, Vec3{0, 0, 0});
+    for (const auto& f : rock.faces) {
+      const Vec3 a = ToVec3(rock.vertices[f[0]]), b = ToVec3(rock.vertices[f[1]]),
+                 c = ToVec3(rock.vertices[f[2]]);
+      const Vec3 w = Cross(b - a, c - a);  // area-weighted
+      for (int k = 0; k < 3; ++k) m.vn[f[k]] = m.vn[f[k]] + w;
+    }
+    for (Vec3& n : m.vn) n = Normalized(n);
+  }
   m.xi.resize(nv), m.yi.resize(nv), m.key.resize(nv), m.valid.resize(nv), m.fu.resize(nv),
       m.fv.resize(nv);
 
@@ -473,6 +513,8 @@ Renderer::Renderer(const SimWorld& world, int width, int height)
   m.cam_to_world = w2c_.Inverse();
   m.intr = intr_;
   m.light = world.lighting();
+  m.gloss = static_cast<float>(world.config().sim.rock_gloss);
+  m.shininess = static_cast<float>(world.config().sim.rock_shininess);
   m.disc_r = static_cast<float>(world.config().rig.turntable_diameter_mm / 2);
   m.disc_r2 = m.disc_r * m.disc_r;
   m.r2_corner =

@@ -289,6 +289,38 @@ TEST(SimRender, ShadowDarkensTheDiscBesideTheRock) {
   EXPECT_LT(shadow + 40, lit);
 }
 
+TEST(SimRender, AWetStoneHasHighlightsOnTheRockOnly) {
+  // [sim] rock_gloss adds the key light's highlight: on the rock only, never
+  // darkening it, the silhouette unchanged.
+  Config c = TestConfig();
+  c.sim.noise_sigma = 0;
+  const SimWorld matte(c, {.rock_faces = 4000});
+  c.sim.rock_gloss = 2.0;
+  c.sim.rock_shininess = 40.0;
+  const SimWorld wet(c, {.rock_faces = 4000});
+  Renderer rm(matte, 640, 480), rw(wet, 640, 480);
+  RenderOptions o;
+  o.want_mask = true;
+  for (const double angle : {0.0, 20.0}) {
+    const RenderedImage m = rm.Render(1, angle, o), w = rw.Render(1, angle, o);
+    ASSERT_EQ(m.mask, w.mask);
+    int background_changed = 0, rock_darker = 0, highlight = 0;
+    for (size_t i = 0; i < m.mask.size(); ++i) {
+      int gain = 0;
+      for (int ch = 0; ch < 3; ++ch) {
+        const int d = w.rgb[3 * i + ch] - m.rgb[3 * i + ch];
+        background_changed += !m.mask[i] && d != 0;
+        rock_darker += m.mask[i] && d < 0;
+        gain += d;
+      }
+      highlight += m.mask[i] && gain > 3 * 30;
+    }
+    EXPECT_EQ(background_changed, 0) << angle;
+    EXPECT_EQ(rock_darker, 0) << angle;
+    EXPECT_GT(highlight, 20) << angle;  // pixels at least 30 levels brighter
+  }
+}
+
 TEST(SimJpeg, RejectsGarbageAndWritesPgm) {
   const std::vector<unsigned char> junk(100, 0x42);
   Result<RgbImage> r = DecodeJpeg(junk);
