@@ -38,6 +38,10 @@ std::vector<std::string> PhotoRefineOptions::Check() const {
   if (!(near_hull_mm >= 0 && near_hull_mm <= max_depth_mm))
     p.push_back("near_hull_mm must be in [0, max_depth_mm]");
   if (!(outside_mm >= 0 && outside_mm <= 5)) p.push_back("outside_mm must be in [0, 5]");
+  if (!(highlight_depth_ratio >= 0 && highlight_depth_ratio <= 2))
+    p.push_back("highlight_depth_ratio must be in [0, 2] (0: off)");
+  if (!(highlight_reach_mm > 0 && highlight_reach_mm <= 50))
+    p.push_back("highlight_reach_mm must be in (0, 50]");
   if (!(move_reach >= 0 && move_reach <= 4)) p.push_back("move_reach must be in [0, 4]");
   if (!(min_on_rock > 0 && min_on_rock <= 1)) p.push_back("min_on_rock must be in (0, 1]");
   if (untangle_passes < 0) p.push_back("untangle_passes must be >= 0");
@@ -557,6 +561,21 @@ std::optional<double> PickDepth(const std::vector<double>& score, const DepthGri
   return opts.outside_mm > 0 ? d : std::max(0.0, d);
 }
 
+double HullConvexCurvature(const Surface& s, size_t i, double reach_mm) {
+  const Vec3& n = s.N[i];
+  const Vec3 t1 = n.unitOrthogonal(), t2 = n.cross(t1);
+  const Eigen::Vector3d q = LocalQuadric(s.V, s.nb, i, n, t1, t2, reach_mm);
+  // Largest eigenvalue of the curvature matrix [[A, B], [B, C]].
+  const double mean = 0.5 * (q[0] + q[2]);
+  const double k = mean + std::hypot(0.5 * (q[0] - q[2]), q[1]);
+  return std::max(0.0, k);
+}
+
+bool LooksLikeHighlight(double depth_mm, double k, const PhotoRefineOptions& opts) {
+  return opts.highlight_depth_ratio > 0 && depth_mm > opts.near_hull_mm &&
+         depth_mm * k > opts.highlight_depth_ratio;
+}
+
 VertexDepth SearchVertexDepth(const Surface& s, size_t i, const std::vector<PreparedView>& views,
                               const PhotoRefineOptions& opts) {
   VertexDepth out;
@@ -569,6 +588,11 @@ VertexDepth SearchVertexDepth(const Surface& s, size_t i, const std::vector<Prep
   const std::vector<double> score =
       SearchScores([&](double d) { return scorer.Score(d); }, grid, opts.depth_search_stride);
   out.depth_mm = PickDepth(score, grid, opts);
+  if (out.depth_mm && *out.depth_mm > opts.near_hull_mm && opts.highlight_depth_ratio > 0 &&
+      LooksLikeHighlight(*out.depth_mm, HullConvexCurvature(s, i, opts.highlight_reach_mm), opts)) {
+    out.depth_mm.reset();
+    out.highlight = true;
+  }
   return out;
 }
 
@@ -579,10 +603,12 @@ DepthData SearchDepths(const Surface& s, const std::vector<PreparedView>& views,
   data.depth_mm.assign(nv, 0.0);
   data.weight.assign(nv, 0.0);
   data.had_views.assign(nv, 0);
+  data.highlight.assign(nv, 0);
   ParallelFor(nv, opts.threads, [&](size_t i) {
     if (!scored[i]) return;
     const VertexDepth r = SearchVertexDepth(s, i, views, opts);
     data.had_views[i] = r.had_views ? 1 : 0;
+    data.highlight[i] = r.highlight ? 1 : 0;
     if (r.depth_mm) {
       data.depth_mm[i] = *r.depth_mm;
       data.weight[i] = 1;
@@ -759,6 +785,7 @@ void Summarise(const Surface& s, const DepthData& data, const std::vector<Vec3>&
   for (size_t i = 0; i < nv; ++i) {
     res->vertices_scored += data.had_views[i] ? 1 : 0;
     res->vertices_confident += data.weight[i] > 0 ? 1 : 0;
+    res->vertices_highlight += data.highlight[i];
   }
   res->mesh.faces = s.F;
   res->mesh.vertices.resize(nv);

@@ -24,7 +24,9 @@
 //     the hull keep 0 as data. The search starts outside_mm outside the hull,
 //     so that a peak at or near the hull gets its sub-step position, noise
 //     included on both sides: clamping each vertex's data at the hull would
-//     bias the surface outward.
+//     bias the surface outward. A deep peak under a strongly convex part of
+//     the hull is taken for a glossy stone's highlight, not the surface
+//     (highlight_depth_ratio), and gives no data.
 //  4. The displacement field is regularised: a data-weighted Laplacian
 //     smoothing fills in vertices without data from their neighbours and
 //     smooths the rest; data farther than outlier_mm from that field are
@@ -108,6 +110,19 @@ struct PhotoRefineOptions {
   double min_gain = 0.1;      // ... and at least this above the NCC at the hull,
   double near_hull_mm = 0.5;  // ... for a peak deeper than this (shallower: the peak alone)
   double outside_mm = 0.6;    // hypotheses start this far outside the hull (0: at the hull)
+  // A wet or polished stone's highlights are no texture of its surface. On a
+  // turntable the light turns with the camera round the rock, so a highlight
+  // stays where the surface faces halfway between light and camera: on a
+  // patch curved like a sphere of radius R it moves with the sphere's centre,
+  // and patches that match it across views find a depth R/2 to R inside
+  // (R when the light is at the camera). A peak deeper than
+  // highlight_depth_ratio x R, R = 1 / the hull's largest convex curvature
+  // over highlight_reach_mm, is therefore no data (0: off). Real hollows lie
+  // under flat or gently curved hull (a hull spans a hollow), where R is
+  // large; docs/validation.md has what it changed on wet Blender stones and
+  // what it cost on matte ones.
+  double highlight_depth_ratio = 0.3;
+  double highlight_reach_mm = 8.0;
   int sample_rings =
       1;  // score one vertex per this many rings (0: every vertex); the rest are filled in
   double outlier_mm =
@@ -136,6 +151,7 @@ struct PhotoRefineResult {
   int64_t vertices = 0;         // of the mesh
   int64_t vertices_scored = 0;  // with at least two views to compare
   int64_t vertices_confident = 0;
+  int64_t vertices_highlight = 0;   // scored, their peak refused as a highlight (no data)
   int64_t vertices_moved = 0;       // final displacement > 0.05 mm
   double mean_displacement_mm = 0;  // over moved vertices
   double max_displacement_mm = 0;

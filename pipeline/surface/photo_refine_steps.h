@@ -149,9 +149,19 @@ std::vector<double> SearchScores(const std::function<double(double depth_mm)>& s
 std::optional<double> PickDepth(const std::vector<double>& score, const DepthGrid& grid,
                                 const PhotoRefineOptions& opts);
 
+/// The hull's largest convex curvature at vertex i (1/mm, >= 0; at most
+/// 1 / reach_mm): the local quadric over the vertices within reach_mm; 0
+/// where the hull is convex in no direction.
+double HullConvexCurvature(const Surface& s, size_t i, double reach_mm);
+
+/// A confident peak this deep, where the hull's largest convex curvature is
+/// k, is a highlight's (PhotoRefineOptions::highlight_depth_ratio).
+bool LooksLikeHighlight(double depth_mm, double k, const PhotoRefineOptions& opts);
+
 struct VertexDepth {
   bool had_views = false;          // at least two views to compare
   std::optional<double> depth_mm;  // confident data, inward
+  bool highlight = false;          // a confident peak refused as a highlight's
 };
 VertexDepth SearchVertexDepth(const Surface& s, size_t i, const std::vector<PreparedView>& views,
                               const PhotoRefineOptions& opts);
@@ -161,6 +171,7 @@ struct DepthData {
   std::vector<double> depth_mm;  // 0 without data
   std::vector<double> weight;    // 1 with data, else 0
   std::vector<char> had_views;
+  std::vector<char> highlight;  // VertexDepth::highlight
 };
 /// SearchVertexDepth over the `scored` vertices, opts.threads at a time.
 DepthData SearchDepths(const Surface& s, const std::vector<PreparedView>& views,

@@ -7,7 +7,7 @@ using json = nlohmann::json;
 // A field added to a struct changes its size: add the field below, then the
 // size here. Thread counts are left out: they do not change a result.
 static_assert(sizeof(MaskOptions) == 208, "MaskOptions changed: add the new field to OptionsJson");
-static_assert(sizeof(PhotoRefineOptions) == 192,
+static_assert(sizeof(PhotoRefineOptions) == 208,
               "PhotoRefineOptions changed: add the new field to OptionsJson");
 static_assert(sizeof(VisualHullOptions) == 40,
               "VisualHullOptions changed: add the new field to OptionsJson");
@@ -73,6 +73,8 @@ json OptionsJson(const PhotoRefineOptions& o) {
           {"depth_tolerance_mm", o.depth_tolerance_mm},
           {"min_ncc", o.min_ncc},
           {"min_gain", o.min_gain},
+          {"highlight_depth_ratio", o.highlight_depth_ratio},
+          {"highlight_reach_mm", o.highlight_reach_mm},
           {"near_hull_mm", o.near_hull_mm},
           {"outside_mm", o.outside_mm},
           {"sample_rings", o.sample_rings},

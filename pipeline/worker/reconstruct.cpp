@@ -954,6 +954,7 @@ Result<records::SurfaceRecord> SurfaceStage(
     photo.update({{"vertices", refined->vertices},
                   {"vertices_scored", refined->vertices_scored},
                   {"vertices_confident", refined->vertices_confident},
+                  {"vertices_highlight", refined->vertices_highlight},
                   {"vertices_moved", refined->vertices_moved},
                   {"mean_displacement_mm", refined->mean_displacement_mm},
                   {"max_displacement_mm", refined->max_displacement_mm},

@@ -289,5 +289,37 @@ TEST(PhotoRefineSteps, RegularisationKeepsAConstantFieldAndDropsAnOutlier) {
   EXPECT_EQ(field[centre], 0.0);
 }
 
+// The hull's convex curvature, on grids bent into a cap (a sphere's, radius
+// 20 mm), a cylinder's side (radius 20 mm), a bowl and a plane: 1 / R where
+// convex in some direction, none where it is convex in no direction.
+TEST(PhotoRefineSteps, HullConvexCurvatureIsOneOverTheSmallestConvexRadius) {
+  constexpr int kN = 41;
+  constexpr double kR = 20.0;
+  auto bent = [&](double sx, double sy) {
+    Mesh m = Grid(kN, 0.5, 0);
+    for (auto& v : m.vertices) v[2] = -(sx * v[0] * v[0] + sy * v[1] * v[1]) / (2 * kR);
+    return MakeSurface(m);
+  };
+  const size_t c = Centre(kN);
+  EXPECT_NEAR(HullConvexCurvature(bent(1, 1), c, 8.0), 1 / kR, 0.05 / kR);  // cap
+  EXPECT_NEAR(HullConvexCurvature(bent(1, 0), c, 8.0), 1 / kR, 0.05 / kR);  // cylinder
+  EXPECT_NEAR(HullConvexCurvature(bent(-1, -1), c, 8.0), 0.0, 1e-9);        // bowl
+  EXPECT_NEAR(HullConvexCurvature(bent(0, 0), c, 8.0), 0.0, 1e-6);          // plane
+  // A tighter cap than the reach can tell is held at 1 / reach.
+  Mesh tight = Grid(kN, 0.25, 0);
+  for (auto& v : tight.vertices) v[2] = -(v[0] * v[0] + v[1] * v[1]) / (2 * 3.0);
+  EXPECT_NEAR(HullConvexCurvature(MakeSurface(tight), c, 8.0), 1 / 8.0, 1e-9);
+
+  PhotoRefineOptions opts;                              // ratio 0.3
+  EXPECT_TRUE(LooksLikeHighlight(8.0, 1 / kR, opts));   // 0.4 R deep under a 20 mm cap
+  EXPECT_FALSE(LooksLikeHighlight(5.0, 1 / kR, opts));  // 0.25 R
+  EXPECT_FALSE(LooksLikeHighlight(12.0, 0.0, opts));    // under flat hull: a hollow
+  EXPECT_FALSE(LooksLikeHighlight(0.4, 1.0, opts));     // a near-hull peak is never one
+  opts.highlight_depth_ratio = 0;
+  EXPECT_FALSE(LooksLikeHighlight(8.0, 1 / kR, opts));  // off
+  opts.highlight_depth_ratio = -0.1;
+  EXPECT_FALSE(opts.Check().empty());
+}
+
 }  // namespace
 }  // namespace aggscan::photo_refine
