@@ -615,8 +615,9 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
       ++sr.evaluations;
       // A feature fit the silhouettes contradict (more uncovered than
       // silhouette_accept: few or clustered inliers) is replaced by its
-      // refinement when that is coherent; a coherent one is only checked
-      // (refined too with refine_features).
+      // refinement when that is coherent; a coherent one is refined too
+      // (refine_features) and replaced only by a clearly more coherent
+      // motion close to it.
       const bool contradicted = d0 > accept;
       if (contradicted || opts.refine_features) {
         const SilhouetteFit fit = refine(f.T, 2.0);
@@ -627,10 +628,19 @@ Result<StitchResult> StitchSides(const SideMarkers& ref, const SideMarkers& mov,
           sr.used = true;
           out.T = fit.T;
           out.source = "features+silhouettes";
-        } else if (contradicted) {
-          sr.note = "the feature estimate leaves " + std::to_string(d0) +
-                    " of the silhouettes uncovered (more than " + std::to_string(accept) +
-                    ") and its refinement is no better; the feature estimate is kept";
+        } else {
+          // The feature estimate is kept: the record's deficit is its own,
+          // which the quality flags judge, not the refinement's.
+          if (contradicted) {
+            sr.note = "the feature estimate leaves " + std::to_string(d0) +
+                      " of the silhouettes uncovered (more than " + std::to_string(accept) +
+                      ") and its refinement is no better; the feature estimate is kept";
+          } else {
+            sr.note = "the refinement (" + std::to_string(fit.deficit) + " uncovered, " +
+                      std::to_string(sr.moved_deg) +
+                      " deg away) is not clearly better; the feature estimate is kept";
+          }
+          sr.deficit = d0;
         }
       } else {
         sr.tried = true;

@@ -152,11 +152,13 @@ struct StitchOptions {
   SilhouetteSearchOptions search_options;
   double search_unique_ratio = 2.0;
   double search_unique_margin = 0.005;
-  /// A feature estimate refined by the silhouettes when clearly more coherent.
-  /// Off: on the sim at 2016 x 1512 (seed 1) it moved a 0.3 deg feature fit by
-  /// 1.4 deg and the volume error grew (-0.49 -> -0.70 %); the features are
-  /// then only checked.
-  bool refine_features = false;
+  /// A feature estimate the silhouettes accept is refined by them too, and
+  /// replaced when the refinement leaves under 0.9 of its deficit within
+  /// agree_deg / agree_mm of it: a fit of few matches can be a degree off
+  /// (docs/validation.md) where sound masks pin the motion down; with masks
+  /// as poor as the fit, no motion is clearly better and the fit is kept.
+  /// Off: the features are only checked.
+  bool refine_features = true;
 };
 
 /// One estimate of the motion moving side -> reference side.
