@@ -24,9 +24,9 @@
 //     the hull keep 0 as data. The search starts outside_mm outside the hull,
 //     so that a peak at or near the hull gets its sub-step position, noise
 //     included on both sides: clamping each vertex's data at the hull would
-//     bias the surface outward. A deep peak under a strongly convex part of
-//     the hull is taken for a glossy stone's highlight, not the surface
-//     (highlight_depth_ratio), and gives no data.
+//     bias the surface outward. With highlight_depth_ratio, a deep peak
+//     under a strongly convex part of the hull is taken for a glossy stone's
+//     highlight, not the surface, and gives no data.
 //  4. The displacement field is regularised: a data-weighted Laplacian
 //     smoothing fills in vertices without data from their neighbours and
 //     smooths the rest; data farther than outlier_mm from that field are
@@ -117,11 +117,12 @@ struct PhotoRefineOptions {
   // and patches that match it across views find a depth R/2 to R inside
   // (R when the light is at the camera). A peak deeper than
   // highlight_depth_ratio x R, R = 1 / the hull's largest convex curvature
-  // over highlight_reach_mm, is therefore no data (0: off). Real hollows lie
-  // under flat or gently curved hull (a hull spans a hollow), where R is
-  // large; docs/validation.md has what it changed on wet Blender stones and
-  // what it cost on matte ones.
-  double highlight_depth_ratio = 0.3;
+  // over highlight_reach_mm, is then no data (0: off). Off by default: most
+  // hollows lie under flat or gently curved hull, where R is large, but a
+  // scanned stone's hollow under a sharp hull edge is refused too, and on
+  // matte stones that cost more volume than wet ones gained
+  // (docs/validation.md; 0.3 suits glossy stones).
+  double highlight_depth_ratio = 0.0;
   double highlight_reach_mm = 8.0;
   int sample_rings =
       1;  // score one vertex per this many rings (0: every vertex); the rest are filled in

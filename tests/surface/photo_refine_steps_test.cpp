@@ -310,7 +310,10 @@ TEST(PhotoRefineSteps, HullConvexCurvatureIsOneOverTheSmallestConvexRadius) {
   for (auto& v : tight.vertices) v[2] = -(v[0] * v[0] + v[1] * v[1]) / (2 * 3.0);
   EXPECT_NEAR(HullConvexCurvature(MakeSurface(tight), c, 8.0), 1 / 8.0, 1e-9);
 
-  PhotoRefineOptions opts;                              // ratio 0.3
+  PhotoRefineOptions opts;
+  EXPECT_EQ(opts.highlight_depth_ratio, 0.0);  // off unless asked for
+  EXPECT_FALSE(LooksLikeHighlight(8.0, 1 / kR, opts));
+  opts.highlight_depth_ratio = 0.3;
   EXPECT_TRUE(LooksLikeHighlight(8.0, 1 / kR, opts));   // 0.4 R deep under a 20 mm cap
   EXPECT_FALSE(LooksLikeHighlight(5.0, 1 / kR, opts));  // 0.25 R
   EXPECT_FALSE(LooksLikeHighlight(12.0, 0.0, opts));    // under flat hull: a hollow
