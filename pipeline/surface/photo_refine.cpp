@@ -571,9 +571,10 @@ double HullConvexCurvature(const Surface& s, size_t i, double reach_mm) {
   return std::max(0.0, k);
 }
 
-bool LooksLikeHighlight(double depth_mm, double k, const PhotoRefineOptions& opts) {
+bool LooksLikeHighlight(double depth_mm, const std::function<double()>& curvature,
+                        const PhotoRefineOptions& opts) {
   return opts.highlight_depth_ratio > 0 && depth_mm > opts.near_hull_mm &&
-         depth_mm * k > opts.highlight_depth_ratio;
+         depth_mm * curvature() > opts.highlight_depth_ratio;
 }
 
 VertexDepth SearchVertexDepth(const Surface& s, size_t i, const std::vector<PreparedView>& views,
@@ -588,8 +589,10 @@ VertexDepth SearchVertexDepth(const Surface& s, size_t i, const std::vector<Prep
   const std::vector<double> score =
       SearchScores([&](double d) { return scorer.Score(d); }, grid, opts.depth_search_stride);
   out.depth_mm = PickDepth(score, grid, opts);
-  if (out.depth_mm && *out.depth_mm > opts.near_hull_mm && opts.highlight_depth_ratio > 0 &&
-      LooksLikeHighlight(*out.depth_mm, HullConvexCurvature(s, i, opts.highlight_reach_mm), opts)) {
+  if (out.depth_mm &&
+      LooksLikeHighlight(
+          *out.depth_mm, [&] { return HullConvexCurvature(s, i, opts.highlight_reach_mm); },
+          opts)) {
     out.depth_mm.reset();
     out.highlight = true;
   }

@@ -154,9 +154,12 @@ std::optional<double> PickDepth(const std::vector<double>& score, const DepthGri
 /// where the hull is convex in no direction.
 double HullConvexCurvature(const Surface& s, size_t i, double reach_mm);
 
-/// A confident peak this deep, where the hull's largest convex curvature is
-/// k, is a highlight's (PhotoRefineOptions::highlight_depth_ratio).
-bool LooksLikeHighlight(double depth_mm, double k, const PhotoRefineOptions& opts);
+/// A confident peak this deep is a highlight's when deeper than near_hull_mm
+/// and than highlight_depth_ratio / k, k the hull's largest convex curvature
+/// there (PhotoRefineOptions::highlight_depth_ratio; never when 0).
+/// `curvature` is called only when the depth and the options leave it to k.
+bool LooksLikeHighlight(double depth_mm, const std::function<double()>& curvature,
+                        const PhotoRefineOptions& opts);
 
 struct VertexDepth {
   bool had_views = false;          // at least two views to compare

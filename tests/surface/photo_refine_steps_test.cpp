@@ -8,6 +8,7 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <opencv2/imgproc.hpp>
 #include <optional>
 #include <vector>
@@ -310,16 +311,25 @@ TEST(PhotoRefineSteps, HullConvexCurvatureIsOneOverTheSmallestConvexRadius) {
   for (auto& v : tight.vertices) v[2] = -(v[0] * v[0] + v[1] * v[1]) / (2 * 3.0);
   EXPECT_NEAR(HullConvexCurvature(MakeSurface(tight), c, 8.0), 1 / 8.0, 1e-9);
 
+  // The curvature is asked for only when the depth and the options leave
+  // the verdict to it (it fits a quadric).
+  int asked = 0;
+  auto k = [&](double v) {
+    return std::function<double()>([&asked, v] {
+      ++asked;
+      return v;
+    });
+  };
   PhotoRefineOptions opts;
   EXPECT_EQ(opts.highlight_depth_ratio, 0.0);  // off unless asked for
-  EXPECT_FALSE(LooksLikeHighlight(8.0, 1 / kR, opts));
+  EXPECT_FALSE(LooksLikeHighlight(8.0, k(1 / kR), opts));
   opts.highlight_depth_ratio = 0.3;
-  EXPECT_TRUE(LooksLikeHighlight(8.0, 1 / kR, opts));   // 0.4 R deep under a 20 mm cap
-  EXPECT_FALSE(LooksLikeHighlight(5.0, 1 / kR, opts));  // 0.25 R
-  EXPECT_FALSE(LooksLikeHighlight(12.0, 0.0, opts));    // under flat hull: a hollow
-  EXPECT_FALSE(LooksLikeHighlight(0.4, 1.0, opts));     // a near-hull peak is never one
-  opts.highlight_depth_ratio = 0;
-  EXPECT_FALSE(LooksLikeHighlight(8.0, 1 / kR, opts));  // off
+  EXPECT_FALSE(LooksLikeHighlight(0.4, k(1.0), opts));  // a near-hull peak is never one
+  EXPECT_EQ(asked, 0);
+  EXPECT_TRUE(LooksLikeHighlight(8.0, k(1 / kR), opts));   // 0.4 R deep under a 20 mm cap
+  EXPECT_FALSE(LooksLikeHighlight(5.0, k(1 / kR), opts));  // 0.25 R
+  EXPECT_FALSE(LooksLikeHighlight(12.0, k(0.0), opts));    // under flat hull: a hollow
+  EXPECT_EQ(asked, 3);
   opts.highlight_depth_ratio = -0.1;
   EXPECT_FALSE(opts.Check().empty());
 }
